@@ -1,0 +1,133 @@
+"""The ``pipeline`` command line.
+
+Exit codes: 0 success; 2 bad configuration or usage; 3 bad or unusable input
+data; 1 internal error.  Errors a user can cause print one sentence and no
+traceback; an internal error prints its traceback only with ``-v``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import traceback
+from pathlib import Path
+
+from pipeline import __version__
+from pipeline.config import load_config
+from pipeline.errors import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
+from pipeline.log import LOGGER_NAME, setup_logging
+from pipeline.plugin import load_plugin
+from pipeline.runner import build_plan, run
+from pipeline.stage import Plugin, config_model
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that exits 2 with one line (its default is the same code)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n")
+
+
+def _add_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", type=Path, help="YAML configuration file")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a configuration value, e.g. stages.rasterize.resolution=0.5 (repeatable)",
+    )
+
+
+def _add_log_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--log-format", choices=["text", "json"], default="text", help="log line format (default text)")
+    p.add_argument("-q", "--quiet", action="count", default=0, help="only warnings and errors")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more detail (debug)")
+
+
+def build_parser(plugin: Plugin) -> argparse.ArgumentParser:
+    parser = _Parser(prog="pipeline", description="Staged, cached processing from raw logs to products.")
+    parser.add_argument("--version", action="version", version=f"pipeline {__version__} ({plugin.name})")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("run", help="run the stages of a configuration, reusing cached results")
+    _add_config_args(p)
+    p.add_argument("--until", metavar="STAGE", help="stop after this stage (runs only what it needs)")
+    p.add_argument("--force", metavar="STAGE", action="append", default=[], help="re-run this stage (repeatable)")
+    p.add_argument("--dry-run", action="store_true", help="print the plan and cache hits; run nothing")
+    _add_log_args(p)
+
+    p = sub.add_parser("validate", help="check a configuration, its input files and its stage graph")
+    _add_config_args(p)
+    _add_log_args(p)
+
+    p = sub.add_parser("schema", help="print the JSON Schema of the configuration (for editors)")
+    _add_log_args(p)
+
+    for command in plugin.commands:
+        p = sub.add_parser(command.name, help=command.help)
+        command.add_arguments(p)
+        if not any(a.dest == "log_format" for a in p._actions):
+            _add_log_args(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    verbose = "-v" in argv or "--verbose" in argv
+    try:
+        plugin = load_plugin()
+        parser = build_parser(plugin)
+        args = parser.parse_args(argv)
+        setup_logging(args.log_format, -1 if args.quiet else args.verbose)
+        if args.command == "run":
+            return _cmd_run(args, plugin)
+        if args.command == "validate":
+            return _cmd_validate(args, plugin)
+        if args.command == "schema":
+            print(json.dumps(config_model(plugin).model_json_schema(), indent=2))
+            return EXIT_OK
+        command = next(c for c in plugin.commands if c.name == args.command)
+        return command.run(args)
+    except PipelineError as exc:
+        print(f"pipeline: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("pipeline: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an internal error: a bug, not the user's
+        if verbose:
+            traceback.print_exc()
+        print(
+            f"pipeline: internal error: {type(exc).__name__}: {exc} (run with -v for the traceback; please report it)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
+
+
+def _cmd_validate(args: argparse.Namespace, plugin: Plugin) -> int:
+    config = load_config(args.config, config_model(plugin), args.overrides)
+    plan = build_plan(config, plugin)
+    names = " -> ".join(s.name for s in plan.steps)
+    print(f"{args.config}: valid; stages: {names}")
+    return EXIT_OK
+
+
+def _cmd_run(args: argparse.Namespace, plugin: Plugin) -> int:
+    config = load_config(args.config, config_model(plugin), args.overrides)
+    manifest = run(
+        config, plugin, config_path=args.config.resolve(), until=args.until, force=args.force, dry_run=args.dry_run
+    )
+    if args.dry_run:
+        width = max((len(s["name"]) for s in manifest["stages"]), default=5)
+        print(f"{'stage':<{width}}  status          key")
+        for s in manifest["stages"]:
+            key = s.get("key", "")[:12]
+            print(f"{s['name']:<{width}}  {s['status']:<14}  {key}")
+        return EXIT_OK
+    summary = ", ".join(f"{s['name']} {s['status']}" for s in manifest["stages"])
+    logging.getLogger(LOGGER_NAME).info("%s", summary)
+    return EXIT_OK

@@ -1,0 +1,315 @@
+"""YAML configuration: safe loading with line numbers, overrides, validation.
+
+The configuration file is parsed with PyYAML's *safe* loader only.  While it is
+read, the line of every key is recorded, so that a validation error can name
+the file, the line and the dotted key ("flight.yaml, line 12:
+stages.rasterize.resolution: ...").  Values given on the command line with
+``--set dotted.key=value`` are merged on top and named as such in errors.
+
+Relative paths in a configuration are resolved against the folder of the
+configuration file, never against the current working directory.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+import types
+import typing
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import yaml
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+)
+
+from pipeline.errors import ConfigError
+
+Location = tuple[Union[str, int], ...]
+
+
+class StrictModel(BaseModel):
+    """Base of every configuration model: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid", validate_default=True)
+
+
+def _resolve_path(value: Path, info: ValidationInfo) -> Path:
+    base = (info.context or {}).get("base_dir")
+    path = Path(os.path.expanduser(str(value)))
+    if not path.is_absolute() and base is not None:
+        path = Path(base) / path
+    return Path(os.path.abspath(path))
+
+
+def _must_be_file(value: Path) -> Path:
+    if not value.is_file():
+        raise ValueError(f"file not found: {value}")
+    return value
+
+
+#: A path relative to the configuration file's folder.
+RelPath = Annotated[Path, AfterValidator(_resolve_path)]
+#: A path to an existing file, relative to the configuration file's folder.
+InputFile = Annotated[Path, AfterValidator(_resolve_path), AfterValidator(_must_be_file)]
+
+
+class ExecutorConfig(StrictModel):
+    """Where tasks run: this machine's processes or a Dask cluster."""
+
+    kind: Literal["local", "dask"] = Field("local", description="local processes or a Dask cluster")
+    workers: int = Field(
+        default_factory=lambda: os.cpu_count() or 1,
+        ge=1,
+        description="parallel workers (default: the number of CPU cores)",
+    )
+    address: str | None = Field(
+        None, description="Dask scheduler address, e.g. tcp://host:8786; none = a local cluster"
+    )
+
+
+# --------------------------------------------------------------------------
+# YAML with line numbers
+
+
+def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
+    """Read a YAML file safely and record the line of every key.
+
+    Parameters
+    ----------
+    path : Path
+        The YAML file.
+
+    Returns
+    -------
+    data : Any
+        The document as plain Python values.
+    lines : dict
+        1-based line number of every key and list item, by its location
+        (tuple of keys and indices).
+
+    Raises
+    ------
+    ConfigError
+        When the file cannot be read, is not valid YAML, or repeats a key.
+    """
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found.") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the configuration file ({exc}).") from None
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        data = loader.construct_document(node) if node is not None else {}
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        where = f", line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}{where}: not valid YAML ({exc.problem or exc.context}).") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc}).") from None
+    finally:
+        loader.dispose()
+    lines: dict[Location, int] = {}
+    if node is not None:
+        _record_lines(node, (), lines, path)
+    return data, lines
+
+
+def _record_lines(node: yaml.Node, loc: Location, lines: dict[Location, int], path: Path) -> None:
+    if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
+        for key_node, value_node in node.value:
+            key = key_node.value
+            if key in seen:
+                raise ConfigError(
+                    f"{path}, line {key_node.start_mark.line + 1}: key '{key}' is given twice."
+                )
+            seen.add(key)
+            lines[loc + (key,)] = key_node.start_mark.line + 1
+            _record_lines(value_node, loc + (key,), lines, path)
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            lines[loc + (index,)] = item.start_mark.line + 1
+            _record_lines(item, loc + (index,), lines, path)
+
+
+# --------------------------------------------------------------------------
+# --set overrides
+
+
+def parse_override(text: str) -> tuple[tuple[str, ...], Any]:
+    """Split ``dotted.key=value``; the value is read as a YAML scalar or list."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text}: expected dotted.key=value.")
+    key, _, raw = text.partition("=")
+    parts = tuple(p for p in key.strip().split("."))
+    if not key.strip() or any(not p for p in parts):
+        raise ConfigError(f"--set {text}: the key must be dotted names like stages.rasterize.resolution.")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    return parts, value
+
+
+def apply_overrides(data: dict, overrides: list[str]) -> dict[Location, str]:
+    """Merge ``--set`` overrides into *data* in place; return their locations."""
+    sources: dict[Location, str] = {}
+    for text in overrides:
+        parts, value = parse_override(text)
+        node = data
+        for i, part in enumerate(parts[:-1]):
+            child = node.get(part)
+            if child is None:
+                child = node[part] = {}
+            elif not isinstance(child, dict):
+                where = ".".join(parts[: i + 1])
+                raise ConfigError(f"--set {text}: '{where}' is not a mapping, so it has no key '{parts[i + 1]}'.")
+            node = child
+        node[parts[-1]] = value
+        sources[parts] = f"--set {text}"
+    return sources
+
+
+# --------------------------------------------------------------------------
+# Validation errors in one sentence
+
+
+def _real_location(data: Any, loc: Location) -> tuple[Location, str | None]:
+    """Map a pydantic error location onto keys present in the data.
+
+    Pydantic inserts union tags and validator names into locations; those are
+    skipped.  Returns the deepest location present in *data* and, when the last
+    element names a key that is absent (a missing key), that key.
+    """
+    real: list[Union[str, int]] = []
+    cur = data
+    missing: str | None = None
+    for i, elem in enumerate(loc):
+        if isinstance(cur, dict) and elem in cur:
+            real.append(elem)
+            cur = cur[elem]
+        elif isinstance(cur, list) and isinstance(elem, int) and 0 <= elem < len(cur):
+            real.append(elem)
+            cur = cur[elem]
+        elif i == len(loc) - 1 and isinstance(elem, str) and isinstance(cur, dict):
+            missing = elem
+    return tuple(real), missing
+
+
+def _model_types(annotation: Any) -> list[type[BaseModel]]:
+    """The pydantic models an annotation may hold (through unions and Annotated)."""
+    origin = typing.get_origin(annotation)
+    if origin is Annotated:
+        return _model_types(typing.get_args(annotation)[0])
+    if origin in (Union, types.UnionType):
+        found: list[type[BaseModel]] = []
+        for arg in typing.get_args(annotation):
+            found.extend(_model_types(arg))
+        return found
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return []
+
+
+def _allowed_keys(model: type[BaseModel], loc: Location) -> set[str]:
+    """Field names allowed at *loc* (a location of a mapping) under *model*."""
+    models = [model]
+    for elem in loc:
+        if isinstance(elem, int):
+            continue
+        nxt: list[type[BaseModel]] = []
+        for m in models:
+            field = m.model_fields.get(elem)
+            if field is not None:
+                nxt.extend(_model_types(field.annotation))
+        models = nxt
+    return {name for m in models for name in m.model_fields}
+
+
+def describe_validation_error(
+    exc: ValidationError,
+    data: Any,
+    source: Path,
+    lines: dict[Location, int],
+    overrides: dict[Location, str],
+    model: type[BaseModel],
+) -> str:
+    """Turn the first pydantic error into one sentence with file, line and key."""
+    errors = exc.errors(include_url=False)
+    err = errors[0]
+    loc, missing = _real_location(data, tuple(err["loc"]))
+    key = ".".join(str(p) for p in loc + ((missing,) if missing else ()))
+    # The most specific place: the override that set it, else the line of
+    # the key, else the line of the nearest parent key.
+    where = None
+    for n in range(len(loc), -1, -1):
+        prefix = loc[:n]
+        if prefix in overrides:
+            where = overrides[prefix]
+            break
+        if prefix in lines:
+            where = f"{source}, line {lines[prefix]}"
+            break
+    if where is None:
+        where = f"{source}, line 1"
+    etype = err["type"]
+    msg = str(err["msg"])
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, ") :]
+    if etype == "extra_forbidden":
+        allowed = sorted(_allowed_keys(model, loc[:-1]))
+        close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        msg = f"unknown key{hint}; allowed here: {', '.join(allowed)}"
+    elif etype == "missing":
+        msg = "required key is missing"
+    elif "input" in err and etype != "value_error" and not isinstance(err["input"], (dict, list)):
+        msg = f"{msg} (got {err['input']!r})"
+    more = f" ({len(errors) - 1} more problem{'s' if len(errors) > 2 else ''} after this one)" if len(errors) > 1 else ""
+    return f"{where}: {key or '<top level>'}: {msg}{more}."
+
+
+def load_config(
+    path: Path, model: type[BaseModel], overrides: list[str] | None = None
+) -> BaseModel:
+    """Read, merge overrides into, and validate a configuration file.
+
+    Parameters
+    ----------
+    path : Path
+        YAML configuration file.
+    model : type of BaseModel
+        The configuration model (built by :func:`pipeline.plugin.config_model`).
+    overrides : list of str, optional
+        ``dotted.key=value`` strings from ``--set``.
+
+    Returns
+    -------
+    BaseModel
+        The validated configuration.
+
+    Raises
+    ------
+    ConfigError
+        With one sentence naming the file, line and key of the first problem.
+    """
+    path = Path(path)
+    data, lines = load_yaml(path)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}, line 1: the configuration must be a mapping of keys to values.")
+    sources = apply_overrides(data, list(overrides or []))
+    try:
+        return model.model_validate(data, context={"base_dir": path.parent.resolve()})
+    except ValidationError as exc:
+        raise ConfigError(describe_validation_error(exc, data, path, lines, sources, model)) from None

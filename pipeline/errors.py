@@ -1,0 +1,35 @@
+"""Exceptions of the engine and the exit codes they map to.
+
+Every error a user can cause is a :class:`PipelineError` carrying one sentence
+that names the file, the line or record, and the field.  The command line maps
+them to the documented exit codes and never prints a traceback for them.
+"""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_USAGE = 2
+EXIT_INPUT = 3
+
+
+class PipelineError(Exception):
+    """Root of every error the engine reports without a traceback."""
+
+    exit_code: int = EXIT_INTERNAL
+
+
+class ConfigError(PipelineError):
+    """The configuration or the command line is wrong (exit code 2)."""
+
+    exit_code = EXIT_USAGE
+
+
+class InputDataError(PipelineError):
+    """An input file is malformed or cannot be used (exit code 3)."""
+
+    exit_code = EXIT_INPUT
+
+
+class PlanError(ConfigError):
+    """The enabled stages do not form a runnable graph (exit code 2)."""

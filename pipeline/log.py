@@ -1,0 +1,102 @@
+"""Log lines (text or JSON) and progress bars.
+
+On a terminal, long work shows a progress bar per stage (tqdm, on stderr).
+Otherwise (batch jobs, CI, ``--log-format json``) progress becomes a log line
+at about every tenth of the work, so logs stay readable and bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from typing import Any
+
+LOGGER_NAME = "pipeline"
+
+
+class TextFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
+        stage = getattr(record, "stage", None)
+        where = f" [{stage}]" if stage else ""
+        return f"{stamp} {record.levelname:<7}{where} {record.getMessage()}"
+
+
+class JsonFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        line: dict[str, Any] = {
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created))
+            + f".{int(record.msecs):03d}Z",
+            "level": record.levelname.lower(),
+            "message": record.getMessage(),
+        }
+        for key in ("stage", "event", "fields"):
+            value = getattr(record, key, None)
+            if value is not None:
+                if key == "fields":
+                    line.update(value)
+                else:
+                    line[key] = value
+        return json.dumps(line, default=str)
+
+
+def setup_logging(fmt: str = "text", verbosity: int = 0) -> logging.Logger:
+    """Configure the engine's logger: ``fmt`` text|json, verbosity -1..2."""
+    logger = logging.getLogger(LOGGER_NAME)
+    logger.handlers.clear()
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(JsonFormatter() if fmt == "json" else TextFormatter())
+    logger.addHandler(handler)
+    logger.propagate = False
+    logger.setLevel({-1: logging.WARNING, 0: logging.INFO}.get(verbosity, logging.DEBUG))
+    logger.pipeline_format = fmt  # type: ignore[attr-defined]
+    return logger
+
+
+def stage_logger(stage: str) -> logging.LoggerAdapter:
+    return logging.LoggerAdapter(logging.getLogger(LOGGER_NAME), {"stage": stage})
+
+
+class Progress:
+    """Progress of one piece of work: a bar on a terminal, else log lines."""
+
+    def __init__(self, total: float, desc: str, stage: str, unit: str = "it"):
+        self.total = max(float(total), 0.0)
+        self.done = 0.0
+        self.desc = desc
+        self.unit = unit
+        self.log = stage_logger(stage)
+        self._next_report = 0.1
+        self._bar = None
+        logger = logging.getLogger(LOGGER_NAME)
+        interactive = (
+            sys.stderr.isatty()
+            and getattr(logger, "pipeline_format", "text") == "text"
+            and logger.isEnabledFor(logging.INFO)
+        )
+        if interactive:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=self.total, desc=f"{stage}: {desc}", unit=unit, leave=False, file=sys.stderr)
+
+    def update(self, n: float = 1) -> None:
+        self.done += n
+        if self._bar is not None:
+            self._bar.update(n)
+        elif self.total and self.done / self.total >= self._next_report and self.done < self.total:
+            self.log.info("%s: %d%%", self.desc, int(100 * self.done / self.total))
+            while self._next_report <= self.done / self.total:
+                self._next_report += 0.1
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,380 @@
+"""Plan and run the stage graph.
+
+Planning happens entirely before any stage runs: every stage's parameters are
+validated (by the configuration model), the enabled stages are ordered from
+their declared inputs, and every input must be produced by an enabled stage
+(or passed on by a disabled one).  Then each stage runs, or is taken from the
+cache when its key matches a complete entry.  Products are copied from the
+cache into the output folder atomically, and ``run.json`` records what
+happened.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from pipeline import __version__
+from pipeline.cache import Cache, Entry, atomic_copy, atomic_write_text, hash_path, hash_value, path_size
+from pipeline.errors import ConfigError, PipelineError, PlanError
+from pipeline.log import LOGGER_NAME, Progress, stage_logger
+from pipeline.stage import Plugin, Stage, StageIO, get_dotted
+
+MANIFEST = "run.json"
+
+
+@dataclass
+class Step:
+    """One stage of a plan with its parameters and artifacts."""
+
+    stage: Stage
+    params: BaseModel
+    io: StageIO
+    enabled: bool
+    order: int
+    note: str = ""
+
+    @property
+    def name(self) -> str:
+        return self.stage.name
+
+
+@dataclass
+class Plan:
+    """The ordered enabled steps and how every artifact is resolved."""
+
+    steps: list[Step]
+    skipped: list[Step]
+    producer: dict[str, Step]
+    aliases: dict[str, str]
+
+    def resolve(self, artifact: str) -> str:
+        """The artifact that actually stands for *artifact* (through disabled stages)."""
+        seen = set()
+        while artifact not in self.producer and artifact in self.aliases and artifact not in seen:
+            seen.add(artifact)
+            artifact = self.aliases[artifact]
+        return artifact
+
+
+@dataclass
+class StageContext:
+    """What a stage's ``run`` receives.
+
+    Attributes
+    ----------
+    inputs : dict
+        Artifact name -> path of the file (or folder) to read.
+    outputs : dict
+        Artifact name -> path to write (inside a private workspace).
+    metrics : dict
+        JSON-serialisable figures the stage wants in the manifest and report;
+        they are cached with the outputs.
+    """
+
+    name: str
+    params: BaseModel
+    config: BaseModel
+    inputs: dict[str, Path]
+    outputs: dict[str, Path]
+    workdir: Path
+    workers: int
+    log: logging.LoggerAdapter
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    def progress(self, total: float, desc: str, unit: str = "it") -> Progress:
+        """A progress reporter for *total* units of work."""
+        return Progress(total, desc, self.name, unit)
+
+
+def build_plan(
+    config: BaseModel, plugin: Plugin, until: str | None = None, force: Iterable[str] = ()
+) -> Plan:
+    """Order the enabled stages and check that every input has a producer.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown stage name in ``until`` or ``force``.
+    PlanError
+        When two enabled stages write the same artifact, a stage's input is
+        produced by no enabled stage, or the graph has a cycle.
+    """
+    names = [s.name for s in plugin.stages]
+    for name in ([until] if until else []) + list(force):
+        if name not in names:
+            raise ConfigError(f"unknown stage '{name}'; stages are: {', '.join(names)}.")
+    active: list[Step] = []
+    skipped: list[Step] = []
+    for order, cls in enumerate(plugin.stages):
+        stage = cls()
+        params = get_dotted(config, cls.params_path())
+        enabled = stage.is_enabled(params, config)
+        step = Step(stage, params, stage.declare(params, config), enabled, order)
+        if enabled:
+            active.append(step)
+        else:
+            step.note = "disabled" if getattr(params, "enabled", True) is False else "not applicable"
+            skipped.append(step)
+    producer: dict[str, Step] = {}
+    for step in active:
+        for artifact in step.io.outputs:
+            if artifact in producer:
+                raise PlanError(
+                    f"stages '{producer[artifact].name}' and '{step.name}' both write '{artifact}'; disable one."
+                )
+            producer[artifact] = step
+    aliases = {out: src for step in skipped for out, src in step.stage.passthrough.items()}
+    plan = Plan([], skipped, producer, aliases)
+    for step in active:
+        for artifact in step.io.inputs:
+            if plan.resolve(artifact) not in producer:
+                could = [s.name for s in skipped if artifact in s.io.outputs]
+                hint = f" (enable '{could[0]}' or disable '{step.name}')" if could else ""
+                raise PlanError(f"stage '{step.name}' needs '{artifact}', which no enabled stage produces{hint}.")
+    # Kahn's algorithm, ties broken by the plugin's natural order.
+    deps = {s.name: {producer[plan.resolve(a)].name for a in s.io.inputs} for s in active}
+    by_name = {s.name: s for s in active}
+    ordered: list[Step] = []
+    done: set[str] = set()
+    while len(ordered) < len(active):
+        ready = [s for s in active if s.name not in done and deps[s.name] <= done]
+        if not ready:
+            cycle = sorted(set(by_name) - done)
+            raise PlanError(f"the stages {', '.join(cycle)} depend on each other in a cycle.")
+        nxt = min(ready, key=lambda s: s.order)
+        ordered.append(nxt)
+        done.add(nxt.name)
+    if until:
+        if until not in by_name:
+            raise ConfigError(f"--until {until}: that stage is disabled in this configuration.")
+        keep = {until}
+        frontier = [until]
+        while frontier:
+            for dep in deps[frontier.pop()]:
+                if dep not in keep:
+                    keep.add(dep)
+                    frontier.append(dep)
+        for step in ordered:
+            if step.name not in keep:
+                step.note = f"after --until {until}"
+                skipped.append(step)
+        ordered = [s for s in ordered if s.name in keep]
+    for name in force:
+        if name not in {s.name for s in ordered}:
+            raise ConfigError(f"--force {name}: that stage does not run in this plan.")
+    plan.steps = ordered
+    return plan
+
+
+def cache_root(config: BaseModel) -> Path:
+    cache = getattr(config, "cache", None)
+    return Path(cache) if cache else Path(config.output) / ".cache"
+
+
+def _stage_key(step: Step, config: BaseModel, input_hashes: dict[str, str], files: dict[str, str]) -> str:
+    params = step.params.model_dump(mode="json", exclude={"enabled"}) if step.params is not None else None
+    material = {
+        "stage": step.name,
+        "version": step.stage.version,
+        "params": params,
+        "config": {k: _dump(get_dotted(config, k)) for k in step.stage.config_keys},
+        "inputs": input_hashes,
+        "files": files,
+    }
+    return hash_value(material)
+
+
+def _dump(value: Any) -> Any:
+    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
+
+
+def run(
+    config: BaseModel,
+    plugin: Plugin,
+    *,
+    config_path: Path | None = None,
+    until: str | None = None,
+    force: Iterable[str] = (),
+    dry_run: bool = False,
+) -> dict[str, Any]:
+    """Run (or, with ``dry_run``, only plan) a validated configuration.
+
+    Returns
+    -------
+    dict
+        The manifest, also written to ``<output>/run.json`` unless dry-running.
+        In a dry run each stage's ``status`` is ``cached``, ``run`` or
+        ``run (upstream)`` (its key depends on outputs not yet computed).
+    """
+    log = logging.getLogger(LOGGER_NAME)
+    force = set(force)
+    plan = build_plan(config, plugin, until, force)
+    cache = Cache(cache_root(config))
+    output = Path(config.output)
+    started = time.time()
+    manifest: dict[str, Any] = {
+        "tool": plugin.name,
+        "version": __version__,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "libraries": plugin.versions(),
+        "config": {
+            "path": str(config_path) if config_path else None,
+            "sha256": hash_value(config.model_dump(mode="json")),
+        },
+        "started": _utc(started),
+        "status": "running",
+        "stages": [],
+        "inputs": {},
+        "products": {},
+    }
+    artifacts: dict[str, tuple[Path, str]] = {}
+    unknown: set[str] = set()  # dry run: artifacts whose content is not known yet
+    records: dict[str, dict[str, Any]] = {}
+    try:
+        for step in plan.steps:
+            record = _run_step(step, plan, config, cache, artifacts, unknown, force, dry_run, manifest)
+            records[step.name] = record
+        for step in plan.skipped:
+            records[step.name] = {"name": step.name, "status": step.note or "disabled"}
+        manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]
+        if dry_run:
+            return manifest
+        for step in plan.steps:
+            for artifact, file_name in step.io.products.items():
+                src, digest = artifacts[artifact]
+                dst = output / file_name
+                if not (dst.exists() and path_size(dst) == path_size(src) and hash_path(dst) == digest):
+                    atomic_copy(src, dst)
+                manifest["products"][file_name] = {"sha256": digest, "bytes": path_size(dst)}
+        manifest["status"] = "ok"
+        return manifest
+    except PipelineError as exc:
+        manifest["status"] = "failed"
+        manifest["error"] = str(exc)
+        raise
+    except Exception as exc:
+        manifest["status"] = "failed"
+        manifest["error"] = f"internal error: {type(exc).__name__}: {exc}"
+        raise
+    finally:
+        if not dry_run:
+            finished = time.time()
+            manifest["finished"] = _utc(finished)
+            manifest["seconds"] = round(finished - started, 3)
+            if not manifest["stages"]:
+                manifest["stages"] = list(records.values())
+            import json
+
+            atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
+            log.info("run %s in %.2f s; manifest %s", manifest["status"], finished - started, output / MANIFEST)
+
+
+def _run_step(
+    step: Step,
+    plan: Plan,
+    config: BaseModel,
+    cache: Cache,
+    artifacts: dict[str, tuple[Path, str]],
+    unknown: set[str],
+    force: set[str],
+    dry_run: bool,
+    manifest: dict[str, Any],
+) -> dict[str, Any]:
+    slog = stage_logger(step.name)
+    resolved = {name: plan.resolve(name) for name in step.io.inputs}
+    record: dict[str, Any] = {"name": step.name, "version": step.stage.version}
+    if any(r in unknown for r in resolved.values()):
+        unknown.update(step.io.outputs)
+        record["status"] = "run (upstream)"
+        return record
+    files = {}
+    for path in step.stage.external_files(step.params, config):
+        if not Path(path).is_file():
+            raise ConfigError(f"stage '{step.name}': input file not found: {path}.")
+        files[str(path)] = hash_path(path)
+    manifest["inputs"].update(files)
+    input_hashes = {name: artifacts[r][1] for name, r in resolved.items()}
+    key = _stage_key(step, config, input_hashes, files)
+    record.update(key=key, inputs=input_hashes)
+    entry = None if step.name in force else cache.lookup(step.name, key)
+    if dry_run:
+        if entry is None:
+            unknown.update(step.io.outputs)
+            record["status"] = "run"
+        else:
+            _remember(entry, step, artifacts)
+            record["status"] = "cached"
+        return record
+    if entry is not None:
+        slog.info("cache hit (key %s)", key[:12])
+        record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
+    else:
+        entry = _execute(step, config, cache, key, {n: artifacts[r][0] for n, r in resolved.items()}, input_hashes, slog)
+        record.update(status="ran", seconds=entry.meta["seconds"])
+    _remember(entry, step, artifacts)
+    record["outputs"] = {
+        a: {"file": str(entry.output_path(a)), "sha256": o["sha256"], "bytes": o["bytes"]}
+        for a, o in entry.meta["outputs"].items()
+    }
+    record["metrics"] = entry.meta.get("metrics", {})
+    return record
+
+
+def _remember(entry: Entry, step: Step, artifacts: dict[str, tuple[Path, str]]) -> None:
+    for artifact in step.io.outputs:
+        artifacts[artifact] = (entry.output_path(artifact), entry.output_hash(artifact))
+
+
+def _execute(
+    step: Step,
+    config: BaseModel,
+    cache: Cache,
+    key: str,
+    inputs: dict[str, Path],
+    input_hashes: dict[str, str],
+    slog: logging.LoggerAdapter,
+) -> Entry:
+    workspace = cache.new_workspace(step.name)
+    ctx = StageContext(
+        name=step.name,
+        params=step.params,
+        config=config,
+        inputs=inputs,
+        outputs={a: workspace / f for a, f in step.io.outputs.items()},
+        workdir=workspace,
+        workers=getattr(getattr(config, "executor", None), "workers", 1),
+        log=slog,
+    )
+    slog.info("running")
+    t0 = time.perf_counter()
+    try:
+        step.stage.run(ctx)
+        seconds = round(time.perf_counter() - t0, 3)
+        meta = {
+            "stage": step.name,
+            "version": step.stage.version,
+            "params": step.params.model_dump(mode="json") if step.params is not None else None,
+            "inputs": input_hashes,
+            "outputs": dict(step.io.outputs),
+            "metrics": ctx.metrics,
+            "seconds": seconds,
+        }
+        entry = cache.commit(step.name, key, workspace, meta)
+    except BaseException:
+        Cache.discard(workspace)
+        raise
+    slog.info("done in %.2f s", seconds)
+    return entry
+
+
+def _utc(t: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))

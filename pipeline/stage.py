@@ -1,0 +1,179 @@
+"""The stage contract and the plugin that registers stages.
+
+A stage declares, in one place:
+
+- ``name`` and ``version`` (bump the version when its output changes for the
+  same inputs and parameters: the version is part of the cache key);
+- ``Params``, a typed model of its parameters (read from ``stages.<name>`` in
+  the configuration, or from ``config_path``);
+- ``inputs``, the artifact names it reads, and ``outputs``, the artifact
+  names it writes with their file names;
+- ``products``: outputs that are published to the output folder;
+- ``passthrough``: when the stage is disabled, which of its inputs stands in
+  for each of its outputs (a filter that is switched off passes its input on);
+- ``config_keys``: other configuration values that change its result, so that
+  they enter the cache key.
+
+The engine knows nothing else about a stage: it orders stages by their
+declared inputs, checks the graph before running anything, and calls
+:meth:`Stage.run` with a :class:`~pipeline.runner.StageContext`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from pydantic import BaseModel, Field, create_model
+
+from pipeline.config import ExecutorConfig, RelPath, StrictModel
+
+if TYPE_CHECKING:
+    from pipeline.runner import StageContext
+
+
+class StageParams(StrictModel):
+    """Base of the parameters of every stage that can be switched off."""
+
+    enabled: bool = Field(True, description="run this stage; when false its input is passed on")
+
+
+@dataclass(frozen=True)
+class StageIO:
+    """The artifacts a stage reads and writes under a given configuration."""
+
+    inputs: tuple[str, ...] = ()
+    outputs: dict[str, str] = field(default_factory=dict)
+    products: dict[str, str] = field(default_factory=dict)
+
+
+class Stage:
+    """Base class of a stage.  Subclasses set the class attributes and ``run``."""
+
+    name: ClassVar[str]
+    version: ClassVar[str] = "1"
+    Params: ClassVar[type[BaseModel]] = StageParams
+    config_path: ClassVar[str | None] = None
+    can_disable: ClassVar[bool] = True
+    inputs: ClassVar[tuple[str, ...]] = ()
+    outputs: ClassVar[dict[str, str]] = {}
+    products: ClassVar[dict[str, str]] = {}
+    passthrough: ClassVar[dict[str, str]] = {}
+    config_keys: ClassVar[tuple[str, ...]] = ()
+    description: ClassVar[str] = ""
+
+    @classmethod
+    def params_path(cls) -> str:
+        """Dotted location of this stage's parameters in the configuration."""
+        return cls.config_path or f"stages.{cls.name}"
+
+    def is_enabled(self, params: BaseModel, config: BaseModel) -> bool:
+        """Whether the stage runs under this configuration."""
+        return bool(getattr(params, "enabled", True))
+
+    def declare(self, params: BaseModel, config: BaseModel) -> StageIO:
+        """The stage's artifacts under this configuration (default: the class attributes)."""
+        return StageIO(tuple(self.inputs), dict(self.outputs), dict(self.products))
+
+    def external_files(self, params: BaseModel, config: BaseModel) -> list[Path]:
+        """Files outside the cache that the stage reads (their content enters the key)."""
+        return []
+
+    def run(self, ctx: StageContext) -> None:  # pragma: no cover - interface
+        """Do the work: read ``ctx.inputs``, write every path in ``ctx.outputs``."""
+        raise NotImplementedError
+
+
+@dataclass
+class Command:
+    """An extra sub-command a plugin adds to the ``pipeline`` command line."""
+
+    name: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+
+
+@dataclass
+class Plugin:
+    """What a domain package gives the engine.
+
+    Attributes
+    ----------
+    name : str
+        Shown in ``--version`` and the manifest.
+    stages : list of Stage subclasses
+        In their natural order (used to break ties when ordering the graph).
+    global_fields : dict
+        Extra top-level configuration keys: name -> (annotation, default or
+        ``...`` for required), as for :func:`pydantic.create_model`.
+    commands : list of Command
+        Extra sub-commands.
+    versions : callable
+        Returns ``{package: version}`` of the libraries that shape results,
+        recorded in the run manifest.
+    """
+
+    name: str
+    stages: list[type[Stage]]
+    global_fields: dict[str, tuple[Any, Any]] = field(default_factory=dict)
+    commands: list[Command] = field(default_factory=list)
+    versions: Callable[[], dict[str, str]] = dict
+
+    def stage(self, name: str) -> type[Stage]:
+        for stage in self.stages:
+            if stage.name == name:
+                return stage
+        raise KeyError(name)
+
+
+def config_model(plugin: Plugin) -> type[BaseModel]:
+    """Build the configuration model of a plugin's stages.
+
+    The top level has ``name``, ``output``, ``cache``, ``executor``, the
+    plugin's global fields, ``stages`` (one block per stage whose parameters
+    live under ``stages.``) and any stage parameters placed elsewhere by
+    ``config_path`` (for example ``input``).
+    """
+    stage_fields: dict[str, Any] = {}
+    top_fields: dict[str, Any] = {}
+    for stage in plugin.stages:
+        path = stage.params_path().split(".")
+        has_defaults = _all_defaults(stage.Params)
+        default: Any = Field(default_factory=stage.Params) if has_defaults else ...
+        if path[0] == "stages" and len(path) == 2:
+            stage_fields[path[1]] = (stage.Params, default)
+        elif len(path) == 1:
+            top_fields[path[0]] = (stage.Params, default)
+        else:
+            raise ValueError(f"stage {stage.name}: config_path must be one key or stages.<key>")
+    stages_model = create_model("Stages", __base__=StrictModel, **stage_fields)
+    fields: dict[str, Any] = {
+        "name": (str | None, Field(None, description="name of the job (default: the config file's name)")),
+        "output": (RelPath, Field(..., description="folder for products, relative to the config file")),
+        "cache": (
+            RelPath | None,
+            Field(None, description="cache folder, relative to the config file (default: <output>/.cache)"),
+        ),
+        "executor": (ExecutorConfig, Field(default_factory=ExecutorConfig)),
+        **plugin.global_fields,
+        **top_fields,
+        "stages": (stages_model, Field(default_factory=stages_model)),
+    }
+    return create_model("Config", __base__=StrictModel, **fields)
+
+
+def _all_defaults(model: type[BaseModel]) -> bool:
+    return all(not f.is_required() for f in model.model_fields.values())
+
+
+def get_dotted(obj: Any, dotted: str) -> Any:
+    """``get_dotted(config, "stages.rasterize")`` -> that block (None if absent)."""
+    for part in dotted.split("."):
+        if obj is None:
+            return None
+        obj = obj.get(part) if isinstance(obj, dict) else getattr(obj, part, None)
+    return obj

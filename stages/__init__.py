@@ -1,0 +1,52 @@
+"""The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
+
+Stage order (the natural order of the graph):
+parse -> classify_ground -> rasterize, export_las.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from pipeline.stage import Plugin
+from stages.classify import ClassifyGround
+from stages.export import ExportLas
+from stages.parse import Parse, _check_crs
+from stages.rasterize import Rasterize
+
+
+def _versions() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in ("numpy", "scipy", "laspy", "lazrs", "rasterio", "pyproj", "pydantic"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            pass
+    try:
+        import rasterio
+
+        out["gdal"] = rasterio.__gdal_version__
+    except ImportError:
+        pass
+    return out
+
+
+def _crs_field():
+    from typing import Annotated
+
+    from pydantic import AfterValidator
+
+    return (
+        Annotated[str, AfterValidator(_check_crs)],
+        Field("auto-utm", description="output CRS: auto-utm (WGS 84 / UTM zone of the data) or e.g. EPSG:25830"),
+    )
+
+
+plugin = Plugin(
+    name="dtm-pipeline",
+    stages=[Parse, ClassifyGround, Rasterize, ExportLas],
+    global_fields={"crs": _crs_field()},
+    versions=_versions,
+)

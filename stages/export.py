@@ -1,0 +1,51 @@
+"""Stage ``export_las``: the classified point cloud as ``points.laz`` (or ``.las``).
+
+LAS 1.4, point format 6, ASPRS classes, ``point_source_id`` = flight strip,
+GPS time, the CRS as WKT.  Copied in chunks, so memory does not grow with the
+survey.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from pydantic import Field
+
+from pipeline.stage import Stage, StageIO, StageParams
+
+
+class ExportLasParams(StageParams):
+    compress: bool = Field(True, description="write LAZ (points.laz); false writes LAS (points.las)")
+    chunk_size: int = Field(1_000_000, ge=1000, description="points copied at a time")
+
+
+class ExportLas(Stage):
+    name = "export_las"
+    version = "1"
+    Params = ExportLasParams
+    description = "classified points to points.laz"
+    inputs = ("points_classified",)
+    outputs: ClassVar = {"points_export": "points.laz"}
+    products: ClassVar = {"points_export": "points.laz"}
+
+    def declare(self, params, config) -> StageIO:
+        name = "points.laz" if params.compress else "points.las"
+        return StageIO(self.inputs, {"points_export": name}, {"points_export": name})
+
+    def run(self, ctx) -> None:
+        import laspy
+
+        src_path = ctx.inputs["points_classified"]
+        dst_path = ctx.outputs["points_export"]
+        backend = laspy.LazBackend.Lazrs if ctx.params.compress else None
+        with laspy.open(str(src_path)) as reader:
+            header = reader.header
+            with (
+                laspy.open(str(dst_path), mode="w", header=header, do_compress=ctx.params.compress, laz_backend=backend)
+                as writer,
+                ctx.progress(header.point_count, "writing", unit="pt") as bar,
+            ):
+                for chunk in reader.chunk_iterator(ctx.params.chunk_size):
+                    writer.write_points(chunk)
+                    bar.update(len(chunk))
+            ctx.metrics.update(points=int(header.point_count), compressed=ctx.params.compress)

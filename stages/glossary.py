@@ -1,0 +1,45 @@
+"""One glossary of parameter names, shared by every stage.
+
+A parameter that means the same thing in two stages has the same name, unit
+and description in both; it is defined here once.  Linear quantities are in
+the linear unit of the output CRS (metres: the pipeline refuses CRSs in other
+units for now, so "metres" is exact).  The table in docs/GLOSSARY.md lists
+them with their defaults.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field
+
+#: ASPRS classification codes (LAS 1.4 R15, Table 17) used by the pipeline.
+UNCLASSIFIED = 1
+GROUND = 2
+LOW_NOISE = 7
+HIGH_NOISE = 18
+
+
+def cell_size(default: float) -> Any:
+    """Side of the square cells of an algorithm's internal grid (m)."""
+    return Field(default, gt=0, description="side of the algorithm's internal grid cells, metres")
+
+
+def resolution(default: float) -> Any:
+    """Side of the square cells of a product raster (m)."""
+    return Field(default, gt=0, description="side of the product raster's cells, metres")
+
+
+def slope(default: float) -> Any:
+    """Terrain slope as rise over run (dimensionless; 1.0 = 45 degrees)."""
+    return Field(default, ge=0, description="terrain slope, rise over run (1.0 = 45 degrees)")
+
+
+def max_window_size(default: float) -> Any:
+    """Largest morphological window (m): larger than the widest building."""
+    return Field(default, gt=0, description="largest morphological window, metres (wider than the widest building)")
+
+
+def nodata_distance(default: float) -> Any:
+    """Cells farther than this from every input point are nodata (m)."""
+    return Field(default, gt=0, description="cells farther than this from any point are nodata, metres")

@@ -1,0 +1,100 @@
+"""Reading and writing the artifacts that travel between stages.
+
+- Point clouds between stages are uncompressed LAS 1.4, point format 6, with
+  the CRS as a WKT VLR: an open format any LiDAR viewer opens, so every cached
+  intermediate can be inspected; uncompressed because it is read and written
+  several times per run and LAZ costs about ten times more CPU.
+- Rasters are Cloud Optimized GeoTIFF (float32, internal 256-pixel tiles,
+  DEFLATE with the floating-point predictor, overviews, explicit nodata).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+#: Point format of every point cloud the pipeline writes (LAS 1.4).
+POINT_FORMAT = 6
+#: Nodata value of every float raster (documented in docs/PRODUCTS.md).
+NODATA = -9999.0
+#: Internal tile size of the Cloud Optimized GeoTIFFs.
+COG_BLOCKSIZE = 256
+
+
+def read_cloud(path: Path):
+    """Read a whole LAS/LAZ file into a :class:`laspy.LasData`."""
+    import laspy
+
+    return laspy.read(path)
+
+
+def write_cloud(las, path: Path, *, compress: bool = False) -> None:
+    """Write a :class:`laspy.LasData` (LAZ when *compress*, through lazrs)."""
+    import laspy
+
+    las.update_header()
+    backend = laspy.LazBackend.Lazrs if compress else None
+    las.write(str(path), do_compress=compress, laz_backend=backend)
+
+
+def xyz(las) -> np.ndarray:
+    """The scaled coordinates of a LasData as an (n, 3) float64 array."""
+    return np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))
+
+
+def cloud_crs(las):
+    """The pyproj CRS of a LasData, or None when its header has none."""
+    try:
+        return las.header.parse_crs()
+    except Exception:  # laspy raises various errors for malformed GeoTIFF keys
+        return None
+
+
+def write_cog(path: Path, array: np.ndarray, *, transform, crs, nodata: float = NODATA) -> None:
+    """Write a single-band float32 Cloud Optimized GeoTIFF.
+
+    Parameters
+    ----------
+    path : Path
+        Destination file.
+    array : ndarray, shape (rows, cols)
+        Values, with *nodata* (not NaN) in empty cells.
+    transform : affine.Affine
+        Pixel-to-map transform (north-up).
+    crs : pyproj.CRS or str
+        Coordinate reference system, written as WKT.
+    nodata : float
+        The nodata value recorded in the file.
+    """
+    import rasterio
+    import rasterio.shutil
+    from rasterio.io import MemoryFile
+
+    data = np.asarray(array, dtype=np.float32)
+    rows, cols = data.shape
+    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
+    with MemoryFile() as mem:
+        with mem.open(
+            driver="GTiff",
+            width=cols,
+            height=rows,
+            count=1,
+            dtype="float32",
+            crs=rasterio.crs.CRS.from_wkt(wkt),
+            transform=transform,
+            nodata=nodata,
+        ) as ds:
+            ds.write(data, 1)
+        with mem.open() as src:
+            rasterio.shutil.copy(
+                src,
+                str(path),
+                driver="COG",
+                COMPRESS="DEFLATE",
+                PREDICTOR="YES",
+                BLOCKSIZE=str(COG_BLOCKSIZE),
+                OVERVIEW_RESAMPLING="AVERAGE",
+                BIGTIFF="IF_SAFER",
+                NUM_THREADS="ALL_CPUS",
+            )

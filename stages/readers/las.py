@@ -1,0 +1,184 @@
+"""Format 3.D: already georeferenced LAS/LAZ (LAS 1.2 to 1.4, any point format).
+
+Files are read in chunks and normalised to LAS 1.4 point format 6 in the
+output CRS.  Attributes kept: coordinates, intensity, return number and count,
+classification, scan angle, user data, point source id (the flight strip),
+GPS time, and the synthetic/key-point/withheld flags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputDataError
+from stages.io import POINT_FORMAT
+
+#: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
+SCAN_ANGLE_UNIT_DEG = 0.006
+_COPIED = (
+    "intensity",
+    "return_number",
+    "number_of_returns",
+    "classification",
+    "user_data",
+    "point_source_id",
+    "synthetic",
+    "key_point",
+    "withheld",
+)
+
+
+@dataclass
+class LasReadReport:
+    """Counters of one read: points per file and what was assumed."""
+
+    points: dict[str, int] = field(default_factory=dict)
+    crs_source: dict[str, str] = field(default_factory=dict)
+    gps_time_missing: list[str] = field(default_factory=list)
+
+
+def _file_crs(path: Path, header, assign):
+    try:
+        crs = header.parse_crs()
+    except Exception as exc:
+        raise InputDataError(f"{path}: the CRS in the LAS header cannot be read ({exc}).") from None
+    if crs is not None:
+        return crs, "header"
+    if assign is not None:
+        return assign, "input.crs"
+    raise InputDataError(
+        f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
+    )
+
+
+def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | None):
+    """Resolve the configured output CRS.
+
+    ``auto-utm`` keeps a projected input CRS and otherwise picks the WGS 84 /
+    UTM zone of *lon_lat_centre*.  Any other value is a pyproj user input
+    (``EPSG:25830``, WKT, ...).  Only CRSs in metres are accepted.
+    """
+    import pyproj
+
+    if setting == "auto-utm":
+        if first_crs is not None and first_crs.is_projected:
+            crs = first_crs
+        else:
+            lon, lat = lon_lat_centre
+            zone = int((lon + 180.0) // 6.0) % 60 + 1
+            crs = pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+    else:
+        crs = pyproj.CRS.from_user_input(setting)
+    if not crs.is_projected:
+        raise InputDataError(f"output CRS {crs.name} is not projected; choose a projected CRS in metres for crs.")
+    unit = crs.axis_info[0].unit_name if crs.axis_info else "metre"
+    if unit not in ("metre", "meter"):
+        raise InputDataError(
+            f"output CRS {crs.name} is in '{unit}', but the pipeline works in metres for now; "
+            "set crs to a metre-based CRS (for example its UTM zone)."
+        )
+    return crs
+
+
+def read_las_files(
+    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None
+) -> tuple[object, LasReadReport]:
+    """Read LAS/LAZ files into one LasData (format 6, LAS 1.4) in the output CRS.
+
+    Parameters
+    ----------
+    paths : list of Path
+        Input files; their points are concatenated in order.
+    crs_setting : str
+        The configured output CRS (``auto-utm`` or a pyproj user input).
+    assign_crs : pyproj.CRS or None
+        CRS for files whose header has none.
+    chunk_size : int
+        Points per read.
+    progress : Progress, optional
+        Advanced by the number of points read.
+
+    Raises
+    ------
+    InputDataError
+        When a file is not LAS/LAZ, is truncated, or has no usable CRS.
+    """
+    import laspy
+    import pyproj
+
+    report = LasReadReport()
+    columns: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "z", "scan_angle", "gps_time", *_COPIED)}
+    target = None
+    for path in paths:
+        try:
+            reader = laspy.open(str(path))
+        except (laspy.LaspyException, OSError, ValueError) as exc:
+            raise InputDataError(f"{path}: not a readable LAS/LAZ file ({exc}).") from None
+        with reader:
+            header = reader.header
+            src_crs, source = _file_crs(path, header, assign_crs)
+            report.crs_source[str(path)] = source
+            if target is None:
+                centre = None
+                if not src_crs.is_projected:
+                    centre = (float((header.mins[0] + header.maxs[0]) / 2), float((header.mins[1] + header.maxs[1]) / 2))
+                target = output_crs(crs_setting, src_crs, centre)
+            transformer = None
+            if not src_crs.equals(target):
+                transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
+            dims = set(header.point_format.dimension_names)
+            if "gps_time" not in dims:
+                report.gps_time_missing.append(str(path))
+            n_read = 0
+            try:
+                for chunk in reader.chunk_iterator(chunk_size):
+                    x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+                    if transformer is not None:
+                        x, y, z = transformer.transform(x, y, z)
+                    columns["x"].append(np.asarray(x, dtype=np.float64))
+                    columns["y"].append(np.asarray(y, dtype=np.float64))
+                    columns["z"].append(np.asarray(z, dtype=np.float64))
+                    if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
+                        angle = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
+                    else:  # formats 0-5: scan angle rank, whole degrees
+                        angle = np.asarray(chunk.scan_angle_rank, dtype=np.float64)
+                    columns["scan_angle"].append(angle)
+                    n = len(chunk)
+                    columns["gps_time"].append(
+                        np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
+                    )
+                    for name in _COPIED:
+                        columns[name].append(np.asarray(chunk[name]))
+                    n_read += n
+                    if progress is not None:
+                        progress.update(n)
+            except (laspy.LaspyException, OSError, ValueError, RuntimeError) as exc:
+                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+            report.points[str(path)] = n_read
+    merged = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in columns.items()}
+    return _build(merged, target), report
+
+
+def _build(cols: dict[str, np.ndarray], crs):
+    import laspy
+
+    header = laspy.LasHeader(point_format=POINT_FORMAT, version="1.4")
+    n = len(cols["x"])
+    if n:
+        mins = np.array([cols["x"].min(), cols["y"].min(), cols["z"].min()])
+        header.offsets = np.floor(mins / 1000.0) * 1000.0
+    # 0.1 mm: finer than any airborne LiDAR's precision, coarse enough for
+    # +-214 km around the offset in int32.
+    header.scales = np.array([1e-4, 1e-4, 1e-4])
+    header.add_crs(crs)
+    las = laspy.LasData(header)
+    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=header)
+    las.x, las.y, las.z = cols["x"], cols["y"], cols["z"]
+    las.scan_angle = np.clip(np.round(cols["scan_angle"] / SCAN_ANGLE_UNIT_DEG), -30000, 30000).astype(np.int16)
+    las.gps_time = cols["gps_time"]
+    for name in _COPIED:
+        las[name] = cols[name]
+    return las

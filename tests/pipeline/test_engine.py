@@ -1,0 +1,206 @@
+"""The engine with toy stages: planning, caching, re-runs, manifest, atomicity."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from pipeline.cache import Cache, hash_value
+from pipeline.cli import main
+from pipeline.config import load_config
+from pipeline.errors import PlanError
+from pipeline.runner import build_plan
+from pipeline.stage import config_model
+from tests.pipeline import toy as toymod
+
+
+def test_first_run_computes_products(toy):
+    assert toy.run() == 0
+    assert toy.product("total.json") == {"total": 48.0}  # 3 * (1 + 2 + 3 + 10)
+    assert toy.product("hist.json") == [3, 1]
+    assert set(toy.statuses().values()) == {"ran"}
+
+
+def test_second_run_is_all_cache_hits(toy):
+    assert toy.run() == 0
+    first = toy.manifest()
+    assert toy.run() == 0
+    second = toy.manifest()
+    assert set(toy.statuses().values()) == {"cached"}
+    assert first["products"] == second["products"]
+    # Metrics are kept with the cache entry.
+    load = next(s for s in second["stages"] if s["name"] == "load")
+    assert load["metrics"] == {"count": 4}
+
+
+def test_changing_one_parameter_reruns_only_that_stage_and_dependants(toy):
+    assert toy.run() == 0
+    assert toy.run("--set", "stages.histogram.bins=3") == 0
+    assert toy.statuses() == {"load": "cached", "scale": "cached", "total": "cached", "histogram": "ran"}
+    assert toy.product("hist.json") == [3, 0, 1]
+    assert toy.run("--set", "stages.scale.factor=1") == 0
+    assert toy.statuses() == {"load": "cached", "scale": "ran", "total": "ran", "histogram": "ran"}
+    assert toy.product("total.json") == {"total": 16.0}
+
+
+def test_identical_upstream_output_keeps_downstream_cached(toy):
+    assert toy.run() == 0
+    # Same numbers, different bytes: load re-runs, its output is identical.
+    (toy.root / "numbers.txt").write_text("1\n2\n3\n10 # ten\n")
+    assert toy.run() == 0
+    assert toy.statuses() == {"load": "ran", "scale": "cached", "total": "cached", "histogram": "cached"}
+
+
+def test_input_file_content_is_part_of_the_key(toy):
+    assert toy.run() == 0
+    (toy.root / "numbers.txt").write_text("5\n")
+    assert toy.run() == 0
+    assert toy.product("total.json") == {"total": 15.0}
+
+
+def test_disabled_stage_passes_its_input_on(toy):
+    assert toy.run("--set", "stages.scale.enabled=false") == 0
+    assert toy.product("total.json") == {"total": 16.0}
+    assert toy.statuses()["scale"] == "disabled"
+
+
+def test_disabling_a_needed_producer_is_a_plan_error(toy, capsys):
+    config = load_config(toy.path, config_model(toymod.plugin), ["stages.total.enabled=false"])
+    assert [s.name for s in build_plan(config, toymod.plugin).steps] == ["load", "scale", "histogram"]
+
+    class NoPass(toymod.Scale):
+        passthrough = {}
+
+    plugin = toymod.Plugin("toy", [toymod.Load, NoPass, toymod.Total, toymod.Histogram], toymod.plugin.global_fields)
+    config = load_config(toy.path, config_model(plugin), ["stages.scale.enabled=false"])
+    with pytest.raises(PlanError, match="stage 'total' needs 'scaled', which no enabled stage produces"):
+        build_plan(config, plugin)
+
+
+def test_until_runs_only_the_stage_and_what_it_needs(toy):
+    assert toy.run("--until", "scale") == 0
+    assert toy.statuses() == {
+        "load": "ran",
+        "scale": "ran",
+        "total": "after --until scale",
+        "histogram": "after --until scale",
+    }
+    assert not (toy.root / "out" / "total.json").exists()
+
+
+def test_force_reruns_a_cached_stage(toy):
+    assert toy.run() == 0
+    assert toy.run("--force", "total") == 0
+    assert toy.statuses() == {"load": "cached", "scale": "cached", "total": "ran", "histogram": "cached"}
+
+
+def test_unknown_stage_names_exit_2(toy, capsys):
+    assert toy.run("--until", "nope") == 2
+    assert "unknown stage 'nope'" in capsys.readouterr().err
+    assert toy.run("--force", "nope") == 2
+
+
+def test_dry_run_reports_hits_and_runs_nothing(toy, capsys):
+    assert main(["run", str(toy.path), "--dry-run", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "load" in out and "run (upstream)" in out
+    assert not (toy.root / "out" / "run.json").exists()
+    assert toy.run() == 0
+    capsys.readouterr()
+    assert main(["run", str(toy.path), "--dry-run", "-q", "--set", "stages.histogram.bins=5"]) == 0
+    lines = {line.split()[0]: line.split()[1] for line in capsys.readouterr().out.splitlines()[1:]}
+    assert lines == {"load": "cached", "scale": "cached", "total": "cached", "histogram": "run"}
+
+
+def test_failing_stage_leaves_no_cache_entry_and_a_failed_manifest(toy, capsys):
+    assert toy.run("--set", "stages.scale.fail=true") == 1
+    err = capsys.readouterr().err
+    assert "internal error: RuntimeError: boom" in err and "Traceback" not in err
+    manifest = toy.manifest()
+    assert manifest["status"] == "failed"
+    cache = toy.root / "out" / ".cache" / "scale"
+    assert not [p for p in cache.iterdir()]  # no entry, no leftover workspace
+    assert not (toy.root / "out" / "total.json").exists()
+
+
+def test_bad_input_data_exits_3(toy, capsys):
+    (toy.root / "numbers.txt").write_text("1\nseven\n")
+    assert toy.run() == 3
+    assert "numbers.txt, line 2: 'seven' is not a number." in capsys.readouterr().err
+
+
+def test_manifest_records_versions_hashes_and_timings(toy):
+    assert toy.run() == 0
+    m = toy.manifest()
+    assert m["status"] == "ok" and m["version"]
+    assert len(m["config"]["sha256"]) == 64
+    assert str(toy.root / "numbers.txt") in m["inputs"]
+    for stage in m["stages"]:
+        assert stage["seconds"] >= 0 and len(stage["key"]) == 64
+    import hashlib
+
+    data = (toy.root / "out" / "total.json").read_bytes()
+    assert m["products"]["total.json"]["sha256"] == hashlib.sha256(data).hexdigest()
+
+
+def test_cache_key_covers_defaults_and_version(toy):
+    """An explicit default gives the same key; a new stage version does not."""
+    assert toy.run() == 0
+    key = {s["name"]: s["key"] for s in toy.manifest()["stages"]}
+    assert toy.run("--set", "stages.scale.factor=3.0", "--set", "stages.total.enabled=true") == 0
+    assert {s["name"]: s["key"] for s in toy.manifest()["stages"]} == key
+    old = toymod.Total.version
+    try:
+        toymod.Total.version = "2"
+        assert toy.run() == 0
+        assert toy.statuses()["total"] == "ran"
+    finally:
+        toymod.Total.version = old
+
+
+def test_incomplete_cache_entry_is_not_trusted(toy):
+    assert toy.run() == 0
+    m = toy.manifest()
+    total = next(s for s in m["stages"] if s["name"] == "total")
+    path = total["outputs"]["total"]["file"]
+    with open(path, "a") as fh:
+        fh.write("   ")  # size no longer matches entry.json
+    assert toy.run() == 0
+    assert toy.statuses()["total"] == "ran"
+    assert toy.product("total.json") == {"total": 48.0}
+
+
+def test_cache_commit_is_atomic_and_keeps_existing_entries(tmp_path):
+    cache = Cache(tmp_path)
+    ws = cache.new_workspace("s")
+    (ws / "a.txt").write_text("x")
+    entry = cache.commit("s", "k", ws, {"outputs": {"a": "a.txt"}})
+    assert json.loads((entry.folder / "entry.json").read_text())["outputs"]["a"]["bytes"] == 1
+    ws2 = cache.new_workspace("s")
+    (ws2 / "a.txt").write_text("x")
+    again = cache.commit("s", "k", ws2, {"outputs": {"a": "a.txt"}})
+    assert again.folder == entry.folder and not ws2.exists()
+    assert hash_value({"b": 1, "a": [1, 2]}) == hash_value({"a": [1, 2], "b": 1})
+
+
+def test_json_log_lines(toy, capsys):
+    assert main(["run", str(toy.path), "--log-format", "json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().err.splitlines()]
+    assert any(line.get("stage") == "scale" and line["level"] == "info" for line in lines)
+
+
+def test_schema_and_version(toy, capsys):
+    assert main(["schema"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    assert "source" in schema["properties"] and "stages" in schema["properties"]
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert "pipeline" in capsys.readouterr().out
+
+
+def test_bad_usage_exits_2(toy, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run"])
+    assert exc.value.code == 2

@@ -1,0 +1,114 @@
+"""Toy stages (numbers in a text file) that drive the engine in tests.
+
+load -> scale -> total (product)
+            \\-> histogram (product)
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import ClassVar
+
+from pydantic import Field
+
+from pipeline.config import InputFile, StrictModel
+from pipeline.errors import InputDataError
+from pipeline.stage import Plugin, Stage, StageParams
+
+
+class SourceParams(StrictModel):
+    path: InputFile
+    comment: str = "#"
+
+
+class Load(Stage):
+    name = "load"
+    Params = SourceParams
+    config_path = "source"
+    can_disable = False
+    outputs: ClassVar = {"numbers": "numbers.json"}
+
+    def external_files(self, params, config):
+        return [params.path]
+
+    def run(self, ctx):
+        values = []
+        for lineno, line in enumerate(Path(ctx.params.path).read_text().splitlines(), 1):
+            line = line.split(ctx.params.comment)[0].strip()
+            if not line:
+                continue
+            try:
+                values.append(float(line))
+            except ValueError:
+                raise InputDataError(f"{ctx.params.path}, line {lineno}: '{line}' is not a number.") from None
+        ctx.metrics["count"] = len(values)
+        ctx.outputs["numbers"].write_text(json.dumps(values))
+
+
+class ScaleParams(StageParams):
+    factor: float = Field(2.0, description="multiply every number")
+    fail: bool = False
+
+
+class Scale(Stage):
+    name = "scale"
+    Params = ScaleParams
+    inputs = ("numbers",)
+    outputs: ClassVar = {"scaled": "scaled.json"}
+    passthrough: ClassVar = {"scaled": "numbers"}
+
+    def run(self, ctx):
+        values = json.loads(ctx.inputs["numbers"].read_text())
+        with ctx.progress(len(values), "scaling") as bar:
+            out = []
+            for v in values:
+                out.append(v * ctx.params.factor)
+                bar.update()
+        ctx.outputs["scaled"].write_text("partial")
+        if ctx.params.fail:
+            raise RuntimeError("boom")
+        ctx.outputs["scaled"].write_text(json.dumps(out))
+
+
+class Total(Stage):
+    name = "total"
+    inputs = ("scaled",)
+    outputs: ClassVar = {"total": "total.json"}
+    products: ClassVar = {"total": "total.json"}
+
+    def run(self, ctx):
+        values = json.loads(ctx.inputs["scaled"].read_text())
+        ctx.outputs["total"].write_text(json.dumps({"total": sum(values)}))
+
+
+class HistParams(StageParams):
+    bins: int = Field(4, ge=1)
+
+
+class Histogram(Stage):
+    name = "histogram"
+    Params = HistParams
+    inputs = ("scaled",)
+    outputs: ClassVar = {"hist": "hist.json"}
+    products: ClassVar = {"hist": "hist.json"}
+
+    def run(self, ctx):
+        values = json.loads(ctx.inputs["scaled"].read_text())
+        lo, hi = min(values), max(values)
+        width = (hi - lo) / ctx.params.bins or 1.0
+        counts = [0] * ctx.params.bins
+        for v in values:
+            counts[min(int((v - lo) / width), ctx.params.bins - 1)] += 1
+        ctx.outputs["hist"].write_text(json.dumps(counts))
+
+
+class Unit(StrictModel):
+    label: str = "m"
+
+
+plugin = Plugin(
+    name="toy",
+    stages=[Load, Scale, Total, Histogram],
+    global_fields={"unit": (Unit, Field(default_factory=Unit))},
+)

@@ -31,7 +31,7 @@ from pydantic import (
 
 from pipeline.errors import ConfigError
 
-Location = tuple[Union[str, int], ...]
+Location = tuple[str | int, ...]
 
 
 class StrictModel(BaseModel):
@@ -129,9 +129,7 @@ def _record_lines(node: yaml.Node, loc: Location, lines: dict[Location, int], pa
         for key_node, value_node in node.value:
             key = key_node.value
             if key in seen:
-                raise ConfigError(
-                    f"{path}, line {key_node.start_mark.line + 1}: key '{key}' is given twice."
-                )
+                raise ConfigError(f"{path}, line {key_node.start_mark.line + 1}: key '{key}' is given twice.")
             seen.add(key)
             lines[loc + (key,)] = key_node.start_mark.line + 1
             _record_lines(value_node, loc + (key,), lines, path)
@@ -190,7 +188,7 @@ def _real_location(data: Any, loc: Location) -> tuple[Location, str | None]:
     skipped.  Returns the deepest location present in *data* and, when the last
     element names a key that is absent (a missing key), that key.
     """
-    real: list[Union[str, int]] = []
+    real: list[str | int] = []
     cur = data
     missing: str | None = None
     for i, elem in enumerate(loc):
@@ -274,13 +272,13 @@ def describe_validation_error(
         msg = "required key is missing"
     elif "input" in err and etype != "value_error" and not isinstance(err["input"], (dict, list)):
         msg = f"{msg} (got {err['input']!r})"
-    more = f" ({len(errors) - 1} more problem{'s' if len(errors) > 2 else ''} after this one)" if len(errors) > 1 else ""
+    more = (
+        f" ({len(errors) - 1} more problem{'s' if len(errors) > 2 else ''} after this one)" if len(errors) > 1 else ""
+    )
     return f"{where}: {key or '<top level>'}: {msg}{more}."
 
 
-def load_config(
-    path: Path, model: type[BaseModel], overrides: list[str] | None = None
-) -> BaseModel:
+def load_config(path: Path, model: type[BaseModel], overrides: list[str] | None = None) -> BaseModel:
     """Read, merge overrides into, and validate a configuration file.
 
     Parameters

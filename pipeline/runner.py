@@ -94,9 +94,7 @@ class StageContext:
         return Progress(total, desc, self.name, unit)
 
 
-def build_plan(
-    config: BaseModel, plugin: Plugin, until: str | None = None, force: Iterable[str] = ()
-) -> Plan:
+def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, force: Iterable[str] = ()) -> Plan:
     """Order the enabled stages and check that every input has a producer.
 
     Raises
@@ -318,7 +316,9 @@ def _run_step(
         slog.info("cache hit (key %s)", key[:12])
         record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
     else:
-        entry = _execute(step, config, cache, key, {n: artifacts[r][0] for n, r in resolved.items()}, input_hashes, slog)
+        entry = _execute(
+            step, config, cache, key, {n: artifacts[r][0] for n, r in resolved.items()}, input_hashes, slog
+        )
         record.update(status="ran", seconds=entry.meta["seconds"])
     _remember(entry, step, artifacts)
     record["outputs"] = {

@@ -41,8 +41,9 @@ class ExportLas(Stage):
         with laspy.open(str(src_path)) as reader:
             header = reader.header
             with (
-                laspy.open(str(dst_path), mode="w", header=header, do_compress=ctx.params.compress, laz_backend=backend)
-                as writer,
+                laspy.open(
+                    str(dst_path), mode="w", header=header, do_compress=ctx.params.compress, laz_backend=backend
+                ) as writer,
                 ctx.progress(header.point_count, "writing", unit="pt") as bar,
             ):
                 for chunk in reader.chunk_iterator(ctx.params.chunk_size):

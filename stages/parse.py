@@ -79,16 +79,12 @@ class Parse(Stage):
         return list(params.paths)
 
     def run(self, ctx) -> None:
-        import laspy
         import pyproj
 
-        from stages.readers.las import read_las_files
+        from stages.readers.las import count_points, read_las_files
 
         params = ctx.params
-        total = 0
-        for path in params.paths:
-            with laspy.open(str(path)) as reader:
-                total += reader.header.point_count
+        total = count_points(list(params.paths))
         assign = pyproj.CRS.from_user_input(params.crs) if params.crs else None
         with ctx.progress(total, "reading LAS/LAZ", unit="pt") as bar:
             las, report = read_las_files(

@@ -175,7 +175,9 @@ def make_scene(
 
 
 def _near_building(cx: float, cy: float, margin: float) -> bool:
-    return any(x0 - margin <= cx <= x1 + margin and y0 - margin <= cy <= y1 + margin for x0, y0, x1, y1, _, _ in BUILDINGS)
+    return any(
+        x0 - margin <= cx <= x1 + margin and y0 - margin <= cy <= y1 + margin for x0, y0, x1, y1, _, _ in BUILDINGS
+    )
 
 
 def write_scene_las(scene: Scene, path, *, crs: str = SAMPLE_CRS, origin=SAMPLE_ORIGIN, compress: bool = True) -> None:

@@ -83,6 +83,24 @@ def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | No
     return crs
 
 
+def _open(path: Path):
+    import laspy
+
+    try:
+        return laspy.open(str(path))
+    except (laspy.LaspyException, OSError, ValueError) as exc:
+        raise InputDataError(f"{path}: not a readable LAS/LAZ file ({exc}).") from None
+
+
+def count_points(paths: list[Path]) -> int:
+    """Number of points the headers of *paths* announce (for progress only)."""
+    total = 0
+    for path in paths:
+        with _open(path) as reader:
+            total += int(reader.header.point_count)
+    return total
+
+
 def read_las_files(
     paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None
 ) -> tuple[object, LasReadReport]:
@@ -113,18 +131,17 @@ def read_las_files(
     columns: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "z", "scan_angle", "gps_time", *_COPIED)}
     target = None
     for path in paths:
-        try:
-            reader = laspy.open(str(path))
-        except (laspy.LaspyException, OSError, ValueError) as exc:
-            raise InputDataError(f"{path}: not a readable LAS/LAZ file ({exc}).") from None
-        with reader:
+        with _open(path) as reader:
             header = reader.header
             src_crs, source = _file_crs(path, header, assign_crs)
             report.crs_source[str(path)] = source
             if target is None:
                 centre = None
                 if not src_crs.is_projected:
-                    centre = (float((header.mins[0] + header.maxs[0]) / 2), float((header.mins[1] + header.maxs[1]) / 2))
+                    centre = (
+                        float((header.mins[0] + header.maxs[0]) / 2),
+                        float((header.mins[1] + header.maxs[1]) / 2),
+                    )
                 target = output_crs(crs_setting, src_crs, centre)
             transformer = None
             if not src_crs.equals(target):

@@ -1,0 +1,45 @@
+"""Cell-aligned grids and TIN interpolation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages.grid.interpolate import Grid, tin
+
+
+def test_grid_is_cell_aligned_and_covers_every_point():
+    g = Grid.covering(440_000.3, 4_474_000.7, 440_511.2, 4_474_383.9, 2.0)
+    assert g.xmin % 2.0 == 0 and g.ymax % 2.0 == 0
+    assert g.xmin <= 440_000.3 and g.xmin + g.cols * 2.0 > 440_511.2
+    assert g.ymax >= 4_474_383.9 and g.ymax - g.rows * 2.0 < 4_474_000.7
+    # A point exactly on a multiple gets its own column.
+    assert Grid.covering(0.0, 0.0, 10.0, 10.0, 1.0).cols == 11
+
+
+def test_tin_reproduces_a_plane_exactly():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 50, (3000, 2)) + [500_000.0, 4_000_000.0]
+    z = 100.0 + 0.3 * (xy[:, 0] - 500_000) - 0.2 * (xy[:, 1] - 4_000_000)
+    g = Grid.covering(500_010.0, 4_000_010.0, 500_040.0, 4_000_040.0, 1.0)
+    out = tin(np.column_stack([xy, z]), g, nodata_distance=10.0)
+    gx, gy = g.centres()
+    expected = 100.0 + 0.3 * (gx - 500_000) - 0.2 * (gy - 4_000_000)
+    assert np.abs(out - expected).max() < 1e-6
+
+
+def test_cells_far_from_points_or_outside_the_hull_are_nodata():
+    pts = np.array([[0, 0, 1], [10, 0, 1], [0, 10, 1], [10, 10, 1], [5, 5, 1]], dtype=float)
+    g = Grid(xmin=-5.0, ymax=15.0, resolution=1.0, cols=20, rows=20)
+    out = tin(pts, g, nodata_distance=4.0, nodata=-9999.0)
+    gx, gy = g.centres()
+    inside = (gx > 0) & (gx < 10) & (gy > 0) & (gy < 10)
+    near = np.min(np.hypot(gx[..., None] - pts[:, 0], gy[..., None] - pts[:, 1]), axis=-1) <= 4.0
+    assert np.all(out[inside & near] == 1.0)
+    assert np.all(out[~inside] == -9999.0)
+    assert np.all(out[~near] == -9999.0)
+
+
+def test_tin_needs_three_points():
+    with pytest.raises(ValueError):
+        tin(np.zeros((2, 3)), Grid(0, 1, 1, 1, 1), nodata_distance=1.0)

@@ -1,0 +1,100 @@
+"""Reading LAS/LAZ input (SPEC 3.D): CRS rules, reprojection, bad files."""
+
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+
+from pipeline.cli import main
+from pipeline.errors import InputDataError
+from stages.readers.las import output_crs, read_las_files
+
+
+def _write(path, x, y, z, crs=None, point_format=3, version="1.2"):
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    header.scales = np.array([1e-7, 1e-7, 1e-3]) if crs == "EPSG:4326" else np.array([1e-3, 1e-3, 1e-3])
+    header.offsets = np.array([float(np.min(x)), float(np.min(y)), 0.0])
+    if crs:
+        header.add_crs(pyproj.CRS.from_user_input(crs))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    las.classification = np.full(len(x), 2, dtype=np.uint8)
+    las.write(str(path))
+    return path
+
+
+def test_geographic_input_goes_to_its_utm_zone(tmp_path):
+    lon = np.array([-3.70, -3.69, -3.68])
+    lat = np.array([40.41, 40.42, 40.43])
+    path = _write(tmp_path / "geo.las", lon, lat, np.array([650.0, 651.0, 652.0]), crs="EPSG:4326")
+    las, report = read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    assert las.header.parse_crs().to_epsg() == 32630
+    e, n = pyproj.Transformer.from_crs(4326, 32630, always_xy=True).transform(lon, lat)
+    np.testing.assert_allclose(las.x, e, atol=2e-3)
+    np.testing.assert_allclose(las.y, n, atol=2e-3)
+    np.testing.assert_allclose(las.z, [650.0, 651.0, 652.0], atol=1e-3)
+    assert report.points[str(path)] == 3 and report.gps_time_missing == []
+
+
+def test_explicit_output_crs_reprojects(tmp_path):
+    x, y = np.array([440_000.0, 440_100.0]), np.array([4_474_000.0, 4_474_100.0])
+    path = _write(tmp_path / "a.las", x, y, np.zeros(2), crs="EPSG:25830")
+    las, _ = read_las_files([path], crs_setting="EPSG:25831", assign_crs=None, chunk_size=1000)
+    e, n = pyproj.Transformer.from_crs(25830, 25831, always_xy=True).transform(x, y)
+    np.testing.assert_allclose(las.x, e, atol=2e-3)
+    np.testing.assert_allclose(las.y, n, atol=2e-3)
+
+
+def test_missing_crs_is_an_input_error_unless_assigned(tmp_path):
+    path = _write(tmp_path / "nocrs.las", np.array([1.0, 2.0]), np.array([1.0, 2.0]), np.zeros(2))
+    with pytest.raises(InputDataError, match="has no CRS; set input.crs"):
+        read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    las, report = read_las_files(
+        [path], crs_setting="auto-utm", assign_crs=pyproj.CRS.from_epsg(25830), chunk_size=1000
+    )
+    assert las.header.parse_crs().to_epsg() == 25830
+    assert report.crs_source[str(path)] == "input.crs"
+
+
+def test_crs_in_feet_is_refused_with_a_way_out():
+    with pytest.raises(InputDataError, match="in 'US survey foot'.*set crs to a metre-based CRS"):
+        output_crs("EPSG:2227", None, None)
+
+
+def test_not_a_las_file_exits_3_with_the_file_name(tmp_path, capsys):
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(b"this is not a LAS file at all" * 10)
+    config = tmp_path / "c.yaml"
+    config.write_text(f"input: {{format: las, paths: [{bad.name}]}}\noutput: out\n")
+    assert main(["run", str(config), "-q"]) == 3
+    err = capsys.readouterr().err
+    assert "bad.laz: not a readable LAS/LAZ file" in err and "Traceback" not in err
+
+
+def test_unknown_format_and_bad_crs_are_config_errors(tmp_path, capsys):
+    path = _write(tmp_path / "a.las", np.array([1.0]), np.array([1.0]), np.zeros(1), crs="EPSG:25830")
+    config = tmp_path / "c.yaml"
+    config.write_text(f"input: {{format: lass, paths: [{path.name}]}}\noutput: out\n")
+    assert main(["validate", str(config)]) == 2
+    assert "c.yaml, line 1: input" in capsys.readouterr().err
+    config.write_text(f"input: {{format: las, paths: [{path.name}]}}\noutput: out\ncrs: EPSG:999999\n")
+    assert main(["validate", str(config)]) == 2
+    assert "line 3: crs: 'EPSG:999999' is not a CRS pyproj knows" in capsys.readouterr().err
+
+
+def test_point_format_1_input_keeps_gps_time_and_attributes(tmp_path):
+    x = np.linspace(440_000, 440_010, 5)
+    path = _write(tmp_path / "pf1.las", x, x * 0 + 4_474_000, np.arange(5.0), crs="EPSG:25830", point_format=1)
+    src = laspy.read(path)
+    src.gps_time = np.arange(5) + 100.5
+    src.intensity = np.arange(5) * 10
+    src.point_source_id = np.full(5, 7)
+    src.write(str(path))
+    las, _ = read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=2)
+    assert las.header.point_format.id == 6
+    np.testing.assert_array_equal(las.gps_time, np.arange(5) + 100.5)
+    np.testing.assert_array_equal(las.intensity, np.arange(5) * 10)
+    np.testing.assert_array_equal(las.point_source_id, 7)
+    np.testing.assert_array_equal(las.classification, 2)

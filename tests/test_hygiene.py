@@ -1,0 +1,37 @@
+"""Project rules checked on the source tree."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sources(folder: str):
+    return sorted((ROOT / folder).rglob("*.py"))
+
+
+def test_engine_knows_no_domain_words():
+    words = re.compile(r"\b(las|laz|lidar|ground|point ?cloud)\b", re.IGNORECASE)
+    hits = [
+        f"{p.relative_to(ROOT)}:{i}"
+        for p in _sources("pipeline")
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if words.search(line)
+    ]
+    assert not hits, hits
+
+
+def test_no_unsafe_deserialisation_or_eval():
+    bad = re.compile(
+        r"^\s*(import|from)\s+(pickle|marshal|dill|cloudpickle|shelve)\b|\beval\(|\bexec\(|yaml\.load\(|yaml\.unsafe_load|yaml\.Loader\b|yaml\.FullLoader"
+    )
+    hits = [
+        f"{p.relative_to(ROOT)}:{i}"
+        for folder in ("pipeline", "stages")
+        for p in _sources(folder)
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if bad.search(line)
+    ]
+    assert not hits, hits

@@ -67,7 +67,7 @@ class ExecutorConfig(StrictModel):
     workers: int = Field(
         default_factory=lambda: os.cpu_count() or 1,
         ge=1,
-        description="parallel workers (default: the number of CPU cores)",
+        description="parallel workers for tiled work (this version runs stages one after another)",
     )
     address: str | None = Field(
         None, description="Dask scheduler address, e.g. tcp://host:8786; none = a local cluster"

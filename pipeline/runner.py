@@ -219,6 +219,7 @@ def run(
     output = Path(config.output)
     started = time.time()
     manifest: dict[str, Any] = {
+        "name": getattr(config, "name", None) or (Path(config_path).stem if config_path else None),
         "tool": plugin.name,
         "version": __version__,
         "python": platform.python_version(),

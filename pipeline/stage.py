@@ -38,7 +38,9 @@ if TYPE_CHECKING:
 class StageParams(StrictModel):
     """Base of the parameters of every stage that can be switched off."""
 
-    enabled: bool = Field(True, description="run this stage; when false its input is passed on")
+    enabled: bool = Field(
+        True, description="run this stage; when false, a filter passes its input on and a product is not made"
+    )
 
 
 @dataclass(frozen=True)
@@ -143,7 +145,10 @@ def config_model(plugin: Plugin) -> type[BaseModel]:
     for stage in plugin.stages:
         path = stage.params_path().split(".")
         has_defaults = _all_defaults(stage.Params)
-        default: Any = Field(default_factory=stage.Params) if has_defaults else ...
+        desc = f"stage {stage.name}: {stage.description}" if stage.description else f"stage {stage.name}"
+        default: Any = (
+            Field(default_factory=stage.Params, description=desc) if has_defaults else Field(..., description=desc)
+        )
         if path[0] == "stages" and len(path) == 2:
             stage_fields[path[1]] = (stage.Params, default)
         elif len(path) == 1:
@@ -158,10 +163,10 @@ def config_model(plugin: Plugin) -> type[BaseModel]:
             RelPath | None,
             Field(None, description="cache folder, relative to the config file (default: <output>/.cache)"),
         ),
-        "executor": (ExecutorConfig, Field(default_factory=ExecutorConfig)),
+        "executor": (ExecutorConfig, Field(default_factory=ExecutorConfig, description="where tasks run")),
         **plugin.global_fields,
         **top_fields,
-        "stages": (stages_model, Field(default_factory=stages_model)),
+        "stages": (stages_model, Field(default_factory=stages_model, description="one block per stage")),
     }
     return create_model("Config", __base__=StrictModel, **fields)
 

@@ -27,7 +27,7 @@ from stages.io import read_cloud, write_cloud, xyz
 class PmfParams(StrictModel):
     """Progressive morphological filter (Zhang et al. 2003); see :func:`stages.ground.pmf.pmf`."""
 
-    name: Literal["pmf"]
+    name: Literal["pmf"] = Field(description="ground algorithm; this version has: pmf")
     cell_size: float = glossary.cell_size(1.0)
     max_window_size: float = glossary.max_window_size(33.0)
     slope: float = glossary.slope(0.15)

@@ -40,7 +40,7 @@ def _check_crs(value: str | None) -> str | None:
 class LasInput(StrictModel):
     """Already georeferenced LAS/LAZ files (SPEC 3.D)."""
 
-    format: Literal["las"]
+    format: Literal["las"] = Field(description="input format; this version reads: las")
     paths: Annotated[list[InputFile], Field(min_length=1, description="LAS/LAZ files, relative to the config file")]
     crs: str | None = Field(
         None, description="CRS of input files whose header has none (a header CRS always wins); e.g. EPSG:25830"

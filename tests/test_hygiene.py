@@ -35,3 +35,10 @@ def test_no_unsafe_deserialisation_or_eval():
         if bad.search(line)
     ]
     assert not hits, hits
+
+
+def test_config_reference_is_current():
+    from stages.configdoc import render
+
+    committed = (ROOT / "docs" / "CONFIG.md").read_text()
+    assert committed == render(), "docs/CONFIG.md is stale: python -m stages.configdoc > docs/CONFIG.md"

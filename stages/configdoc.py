@@ -1,0 +1,97 @@
+"""Render the configuration reference (docs/CONFIG.md) from the models.
+
+    python -m stages.configdoc > docs/CONFIG.md
+
+A test checks that the committed file matches, so every key and default in
+the documentation is the one the code uses.
+"""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+from pydantic import BaseModel
+from pydantic_core import PydanticUndefined
+
+from pipeline.stage import config_model
+
+HEADER = """# Configuration reference
+
+Generated from the code by `python -m stages.configdoc > docs/CONFIG.md`
+(a test fails when this file is stale).  Every relative path is resolved
+against the folder of the configuration file.  Linear quantities are in
+metres (the pipeline refuses output CRSs in other units).  Any key can be
+overridden from the command line: `--set stages.rasterize.resolution=0.5`.
+
+| key | type | default | meaning |
+|---|---|---|---|
+"""
+
+
+def _type_name(annotation: Any) -> str:
+    origin = typing.get_origin(annotation)
+    if origin is typing.Annotated:
+        return _type_name(typing.get_args(annotation)[0])
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return "mapping"
+    if origin is typing.Literal:
+        return " \\| ".join(repr(a).replace("'", "") for a in typing.get_args(annotation))
+    if origin is list:
+        return f"list of {_type_name(typing.get_args(annotation)[0])}"
+    args = typing.get_args(annotation)
+    if args:
+        return " or ".join(_type_name(a) for a in args)
+    return (
+        getattr(annotation, "__name__", str(annotation))
+        .replace("NoneType", "null")
+        .replace("PosixPath", "path")
+        .replace("Path", "path")
+    )
+
+
+def _default(field) -> str:
+    if field.is_required():
+        return "**required**"
+    if field.default_factory is not None:
+        name = getattr(field.default_factory, "__name__", "")
+        if name == "<lambda>":
+            try:
+                value = field.default_factory()
+            except TypeError:
+                return "(computed)"
+            if isinstance(value, BaseModel):
+                return "see below"
+            return "number of CPU cores" if isinstance(value, int) else f"`{value}`"
+        return "see below"
+    if field.default is PydanticUndefined:
+        return ""
+    return f"`{field.default}`" if field.default is not None else "none"
+
+
+def _rows(model: type[BaseModel], prefix: str) -> list[str]:
+    rows = []
+    for name, field in model.model_fields.items():
+        key = f"{prefix}{name}"
+        models = _models(field.annotation)
+        rows.append(f"| `{key}` | {_type_name(field.annotation)} | {_default(field)} | {field.description or ''} |")
+        for sub in models:
+            sub_prefix = f"{key}." if len(models) == 1 else f"{key}.({sub.__name__})."
+            rows.extend(_rows(sub, sub_prefix))
+    return rows
+
+
+def _models(annotation: Any) -> list[type[BaseModel]]:
+    from pipeline.config import _model_types
+
+    return _model_types(annotation)
+
+
+def render() -> str:
+    from stages import plugin
+
+    return HEADER + "\n".join(_rows(config_model(plugin), "")) + "\n"
+
+
+if __name__ == "__main__":
+    print(render(), end="")

@@ -78,7 +78,8 @@ class Progress:
         if interactive:
             from tqdm import tqdm
 
-            self._bar = tqdm(total=self.total, desc=f"{stage}: {desc}", unit=unit, leave=False, file=sys.stderr)
+            total_shown = int(self.total) if float(self.total).is_integer() else self.total
+            self._bar = tqdm(total=total_shown, desc=f"{stage}: {desc}", unit=unit, leave=False, file=sys.stderr)
 
     def update(self, n: float = 1) -> None:
         self.done += n

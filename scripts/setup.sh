@@ -29,8 +29,12 @@ declare -A NEEDS=(
   [libgomp.so.1]=libgomp1
 )
 missing=()
+# Read the linker cache once: "ldconfig -p | grep -q" fails under pipefail
+# when grep stops reading early (SIGPIPE), which would report a present
+# library as missing.
+known_libs="$(ldconfig -p 2>/dev/null || true)"
 for lib in "${!NEEDS[@]}"; do
-  ldconfig -p 2>/dev/null | grep -q "$lib" || missing+=("${NEEDS[$lib]}")
+  grep -qF "$lib" <<<"$known_libs" || missing+=("${NEEDS[$lib]}")
 done
 if ! "$PYTHON" -c 'import ensurepip, venv' >/dev/null 2>&1; then
   missing+=("python3-venv")

@@ -52,6 +52,7 @@ class Rasterize(Stage):
             )
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], p.resolution)
+        ctx.log.info("triangulating %d ground points", len(ground))
         with ctx.progress(grid.rows, f"TIN {grid.cols}x{grid.rows} cells", unit="row") as bar:
             dtm = tin(ground, grid, nodata_distance=p.nodata_distance, nodata=NODATA, progress=bar)
         empty = int((dtm == NODATA).sum())

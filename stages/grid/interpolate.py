@@ -61,7 +61,7 @@ def tin(
     *,
     nodata_distance: float,
     nodata: float = np.nan,
-    block_rows: int = 512,
+    block_rows: int = 64,
     progress=None,
 ) -> np.ndarray:
     """Linear interpolation on the Delaunay triangulation (TIN) of the points.

@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> classify_ground -> rasterize, export_las.
+parse -> denoise -> classify_ground -> rasterize, export_las.
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ from pydantic import Field
 
 from pipeline.stage import Plugin
 from stages.classify import ClassifyGround
+from stages.denoise import Denoise
+from stages.evaluate import EVALUATE
 from stages.export import ExportLas
 from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
@@ -46,7 +48,8 @@ def _crs_field():
 
 plugin = Plugin(
     name="dtm-pipeline",
-    stages=[Parse, ClassifyGround, Rasterize, ExportLas],
+    stages=[Parse, Denoise, ClassifyGround, Rasterize, ExportLas],
     global_fields={"crs": _crs_field()},
+    commands=[EVALUATE],
     versions=_versions,
 )

@@ -1,14 +1,20 @@
 """Stage ``classify_ground``: split points into ground (class 2) and the rest (class 1).
 
-The driver does the shared work; the algorithm (chosen by
-``algorithm.name``) is a pure function on coordinates returning a ground
-mask.  Points already classified as noise (7, 18) or flagged withheld keep
-their class and are not given to the algorithm.  With ``last_returns`` (the
-default), only last (or single) returns may become ground: first and
-intermediate returns of a multi-return pulse hit something above the ground.
+The driver does the shared work; the algorithm (chosen by ``algorithm.name``)
+is a pure function on coordinates returning a ground mask:
 
-Algorithms in this version: ``pmf`` (Zhang et al. 2003).  SMRF, CSF and the
-noise stage come with the ground-classification issue.
+- ``smrf`` (default): simple morphological filter, Pingel et al. (2013),
+  :func:`stages.ground.smrf.smrf`, with the published parameters;
+- ``pmf``: progressive morphological filter, Zhang et al. (2003), the seed's
+  reference, :func:`stages.ground.pmf.pmf`;
+- ``csf``: cloth simulation filter, Zhang W. et al. (2016), through the
+  ``cloth-simulation-filter`` package, :func:`stages.ground.csf.csf`.
+
+Points already classified as noise (7, 18) or flagged withheld keep their
+class and are not given to the algorithm.  With ``last_returns`` (default),
+only last (or single) returns may become ground: first and intermediate
+returns of a multi-return pulse hit something above the ground.  Why SMRF is
+the default, and how each algorithm scores: docs/GROUND.md.
 """
 
 from __future__ import annotations
@@ -24,10 +30,21 @@ from stages import glossary
 from stages.io import read_cloud, write_cloud, xyz
 
 
+class SmrfParams(StrictModel):
+    """Simple morphological filter (Pingel et al. 2013); see :func:`stages.ground.smrf.smrf`."""
+
+    name: Literal["smrf"] = Field(description="ground algorithm: smrf | pmf | csf")
+    cell_size: float = glossary.cell_size(1.0)
+    slope: float = glossary.slope(0.15)
+    max_window_size: float = Field(18.0, gt=0, description="w_max: largest window radius, metres")
+    elevation_threshold: float = Field(0.5, ge=0, description="et: base height threshold of the point test, metres")
+    elevation_scalar: float = Field(1.25, ge=0, description="es: threshold added per unit of local DEM slope, metres")
+
+
 class PmfParams(StrictModel):
     """Progressive morphological filter (Zhang et al. 2003); see :func:`stages.ground.pmf.pmf`."""
 
-    name: Literal["pmf"] = Field(description="ground algorithm; this version has: pmf")
+    name: Literal["pmf"] = Field(description="ground algorithm: smrf | pmf | csf")
     cell_size: float = glossary.cell_size(1.0)
     max_window_size: float = glossary.max_window_size(33.0)
     slope: float = glossary.slope(0.15)
@@ -35,56 +52,91 @@ class PmfParams(StrictModel):
     max_distance: float = Field(2.5, ge=0, description="dh_max: largest elevation-difference threshold, metres")
 
 
-GroundAlgorithm = Annotated[PmfParams, Field(discriminator="name")]
+class CsfParams(StrictModel):
+    """Cloth simulation filter (Zhang W. et al. 2016); see :func:`stages.ground.csf.csf`."""
+
+    name: Literal["csf"] = Field(description="ground algorithm: smrf | pmf | csf")
+    cloth_resolution: float = Field(0.5, gt=0, description="GR: spacing of the cloth particles, metres")
+    rigidness: int = Field(1, ge=1, le=3, description="RI: 1 steep, 2 relief, 3 flat")
+    class_threshold: float = Field(0.5, gt=0, description="hcc: distance to the cloth for ground, metres")
+    time_step: float = Field(0.65, gt=0, description="dT: simulation time step")
+    iterations: int = Field(500, ge=1, description="maximum simulation iterations")
+    slope_smooth: bool = Field(True, description="post-process steep slopes")
+
+
+GroundAlgorithm = Annotated[SmrfParams | PmfParams | CsfParams, Field(discriminator="name")]
+ALGORITHMS = {"smrf": SmrfParams, "pmf": PmfParams, "csf": CsfParams}
 
 
 class ClassifyGroundParams(StageParams):
-    algorithm: GroundAlgorithm = Field(default_factory=lambda: PmfParams(name="pmf"))
+    algorithm: GroundAlgorithm = Field(
+        default_factory=lambda: SmrfParams(name="smrf"), description="the ground algorithm and its parameters"
+    )
     last_returns: bool = Field(True, description="only last or single returns can be ground")
 
 
 def ground_mask(points: np.ndarray, algorithm: StrictModel) -> np.ndarray:
     """Run the configured algorithm on (n, 3) coordinates; True = ground."""
     params = algorithm.model_dump(exclude={"name"})
+    if algorithm.name == "smrf":
+        from stages.ground.smrf import smrf
+
+        return smrf(points, **params)
     if algorithm.name == "pmf":
         from stages.ground.pmf import pmf
 
         return pmf(points, **params)
+    if algorithm.name == "csf":
+        from stages.ground.csf import csf
+
+        return csf(points, **params)
     raise ValueError(f"unknown ground algorithm {algorithm.name}")  # pragma: no cover - config rejects it
+
+
+def classify(
+    points: np.ndarray,
+    classification: np.ndarray,
+    return_number: np.ndarray,
+    number_of_returns: np.ndarray,
+    withheld: np.ndarray,
+    params: ClassifyGroundParams,
+) -> np.ndarray:
+    """New classes: 2 ground, 1 other; noise (7, 18) and withheld points unchanged."""
+    cls = np.asarray(classification).copy()
+    keep = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.asarray(withheld, dtype=bool)
+    candidates = ~keep
+    if params.last_returns:
+        candidates &= np.asarray(return_number) >= np.asarray(number_of_returns)
+    ground = np.zeros(len(cls), dtype=bool)
+    if candidates.any():
+        ground[candidates] = ground_mask(points[candidates], params.algorithm)
+    cls[~keep] = glossary.UNCLASSIFIED
+    cls[ground] = glossary.GROUND
+    return cls
 
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "1"
+    version = "2"
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
-    inputs = ("points_georef",)
+    inputs = ("points_denoised",)
     outputs: ClassVar = {"points_classified": "points.las"}
-    passthrough: ClassVar = {"points_classified": "points_georef"}
+    passthrough: ClassVar = {"points_classified": "points_denoised"}
 
     def run(self, ctx) -> None:
-        las = read_cloud(ctx.inputs["points_georef"])
-        cls = np.asarray(las.classification).copy()
-        keep = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.asarray(las.withheld, dtype=bool)
-        candidates = ~keep
-        if ctx.params.last_returns:
-            last = np.asarray(las.return_number) >= np.asarray(las.number_of_returns)
-            candidates &= last
-        pts = xyz(las)
-        ground = np.zeros(len(cls), dtype=bool)
-        if candidates.any():
-            ground[candidates] = ground_mask(pts[candidates], ctx.params.algorithm)
-        cls[~keep] = glossary.UNCLASSIFIED
-        cls[ground] = glossary.GROUND
+        las = read_cloud(ctx.inputs["points_denoised"])
+        cls = classify(xyz(las), las.classification, las.return_number, las.number_of_returns, las.withheld, ctx.params)
         las.classification = cls
         n = len(cls)
+        ground = int((cls == glossary.GROUND).sum())
         ctx.metrics.update(
             algorithm=ctx.params.algorithm.model_dump(),
             points=int(n),
-            ground=int(ground.sum()),
-            non_ground=int((~ground & ~keep).sum()),
-            noise_kept=int(keep.sum()),
-            ground_fraction=round(float(ground.sum()) / n, 4) if n else 0.0,
+            ground=ground,
+            non_ground=int((cls == glossary.UNCLASSIFIED).sum()),
+            noise_or_withheld=int(n - ground - (cls == glossary.UNCLASSIFIED).sum()),
+            ground_fraction=round(ground / n, 4) if n else 0.0,
         )
-        ctx.log.info("%d of %d points are ground (%.1f %%)", ground.sum(), n, 100.0 * ground.sum() / max(n, 1))
+        ctx.log.info("%d of %d points are ground (%.1f %%)", ground, n, 100.0 * ground / max(n, 1))
         write_cloud(las, ctx.outputs["points_classified"])

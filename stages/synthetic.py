@@ -9,7 +9,8 @@ Scene, in metres from the south-west corner of the area:
 
 - terrain: a regional slope of 4 %, rolling hills (8 m amplitude) and a
   mound; all slopes below 25 degrees;
-- buildings: flat-roofed boxes and a gabled house, 6-15 m high;
+- buildings: flat-roofed boxes and a gabled house, eaves 6-15 m above the
+  highest ground under them, roofs level;
 - trees: crowns 3-7 m in radius, 8-18 m high; a pulse in a crown gives one
   to three returns, the last of which reaches the ground 60 % of the time.
 """
@@ -46,13 +47,19 @@ def terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def _roof(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Height of the roof above ground where a building stands (NaN elsewhere), and a mask."""
+    """Absolute roof height where a building stands (NaN elsewhere), and a mask.
+
+    Roofs are level: the eaves stand ``eave`` metres above the highest ground
+    under the footprint, so a building on a slope is taller on its downhill side.
+    """
     height = np.full(x.shape, np.nan)
     for x0, y0, x1, y1, eave, ridge in BUILDINGS:
         inside = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+        gx, gy = np.meshgrid(np.linspace(x0, x1, 21), np.linspace(y0, y1, 21))
+        base = float(terrain(gx, gy).max())
         # Gable along x: linear from eave at the long sides to ridge mid-way.
         t = 1.0 - np.abs((y[inside] - (y0 + y1) / 2) / ((y1 - y0) / 2))
-        height[inside] = eave + (ridge - eave) * t
+        height[inside] = base + eave + (ridge - eave) * t
     return height, ~np.isnan(height)
 
 
@@ -127,7 +134,7 @@ def make_scene(
     single = ~in_tree
     xs.append(px[single])
     ys.append(py[single])
-    zs.append(np.where(in_building[single], ground_z[single] + roof[single], ground_z[single]))
+    zs.append(np.where(in_building[single], roof[single], ground_z[single]))
     truth.append(~in_building[single])
     rn.append(np.ones(single.sum(), dtype=np.uint8))
     nr.append(np.ones(single.sum(), dtype=np.uint8))

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from stages.ground.surface import pad_linear
+
 
 def window_sizes(cell_size: float, max_window_size: float, *, base: float = 2.0) -> list[int]:
     """Odd window sizes in cells, ``w_k = 2 b^k + 1`` (Zhang et al. eq. 5), up to the maximum.
@@ -121,6 +123,8 @@ def pmf(
     Because points are compared with their cell's lowest point, each
     threshold is raised by ``s * c``, the rise of the terrain across one cell
     (without it, about 1 % of the points of a plain 10 % slope are rejected).
+    The surface is padded by continuing its slopes, so uphill survey edges
+    are not taken for objects.
 
     References
     ----------
@@ -149,6 +153,9 @@ def pmf(
     # of its cell; the paper's thresholds are for cell minima, so points get
     # that allowance on top (see Notes).
     within_cell = slope * cell_size
+    pad = sizes[-1] // 2 + 1
+    surface = pad_linear(surface, pad)
+    row, col = row + pad, col + pad
     for w, dh in zip(sizes, thresholds, strict=True):
         # size=(w, w) without a footprint is a flat square element; scipy
         # then uses separable min/max filters (fast for large windows).

@@ -1,0 +1,153 @@
+"""Grid helpers shared by the ground filters: minimum surfaces, inpainting, sampling.
+
+Grids here are internal to the algorithms: row 0 is the *lowest* y (south), so
+``row = floor((y - y0) / c)``; cell (r, k) has its centre at
+``(x0 + (k + 0.5) c, y0 + (r + 0.5) c)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.sparse.linalg import spsolve
+
+
+@dataclass(frozen=True)
+class CellIndex:
+    """Where each point falls on an algorithm's grid."""
+
+    x0: float
+    y0: float
+    cell_size: float
+    rows: int
+    cols: int
+    row: np.ndarray
+    col: np.ndarray
+
+    @property
+    def flat(self) -> np.ndarray:
+        return self.row * self.cols + self.col
+
+
+def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
+    """Grid the bounding box of *xy* with square cells of *cell_size*."""
+    x0, y0 = float(xy[:, 0].min()), float(xy[:, 1].min())
+    col = ((xy[:, 0] - x0) / cell_size).astype(np.int64)
+    row = ((xy[:, 1] - y0) / cell_size).astype(np.int64)
+    return CellIndex(x0, y0, cell_size, int(row.max()) + 1, int(col.max()) + 1, row, col)
+
+
+def min_grid(z: np.ndarray, idx: CellIndex) -> np.ndarray:
+    """Lowest *z* per cell; NaN where a cell holds no point."""
+    out = np.full(idx.rows * idx.cols, np.inf)
+    np.minimum.at(out, idx.flat, z)
+    out[~np.isfinite(out)] = np.nan
+    return out.reshape(idx.rows, idx.cols)
+
+
+def fill_nearest(grid: np.ndarray) -> np.ndarray:
+    """Replace NaN cells by the value of the nearest non-NaN cell."""
+    empty = np.isnan(grid)
+    if not empty.any():
+        return grid
+    if empty.all():
+        raise ValueError("the grid has no value to fill from")
+    _, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
+    return grid[ri, ci]
+
+
+def inpaint(grid: np.ndarray) -> np.ndarray:
+    """Fill NaN cells with the harmonic (Laplacian) interpolant of the known cells.
+
+    Each unknown cell equals the mean of its four neighbours, known cells are
+    fixed: a sparse linear system over the unknown cells only.  This is
+    method 2 of D'Errico's ``inpaint_nans``, the family of methods Pingel et
+    al. (2013) use to fill SMRF's minimum surface; it is smooth across large
+    gaps (buildings, water) where nearest-neighbour fill makes steps.
+    """
+    unknown = np.isnan(grid)
+    if not unknown.any():
+        return grid
+    if unknown.all():
+        raise ValueError("the grid has no value to fill from")
+    rows, cols = grid.shape
+    number = np.full(grid.shape, -1, dtype=np.int64)
+    n_unknown = int(unknown.sum())
+    number[unknown] = np.arange(n_unknown)
+    ur, uc = np.nonzero(unknown)
+    diag = np.zeros(n_unknown)
+    rhs = np.zeros(n_unknown)
+    i_idx, j_idx = [], []
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nr, nc = ur + dr, uc + dc
+        inside = (nr >= 0) & (nr < rows) & (nc >= 0) & (nc < cols)
+        me = number[ur[inside], uc[inside]]
+        nr, nc = nr[inside], nc[inside]
+        diag[me] += 1.0
+        other = number[nr, nc]
+        is_unknown = other >= 0
+        i_idx.append(me[is_unknown])
+        j_idx.append(other[is_unknown])
+        np.add.at(rhs, me[~is_unknown], grid[nr[~is_unknown], nc[~is_unknown]])
+    i_all = np.concatenate(i_idx + [np.arange(n_unknown)])
+    j_all = np.concatenate(j_idx + [np.arange(n_unknown)])
+    values = np.concatenate([-np.ones(sum(len(a) for a in i_idx)), diag])
+    a = sparse.csc_matrix((values, (i_all, j_all)), shape=(n_unknown, n_unknown))
+    out = grid.copy()
+    out[unknown] = spsolve(a, rhs)
+    return out
+
+
+def sample_bilinear(grid: np.ndarray, idx: CellIndex, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear interpolation of cell-centre values at points (clamped at the edges)."""
+    fx = (x - idx.x0) / idx.cell_size - 0.5
+    fy = (y - idx.y0) / idx.cell_size - 0.5
+    rows, cols = grid.shape
+    c0 = np.clip(np.floor(fx).astype(np.int64), 0, max(cols - 2, 0))
+    r0 = np.clip(np.floor(fy).astype(np.int64), 0, max(rows - 2, 0))
+    c1 = np.minimum(c0 + 1, cols - 1)
+    r1 = np.minimum(r0 + 1, rows - 1)
+    tx = np.clip(fx - c0, 0.0, 1.0)
+    ty = np.clip(fy - r0, 0.0, 1.0)
+    top = grid[r0, c0] * (1 - tx) + grid[r0, c1] * tx
+    bottom = grid[r1, c0] * (1 - tx) + grid[r1, c1] * tx
+    return top * (1 - ty) + bottom * ty
+
+
+def slope_grid(grid: np.ndarray, cell_size: float) -> np.ndarray:
+    """Magnitude of the gradient (rise over run) by central differences."""
+    if min(grid.shape) < 2:
+        return np.zeros_like(grid)
+    gy, gx = np.gradient(grid, cell_size)
+    return np.hypot(gx, gy)
+
+
+def pad_linear(grid: np.ndarray, width: int) -> np.ndarray:
+    """Pad a grid by *width* cells, continuing its overall slope across the edges.
+
+    A least-squares plane is fitted to the whole grid; the residual from it
+    is padded with its lowest value within *width* cells of each edge, and
+    the plane is added back.  A planar slope thus continues exactly, and an
+    object cut by the survey's boundary is bordered by ground-level padding,
+    so an opening can still remove it.  Flat ("nearest") padding instead
+    makes every uphill edge look like the foot of an object, which an
+    opening then lowers.
+    """
+    if width <= 0:
+        return grid
+    rows, cols = grid.shape
+    yy, xx = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    design = np.column_stack((np.ones(grid.size), xx.ravel(), yy.ravel()))
+    coef, *_ = np.linalg.lstsq(design, grid.ravel(), rcond=None)
+    plane = coef[0] + coef[1] * xx + coef[2] * yy
+    residual = np.pad(grid - plane, width, mode="minimum", stat_length=width)
+    pyy, pxx = np.mgrid[-width : rows + width, -width : cols + width].astype(np.float64)
+    return residual + coef[0] + coef[1] * pxx + coef[2] * pyy
+
+
+def disk(radius: int) -> np.ndarray:
+    """Boolean disk structuring element of the given radius in cells."""
+    r = np.arange(-radius, radius + 1)
+    return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2 + 1e-9

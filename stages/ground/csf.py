@@ -55,7 +55,9 @@ def csf(
     """
     import CSF
 
-    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+    from stages.ground.surface import as_xyz
+
+    xyz = np.ascontiguousarray(as_xyz(xyz))
     if len(xyz) == 0:
         return np.zeros(0, dtype=bool)
     cloth = CSF.CSF()

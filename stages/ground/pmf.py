@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from stages.ground.surface import pad_linear
+from stages.ground.surface import as_xyz, fill_nearest, index_points, min_grid, pad_linear
 
 
 def window_sizes(cell_size: float, max_window_size: float, *, base: float = 2.0) -> list[int]:
@@ -49,29 +49,6 @@ def height_thresholds(
             dh = slope * (w - sizes[k - 1]) * cell_size + initial_distance
         out.append(min(dh, max_distance))
     return out
-
-
-def min_surface(xyz: np.ndarray, cell_size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Lowest elevation per grid cell, empty cells filled from the nearest full cell.
-
-    Returns
-    -------
-    surface : ndarray (rows, cols)
-    row, col : ndarray of int
-        The cell of every point.
-    """
-    x0, y0 = xyz[:, 0].min(), xyz[:, 1].min()
-    col = ((xyz[:, 0] - x0) / cell_size).astype(np.int64)
-    row = ((xyz[:, 1] - y0) / cell_size).astype(np.int64)
-    rows, cols = int(row.max()) + 1, int(col.max()) + 1
-    surface = np.full(rows * cols, np.inf)
-    np.minimum.at(surface, row * cols + col, xyz[:, 2])
-    surface = surface.reshape(rows, cols)
-    empty = ~np.isfinite(surface)
-    if empty.any():
-        _, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
-        surface = surface[ri, ci]
-    return surface, row, col
 
 
 def pmf(
@@ -137,12 +114,12 @@ def pmf(
     >>> bool(pmf(pts).all())
     True
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    if xyz.ndim != 2 or xyz.shape[1] != 3:
-        raise ValueError("xyz must have shape (n, 3)")
+    xyz = as_xyz(xyz)
     if len(xyz) == 0:
         return np.zeros(0, dtype=bool)
-    surface, row, col = min_surface(xyz, cell_size)
+    idx = index_points(xyz[:, :2], cell_size)
+    surface = fill_nearest(min_grid(xyz[:, 2], idx))
+    row, col = idx.row, idx.col
     z = xyz[:, 2]
     ground = np.ones(len(xyz), dtype=bool)
     sizes = window_sizes(cell_size, max_window_size)

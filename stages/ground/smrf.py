@@ -13,7 +13,15 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from stages.ground.surface import index_points, inpaint, min_grid, pad_linear, sample_bilinear, slope_grid
+from stages.ground.surface import (
+    as_xyz,
+    index_points,
+    inpaint,
+    min_grid,
+    pad_linear,
+    sample_bilinear,
+    slope_grid,
+)
 
 _CROSS = ndimage.generate_binary_structure(2, 1)
 _SQUARE = ndimage.generate_binary_structure(2, 2)
@@ -126,9 +134,7 @@ def smrf(
     >>> bool(smrf(pts).all())
     True
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    if xyz.ndim != 2 or xyz.shape[1] != 3:
-        raise ValueError("xyz must have shape (n, 3)")
+    xyz = as_xyz(xyz)
     if len(xyz) == 0:
         return np.zeros(0, dtype=bool)
     idx = index_points(xyz[:, :2], cell_size)

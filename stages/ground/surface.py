@@ -14,6 +14,14 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 
+def as_xyz(xyz: np.ndarray) -> np.ndarray:
+    """Check and convert the coordinates every ground filter takes: (n, 3) float64."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError("xyz must have shape (n, 3)")
+    return xyz
+
+
 @dataclass(frozen=True)
 class CellIndex:
     """Where each point falls on an algorithm's grid."""

@@ -1,0 +1,86 @@
+"""Seconds to classify ground on simulated surveys: the default (SMRF) vs CSF, and PMF.
+
+    .venv/bin/python benchmarks/bench_ground.py --points 1e6 1e7 [--timeout 1200]
+
+Each (size, algorithm) runs in its own process (so peak memory and a time
+limit apply to it alone) on the synthetic scene of stages.synthetic at
+1.5 pulses/m2 over a square area sized for the point count.  Times cover the
+algorithm only (scene generation excluded), and also the denoise step.
+Prints a Markdown table for docs/BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+
+ALGORITHMS = ["denoise", "smrf", "pmf", "csf"]
+
+
+def _one(points: float, algorithm: str) -> None:
+    import numpy as np
+
+    from stages.synthetic import make_scene
+
+    side = float(np.sqrt(points / 1.6))  # about 1.6 points per pulse-m2 with tree returns
+    scene = make_scene(width=side, height=side, density=1.5, n_trees=int(side * side / 4000))
+    xyz = np.column_stack([scene.x, scene.y, scene.z])
+    t0 = time.perf_counter()
+    if algorithm == "denoise":
+        from stages.denoise import DenoiseParams, noise_classes
+
+        noise_classes(xyz, DenoiseParams())
+    elif algorithm == "smrf":
+        from stages.ground.smrf import smrf
+
+        smrf(xyz)
+    elif algorithm == "pmf":
+        from stages.ground.pmf import pmf
+
+        pmf(xyz)
+    else:
+        from stages.ground.csf import csf
+
+        csf(xyz)
+    seconds = time.perf_counter() - t0
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"points": len(xyz), "seconds": seconds, "peak_mb": rss}))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--points", type=float, nargs="+", default=[1e6, 1e7])
+    parser.add_argument("--algorithms", nargs="+", default=ALGORITHMS)
+    parser.add_argument("--timeout", type=float, default=1200.0)
+    parser.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one:
+        _one(float(args.one[0]), args.one[1])
+        return
+    print(
+        f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; date {time.strftime('%Y-%m-%d')}"
+    )
+    print("| points | algorithm | seconds | points/s | peak RSS (MB) |")
+    print("|---|---|---|---|---|")
+    for points in args.points:
+        for algorithm in args.algorithms:
+            cmd = [sys.executable, __file__, "--one", str(points), algorithm]
+            try:
+                done = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, check=True)
+                r = json.loads(done.stdout.strip().splitlines()[-1])
+                print(
+                    f"| {r['points']:,} | {algorithm} | {r['seconds']:.1f} | {r['points'] / r['seconds']:,.0f} | {r['peak_mb']:,.0f} |",
+                    flush=True,
+                )
+            except subprocess.TimeoutExpired:
+                print(f"| {points:,.0f} | {algorithm} | > {args.timeout:.0f} (stopped) | | |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -122,10 +122,15 @@ def make_scene(
     tr = rng.uniform(3.0, 7.0, n_trees)
     th = rng.uniform(8.0, 18.0, n_trees)
     crown_h = np.zeros(n)
+    by_x = np.argsort(px, kind="stable")
+    sorted_x = px[by_x]
     for cx, cy, r, h in zip(tx, ty, tr, th, strict=True):
-        d2 = ((px - cx) ** 2 + (py - cy) ** 2) / r**2
-        inside = d2 < 1.0
-        crown_h[inside] = np.maximum(crown_h[inside], h * (0.6 + 0.4 * np.sqrt(1.0 - d2[inside])))
+        # only the pulses within the crown's x range: O(n log n) overall
+        near = by_x[np.searchsorted(sorted_x, cx - r) : np.searchsorted(sorted_x, cx + r, side="right")]
+        d2 = ((px[near] - cx) ** 2 + (py[near] - cy) ** 2) / r**2
+        inside = near[d2 < 1.0]
+        d2 = d2[d2 < 1.0]
+        crown_h[inside] = np.maximum(crown_h[inside], h * (0.6 + 0.4 * np.sqrt(1.0 - d2)))
     in_tree = (crown_h > 0) & ~in_building
     # Returns per pulse.
     xs, ys, zs, truth, rn, nr, src = [], [], [], [], [], [], []

@@ -88,6 +88,7 @@ class StageContext:
     workers: int
     log: logging.LoggerAdapter
     metrics: dict[str, Any] = field(default_factory=dict)
+    upstream_metrics: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def progress(self, total: float, desc: str, unit: str = "it") -> Progress:
         """A progress reporter for *total* units of work."""
@@ -177,7 +178,9 @@ def cache_root(config: BaseModel) -> Path:
     return Path(cache) if cache else Path(config.output) / ".cache"
 
 
-def _stage_key(step: Step, config: BaseModel, input_hashes: dict[str, str], files: dict[str, str]) -> str:
+def _stage_key(
+    step: Step, config: BaseModel, input_hashes: dict[str, str], files: dict[str, str], upstream: dict | None
+) -> str:
     params = step.params.model_dump(mode="json", exclude={"enabled"}) if step.params is not None else None
     material = {
         "stage": step.name,
@@ -187,6 +190,8 @@ def _stage_key(step: Step, config: BaseModel, input_hashes: dict[str, str], file
         "inputs": input_hashes,
         "files": files,
     }
+    if upstream is not None:
+        material["metrics"] = upstream
     return hash_value(material)
 
 
@@ -240,7 +245,7 @@ def run(
     records: dict[str, dict[str, Any]] = {}
     try:
         for step in plan.steps:
-            record = _run_step(step, plan, config, cache, artifacts, unknown, force, dry_run, manifest)
+            record = _run_step(step, plan, config, cache, artifacts, unknown, force, dry_run, manifest, records)
             records[step.name] = record
         for step in plan.skipped:
             records[step.name] = {"name": step.name, "status": step.note or "disabled"}
@@ -287,6 +292,7 @@ def _run_step(
     force: set[str],
     dry_run: bool,
     manifest: dict[str, Any],
+    records: dict[str, dict[str, Any]],
 ) -> dict[str, Any]:
     slog = stage_logger(step.name)
     resolved = {name: plan.resolve(name) for name in step.io.inputs}
@@ -302,7 +308,14 @@ def _run_step(
         files[str(path)] = hash_path(path)
     manifest["inputs"].update(files)
     input_hashes = {name: artifacts[r][1] for name, r in resolved.items()}
-    key = _stage_key(step, config, input_hashes, files)
+    upstream = None
+    if step.stage.reads_metrics:
+        if any("metrics" not in r for r in records.values()):  # dry run: not known yet
+            unknown.update(step.io.outputs)
+            record["status"] = "run (upstream)"
+            return record
+        upstream = {name: r["metrics"] for name, r in records.items()}
+    key = _stage_key(step, config, input_hashes, files, upstream)
     record.update(key=key, inputs=input_hashes)
     entry = None if step.name in force else cache.lookup(step.name, key)
     if dry_run:
@@ -312,13 +325,14 @@ def _run_step(
         else:
             _remember(entry, step, artifacts)
             record["status"] = "cached"
+            record["metrics"] = entry.meta.get("metrics", {})
         return record
     if entry is not None:
         slog.info("cache hit (key %s)", key[:12])
         record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
     else:
         entry = _execute(
-            step, config, cache, key, {n: artifacts[r][0] for n, r in resolved.items()}, input_hashes, slog
+            step, config, cache, key, {n: artifacts[r][0] for n, r in resolved.items()}, input_hashes, slog, upstream
         )
         record.update(status="ran", seconds=entry.meta["seconds"])
     _remember(entry, step, artifacts)
@@ -343,6 +357,7 @@ def _execute(
     inputs: dict[str, Path],
     input_hashes: dict[str, str],
     slog: logging.LoggerAdapter,
+    upstream: dict[str, dict[str, Any]] | None = None,
 ) -> Entry:
     workspace = cache.new_workspace(step.name)
     ctx = StageContext(
@@ -354,6 +369,7 @@ def _execute(
         workdir=workspace,
         workers=getattr(getattr(config, "executor", None), "workers", 1),
         log=slog,
+        upstream_metrics=upstream or {},
     )
     slog.info("running")
     t0 = time.perf_counter()

@@ -12,7 +12,9 @@ A stage declares, in one place:
 - ``passthrough``: when the stage is disabled, which of its inputs stands in
   for each of its outputs (a filter that is switched off passes its input on);
 - ``config_keys``: other configuration values that change its result, so that
-  they enter the cache key.
+  they enter the cache key;
+- ``reads_metrics``: the stage reads the metrics of the stages before it
+  (``ctx.upstream_metrics``), which then enter its cache key.
 
 The engine knows nothing else about a stage: it orders stages by their
 declared inputs, checks the graph before running anything, and calls
@@ -65,6 +67,7 @@ class Stage:
     products: ClassVar[dict[str, str]] = {}
     passthrough: ClassVar[dict[str, str]] = {}
     config_keys: ClassVar[tuple[str, ...]] = ()
+    reads_metrics: ClassVar[bool] = False
     description: ClassVar[str] = ""
 
     @classmethod

@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> denoise -> classify_ground -> rasterize, export_las.
+parse -> denoise -> classify_ground -> rasterize -> hillshade, contours; export_las.
 """
 
 from __future__ import annotations
@@ -15,13 +15,14 @@ from stages.evaluate import EVALUATE
 from stages.export import ExportLas
 from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
+from stages.terrain import Contours, Hillshade
 
 
 def _versions() -> dict[str, str]:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {}
-    for name in ("numpy", "scipy", "laspy", "lazrs", "rasterio", "pyproj", "pydantic"):
+    for name in ("numpy", "scipy", "laspy", "lazrs", "rasterio", "pyproj", "pydantic", "contourpy", "pyogrio"):
         try:
             out[name] = version(name)
         except PackageNotFoundError:
@@ -48,7 +49,7 @@ def _crs_field():
 
 plugin = Plugin(
     name="dtm-pipeline",
-    stages=[Parse, Denoise, ClassifyGround, Rasterize, ExportLas],
+    stages=[Parse, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, ExportLas],
     global_fields={"crs": _crs_field()},
     commands=[EVALUATE],
     versions=_versions,

@@ -98,3 +98,49 @@ def write_cog(path: Path, array: np.ndarray, *, transform, crs, nodata: float = 
                 BIGTIFF="IF_SAFER",
                 NUM_THREADS="ALL_CPUS",
             )
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    """Encode a (rows, cols) or (rows, cols, 3) uint8 image as PNG (GDAL's PNG driver)."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.io import MemoryFile
+
+    warnings.filterwarnings("ignore", category=NotGeoreferencedWarning)
+    img = np.asarray(image, dtype=np.uint8)
+    bands = img[np.newaxis] if img.ndim == 2 else np.moveaxis(img, -1, 0)
+    with MemoryFile() as mem:
+        with mem.open(
+            driver="PNG", width=bands.shape[2], height=bands.shape[1], count=bands.shape[0], dtype="uint8"
+        ) as ds:
+            ds.write(bands)
+        return mem.read()
+
+
+def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, layer: str = "contours") -> None:
+    """Write 2D line strings with an ``elevation`` attribute to a GeoPackage.
+
+    Geometries are encoded as WKB here (a LineString is a byte-order flag,
+    type 2, a point count and the coordinates) and written by pyogrio.
+    """
+    import struct
+
+    import pyogrio.raw
+
+    wkb = np.empty(len(lines), dtype=object)
+    for i, (_, xy) in enumerate(lines):
+        coords = np.ascontiguousarray(xy, dtype="<f8")
+        wkb[i] = struct.pack("<BII", 1, 2, len(coords)) + coords.tobytes()
+    elevation = np.array([level for level, _ in lines], dtype=np.float64)
+    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
+    pyogrio.raw.write(
+        str(path),
+        geometry=wkb,
+        field_data=[elevation],
+        fields=["elevation"],
+        layer=layer,
+        driver="GPKG",
+        geometry_type="LineString",
+        crs=wkt,
+    )

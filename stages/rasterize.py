@@ -1,11 +1,18 @@
-"""Stage ``rasterize``: ground points to the bare-earth DTM (``dtm.tif``).
+"""Stage ``rasterize``: the elevation rasters of the survey.
 
-The grid covers all points of the survey (not only the ground), cell-aligned
-to multiples of ``resolution``.  Cells under buildings are interpolated from
-the surrounding ground; cells farther than ``nodata_distance`` from every
-ground point (water, gaps) are nodata.  Method in this version: ``tin``
-(linear on the Delaunay triangulation); IDW, nearest, the DSM and the other
-products come with the products issue.
+- ``dtm.tif``: bare earth from the ground points (class 2) by ``method``:
+  ``tin`` (linear on a Delaunay triangulation, default), ``idw`` (inverse
+  distance weighting) or ``nearest``.  Cells under buildings are interpolated
+  from the surrounding ground; cells farther than ``nodata_distance`` from
+  every ground point (water, gaps) are nodata.
+- ``dsm.tif``: the highest non-noise return per cell; empty cells take the
+  value of the nearest full cell within ``nodata_distance``.
+- ``ndsm.tif``: DSM - DTM (height above ground), negatives set to 0.
+- ``density.tif``: points per cell (all points but noise and withheld).
+
+The grid covers all points of the survey, cell-aligned to multiples of
+``resolution``.  All rasters are Cloud Optimized GeoTIFF, float32, with the
+nodata value -9999.
 """
 
 from __future__ import annotations
@@ -15,27 +22,63 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
+from pipeline.config import StrictModel
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.grid.interpolate import Grid, tin
+from stages.grid.interpolate import Grid, cell_count, cell_max, idw, nearest, tin
 from stages.io import NODATA, read_cloud, write_cog, xyz
+
+
+class IdwParams(StrictModel):
+    neighbors: int = Field(8, ge=1, description="nearest ground points averaged per cell")
+    power: float = Field(2.0, gt=0, description="weights are 1 / distance**power")
 
 
 class RasterizeParams(StageParams):
     resolution: float = glossary.resolution(1.0)
-    method: Literal["tin"] = Field("tin", description="interpolation: tin (linear on a Delaunay triangulation)")
+    method: Literal["tin", "idw", "nearest"] = Field("tin", description="DTM interpolation: tin | idw | nearest")
     nodata_distance: float = glossary.nodata_distance(50.0)
+    idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
+
+
+def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, progress=None) -> np.ndarray:
+    """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
+    if params.method == "tin":
+        return tin(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
+    if params.method == "idw":
+        return idw(
+            ground,
+            grid,
+            nodata_distance=params.nodata_distance,
+            neighbors=params.idw.neighbors,
+            power=params.idw.power,
+            progress=progress,
+        )
+    return nearest(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
+
+
+def fill_within(values: np.ndarray, max_cells: float) -> np.ndarray:
+    """Fill NaN cells with the nearest value no more than *max_cells* away."""
+    from scipy import ndimage
+
+    empty = np.isnan(values)
+    if not empty.any() or empty.all():
+        return values
+    dist, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
+    out = values[ri, ci]
+    out[dist > max_cells] = np.nan
+    return out
 
 
 class Rasterize(Stage):
     name = "rasterize"
-    version = "1"
+    version = "2"
     Params = RasterizeParams
-    description = "ground points to the DTM GeoTIFF"
+    description = "DTM, DSM, nDSM and density rasters"
     inputs = ("points_classified",)
-    outputs: ClassVar = {"dtm": "dtm.tif"}
-    products: ClassVar = {"dtm": "dtm.tif"}
+    outputs: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
+    products: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
 
     def run(self, ctx) -> None:
         p = ctx.params
@@ -44,18 +87,27 @@ class Rasterize(Stage):
         pts = xyz(las)
         if len(pts) == 0:
             raise InputDataError("the point cloud is empty: there is nothing to grid.")
-        ground = pts[np.asarray(las.classification) == glossary.GROUND]
+        cls = np.asarray(las.classification)
+        ground = pts[cls == glossary.GROUND]
         if len(ground) < 3:
             raise InputDataError(
                 f"only {len(ground)} ground points (class 2): a DTM needs at least 3; "
                 "check the ground classification or enable classify_ground."
             )
+        usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.asarray(las.withheld, dtype=bool)
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], p.resolution)
-        ctx.log.info("triangulating %d ground points", len(ground))
-        with ctx.progress(grid.rows, f"TIN {grid.cols}x{grid.rows} cells", unit="row") as bar:
-            dtm = tin(ground, grid, nodata_distance=p.nodata_distance, nodata=NODATA, progress=bar)
-        empty = int((dtm == NODATA).sum())
+        ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, len(ground), grid.cols, grid.rows)
+        with ctx.progress(grid.rows, f"{p.method} DTM", unit="row") as bar:
+            dtm = interpolate_dtm(ground, grid, p, progress=bar)
+        dsm = fill_within(cell_max(pts[usable], grid), p.nodata_distance / p.resolution)
+        dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
+        ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
+        density = cell_count(pts[usable], grid).astype(np.float64)
+        for name, array in (("dtm", dtm), ("dsm", dsm), ("ndsm", ndsm)):
+            write_cog(ctx.outputs[name], np.where(np.isnan(array), NODATA, array), transform=grid.transform, crs=crs)
+        write_cog(ctx.outputs["density"], density, transform=grid.transform, crs=crs)
+        empty = int(np.isnan(dtm).sum())
         ctx.metrics.update(
             method=p.method,
             resolution=p.resolution,
@@ -65,6 +117,9 @@ class Rasterize(Stage):
             ground_points=int(len(ground)),
             nodata_cells=empty,
             nodata_fraction=round(empty / dtm.size, 4),
+            dtm_min=float(np.nanmin(dtm)) if empty < dtm.size else None,
+            dtm_max=float(np.nanmax(dtm)) if empty < dtm.size else None,
+            density_mean=round(float(density.mean()), 3),
+            ndsm_max=float(np.nanmax(ndsm)) if np.isfinite(ndsm).any() else None,
         )
         ctx.log.info("DTM %d x %d cells at %g m, %d nodata", grid.cols, grid.rows, p.resolution, empty)
-        write_cog(ctx.outputs["dtm"], dtm, transform=grid.transform, crs=crs, nodata=NODATA)

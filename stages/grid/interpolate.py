@@ -133,3 +133,99 @@ def _barycentric(tri, z: np.ndarray, q: np.ndarray) -> np.ndarray:
     values = (weights * z[tri.simplices[simplex]]).sum(axis=1)
     values[outside] = np.nan
     return values
+
+
+def _query_grid(points: np.ndarray, grid: Grid, k: int, nodata_distance: float, block_rows: int, progress):
+    """Yield (row slice, distances, indices) of the k nearest points of each cell centre."""
+    from scipy.spatial import cKDTree
+
+    origin = np.array([grid.xmin, grid.ymax])
+    tree = cKDTree(points[:, :2] - origin)
+    for start in range(0, grid.rows, block_rows):
+        stop = min(grid.rows, start + block_rows)
+        gx, gy = grid.centres(start, stop)
+        q = np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1]))
+        dist, idx = tree.query(q, k=k, distance_upper_bound=nodata_distance, workers=-1)
+        yield start, stop, dist.reshape(len(q), k), idx.reshape(len(q), k)
+        if progress is not None:
+            progress.update(stop - start)
+
+
+def idw(
+    points: np.ndarray,
+    grid: Grid,
+    *,
+    nodata_distance: float,
+    neighbors: int = 8,
+    power: float = 2.0,
+    nodata: float = np.nan,
+    block_rows: int = 64,
+    progress=None,
+) -> np.ndarray:
+    """Inverse-distance-weighted mean of the ``neighbors`` nearest points of each cell centre.
+
+    Weights are ``1 / d**power`` over the neighbours closer than
+    ``nodata_distance``; a cell with none is *nodata*; a point exactly on a
+    cell centre gives its own value (Shepard 1968,
+    doi:10.1145/800186.810616).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    k = int(min(neighbors, len(pts)))
+    out = np.empty((grid.rows, grid.cols), dtype=np.float64)
+    z = np.append(pts[:, 2], np.nan)  # index len(pts) = "no neighbour"
+    for start, stop, dist, idx in _query_grid(pts, grid, k, nodata_distance, block_rows, progress):
+        valid = np.isfinite(dist)
+        with np.errstate(divide="ignore"):
+            w = np.where(valid, 1.0 / np.maximum(dist, 1e-12) ** power, 0.0)
+        wsum = w.sum(axis=1)
+        values = np.where(
+            wsum > 0, (w * np.where(valid, z[idx], 0.0)).sum(axis=1) / np.where(wsum > 0, wsum, 1), nodata
+        )
+        out[start:stop] = values.reshape(stop - start, grid.cols)
+    return out
+
+
+def nearest(
+    points: np.ndarray,
+    grid: Grid,
+    *,
+    nodata_distance: float,
+    nodata: float = np.nan,
+    block_rows: int = 64,
+    progress=None,
+) -> np.ndarray:
+    """Value of the nearest point to each cell centre (*nodata* beyond ``nodata_distance``)."""
+    pts = np.asarray(points, dtype=np.float64)
+    out = np.empty((grid.rows, grid.cols), dtype=np.float64)
+    z = np.append(pts[:, 2], nodata)
+    for start, stop, _, idx in _query_grid(pts, grid, 1, nodata_distance, block_rows, progress):
+        out[start:stop] = z[idx[:, 0]].reshape(stop - start, grid.cols)
+    return out
+
+
+def cell_of(points: np.ndarray, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of the cell holding each point (-1 outside the grid)."""
+    col = np.floor((points[:, 0] - grid.xmin) / grid.resolution).astype(np.int64)
+    row = np.floor((grid.ymax - points[:, 1]) / grid.resolution).astype(np.int64)
+    outside = (col < 0) | (col >= grid.cols) | (row < 0) | (row >= grid.rows)
+    col[outside] = -1
+    row[outside] = -1
+    return row, col
+
+
+def cell_count(points: np.ndarray, grid: Grid) -> np.ndarray:
+    """Number of points per cell."""
+    row, col = cell_of(points, grid)
+    inside = row >= 0
+    counts = np.bincount(row[inside] * grid.cols + col[inside], minlength=grid.rows * grid.cols)
+    return counts.reshape(grid.rows, grid.cols)
+
+
+def cell_max(points: np.ndarray, grid: Grid, nodata: float = np.nan) -> np.ndarray:
+    """Highest z per cell (*nodata* where a cell holds no point)."""
+    row, col = cell_of(points, grid)
+    inside = row >= 0
+    out = np.full(grid.rows * grid.cols, -np.inf)
+    np.maximum.at(out, row[inside] * grid.cols + col[inside], points[inside, 2])
+    out[~np.isfinite(out)] = nodata
+    return out.reshape(grid.rows, grid.cols)

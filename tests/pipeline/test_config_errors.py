@@ -15,7 +15,7 @@ def _validate(toy, capsys, *extra: str) -> tuple[int, str]:
 def test_valid_config_passes(toy, capsys):
     code = main(["validate", str(toy.path)])
     assert code == 0
-    assert "load -> scale -> total -> histogram" in capsys.readouterr().out
+    assert "load -> scale -> total -> histogram -> summary" in capsys.readouterr().out
 
 
 def test_typo_in_key_names_line_and_suggestion(toy, capsys):

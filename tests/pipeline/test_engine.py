@@ -37,10 +37,17 @@ def test_second_run_is_all_cache_hits(toy):
 def test_changing_one_parameter_reruns_only_that_stage_and_dependants(toy):
     assert toy.run() == 0
     assert toy.run("--set", "stages.histogram.bins=3") == 0
-    assert toy.statuses() == {"load": "cached", "scale": "cached", "total": "cached", "histogram": "ran"}
+    assert toy.statuses() == {
+        "load": "cached",
+        "scale": "cached",
+        "total": "cached",
+        "histogram": "ran",
+        "summary": "ran",
+    }
     assert toy.product("hist.json") == [3, 0, 1]
     assert toy.run("--set", "stages.scale.factor=1") == 0
-    assert toy.statuses() == {"load": "cached", "scale": "ran", "total": "ran", "histogram": "ran"}
+    # the histogram of [1, 2, 3, 10] has the same counts at any scale: summary stays cached
+    assert toy.statuses() == {"load": "cached", "scale": "ran", "total": "ran", "histogram": "ran", "summary": "cached"}
     assert toy.product("total.json") == {"total": 16.0}
 
 
@@ -49,7 +56,13 @@ def test_identical_upstream_output_keeps_downstream_cached(toy):
     # Same numbers, different bytes: load re-runs, its output is identical.
     (toy.root / "numbers.txt").write_text("1\n2\n3\n10 # ten\n")
     assert toy.run() == 0
-    assert toy.statuses() == {"load": "ran", "scale": "cached", "total": "cached", "histogram": "cached"}
+    assert toy.statuses() == {
+        "load": "ran",
+        "scale": "cached",
+        "total": "cached",
+        "histogram": "cached",
+        "summary": "cached",
+    }
 
 
 def test_input_file_content_is_part_of_the_key(toy):
@@ -67,7 +80,7 @@ def test_disabled_stage_passes_its_input_on(toy):
 
 def test_disabling_a_needed_producer_is_a_plan_error(toy, capsys):
     config = load_config(toy.path, config_model(toymod.plugin), ["stages.total.enabled=false"])
-    assert [s.name for s in build_plan(config, toymod.plugin).steps] == ["load", "scale", "histogram"]
+    assert [s.name for s in build_plan(config, toymod.plugin).steps] == ["load", "scale", "histogram", "summary"]
 
     class NoPass(toymod.Scale):
         passthrough = {}
@@ -85,6 +98,7 @@ def test_until_runs_only_the_stage_and_what_it_needs(toy):
         "scale": "ran",
         "total": "after --until scale",
         "histogram": "after --until scale",
+        "summary": "after --until scale",
     }
     assert not (toy.root / "out" / "total.json").exists()
 
@@ -92,7 +106,13 @@ def test_until_runs_only_the_stage_and_what_it_needs(toy):
 def test_force_reruns_a_cached_stage(toy):
     assert toy.run() == 0
     assert toy.run("--force", "total") == 0
-    assert toy.statuses() == {"load": "cached", "scale": "cached", "total": "ran", "histogram": "cached"}
+    assert toy.statuses() == {
+        "load": "cached",
+        "scale": "cached",
+        "total": "ran",
+        "histogram": "cached",
+        "summary": "cached",
+    }
 
 
 def test_unknown_stage_names_exit_2(toy, capsys):
@@ -110,7 +130,16 @@ def test_dry_run_reports_hits_and_runs_nothing(toy, capsys):
     capsys.readouterr()
     assert main(["run", str(toy.path), "--dry-run", "-q", "--set", "stages.histogram.bins=5"]) == 0
     lines = {line.split()[0]: line.split()[1] for line in capsys.readouterr().out.splitlines()[1:]}
-    assert lines == {"load": "cached", "scale": "cached", "total": "cached", "histogram": "run"}
+    assert lines == {
+        "load": "cached",
+        "scale": "cached",
+        "total": "cached",
+        "histogram": "run",
+        "summary": "run",
+    }
+    capsys.readouterr()
+    assert main(["run", str(toy.path), "--dry-run", "-q"]) == 0
+    assert "run" not in capsys.readouterr().out.split("key", 1)[1].split()  # all cached, summary included
 
 
 def test_failing_stage_leaves_no_cache_entry_and_a_failed_manifest(toy, capsys):
@@ -204,3 +233,18 @@ def test_bad_usage_exits_2(toy, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["run"])
     assert exc.value.code == 2
+
+
+def test_stage_reading_metrics_reruns_when_they_change(toy):
+    assert toy.run() == 0
+    assert toy.product("summary.json") == {"count": 4}
+    assert toy.run() == 0
+    assert toy.statuses()["summary"] == "cached"
+    # Same scaled values (so same histogram bytes), but load's metrics change.
+    (toy.root / "numbers.txt").write_text("1\n2\n3\n10\n# now with a comment line\n")
+    assert toy.run() == 0
+    assert toy.statuses()["histogram"] == "cached"
+    assert toy.statuses()["summary"] == "cached"  # count is still 4
+    (toy.root / "numbers.txt").write_text("1\n2\n3\n10\n10\n")
+    assert toy.run() == 0
+    assert toy.product("summary.json") == {"count": 5}

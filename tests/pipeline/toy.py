@@ -103,12 +103,25 @@ class Histogram(Stage):
         ctx.outputs["hist"].write_text(json.dumps(counts))
 
 
+class Summary(Stage):
+    """Reads the metrics of the stages before it (like a report)."""
+
+    name = "summary"
+    reads_metrics = True
+    inputs = ("hist",)
+    outputs: ClassVar = {"summary": "summary.json"}
+    products: ClassVar = {"summary": "summary.json"}
+
+    def run(self, ctx):
+        ctx.outputs["summary"].write_text(json.dumps({"count": ctx.upstream_metrics["load"]["count"]}))
+
+
 class Unit(StrictModel):
     label: str = "m"
 
 
 plugin = Plugin(
     name="toy",
-    stages=[Load, Scale, Total, Histogram],
+    stages=[Load, Scale, Total, Histogram, Summary],
     global_fields={"unit": (Unit, Field(default_factory=Unit))},
 )

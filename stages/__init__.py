@@ -1,7 +1,8 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> denoise -> classify_ground -> rasterize -> hillshade, contours; export_las.
+parse -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
+export_las; report (last: it reads every stage's metrics).
 """
 
 from __future__ import annotations
@@ -9,12 +10,14 @@ from __future__ import annotations
 from pydantic import Field
 
 from pipeline.stage import Plugin
+from stages.accuracy import Accuracy
 from stages.classify import ClassifyGround
 from stages.denoise import Denoise
 from stages.evaluate import EVALUATE
 from stages.export import ExportLas
 from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
+from stages.report import Report
 from stages.terrain import Contours, Hillshade
 
 
@@ -49,7 +52,7 @@ def _crs_field():
 
 plugin = Plugin(
     name="dtm-pipeline",
-    stages=[Parse, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, ExportLas],
+    stages=[Parse, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, Accuracy, ExportLas, Report],
     global_fields={"crs": _crs_field()},
     commands=[EVALUATE],
     versions=_versions,

@@ -1,4 +1,11 @@
-"""``pipeline evaluate ground``: score a ground classification against reference labels.
+"""``pipeline evaluate ground|dtm``: measure accuracy against reference data.
+
+    pipeline evaluate dtm DTM.tif (--truth TRUTH.tif | --checkpoints CP.csv)
+                              [--land-cover-column NAME] [--vegetated VALUE ...] [--json]
+
+prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy).
+
+``pipeline evaluate ground``: score a ground classification against reference labels.
 
     pipeline evaluate ground REF.laz [--algorithm NAME] [--param k=v ...]
                                      [--no-denoise] [--compare csf] [--write OUT.laz]
@@ -94,14 +101,65 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--no-denoise", action="store_true", help="skip the noise step")
     p.add_argument("--write", type=Path, metavar="OUT.laz", help="save the cloud classified by --algorithm")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    _hidden_log_args(p)
+    p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
+    p.add_argument("dtm", type=Path, help="DTM GeoTIFF")
+    ref = p.add_mutually_exclusive_group(required=True)
+    ref.add_argument("--truth", type=Path, help="reference elevation raster (resampled onto the DTM grid)")
+    ref.add_argument("--checkpoints", type=Path, help="CSV of check points: x, y, z[, land_cover]")
+    p.add_argument("--land-cover-column", default="land_cover", help="land-cover column name (default land_cover)")
+    p.add_argument("--vegetated", nargs="+", default=["vegetated"], help="land-cover values counted as vegetated")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    _hidden_log_args(p)
+
+
+def _hidden_log_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-format", choices=["text", "json"], default="text", help=argparse.SUPPRESS)
     p.add_argument("-q", "--quiet", action="count", default=0, help=argparse.SUPPRESS)
     p.add_argument("-v", "--verbose", action="count", default=0, help=argparse.SUPPRESS)
 
 
+def _run_dtm(args: argparse.Namespace) -> int:
+    from stages.accuracy import compare_with_truth, read_checkpoints, sample_dtm, vertical_accuracy
+
+    for path in (args.dtm, args.truth or args.checkpoints):
+        if not path.is_file():
+            raise ConfigError(f"{path}: file not found.")
+    try:
+        if args.truth:
+            result = vertical_accuracy(compare_with_truth(args.dtm, args.truth).ravel())
+        else:
+            points, cover = read_checkpoints(args.checkpoints, args.land_cover_column)
+            result = vertical_accuracy(sample_dtm(args.dtm, points[:, :2]) - points[:, 2], cover, args.vegetated)
+    except Exception as exc:  # rasterio's errors for unreadable rasters
+        if isinstance(exc, (ConfigError, InputDataError)):
+            raise
+        import rasterio.errors
+
+        if isinstance(exc, rasterio.errors.RasterioError):
+            raise InputDataError(f"{args.dtm} or its reference cannot be read as a raster ({exc}).") from None
+        raise
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    what = "cells" if args.truth else "check points"
+    print(
+        f"{args.dtm} against {args.truth or args.checkpoints}: {result['n']:,} {what} ({result['outside']:,} outside or nodata)"
+    )
+    for label, key in (
+        ("RMSEz (m)", "rmse_z"),
+        ("mean error (m)", "mean_error"),
+        ("NVA 95 % = 1.96 RMSEz (m)", "nva_95"),
+        ("VVA 95th percentile (m)", "vva_95"),
+    ):
+        value = result.get(key)
+        print(f"{label:<28} {'—' if value is None else f'{value:.4f}'}")
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
-    if args.what != "ground":  # pragma: no cover - argparse restricts it
-        raise ConfigError(f"evaluate {args.what}: not available.")
+    if args.what == "dtm":
+        return _run_dtm(args)
     if not args.reference.is_file():
         raise ConfigError(f"{args.reference}: file not found.")
     algorithms = [_algorithm(args.algorithm, args.param)]

@@ -214,3 +214,57 @@ def write_scene_las(scene: Scene, path, *, crs: str = SAMPLE_CRS, origin=SAMPLE_
     las.intensity = scene.intensity
     las.classification = np.zeros(len(scene.x), dtype=np.uint8)
     las.write(str(path), do_compress=compress, laz_backend=laspy.LazBackend.Lazrs if compress else None)
+
+
+def sample_checkpoints(scene_seed: int = 20111, n: int = 60, width: float = 512.0, height: float = 384.0):
+    """Check points on the true terrain: two thirds in the open, one third under trees.
+
+    Returns x, y (local metres), z (true terrain) and land cover
+    (``open`` or ``vegetated``), as a surveyor's GNSS check points would be.
+    Points are kept 15 m from buildings and inside the area by 20 m.
+    """
+    rng = np.random.default_rng(scene_seed + 1)
+    scene = make_scene(seed=scene_seed)
+    canopy = ~scene.true_ground & (scene.number_of_returns > 1)
+    trees = np.column_stack([scene.x[canopy], scene.y[canopy]])
+    xs, ys, cover = [], [], []
+    while len(xs) < n:
+        x, y = rng.uniform(20, width - 20), rng.uniform(20, height - 20)
+        if _near_building(x, y, 15.0):
+            continue
+        under_tree = bool(np.any(np.hypot(trees[:, 0] - x, trees[:, 1] - y) < 1.0))
+        want_tree = len(xs) % 3 == 2
+        if want_tree != under_tree:
+            if want_tree:  # move onto a random canopy point
+                x, y = trees[rng.integers(len(trees))]
+                if _near_building(x, y, 15.0):
+                    continue
+            else:
+                continue
+        xs.append(float(x))
+        ys.append(float(y))
+        cover.append("vegetated" if want_tree else "open")
+    x, y = np.array(xs), np.array(ys)
+    return x, y, terrain(x, y), cover
+
+
+def write_truth_raster(
+    path,
+    *,
+    resolution: float = 1.0,
+    width: float = 512.0,
+    height: float = 384.0,
+    origin=SAMPLE_ORIGIN,
+    crs: str = SAMPLE_CRS,
+) -> None:
+    """The true bare earth sampled at cell centres, as a COG (for ``evaluate dtm --truth``)."""
+    import pyproj
+
+    from stages.grid.interpolate import Grid
+    from stages.io import write_cog
+
+    grid = Grid.covering(origin[0], origin[1], origin[0] + width - 1e-6, origin[1] + height - 1e-6, resolution)
+    gx, gy = grid.centres()
+    write_cog(
+        path, terrain(gx - origin[0], gy - origin[1]), transform=grid.transform, crs=pyproj.CRS.from_user_input(crs)
+    )

@@ -79,8 +79,9 @@ def sample_dtm(path: Path, xy: np.ndarray) -> np.ndarray:
         if ds.nodata is not None:
             band[band == ds.nodata] = np.nan
         inv = ~ds.transform
-    col, row = inv * (xy[:, 0], xy[:, 1])
-    fc, fr = np.asarray(col) - 0.5, np.asarray(row) - 0.5
+    col = inv.a * xy[:, 0] + inv.b * xy[:, 1] + inv.c
+    row = inv.d * xy[:, 0] + inv.e * xy[:, 1] + inv.f
+    fc, fr = col - 0.5, row - 0.5
     c0, r0 = np.floor(fc).astype(int), np.floor(fr).astype(int)
     rows, cols = band.shape
     out = np.full(len(xy), np.nan)

@@ -95,19 +95,27 @@ def test_second_run_is_all_cache_hits(run_dir):
     assert m["products"] == before
 
 
-def test_changing_resolution_reruns_only_rasterize(run_dir):
+def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
     out, args = run_dir
-    assert main([*args, "--set", "stages.rasterize.resolution=2.0"]) == 0
-    status = {s["name"]: s["status"] for s in _manifest(out)["stages"]}
-    assert status == {
-        "parse": "cached",
-        "denoise": "cached",
-        "classify_ground": "cached",
-        "rasterize": "ran",
-        "export_las": "cached",
-    }
-    with rasterio.open(out / "out" / "dtm.tif") as ds:
-        assert ds.res == (2.0, 2.0)
+    try:
+        assert main([*args, "--set", "stages.rasterize.resolution=2.0"]) == 0
+        status = {s["name"]: s["status"] for s in _manifest(out)["stages"]}
+        assert status == {
+            "parse": "cached",
+            "denoise": "cached",
+            "classify_ground": "cached",
+            "rasterize": "ran",
+            "hillshade": "ran",
+            "contours": "ran",
+            "accuracy": "ran",
+            "export_las": "cached",
+            "report": "ran",
+        }
+        with rasterio.open(out / "out" / "dtm.tif") as ds:
+            assert ds.res == (2.0, 2.0)
+    finally:  # leave the default products for the other tests
+        assert main(args) == 0
+    assert {s["status"] for s in _manifest(out)["stages"]} == {"cached"}
 
 
 def test_every_config_validates():
@@ -126,3 +134,95 @@ def test_disabled_denoise_passes_points_on(tmp_path):
     classify = next(s for s in m["stages"] if s["name"] == "classify_ground")
     assert classify["inputs"]["points_denoised"] == parse["outputs"]["points_georef"]["sha256"]
     assert classify["metrics"]["noise_or_withheld"] == 0
+
+
+RASTERS = ["dtm.tif", "dsm.tif", "ndsm.tif", "density.tif", "hillshade.tif"]
+
+
+@pytest.mark.parametrize("name", RASTERS)
+def test_every_raster_product_is_a_cog_with_crs_and_nodata(run_dir, name):
+    out, _ = run_dir
+    with rasterio.open(out / "out" / name) as ds:
+        assert ds.crs.to_epsg() == 25830
+        assert ds.dtypes[0] == "float32" and ds.nodata == -9999.0
+        assert ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
+        assert ds.block_shapes[0] == (256, 256) and ds.overviews(1)
+        assert ds.transform.c % 1.0 == 0 and ds.transform.f % 1.0 == 0
+
+
+def test_surface_models_are_consistent(run_dir):
+    out, _ = run_dir
+
+    def band(name):
+        with rasterio.open(out / "out" / name) as ds:
+            a = ds.read(1).astype(float)
+            a[a == ds.nodata] = np.nan
+            return a
+
+    dtm, dsm, ndsm, density = band("dtm.tif"), band("dsm.tif"), band("ndsm.tif"), band("density.tif")
+    ok = np.isfinite(dtm) & np.isfinite(dsm)
+    assert np.all(ndsm[ok] >= 0)
+    np.testing.assert_allclose(ndsm[ok], np.maximum(dsm - dtm, 0)[ok], atol=1e-3)
+    # the tallest object: the 15 m building (its roof 15 m above the highest ground under it)
+    assert 15.0 < np.nanmax(ndsm) < 25.0
+    las = laspy.read(out / "out" / "points.laz")
+    usable = ~np.isin(np.asarray(las.classification), (7, 18))
+    assert density.sum() == usable.sum()
+
+
+def test_hillshade_png_and_contours(run_dir):
+    import pyogrio
+
+    out, _ = run_dir
+    assert (out / "out" / "hillshade.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    info = pyogrio.read_info(out / "out" / "contours.gpkg")
+    assert info["geometry_type"] == "LineString" and info["crs"] == "EPSG:25830"
+    assert list(info["fields"]) == ["elevation"] and info["features"] > 50
+    meta, _, geometry, fields = pyogrio.raw.read(out / "out" / "contours.gpkg")
+    levels = fields[0]
+    assert np.allclose(levels, np.round(levels))  # 1 m interval
+    with rasterio.open(out / "out" / "dtm.tif") as ds:
+        lo, hi = ds.read(1, masked=True).min(), ds.read(1, masked=True).max()
+    assert lo <= levels.min() and levels.max() <= hi
+
+
+def test_accuracy_at_check_points(run_dir):
+    out, _ = run_dir
+    acc = json.loads((out / "out" / "accuracy.json").read_text())
+    assert acc["n"] == 60 and acc["outside"] == 0
+    assert acc["rmse_z"] < 0.036  # 1.2 x the 3 cm range noise
+    assert acc["n_vegetated"] == 20 and acc["vva_95"] is not None
+    assert acc["nva_95"] == pytest.approx(1.96 * acc["by_land_cover"]["open"]["rmse_z"])
+
+
+def test_report_is_self_contained(run_dir):
+    import base64
+    import re
+
+    out, _ = run_dir
+    page = (out / "out" / "report.html").read_text()
+    for section in ("summary", "maps", "classes", "strips", "accuracy"):
+        assert f'<section id="{section}">' in page
+    images = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    assert len(images) == 3
+    for img in images:
+        assert base64.b64decode(img)[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "http://" not in page and "https://" not in page  # opens offline
+    assert "306,405" in page  # points read
+    assert "RMSEz" in page
+
+
+def test_evaluate_dtm_against_truth_and_checkpoints(run_dir, capsys):
+    out, _ = run_dir
+    dtm = str(out / "out" / "dtm.tif")
+    truth = str(ROOT / "data_samples" / "las" / "truth_terrain.tif")
+    assert main(["evaluate", "dtm", dtm, "--truth", truth, "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["rmse_z"] < 0.05 and abs(result["mean_error"]) < 0.01
+    cps = str(ROOT / "data_samples" / "las" / "checkpoints.csv")
+    assert main(["evaluate", "dtm", dtm, "--checkpoints", cps]) == 0
+    text = capsys.readouterr().out
+    assert "60 check points" in text and "NVA 95 %" in text
+    with pytest.raises(SystemExit) as exc:  # argparse: --truth or --checkpoints is required
+        main(["evaluate", "dtm", dtm])
+    assert exc.value.code == 2

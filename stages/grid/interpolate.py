@@ -61,7 +61,7 @@ def tin(
     *,
     nodata_distance: float,
     nodata: float = np.nan,
-    block_rows: int = 64,
+    batch_cells: int = 4_000_000,
     progress=None,
 ) -> np.ndarray:
     """Linear interpolation on the Delaunay triangulation (TIN) of the points.
@@ -77,10 +77,10 @@ def tin(
         so do cells outside the triangulation's convex hull.
     nodata : float
         Value of empty cells.
-    block_rows : int
-        Rows evaluated at a time (bounds memory on large grids).
+    batch_cells : int
+        Candidate cells handled at a time (bounds memory).
     progress : Progress, optional
-        Advanced by the number of rows done.
+        Advanced from 0 to ``grid.rows`` as the triangles are drawn.
 
     Returns
     -------
@@ -88,51 +88,84 @@ def tin(
 
     Notes
     -----
-    Points with identical x, y are merged by Qhull (one of them is used).
+    The triangulation is SciPy's (Qhull).  The triangles are then drawn onto
+    the grid ("scan conversion", as GDAL and PDAL grid TINs): each fills the
+    cell centres inside it with its plane.  This replaces
+    ``Delaunay.find_simplex`` / ``LinearNDInterpolator``, whose barycentric
+    transforms SciPy computes simplex by simplex (44 s for 2 M triangles
+    here).  Points with identical x, y are merged by Qhull (one is used).
     """
     from scipy.spatial import Delaunay, cKDTree
 
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < 3:
         raise ValueError("a TIN needs at least 3 points")
-    # Triangulate around the grid origin: Qhull loses precision on large
-    # absolute coordinates (UTM northings).
+    # Work around the grid origin: Qhull loses precision on large absolute
+    # coordinates (UTM northings).
     origin = np.array([grid.xmin, grid.ymax])
     xy = pts[:, :2] - origin
     tri = Delaunay(xy)
-    tree = cKDTree(xy)
-    out = np.empty((grid.rows, grid.cols), dtype=np.float64)
-    for start in range(0, grid.rows, block_rows):
-        stop = min(grid.rows, start + block_rows)
-        gx, gy = grid.centres(start, stop)
-        q = np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1]))
-        values = _barycentric(tri, pts[:, 2], q)
-        dist, _ = tree.query(q, k=1, distance_upper_bound=nodata_distance)
-        values[~np.isfinite(dist)] = np.nan
-        values[np.isnan(values)] = nodata
-        out[start:stop] = values.reshape(stop - start, grid.cols)
-        if progress is not None:
-            progress.update(stop - start)
+    out = np.full(grid.rows * grid.cols, np.nan)
+    _draw_triangles(xy, pts[:, 2], tri.simplices, grid, out, batch_cells, progress)
+    out = out.reshape(grid.rows, grid.cols)
+    # Cells far from every point are nodata even inside the hull (water).
+    gx, gy = grid.centres()
+    dist, _ = cKDTree(xy).query(
+        np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1])),
+        k=1,
+        distance_upper_bound=nodata_distance,
+        workers=-1,
+    )
+    out[~np.isfinite(dist).reshape(out.shape)] = np.nan
+    out[np.isnan(out)] = nodata
     return out
 
 
-def _barycentric(tri, z: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Linear interpolation of *z* at *q* on triangulation *tri* (NaN outside).
+def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: int, progress) -> None:
+    """Fill *out* (flat, rows * cols) with each triangle's plane at the cell centres inside it.
 
-    Same values as :class:`scipy.interpolate.LinearNDInterpolator` (to 1e-12),
-    about twenty times faster here: it locates all query points with one
-    vectorised ``find_simplex`` and applies the barycentric transform with
-    ``einsum`` instead of a per-point loop.
+    Coordinates *xy* are relative to the grid's top-left corner; cell
+    centres are at ``((col + 0.5) r, -(row + 0.5) r)``.
     """
-    simplex = tri.find_simplex(q)
-    outside = simplex < 0
-    simplex[outside] = 0
-    t = tri.transform[simplex]
-    b = np.einsum("nij,nj->ni", t[:, :2, :], q - t[:, 2, :])
-    weights = np.column_stack((b, 1.0 - b.sum(axis=1)))
-    values = (weights * z[tri.simplices[simplex]]).sum(axis=1)
-    values[outside] = np.nan
-    return values
+    res = grid.resolution
+    p0, p1, p2 = xy[simplices[:, 0]], xy[simplices[:, 1]], xy[simplices[:, 2]]
+    ax, ay = p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1]
+    bx, by = p2[:, 0] - p0[:, 0], p2[:, 1] - p0[:, 1]
+    det = ax * by - ay * bx
+    tx = np.stack((p0[:, 0], p1[:, 0], p2[:, 0]), axis=1)
+    ty = np.stack((p0[:, 1], p1[:, 1], p2[:, 1]), axis=1)
+    c0 = np.maximum(np.ceil(tx.min(axis=1) / res - 0.5), 0).astype(np.int64)
+    c1 = np.minimum(np.floor(tx.max(axis=1) / res - 0.5), grid.cols - 1).astype(np.int64)
+    r0 = np.maximum(np.ceil(-ty.max(axis=1) / res - 0.5), 0).astype(np.int64)
+    r1 = np.minimum(np.floor(-ty.min(axis=1) / res - 0.5), grid.rows - 1).astype(np.int64)
+    width = np.maximum(c1 - c0 + 1, 0)
+    count = width * np.maximum(r1 - r0 + 1, 0)
+    count[np.abs(det) < 1e-12] = 0  # degenerate (collinear) triangles draw nothing
+    ends = np.cumsum(count)
+    total = int(ends[-1]) if len(ends) else 0
+    z0, z1, z2 = z[simplices[:, 0]], z[simplices[:, 1]], z[simplices[:, 2]]
+    eps = 1e-9
+    first = 0
+    while first < len(count):
+        # triangles [first, last): at most batch_cells candidate cells (at least one triangle)
+        base = int(ends[first - 1]) if first else 0
+        last = max(first + 1, int(np.searchsorted(ends, base + batch_cells, side="right")))
+        n = int(ends[last - 1]) - base
+        if n:
+            t = np.repeat(np.arange(first, last), count[first:last])
+            k = np.arange(n) - np.repeat(ends[first:last] - count[first:last] - base, count[first:last])
+            col = c0[t] + k % width[t]
+            row = r0[t] + k // width[t]
+            vx = (col + 0.5) * res - p0[t, 0]
+            vy = -(row + 0.5) * res - p0[t, 1]
+            l1 = (vx * by[t] - vy * bx[t]) / det[t]
+            l2 = (ax[t] * vy - ay[t] * vx) / det[t]
+            inside = (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1.0 + eps)
+            value = z0[t] + l1 * (z1[t] - z0[t]) + l2 * (z2[t] - z0[t])  # exact on flat triangles
+            out[row[inside] * grid.cols + col[inside]] = value[inside]
+        if progress is not None and total:
+            progress.update(grid.rows * n / total)
+        first = last
 
 
 def _query_grid(points: np.ndarray, grid: Grid, k: int, nodata_distance: float, block_rows: int, progress):

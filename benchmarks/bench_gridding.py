@@ -12,12 +12,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import resource
 import subprocess
 import sys
 import time
+
+from _isolated import emit, machine
 
 
 def _one(points: float, method: str) -> None:
@@ -36,8 +35,7 @@ def _one(points: float, method: str) -> None:
     t0 = time.perf_counter()
     fn(pts, grid, nodata_distance=50.0)
     seconds = time.perf_counter() - t0
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(json.dumps({"points": n, "cells": grid.rows * grid.cols, "seconds": seconds, "peak_mb": rss}))
+    emit(points=n, cells=grid.rows * grid.cols, seconds=seconds)
 
 
 def main() -> None:
@@ -49,9 +47,7 @@ def main() -> None:
     if args.one:
         _one(float(args.one[0]), args.one[1])
         return
-    print(
-        f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; date {time.strftime('%Y-%m-%d')}"
-    )
+    print(machine())
     print("| ground points | cells | method | seconds | points/s | peak RSS (MB) |")
     print("|---|---|---|---|---|---|")
     for points in args.points:

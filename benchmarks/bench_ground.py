@@ -12,13 +12,9 @@ Prints a Markdown table for docs/BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
-import resource
-import subprocess
-import sys
 import time
+
+from _isolated import emit, machine, run_child
 
 ALGORITHMS = ["denoise", "smrf", "pmf", "csf"]
 
@@ -49,8 +45,7 @@ def _one(points: float, algorithm: str) -> None:
 
         csf(xyz)
     seconds = time.perf_counter() - t0
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(json.dumps({"points": len(xyz), "seconds": seconds, "peak_mb": rss}))
+    emit(points=len(xyz), seconds=seconds)
 
 
 def main() -> None:
@@ -63,23 +58,20 @@ def main() -> None:
     if args.one:
         _one(float(args.one[0]), args.one[1])
         return
-    print(
-        f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; date {time.strftime('%Y-%m-%d')}"
-    )
+    print(machine())
     print("| points | algorithm | seconds | points/s | peak RSS (MB) |")
     print("|---|---|---|---|---|")
     for points in args.points:
         for algorithm in args.algorithms:
-            cmd = [sys.executable, __file__, "--one", str(points), algorithm]
-            try:
-                done = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, check=True)
-                r = json.loads(done.stdout.strip().splitlines()[-1])
-                print(
-                    f"| {r['points']:,} | {algorithm} | {r['seconds']:.1f} | {r['points'] / r['seconds']:,.0f} | {r['peak_mb']:,.0f} |",
-                    flush=True,
-                )
-            except subprocess.TimeoutExpired:
+            r = run_child(__file__, str(points), algorithm, timeout=args.timeout)
+            if r is None:
                 print(f"| {points:,.0f} | {algorithm} | > {args.timeout:.0f} (stopped) | | |", flush=True)
+                continue
+            rate = r["points"] / r["seconds"]
+            print(
+                f"| {r['points']:,} | {algorithm} | {r['seconds']:.1f} | {rate:,.0f} | {r['peak_mb']:,.0f} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -62,7 +62,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   .venv/bin/python -m pip install -q -e ".${extras}"
   echo "$want" > "$stamp"
 fi
-.venv/bin/python -c 'import open3d, laspy, lazrs, rasterio, pyproj' 2>/dev/null || {
+.venv/bin/python -c 'import open3d, laspy, lazrs, rasterio, pyproj, pyogrio, contourpy, CSF' 2>/dev/null || {
   echo "setup: the dependencies do not import; run: .venv/bin/python -c 'import open3d, laspy, rasterio'" >&2
   exit 1
 }

@@ -7,7 +7,6 @@ them into ASPRS classes 7 (low noise) and 18 (high noise).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 def isolated_points(xyz: np.ndarray, *, neighbors: int = 8, multiplier: float = 3.0) -> np.ndarray:
@@ -36,6 +35,8 @@ def isolated_points(xyz: np.ndarray, *, neighbors: int = 8, multiplier: float = 
     ndarray of bool
         True for isolated points.
     """
+    from scipy.spatial import cKDTree
+
     xyz = np.asarray(xyz, dtype=np.float64)
     if len(xyz) <= neighbors:
         return np.zeros(len(xyz), dtype=bool)

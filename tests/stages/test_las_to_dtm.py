@@ -72,6 +72,8 @@ def test_points_laz_is_las14_with_crs_and_ground_class(run_dir):
     las = laspy.read(out / "out" / "points.laz")
     assert str(las.header.version) == "1.4" and las.header.point_format.id == 6
     assert las.header.parse_crs().to_epsg() == 25830
+    assert las.header.global_encoding.wkt  # LAS 1.4: the CRS is WKT, not GeoTIFF keys
+    assert any(type(v).__name__ == "WktCoordinateSystemVlr" for v in las.header.vlrs)
     cls = np.asarray(las.classification)
     assert set(np.unique(cls)) <= {1, 2, 7, 18}
     scene = make_scene()

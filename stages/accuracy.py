@@ -72,13 +72,10 @@ def read_checkpoints(path: Path, land_cover_column: str = "land_cover") -> tuple
 
 def sample_dtm(path: Path, xy: np.ndarray) -> np.ndarray:
     """Bilinear DTM value at each (x, y) from cell centres; NaN outside or near nodata."""
-    import rasterio
+    from stages.io import read_raster
 
-    with rasterio.open(path) as ds:
-        band = ds.read(1).astype(np.float64)
-        if ds.nodata is not None:
-            band[band == ds.nodata] = np.nan
-        inv = ~ds.transform
+    band, transform, _, _ = read_raster(path)
+    inv = ~transform
     col = inv.a * xy[:, 0] + inv.b * xy[:, 1] + inv.c
     row = inv.d * xy[:, 0] + inv.e * xy[:, 1] + inv.f
     fc, fr = col - 0.5, row - 0.5
@@ -137,18 +134,16 @@ def compare_with_truth(dtm_path: Path, truth_path: Path) -> np.ndarray:
     import rasterio
     from rasterio.warp import Resampling, reproject
 
-    with rasterio.open(dtm_path) as ds:
-        dtm = ds.read(1).astype(np.float64)
-        if ds.nodata is not None:
-            dtm[dtm == ds.nodata] = np.nan
-        profile = (ds.transform, ds.crs)
+    from stages.io import read_raster
+
+    dtm, transform, crs, _ = read_raster(dtm_path)
     with rasterio.open(truth_path) as ts:
         truth = np.full(dtm.shape, np.nan)
         reproject(
             source=rasterio.band(ts, 1),
             destination=truth,
-            dst_transform=profile[0],
-            dst_crs=profile[1],
+            dst_transform=transform,
+            dst_crs=crs,
             dst_nodata=np.nan,
             resampling=Resampling.bilinear,
         )

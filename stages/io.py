@@ -51,6 +51,17 @@ def cloud_crs(las):
         return None
 
 
+def read_raster(path: Path):
+    """Band 1 as float64 with NaN for nodata, and the raster's transform, CRS and cell size."""
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        band = ds.read(1).astype(np.float64)
+        if ds.nodata is not None:
+            band[band == ds.nodata] = np.nan
+        return band, ds.transform, ds.crs, ds.res[0]
+
+
 def write_cog(path: Path, array: np.ndarray, *, transform, crs, nodata: float = NODATA) -> None:
     """Write a single-band float32 Cloud Optimized GeoTIFF.
 

@@ -236,7 +236,7 @@ class Report(Stage):
     reads_metrics = True
 
     def run(self, ctx) -> None:
-        from stages.terrain import read_raster
+        from stages.io import read_raster
 
         dtm, _, _, resolution = read_raster(ctx.inputs["dtm"])
         density, _, _, _ = read_raster(ctx.inputs["density"])

@@ -16,18 +16,7 @@ import numpy as np
 from pydantic import Field
 
 from pipeline.stage import Stage, StageParams
-from stages.io import NODATA, png_bytes, write_cog, write_lines_gpkg
-
-
-def read_raster(path):
-    """Band 1 as float64 with NaN for nodata, and the dataset's transform, CRS, resolution."""
-    import rasterio
-
-    with rasterio.open(path) as ds:
-        band = ds.read(1).astype(np.float64)
-        if ds.nodata is not None:
-            band[band == ds.nodata] = np.nan
-        return band, ds.transform, ds.crs, ds.res[0]
+from stages.io import NODATA, png_bytes, read_raster, write_cog, write_lines_gpkg
 
 
 class HillshadeParams(StageParams):

@@ -11,6 +11,7 @@ from pydantic import Field
 
 from pipeline.stage import Plugin
 from stages.accuracy import Accuracy
+from stages.budget.command import BUDGET
 from stages.classify import ClassifyGround
 from stages.denoise import Denoise
 from stages.evaluate import EVALUATE
@@ -54,6 +55,6 @@ plugin = Plugin(
     name="dtm-pipeline",
     stages=[Parse, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, Accuracy, ExportLas, Report],
     global_fields={"crs": _crs_field()},
-    commands=[EVALUATE],
+    commands=[EVALUATE, BUDGET],
     versions=_versions,
 )

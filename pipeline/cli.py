@@ -8,8 +8,10 @@ traceback; an internal error prints its traceback only with ``-v``.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -99,18 +101,26 @@ def main(argv: list[str] | None = None) -> int:
         print("pipeline: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into a reader that stopped early (| head)
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            where = f" while writing {exc.filename}" if exc.filename else ""
+            print(f"pipeline: error: the disk is full{where}; no partial result was kept.", file=sys.stderr)
+            return EXIT_INTERNAL
+        return _internal_error(exc, verbose)
     except Exception as exc:  # an internal error: a bug, not the user's
-        if verbose:
-            traceback.print_exc()
-        print(
-            f"pipeline: internal error: {type(exc).__name__}: {exc} (run with -v for the traceback; please report it)",
-            file=sys.stderr,
-        )
-        return EXIT_INTERNAL
+        return _internal_error(exc, verbose)
+
+
+def _internal_error(exc: BaseException, verbose: bool) -> int:
+    if verbose:
+        traceback.print_exception(exc)
+    print(
+        f"pipeline: internal error: {type(exc).__name__}: {exc} (run with -v for the traceback; please report it)",
+        file=sys.stderr,
+    )
+    return EXIT_INTERNAL
 
 
 def _cmd_validate(args: argparse.Namespace, plugin: Plugin) -> int:

@@ -12,6 +12,7 @@ happened.
 from __future__ import annotations
 
 import logging
+import os
 import platform
 import time
 from collections.abc import Iterable
@@ -173,6 +174,17 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
     return plan
 
 
+def check_writable(folder: Path, what: str) -> None:
+    """Create *folder* if needed and prove it takes a file, or raise ConfigError."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"the {what} folder {folder} is not writable ({exc.strerror or exc}).") from None
+
+
 def cache_root(config: BaseModel) -> Path:
     cache = getattr(config, "cache", None)
     return Path(cache) if cache else Path(config.output) / ".cache"
@@ -222,6 +234,9 @@ def run(
     plan = build_plan(config, plugin, until, force)
     cache = Cache(cache_root(config))
     output = Path(config.output)
+    if not dry_run:
+        check_writable(output, "output")
+        check_writable(cache.root, "cache")
     started = time.time()
     manifest: dict[str, Any] = {
         "name": getattr(config, "name", None) or (Path(config_path).stem if config_path else None),

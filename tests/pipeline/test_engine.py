@@ -248,3 +248,24 @@ def test_stage_reading_metrics_reruns_when_they_change(toy):
     (toy.root / "numbers.txt").write_text("1\n2\n3\n10\n10\n")
     assert toy.run() == 0
     assert toy.product("summary.json") == {"count": 5}
+
+
+def test_unwritable_output_folder_is_one_sentence_exit_2(toy, capsys):
+    blocker = toy.root / "blocked"
+    blocker.write_text("a file where the output folder should be")
+    assert toy.run("--set", f"output={blocker / 'out'}") == 2
+    err = capsys.readouterr().err
+    assert "the output folder" in err and "is not writable" in err and "Traceback" not in err
+
+
+def test_full_disk_is_reported_in_one_sentence(toy, capsys, monkeypatch):
+    import errno
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", "numbers.json")
+
+    monkeypatch.setattr(toymod.Load, "run", full)
+    assert toy.run() == 1
+    assert "the disk is full while writing numbers.json" in capsys.readouterr().err
+    # nothing half-written: no cache entry for the stage
+    assert not list((toy.root / "out" / ".cache" / "load").glob("*/entry.json"))

@@ -16,6 +16,8 @@ import numpy as np
 from pipeline.errors import InputDataError
 from stages.io import POINT_FORMAT
 
+#: Largest extent accepted in any axis (m): twice the Earth's diameter.
+MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
 SCAN_ANGLE_UNIT_DEG = 0.006
 _COPIED = (
@@ -83,13 +85,34 @@ def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | No
     return crs
 
 
+def _parse_errors():
+    """What laspy raises on damaged files (found by fuzzing): all mean "unreadable"."""
+    import struct
+
+    import laspy
+
+    return (
+        laspy.LaspyException,
+        OSError,
+        ValueError,
+        struct.error,
+        IndexError,
+        KeyError,
+        UnicodeDecodeError,
+        OverflowError,
+        RuntimeError,
+        MemoryError,  # a damaged (E)VLR length makes laspy ask for terabytes
+    )
+
+
 def _open(path: Path):
     import laspy
 
     try:
         return laspy.open(str(path))
-    except (laspy.LaspyException, OSError, ValueError) as exc:
-        raise InputDataError(f"{path}: not a readable LAS/LAZ file ({exc}).") from None
+    except _parse_errors() as exc:
+        reason = "a header field announces more data than can exist" if isinstance(exc, MemoryError) else exc
+        raise InputDataError(f"{path}: not a readable LAS/LAZ file ({reason}).") from None
 
 
 def count_points(paths: list[Path]) -> int:
@@ -124,7 +147,6 @@ def read_las_files(
     InputDataError
         When a file is not LAS/LAZ, is truncated, or has no usable CRS.
     """
-    import laspy
     import pyproj
 
     report = LasReadReport()
@@ -150,11 +172,18 @@ def read_las_files(
             if "gps_time" not in dims:
                 report.gps_time_missing.append(str(path))
             n_read = 0
+            first_chunk = len(columns["x"])  # this file's chunks start here
             try:
                 for chunk in reader.chunk_iterator(chunk_size):
                     x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
                     if transformer is not None:
                         x, y, z = transformer.transform(x, y, z)
+                    bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
+                    if bad.any():
+                        raise InputDataError(
+                            f"{path}: point {n_read + int(np.argmax(bad))} has coordinates that are not finite "
+                            "numbers (damaged scale or offset in the header?)."
+                        )
                     columns["x"].append(np.asarray(x, dtype=np.float64))
                     columns["y"].append(np.asarray(y, dtype=np.float64))
                     columns["z"].append(np.asarray(z, dtype=np.float64))
@@ -172,9 +201,16 @@ def read_las_files(
                     n_read += n
                     if progress is not None:
                         progress.update(n)
-            except (laspy.LaspyException, OSError, ValueError, RuntimeError) as exc:
+            except _parse_errors() as exc:
                 raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
             report.points[str(path)] = n_read
+            if n_read:
+                span = max(float(np.ptp(np.concatenate(columns[k][first_chunk:]))) for k in ("x", "y", "z"))
+                if span > MAX_SPAN_M:
+                    raise InputDataError(
+                        f"{path}: the points span {span:.3g} m, more than any survey on Earth "
+                        "(damaged scale or offset in the header?)."
+                    )
     merged = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in columns.items()}
     return _build(merged, target), report
 
@@ -184,12 +220,17 @@ def _build(cols: dict[str, np.ndarray], crs):
 
     header = laspy.LasHeader(point_format=POINT_FORMAT, version="1.4")
     n = len(cols["x"])
+    scale = 1e-4
     if n:
         mins = np.array([cols["x"].min(), cols["y"].min(), cols["z"].min()])
+        maxs = np.array([cols["x"].max(), cols["y"].max(), cols["z"].max()])
         header.offsets = np.floor(mins / 1000.0) * 1000.0
-    # 0.1 mm: finer than any airborne LiDAR's precision, coarse enough for
-    # +-214 km around the offset in int32.
-    header.scales = np.array([1e-4, 1e-4, 1e-4])
+        # 0.1 mm: finer than any airborne LiDAR's precision, and int32 holds
+        # +-214 km around the offset; a wider survey gets 1 mm, 1 cm, ...
+        reach = float(np.max(maxs - header.offsets))
+        while reach / scale > 2.0e9:
+            scale *= 10.0
+    header.scales = np.array([scale, scale, scale])
     header.add_crs(crs)
     las = laspy.LasData(header)
     las.points = laspy.ScaleAwarePointRecord.zeros(n, header=header)

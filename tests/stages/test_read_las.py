@@ -98,3 +98,21 @@ def test_point_format_1_input_keeps_gps_time_and_attributes(tmp_path):
     np.testing.assert_array_equal(las.intensity, np.arange(5) * 10)
     np.testing.assert_array_equal(las.point_source_id, 7)
     np.testing.assert_array_equal(las.classification, 2)
+
+
+def test_a_wide_survey_gets_a_coarser_scale_not_an_overflow(tmp_path):
+    x = np.array([200_000.0, 700_000.0])  # 500 km apart: beyond int32 at 0.1 mm
+    path = _write(tmp_path / "wide.las", x, np.array([4_400_000.0, 4_400_000.0]), np.zeros(2), crs="EPSG:25830")
+    las, _ = read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    assert las.header.scales[0] == pytest.approx(1e-3)
+    np.testing.assert_allclose(las.x, x, atol=1e-3)
+
+
+def test_damaged_scale_is_refused_with_the_file_name(tmp_path):
+    path = _write(tmp_path / "ok.las", np.array([1.0, 2.0]), np.array([1.0, 2.0]), np.zeros(2), crs="EPSG:25830")
+    blob = bytearray(path.read_bytes())
+    blob[131:139] = np.array([1e12]).tobytes()  # x scale factor (LAS header offset 131)
+    bad = tmp_path / "bad_scale.las"
+    bad.write_bytes(bytes(blob))
+    with pytest.raises(InputDataError, match=r"bad_scale.las: the points span .*damaged scale or offset"):
+        read_las_files([bad], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)

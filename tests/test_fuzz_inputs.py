@@ -1,0 +1,89 @@
+"""Property-based fuzzing of the input parsers: the outcome is always a clean
+ConfigError / InputDataError (one sentence) or a valid result — never another
+exception (a traceback for the user)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pipeline.config import load_config
+from pipeline.errors import ConfigError, InputDataError
+from pipeline.stage import config_model
+from stages import plugin
+from stages.accuracy import read_checkpoints
+from stages.readers.las import read_las_files
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_CONFIG = (ROOT / "configs" / "las.yaml").read_text()
+FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@FUZZ
+@given(data=st.data())
+def test_config_mutations_fail_cleanly(tmp_path, data):
+    text = SAMPLE_CONFIG
+    kind = data.draw(st.sampled_from(["truncate", "flip", "insert", "garbage"]))
+    if kind == "truncate":
+        text = text[: data.draw(st.integers(0, len(text)))]
+    elif kind == "flip":
+        i = data.draw(st.integers(0, len(text) - 1))
+        text = text[:i] + data.draw(st.characters(codec="utf-8")) + text[i + 1 :]
+    elif kind == "insert":
+        i = data.draw(st.integers(0, len(text)))
+        text = text[:i] + data.draw(st.text(max_size=40)) + text[i:]
+    else:
+        text = data.draw(st.text(max_size=300))
+    path = tmp_path / "configs" / "fuzz.yaml"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    try:
+        load_config(path, config_model(plugin))
+    except ConfigError as exc:
+        assert str(exc) and "\n" not in str(exc)
+
+
+@FUZZ
+@given(rows=st.lists(st.lists(st.text(alphabet="0123456789.-eE,naif x", max_size=12), max_size=6), max_size=8))
+def test_checkpoint_csv_fails_cleanly(tmp_path, rows):
+    path = tmp_path / "cp.csv"
+    path.write_text("x,y,z\n" + "\n".join(",".join(r) for r in rows))
+    try:
+        pts, _ = read_checkpoints(path)
+        assert np.isfinite(pts).all()
+    except InputDataError as exc:
+        assert "cp.csv" in str(exc)
+
+
+@pytest.fixture(scope="module")
+def small_laz(tmp_path_factory):
+    import laspy
+
+    las = laspy.read(ROOT / "data_samples" / "las" / "sample.laz")
+    small = laspy.LasData(las.header)
+    small.points = las.points[:2000].copy()
+    path = tmp_path_factory.mktemp("laz") / "small.laz"
+    small.write(str(path))
+    return path.read_bytes()
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
+    blob = bytearray(small_laz)
+    if data.draw(st.booleans()):
+        blob = blob[: data.draw(st.integers(0, len(blob)))]
+    else:
+        for _ in range(data.draw(st.integers(1, 8))):
+            i = data.draw(st.integers(0, len(blob) - 1))
+            blob[i] = data.draw(st.integers(0, 255))
+    path = tmp_path / "damaged.laz"
+    path.write_bytes(bytes(blob))
+    try:
+        las, _ = read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=500)
+    except InputDataError as exc:
+        assert "damaged.laz" in str(exc)

@@ -133,25 +133,12 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
             producer[artifact] = step
     aliases = {out: src for step in skipped for out, src in step.stage.passthrough.items()}
     plan = Plan([], skipped, producer, aliases)
-    for step in active:
-        for artifact in step.io.inputs:
-            if plan.resolve(artifact) not in producer:
-                could = [s.name for s in skipped if artifact in s.io.outputs]
-                hint = f" (enable '{could[0]}' or disable '{step.name}')" if could else ""
-                raise PlanError(f"stage '{step.name}' needs '{artifact}', which no enabled stage produces{hint}.")
-    # Kahn's algorithm, ties broken by the plugin's natural order.
-    deps = {s.name: {producer[plan.resolve(a)].name for a in s.io.inputs} for s in active}
+    # Dependencies by producer; an input nobody produces is an error only for
+    # a stage that will run (so --until can run a prefix of an unfinished graph).
+    missing = {s.name: [a for a in s.io.inputs if plan.resolve(a) not in producer] for s in active}
+    deps = {s.name: {producer[plan.resolve(a)].name for a in s.io.inputs if a not in missing[s.name]} for s in active}
     by_name = {s.name: s for s in active}
-    ordered: list[Step] = []
-    done: set[str] = set()
-    while len(ordered) < len(active):
-        ready = [s for s in active if s.name not in done and deps[s.name] <= done]
-        if not ready:
-            cycle = sorted(set(by_name) - done)
-            raise PlanError(f"the stages {', '.join(cycle)} depend on each other in a cycle.")
-        nxt = min(ready, key=lambda s: s.order)
-        ordered.append(nxt)
-        done.add(nxt.name)
+    keep = set(by_name)
     if until:
         if until not in by_name:
             raise ConfigError(f"--until {until}: that stage is disabled in this configuration.")
@@ -162,11 +149,32 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
                 if dep not in keep:
                     keep.add(dep)
                     frontier.append(dep)
-        for step in ordered:
-            if step.name not in keep:
-                step.note = f"after --until {until}"
-                skipped.append(step)
-        ordered = [s for s in ordered if s.name in keep]
+    for step in active:
+        if step.name in keep and missing[step.name]:
+            artifact = missing[step.name][0]
+            could = [s.name for s in skipped if artifact in s.io.outputs]
+            hint = (
+                f" (enable '{could[0]}' or disable '{step.name}')"
+                if could
+                else "; no stage of this version writes it from this input: run the stages before it with --until"
+            )
+            raise PlanError(f"stage '{step.name}' needs '{artifact}', which no enabled stage produces{hint}.")
+    # Kahn's algorithm, ties broken by the plugin's natural order.
+    ordered: list[Step] = []
+    done: set[str] = set()
+    while len(ordered) < len(active):
+        ready = [s for s in active if s.name not in done and deps[s.name] <= done]
+        if not ready:
+            cycle = sorted(set(by_name) - done)
+            raise PlanError(f"the stages {', '.join(cycle)} depend on each other in a cycle.")
+        nxt = min(ready, key=lambda s: s.order)
+        ordered.append(nxt)
+        done.add(nxt.name)
+    for step in ordered:
+        if step.name not in keep:
+            step.note = f"after --until {until}"
+            skipped.append(step)
+    ordered = [s for s in ordered if s.name in keep]
     for name in force:
         if name not in {s.name for s in ordered}:
             raise ConfigError(f"--force {name}: that stage does not run in this plan.")

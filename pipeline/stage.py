@@ -59,7 +59,7 @@ class Stage:
 
     name: ClassVar[str]
     version: ClassVar[str] = "1"
-    Params: ClassVar[type[BaseModel]] = StageParams
+    Params: ClassVar[Any] = StageParams  # a model, or an Annotated union of models
     config_path: ClassVar[str | None] = None
     can_disable: ClassVar[bool] = True
     inputs: ClassVar[tuple[str, ...]] = ()
@@ -174,8 +174,11 @@ def config_model(plugin: Plugin) -> type[BaseModel]:
     return create_model("Config", __base__=StrictModel, **fields)
 
 
-def _all_defaults(model: type[BaseModel]) -> bool:
-    return all(not f.is_required() for f in model.model_fields.values())
+def _all_defaults(params: Any) -> bool:
+    """Whether a stage's parameter block may be left out (a union of models never may)."""
+    if not (isinstance(params, type) and issubclass(params, BaseModel)):
+        return False
+    return all(not f.is_required() for f in params.model_fields.values())
 
 
 def get_dotted(obj: Any, dotted: str) -> Any:

@@ -39,6 +39,9 @@ def _type_name(annotation: Any) -> str:
         return " \\| ".join(repr(a).replace("'", "") for a in typing.get_args(annotation))
     if origin is list:
         return f"list of {_type_name(typing.get_args(annotation)[0])}"
+    if origin is tuple:
+        args = typing.get_args(annotation)
+        return f"list of {len(args)} {_type_name(args[0])}"
     args = typing.get_args(annotation)
     if args:
         return " or ".join(_type_name(a) for a in args)
@@ -74,7 +77,8 @@ def _rows(model: type[BaseModel], prefix: str) -> list[str]:
     for name, field in model.model_fields.items():
         key = f"{prefix}{name}"
         models = _models(field.annotation)
-        rows.append(f"| `{key}` | {_type_name(field.annotation)} | {_default(field)} | {field.description or ''} |")
+        desc = (field.description or "").replace("|", "\\|")
+        rows.append(f"| `{key}` | {_type_name(field.annotation)} | {_default(field)} | {desc} |")
         for sub in models:
             sub_prefix = f"{key}." if len(models) == 1 else f"{key}.({sub.__name__})."
             rows.extend(_rows(sub, sub_prefix))

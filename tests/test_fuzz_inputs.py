@@ -87,3 +87,34 @@ def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
         las, _ = read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=500)
     except InputDataError as exc:
         assert "damaged.laz" in str(exc)
+
+
+@FUZZ
+@given(data=st.data())
+def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
+    from stages.readers.ldmrs import Counters, read_ldmrs_mtig
+    from tests.stages.test_read_ldmrs import LOG
+
+    lines = LOG.splitlines()
+    for _ in range(data.draw(st.integers(1, 6))):
+        i = data.draw(st.integers(0, len(lines) - 1))
+        action = data.draw(st.sampled_from(["drop", "dup", "garble", "cut"]))
+        if action == "drop":
+            del lines[i]
+        elif action == "dup":
+            lines.insert(i, lines[i])
+        elif action == "garble":
+            lines[i] = data.draw(st.text(max_size=30))
+        else:
+            lines[i] = lines[i][: data.draw(st.integers(0, len(lines[i])))]
+        if not lines:
+            break
+    path = tmp_path / "acq.log"
+    path.write_text("\n".join(lines), encoding="utf-8", errors="surrogatepass")
+    counters = Counters()
+    scans = list(read_ldmrs_mtig(path, counters))
+    assert counters.scans_accepted == len(scans) <= counters.scans_total
+    skipped = counters.invalid_scans + counters.bad_gps + counters.malformed_scans
+    assert counters.scans_accepted + skipped <= counters.scans_total + 1  # + a garbled SCAN line
+    for s in scans:
+        assert np.isfinite(s.points).all()

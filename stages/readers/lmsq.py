@@ -1,0 +1,181 @@
+"""The ``.lmsq`` scanner stream of the seed-2 design (SPEC 3.B and 3.C), read in chunks.
+
+Layout (little-endian): a 16-byte header — ``b"LMSQ"``, uint16 version (1),
+uint16 model (140 or 280), 8 reserved bytes — then records, each starting
+with a uint8 type:
+
+- type 1, measurement, 18 bytes: range uint24 (mm), amplitude uint8, mirror
+  angle int24 (1e-4 degree, 0 = nadir, positive to starboard), quality uint8
+  (bits 0-5 quality, 0 = invalid; bits 6-7 echo index), time uint24
+  (microseconds since the last PPS), RGB 3 x uint16;
+- type 2, PPS, 11 bytes: float64 GPS seconds of week of the PPS edge, uint16
+  GPS week.
+
+A measurement belongs to the last PPS before it.  Counted, never guessed:
+measurements before the first PPS (no time), measurements whose offset is 1 s
+or more (a PPS was missed), quality 0 (invalid), and a cut-off last record.
+An unknown record type means the stream is corrupt: reading stops with the
+byte offset.
+
+Records are located with NumPy: runs of 18-byte measurements are decoded
+as whole blocks; Python only steps from one PPS record to the next (one per
+second of flight), so a file of millions of pulses reads at array speed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputDataError
+
+HEADER = 16
+MEASUREMENT = 18
+PPS = 11
+SECONDS_PER_WEEK = 604_800.0
+
+
+@dataclass
+class LmsqCounters:
+    measurements: int = 0
+    pps: int = 0
+    before_first_pps: int = 0
+    missed_pps: int = 0  # measurements 1 s or more after their PPS
+    invalid_quality: int = 0
+    truncated_bytes: int = 0
+
+
+@dataclass(frozen=True)
+class LmsqHeader:
+    version: int
+    model: int
+
+
+def _u24(block: np.ndarray, col: int) -> np.ndarray:
+    b = block[:, col : col + 3].astype(np.int64)
+    return b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16)
+
+
+def decode_measurements(block: np.ndarray) -> dict[str, np.ndarray]:
+    """Decode an (n, 18) uint8 block of type-1 records into columns."""
+    angle = _u24(block, 5)
+    angle = np.where(angle >= 1 << 23, angle - (1 << 24), angle)
+    quality = block[:, 8]
+    rgb = block[:, 12:18].copy().view("<u2").reshape(-1, 3)
+    return {
+        "range_m": _u24(block, 1) * 1e-3,
+        "amplitude": block[:, 4].copy(),
+        "angle_deg": angle * 1e-4,
+        "quality": (quality & 0x3F).astype(np.uint8),
+        "echo": (quality >> 6).astype(np.uint8),
+        "offset_us": _u24(block, 9),
+        "rgb": rgb,
+    }
+
+
+def read_header(path: Path) -> LmsqHeader:
+    with open(path, "rb") as fh:
+        head = fh.read(HEADER)
+    if len(head) < HEADER or head[:4] != b"LMSQ":
+        raise InputDataError(f"{path}, byte 0: not an .lmsq scanner stream (no LMSQ signature).")
+    version, model = np.frombuffer(head[4:8], "<u2")
+    if version != 1:
+        raise InputDataError(f"{path}, byte 4: version {version} is not supported (only 1).")
+    if model not in (140, 280):
+        raise InputDataError(f"{path}, byte 6: scanner model {model} is not 140 or 280.")
+    return LmsqHeader(int(version), int(model))
+
+
+def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24) -> Iterator[dict[str, np.ndarray]]:
+    """Yield blocks of valid measurements with their GPS time, reading *chunk_bytes* at a time.
+
+    Each block has the columns of :func:`decode_measurements` (less
+    ``offset_us``) plus ``time`` (GPS seconds since the GPS epoch:
+    week * 604800 + seconds of week + offset) and ``byte`` (the record's
+    offset in the file, for error reports).
+    """
+    read_header(path)
+    pps_time: float | None = None
+    with open(path, "rb") as fh:
+        fh.seek(HEADER)
+        base = HEADER  # file offset of buf[0]
+        buf = fh.read(chunk_bytes)
+        eof = len(buf) < chunk_bytes
+        pos = 0
+        while True:
+            arr = np.frombuffer(buf, dtype=np.uint8)
+            n_left = len(arr) - pos
+            if n_left <= 0 and eof:
+                break
+            # A run of whole measurement records starting at pos.
+            k = n_left // MEASUREMENT
+            types = arr[pos : pos + k * MEASUREMENT : MEASUREMENT] if k else arr[:0]
+            stop = np.flatnonzero(types != 1)
+            run = int(stop[0]) if len(stop) else k
+            if run:
+                block = arr[pos : pos + run * MEASUREMENT].reshape(run, MEASUREMENT)
+                yield from _emit(block, base + pos, pps_time, counters)
+                pos += run * MEASUREMENT
+                continue
+            if n_left > 0 and arr[pos] == 2 and n_left >= PPS:
+                sow = float(np.frombuffer(buf, "<f8", 1, pos + 1)[0])
+                week = int(np.frombuffer(buf, "<u2", 1, pos + 9)[0])
+                if not (np.isfinite(sow) and 0.0 <= sow < SECONDS_PER_WEEK):
+                    raise InputDataError(f"{path}, byte {base + pos}: PPS seconds of week {sow!r} out of 0-604800.")
+                pps_time = week * SECONDS_PER_WEEK + sow
+                counters.pps += 1
+                pos += PPS
+                continue
+            if n_left > 0 and arr[pos] not in (1, 2):
+                raise InputDataError(
+                    f"{path}, byte {base + pos}: unknown record type {int(arr[pos])} (the stream is corrupt)."
+                )
+            # A record cut by the chunk boundary (or by the end of the file).
+            if eof:
+                counters.truncated_bytes += n_left
+                break
+            more = fh.read(chunk_bytes)
+            eof = len(more) < chunk_bytes
+            buf = buf[pos:] + more
+            base += pos
+            pos = 0
+
+
+def _emit(block: np.ndarray, offset: int, pps_time: float | None, counters: LmsqCounters):
+    cols = decode_measurements(block)
+    n = len(block)
+    counters.measurements += n
+    if pps_time is None:
+        counters.before_first_pps += n
+        return
+    late = cols["offset_us"] >= 1_000_000
+    bad = cols["quality"] == 0
+    counters.missed_pps += int(late.sum())
+    counters.invalid_quality += int((bad & ~late).sum())
+    keep = ~(late | bad)
+    if not keep.any():
+        return
+    out = {k: v[keep] for k, v in cols.items() if k != "offset_us"}
+    out["time"] = pps_time + cols["offset_us"][keep] * 1e-6
+    out["byte"] = offset + np.flatnonzero(keep) * MEASUREMENT
+    yield out
+
+
+def write_lmsq(path: Path, model: int, records: list) -> None:
+    """Write a stream from ``("pps", sow, week)`` and ``("m", range_m, amplitude, angle_deg,
+    quality, echo, offset_us, (r, g, b))`` tuples (tests and the simulator)."""
+    out = bytearray(b"LMSQ" + np.array([1, model], "<u2").tobytes() + bytes(8))
+    for rec in records:
+        if rec[0] == "pps":
+            out += bytes([2]) + np.float64(rec[1]).tobytes() + np.uint16(rec[2]).tobytes()
+            continue
+        _, rng, amp, angle, quality, echo, offset_us, rgb = rec
+        mm = int(round(rng * 1000))
+        a = int(round(angle * 1e4)) & 0xFFFFFF
+        out += bytes([1]) + mm.to_bytes(3, "little") + bytes([amp]) + a.to_bytes(3, "little")
+        out += bytes([(quality & 0x3F) | (echo << 6)]) + int(offset_us).to_bytes(3, "little")
+        out += np.array(rgb, "<u2").tobytes()
+    Path(path).write_bytes(bytes(out))

@@ -11,6 +11,7 @@ happened.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import platform
@@ -299,8 +300,6 @@ def run(
             manifest["seconds"] = round(finished - started, 3)
             if not manifest["stages"]:
                 manifest["stages"] = list(records.values())
-            import json
-
             atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
             log.info("run %s in %.2f s; manifest %s", manifest["status"], finished - started, output / MANIFEST)
 

@@ -120,6 +120,8 @@ def _hidden_log_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_dtm(args: argparse.Namespace) -> int:
+    from rasterio.errors import RasterioError
+
     from stages.accuracy import compare_with_truth, read_checkpoints, sample_dtm, vertical_accuracy
 
     for path in (args.dtm, args.truth or args.checkpoints):
@@ -131,14 +133,8 @@ def _run_dtm(args: argparse.Namespace) -> int:
         else:
             points, cover = read_checkpoints(args.checkpoints, args.land_cover_column)
             result = vertical_accuracy(sample_dtm(args.dtm, points[:, :2]) - points[:, 2], cover, args.vegetated)
-    except Exception as exc:  # rasterio's errors for unreadable rasters
-        if isinstance(exc, (ConfigError, InputDataError)):
-            raise
-        import rasterio.errors
-
-        if isinstance(exc, rasterio.errors.RasterioError):
-            raise InputDataError(f"{args.dtm} or its reference cannot be read as a raster ({exc}).") from None
-        raise
+    except RasterioError as exc:
+        raise InputDataError(f"{args.dtm} or its reference cannot be read as a raster ({exc}).") from None
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

@@ -27,6 +27,7 @@ from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageParams
 from stages import glossary
 from stages.grid.interpolate import Grid, cell_count, cell_max, idw, nearest, tin
+from stages.ground.surface import fill_nearest
 from stages.io import NODATA, read_cloud, write_cog, xyz
 
 
@@ -58,19 +59,6 @@ def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, pro
     return nearest(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
 
 
-def fill_within(values: np.ndarray, max_cells: float) -> np.ndarray:
-    """Fill NaN cells with the nearest value no more than *max_cells* away."""
-    from scipy import ndimage
-
-    empty = np.isnan(values)
-    if not empty.any() or empty.all():
-        return values
-    dist, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
-    out = values[ri, ci]
-    out[dist > max_cells] = np.nan
-    return out
-
-
 class Rasterize(Stage):
     name = "rasterize"
     version = "2"
@@ -100,7 +88,7 @@ class Rasterize(Stage):
         ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, len(ground), grid.cols, grid.rows)
         with ctx.progress(grid.rows, f"{p.method} DTM", unit="row") as bar:
             dtm = interpolate_dtm(ground, grid, p, progress=bar)
-        dsm = fill_within(cell_max(pts[usable], grid), p.nodata_distance / p.resolution)
+        dsm = fill_nearest(cell_max(pts[usable], grid), max_cells=p.nodata_distance / p.resolution)
         dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
         ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
         density = cell_count(pts[usable], grid).astype(np.float64)

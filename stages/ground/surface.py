@@ -55,15 +55,21 @@ def min_grid(z: np.ndarray, idx: CellIndex) -> np.ndarray:
     return out.reshape(idx.rows, idx.cols)
 
 
-def fill_nearest(grid: np.ndarray) -> np.ndarray:
-    """Replace NaN cells by the value of the nearest non-NaN cell."""
+def fill_nearest(grid: np.ndarray, max_cells: float | None = None) -> np.ndarray:
+    """Replace NaN cells by the value of the nearest non-NaN cell.
+
+    With *max_cells*, cells farther than that (in cells) from any value stay NaN.
+    """
     empty = np.isnan(grid)
     if not empty.any():
         return grid
     if empty.all():
         raise ValueError("the grid has no value to fill from")
-    _, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
-    return grid[ri, ci]
+    dist, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
+    out = grid[ri, ci]
+    if max_cells is not None:
+        out[dist > max_cells] = np.nan
+    return out
 
 
 def inpaint(grid: np.ndarray) -> np.ndarray:

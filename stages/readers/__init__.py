@@ -1,0 +1,18 @@
+"""Readers of the input formats; shared bookkeeping of what they skip."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+MAX_LOCATIONS = 20
+
+
+@dataclass
+class SkipLog:
+    """Base of a reader's counters: the first places where something was skipped."""
+
+    locations: list[str] = field(default_factory=list)  # "file, line N: what"
+
+    def note(self, where: str) -> None:
+        if len(self.locations) < MAX_LOCATIONS:
+            self.locations.append(where)

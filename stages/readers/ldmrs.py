@@ -36,18 +36,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+
+from stages.readers import SkipLog
 
 STATUS_XKF_VALID = 0b010
 STATUS_GPS_FIX = 0b100
 FLAG_CLUTTER = 0b0010
 FLAG_DIRT = 0b1000
 GPS_EPOCH = datetime(1980, 1, 6, tzinfo=UTC)
-MAX_LOCATIONS = 20
 
 
 @dataclass
@@ -65,7 +66,7 @@ class Scan:
 
 
 @dataclass
-class Counters:
+class Counters(SkipLog):
     """What the reader saw and skipped; nothing is dropped without a count."""
 
     scans_total: int = 0
@@ -80,11 +81,6 @@ class Counters:
     rejected_clutter: int = 0
     rejected_dirt: int = 0
     rejected_zero: int = 0
-    locations: list[str] = field(default_factory=list)  # first problems: "file:line: what"
-
-    def note(self, where: str) -> None:
-        if len(self.locations) < MAX_LOCATIONS:
-            self.locations.append(where)
 
 
 class _Bad(Exception):

@@ -20,28 +20,24 @@ sentences, GGA without a fix (quality 0), unknown sentence types.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, date, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.errors import InputDataError
+from stages.readers import SkipLog
 from stages.readers.ldmrs import GPS_EPOCH
 
 
 @dataclass
-class NmeaCounters:
+class NmeaCounters(SkipLog):
     sentences: int = 0
     bad_checksum: int = 0
     malformed: int = 0
     no_fix: int = 0
     unknown: int = 0
-    locations: list[str] = field(default_factory=list)
-
-    def note(self, where: str) -> None:
-        if len(self.locations) < 20:
-            self.locations.append(where)
 
 
 def checksum_ok(sentence: str) -> bool:

@@ -105,9 +105,66 @@ def _parse_errors():
     )
 
 
+#: A LAZ point takes at least this many bytes (LAZ compresses 3-10x; 1/64 byte
+#: per point is far below anything real), so a header claiming more points than
+#: 64 x the file size is damaged.
+_MIN_LAZ_BYTES_PER_POINT = 1 / 64
+
+
+def check_header_sizes(path: Path) -> None:
+    """Refuse a LAS/LAZ whose header announces more data than the file holds.
+
+    Read before laspy allocates anything: the offset to the point data, the
+    point count times the record length (LAZ: a generous lower bound per
+    point), the VLRs' 54-byte headers before the point data, and the extended
+    VLRs' start and lengths must fit in the file.  A damaged header then costs one sentence, not gigabytes of memory.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(375)
+    if len(head) < 227 or head[:4] != b"LASF":
+        return  # laspy reports the missing signature itself
+    minor = head[25]
+    header_size = int.from_bytes(head[94:96], "little")
+    offset_points = int.from_bytes(head[96:100], "little")
+    vlr_count = int.from_bytes(head[100:104], "little")
+    point_format = head[104]
+    record_length = int.from_bytes(head[105:107], "little")
+    count = int.from_bytes(head[107:111], "little")
+    evlr_start = evlr_count = 0
+    if minor >= 4 and len(head) >= 255:
+        evlr_start = int.from_bytes(head[235:243], "little")
+        evlr_count = int.from_bytes(head[243:247], "little")
+        count = max(count, int.from_bytes(head[247:255], "little"))
+    if header_size + 54 * vlr_count > min(offset_points, size):
+        raise InputDataError(
+            f"{path}, byte 100: the header announces {vlr_count:,} VLRs, more than fit before the point data."
+        )
+    compressed = bool(point_format & 0x80) or bool(point_format & 0x40)
+    need = count * (_MIN_LAZ_BYTES_PER_POINT if compressed else record_length)
+    if offset_points > size or offset_points + need > size:
+        raise InputDataError(
+            f"{path}, byte 107: the header announces {count:,} points, more than the file's {size:,} bytes can hold."
+        )
+    if evlr_count:
+        if evlr_start + 60 * evlr_count > size:
+            raise InputDataError(f"{path}, byte 235: the extended VLRs start beyond the end of the file.")
+        position = evlr_start
+        with open(path, "rb") as fh:
+            for _ in range(evlr_count):
+                fh.seek(position + 20)
+                length = int.from_bytes(fh.read(8), "little")
+                position += 60 + length
+                if position > size:
+                    raise InputDataError(
+                        f"{path}, byte {position - length - 40}: an extended VLR runs past the end of the file."
+                    )
+
+
 def _open(path: Path):
     import laspy
 
+    check_header_sizes(path)
     try:
         return laspy.open(str(path))
     except _parse_errors() as exc:

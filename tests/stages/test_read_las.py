@@ -116,3 +116,18 @@ def test_damaged_scale_is_refused_with_the_file_name(tmp_path):
     bad.write_bytes(bytes(blob))
     with pytest.raises(InputDataError, match=r"bad_scale.las: the points span .*damaged scale or offset"):
         read_las_files([bad], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+
+
+def test_headers_announcing_impossible_sizes_are_refused_before_allocating(tmp_path):
+    path = _write(tmp_path / "ok.las", np.array([1.0, 2.0]), np.array([1.0, 2.0]), np.zeros(2), crs="EPSG:25830")
+    blob = bytearray(path.read_bytes())
+    huge = bytearray(blob)
+    huge[107:111] = (4_000_000_000).to_bytes(4, "little")  # legacy point count
+    (tmp_path / "huge.las").write_bytes(bytes(huge))
+    with pytest.raises(InputDataError, match=r"huge.las, byte 107: the header announces 4,000,000,000 points"):
+        read_las_files([tmp_path / "huge.las"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    vlrs = bytearray(blob)
+    vlrs[100:104] = (3_000_000_000).to_bytes(4, "little")  # number of VLRs
+    (tmp_path / "vlrs.las").write_bytes(bytes(vlrs))
+    with pytest.raises(InputDataError, match=r"vlrs.las, byte 100: the header announces 3,000,000,000 VLRs"):
+        read_las_files([tmp_path / "vlrs.las"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)

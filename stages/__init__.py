@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
+parse -> georeference (raw formats) -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
 export_las; report (last: it reads every stage's metrics).
 """
 
@@ -16,6 +16,7 @@ from stages.classify import ClassifyGround
 from stages.denoise import Denoise
 from stages.evaluate import EVALUATE
 from stages.export import ExportLas
+from stages.georeference import Georeference
 from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
 from stages.report import Report
@@ -53,7 +54,7 @@ def _crs_field():
 
 plugin = Plugin(
     name="dtm-pipeline",
-    stages=[Parse, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, Accuracy, ExportLas, Report],
+    stages=[Parse, Georeference, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, Accuracy, ExportLas, Report],
     global_fields={"crs": _crs_field()},
     commands=[EVALUATE, BUDGET],
     versions=_versions,

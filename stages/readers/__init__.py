@@ -16,3 +16,14 @@ class SkipLog:
     def note(self, where: str) -> None:
         if len(self.locations) < MAX_LOCATIONS:
             self.locations.append(where)
+
+
+def open_text(path, encoding: str = "utf-8"):
+    """Open a text input for reading; ``.gz`` files are decompressed on the fly (streamed)."""
+    from pathlib import Path
+
+    if Path(path).suffix == ".gz":
+        import gzip
+
+        return gzip.open(path, "rt", encoding=encoding, errors="replace")
+    return open(path, encoding=encoding, errors="replace")

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.readers import SkipLog
+from stages.readers import SkipLog, open_text
 
 STATUS_XKF_VALID = 0b010
 STATUS_GPS_FIX = 0b100
@@ -127,7 +127,7 @@ def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = 18.
     """
     previous: int | None = None
     scan: dict | None = None
-    with open(path, encoding="utf-8", errors="replace") as fh:
+    with open_text(path) as fh:
         for lineno, raw in enumerate(fh, 1):
             line = raw.strip()
             if not line or line.startswith("#"):

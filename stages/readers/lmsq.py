@@ -179,3 +179,33 @@ def write_lmsq(path: Path, model: int, records: list) -> None:
         out += bytes([(quality & 0x3F) | (echo << 6)]) + int(offset_us).to_bytes(3, "little")
         out += np.array(rgb, "<u2").tobytes()
     Path(path).write_bytes(bytes(out))
+
+
+def first_pps_week(path: Path, *, chunk_bytes: int = 1 << 22) -> int | None:
+    """The GPS week of the stream's first PPS record (None when it has none before a corrupt record)."""
+    read_header(path)
+    with open(path, "rb") as fh:
+        fh.seek(HEADER)
+        buf = b""
+        while True:
+            more = fh.read(chunk_bytes)
+            buf += more
+            arr = np.frombuffer(buf, np.uint8)
+            pos = 0
+            while pos < len(arr):
+                if arr[pos] == 2:
+                    if len(arr) - pos < PPS:
+                        break
+                    return int(np.frombuffer(buf, "<u2", 1, pos + 9)[0])
+                if arr[pos] != 1:
+                    return None
+                k = (len(arr) - pos) // MEASUREMENT
+                types = arr[pos : pos + k * MEASUREMENT : MEASUREMENT]
+                stop = np.flatnonzero(types != 1)
+                if not len(stop):
+                    pos += k * MEASUREMENT
+                    break
+                pos += int(stop[0]) * MEASUREMENT
+            if not more:
+                return None
+            buf = buf[pos:]

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputDataError
-from stages.readers import SkipLog
+from stages.readers import SkipLog, open_text
 from stages.readers.ldmrs import GPS_EPOCH
 
 
@@ -114,7 +114,7 @@ def read_nmea(path: Path, counters: NmeaCounters, *, day: date | None = None, le
         stamp = datetime(the_day.year, the_day.month, the_day.day, tzinfo=UTC) + timedelta(seconds=tod)
         return (stamp - GPS_EPOCH).total_seconds() + leap_seconds
 
-    with open(path, encoding="ascii", errors="replace") as fh:
+    with open_text(path, "ascii") as fh:
         for lineno, raw in enumerate(fh, 1):
             line = raw.strip()
             if not line:

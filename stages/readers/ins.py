@@ -1,0 +1,158 @@
+"""INS attitude log of format 3.B, and the SBET / smrmsg trajectory files of format 3.C.
+
+INS CSV: header ``gps_sow,roll_deg,pitch_deg,heading_deg``; attitude of the
+body relative to local-level NED, heading clockwise from north.  SBET:
+records of 17 little-endian float64 (136 bytes); smrmsg: 10 float64 (80
+bytes).  Times are GPS seconds of week; the week comes from the scanner
+stream (its PPS records carry it) or from the configuration, never from a
+guess, and a week rollover inside the file (seconds of week falling by more
+than half a week) adds a week.
+
+Counted and skipped, never guessed: lines or records that do not parse or
+hold non-finite values, and epochs whose time does not increase (duplicates
+and time going backwards).  A cut-off last SBET record is counted in bytes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputDataError
+from stages.readers import SkipLog, open_text
+
+SECONDS_PER_WEEK = 604_800.0
+INS_HEADER = "gps_sow,roll_deg,pitch_deg,heading_deg"
+SBET_FIELDS = ("sow", "lat", "lon", "h", "vx", "vy", "vz", "roll", "pitch", "platform_heading", "wander",
+               "ax", "ay", "az", "wx", "wy", "wz")  # fmt: skip
+SMRMSG_FIELDS = ("sow", "sigma_north_m", "sigma_east_m", "sigma_down_m", "sigma_vn", "sigma_ve", "sigma_vd",
+                 "sigma_roll_arcmin", "sigma_pitch_arcmin", "sigma_heading_arcmin")  # fmt: skip
+
+
+@dataclass
+class TrajectoryCounters(SkipLog):
+    epochs: int = 0
+    malformed: int = 0
+    not_increasing: int = 0
+    truncated_bytes: int = 0
+
+
+def absolute_time(sow: np.ndarray, week: int) -> np.ndarray:
+    """GPS seconds since 1980-01-06 from seconds of week, adding a week at each rollover."""
+    sow = np.asarray(sow, dtype=np.float64)
+    rollover = np.concatenate(([0], np.cumsum(np.diff(sow) < -SECONDS_PER_WEEK / 2)))
+    return (week + rollover) * SECONDS_PER_WEEK + sow
+
+
+def _increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where) -> np.ndarray:
+    """Mask of epochs kept: each strictly later than the last kept one."""
+    keep = np.ones(len(t), bool)
+    if len(t) < 2:
+        return keep
+    running = np.maximum.accumulate(t)
+    keep[1:] = t[1:] > running[:-1]
+    bad = np.flatnonzero(~keep)
+    counters.not_increasing += len(bad)
+    for i in bad[:3]:
+        counters.note(f"{where(i)}: {what} time {t[i]:.6f} does not increase; epoch skipped")
+    return keep
+
+
+def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, np.ndarray]:
+    """Time (GPS s since 1980-01-06), roll, pitch, heading (degrees, NED) of the INS log."""
+    rows: list[tuple[float, float, float, float]] = []
+    lines: list[int] = []
+    with open_text(path, "ascii") as fh:
+        first = fh.readline().strip()
+        if first.replace(" ", "") != INS_HEADER:
+            raise InputDataError(f"{path}, line 1: header must be '{INS_HEADER}' (found '{first[:60]}').")
+        for lineno, raw in enumerate(fh, 2):
+            line = raw.strip()
+            if not line:
+                continue
+            parts = line.split(",")
+            try:
+                if len(parts) != 4:
+                    raise ValueError
+                values = tuple(float(p) for p in parts)
+                if not all(math.isfinite(v) for v in values) or not 0 <= values[0] < SECONDS_PER_WEEK:
+                    raise ValueError
+            except ValueError:
+                counters.malformed += 1
+                counters.note(f"{path}, line {lineno}: not four finite numbers (gps_sow 0-604800); line skipped")
+                continue
+            rows.append(values)
+            lines.append(lineno)
+    table = np.array(rows, dtype=np.float64).reshape(-1, 4)
+    t = absolute_time(table[:, 0], week)
+    keep = _increasing(t, counters, "INS", lambda i: f"{path}, line {lines[i]}")
+    counters.epochs += int(keep.sum())
+    return {"time": t[keep], "roll": table[keep, 1], "pitch": table[keep, 2], "heading": table[keep, 3]}
+
+
+def _records(path: Path, width: int, counters: TrajectoryCounters) -> np.ndarray:
+    size = Path(path).stat().st_size
+    n = size // (8 * width)
+    counters.truncated_bytes += size - n * 8 * width
+    if size - n * 8 * width:
+        counters.note(f"{path}, byte {n * 8 * width}: last record cut off ({size - n * 8 * width} bytes ignored)")
+    if n == 0:
+        return np.zeros((0, width))
+    return np.memmap(path, dtype="<f8", mode="r", shape=(n, width))
+
+
+def read_sbet(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, np.ndarray]:
+    """Time, lat, lon (degrees), h, roll, pitch, true heading (degrees, NED) of an SBET.
+
+    True heading = platform heading - wander angle (SPEC 3.C).
+    """
+    rec = _records(path, 17, counters)
+    finite = np.all(np.isfinite(rec), axis=1) if len(rec) else np.zeros(0, bool)
+    sane = finite & (np.abs(rec[:, 1]) <= np.pi / 2) & (np.abs(rec[:, 2]) <= 2 * np.pi) if len(rec) else finite
+    sane &= (rec[:, 0] >= 0) & (rec[:, 0] < SECONDS_PER_WEEK) if len(rec) else sane
+    bad = np.flatnonzero(~sane)
+    counters.malformed += len(bad)
+    for i in bad[:3]:
+        counters.note(f"{path}, byte {i * 136}: record with a non-finite or out-of-range value; skipped")
+    idx = np.flatnonzero(sane)
+    t = absolute_time(rec[idx, 0], week)
+    keep = _increasing(t, counters, "SBET", lambda i: f"{path}, byte {idx[i] * 136}")
+    idx = idx[keep]
+    counters.epochs += len(idx)
+    r = np.asarray(rec[idx])
+    return {
+        "time": t[keep],
+        "lat": np.degrees(r[:, 1]),
+        "lon": np.degrees(r[:, 2]),
+        "h": r[:, 3],
+        "roll": np.degrees(r[:, 7]),
+        "pitch": np.degrees(r[:, 8]),
+        "heading": np.degrees(r[:, 9] - r[:, 10]),
+    }
+
+
+def read_smrmsg(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, np.ndarray]:
+    """Time and sigmas of an smrmsg file: position (m), attitude (converted to degrees)."""
+    rec = _records(path, 10, counters)
+    ok = (
+        np.all(np.isfinite(rec), axis=1) & (rec[:, 0] >= 0) & (rec[:, 0] < SECONDS_PER_WEEK)
+        if len(rec)
+        else np.zeros(0, bool)
+    )
+    counters.malformed += int((~ok).sum())
+    idx = np.flatnonzero(ok)
+    t = absolute_time(rec[idx, 0], week)
+    keep = _increasing(t, counters, "smrmsg", lambda i: f"{path}, byte {idx[i] * 80}")
+    r = np.asarray(rec[idx[keep]])
+    return {
+        "time": t[keep],
+        "sigma_north_m": r[:, 1],
+        "sigma_east_m": r[:, 2],
+        "sigma_down_m": r[:, 3],
+        "sigma_roll_deg": r[:, 7] / 60.0,
+        "sigma_pitch_deg": r[:, 8] / 60.0,
+        "sigma_heading_deg": r[:, 9] / 60.0,
+    }

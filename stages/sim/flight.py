@@ -1,0 +1,157 @@
+"""The simulator's flight: a flight plan flown smoothly, and the true pose at any time.
+
+Lines are flown in order, joined by Dubins paths (turn, straight, turn;
+Dubins 1957, doi:10.2307/2372560) at a turn radius set by the bank angle;
+the heading rate is then smoothed (two 3 s moving averages) so roll, which
+follows the coordinated-turn bank ``atan(v * omega / g)``, changes gradually
+as it does in a real aircraft.  The truth trajectory is a cubic spline
+through the path sampled every 5 ms, in the local ENU frame; attitude is
+relative to NED at the aircraft (roll and pitch also carry small
+oscillations, heading a constant crab angle) in the aviation convention.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+G = 9.80665
+DT = 0.005  # truth sampling step (s); the INS and SBET are written at these epochs
+
+
+@dataclass
+class Line:
+    start: np.ndarray  # (e, n) local metres
+    heading: float  # radians, clockwise from north
+    length: float
+
+
+def plan_lines(
+    centre: tuple[float, float], n_lines: int, spacing: float, length: float, heading_deg: float, cross: bool
+) -> list[Line]:
+    """Parallel lines (alternating direction) centred on *centre*, and a cross line through the middle."""
+    psi = np.radians(heading_deg)
+    along = np.array([np.sin(psi), np.cos(psi)])
+    across = np.array([np.cos(psi), -np.sin(psi)])
+    c = np.asarray(centre, dtype=float)
+    lines = []
+    for k in range(n_lines):
+        off = (k - (n_lines - 1) / 2) * spacing
+        mid = c + off * across
+        if k % 2 == 0:
+            lines.append(Line(mid - along * length / 2, psi, length))
+        else:
+            lines.append(Line(mid + along * length / 2, psi + np.pi, length))
+    if cross:
+        width = (n_lines - 1) * spacing + spacing
+        cross_len = max(width, length / 2)
+        lines.append(Line(c - across * cross_len / 2, psi + np.pi / 2, cross_len))
+    return lines
+
+
+def _dubins_csc(p, psi0, q, psi1, r):
+    """Shortest of the LSL and RSR paths from (p, psi0) to (q, psi1): [(turn sign, angle), straight, (sign, angle)]."""
+    best = None
+    for sign in (+1, -1):  # +1: right turn (clockwise heading increase), -1: left
+        # centre of a turn: to the right of the heading for a right turn
+        def centre(point, psi, s=sign):
+            return point + s * r * np.array([np.cos(psi), -np.sin(psi)])
+
+        c0, c1 = centre(p, psi0), centre(q, psi1)
+        d = c1 - c0
+        dist = float(np.hypot(*d))
+        phi = float(np.arctan2(d[0], d[1]))  # heading of the straight (clockwise from north)
+        a = (sign * (phi - psi0)) % (2 * np.pi)
+        b = (sign * (psi1 - phi)) % (2 * np.pi)
+        total = r * (a + b) + dist
+        if best is None or total < best[0]:
+            best = (total, [(sign, a), dist, (sign, b)])
+    return best[1]
+
+
+@dataclass
+class Flight:
+    """The flown path: samples every DT seconds and their cubic splines (the truth)."""
+
+    t: np.ndarray  # seconds from the start of the flight
+    pos: np.ndarray  # (m, 3) local ENU
+    roll: np.ndarray  # radians (aviation: right wing down positive)
+    pitch: np.ndarray
+    heading: np.ndarray  # radians, clockwise from north, unwrapped
+    line: np.ndarray  # line index (1-based) per sample; 0 in turns and lead-ins
+    speed: float
+
+    def __post_init__(self) -> None:
+        from scipy.interpolate import CubicSpline
+
+        self._pos = CubicSpline(self.t, self.pos, axis=0)
+        self._att = CubicSpline(self.t, np.column_stack((self.roll, self.pitch, self.heading)), axis=0)
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        return self._pos(t)
+
+    def attitude(self, t: np.ndarray) -> np.ndarray:
+        """(n, 3) roll, pitch, heading (radians) at times *t*."""
+        return self._att(t)
+
+    def line_at(self, t: np.ndarray) -> np.ndarray:
+        i = np.clip(np.round(np.asarray(t) / DT).astype(np.int64), 0, len(self.t) - 1)
+        return self.line[i]
+
+
+def fly(
+    lines: list[Line],
+    *,
+    altitude: float,
+    speed: float,
+    bank_deg: float = 20.0,
+    lead_in: float = 100.0,
+    smooth_s: float = 3.0,
+    seed: int = 0,
+) -> Flight:
+    """Fly *lines* in order at constant *altitude* (local up) and *speed*, with turns between them."""
+    radius = speed**2 / (G * np.tan(np.radians(bank_deg)))
+    # segments: (duration, heading rate, line index)
+    segs: list[tuple[float, float, int]] = []
+    p = lines[0].start - lead_in * np.array([np.sin(lines[0].heading), np.cos(lines[0].heading)])
+    psi = lines[0].heading
+    start_p, start_psi = p.copy(), psi
+    for k, line in enumerate(lines, 1):
+        d = np.array([np.sin(line.heading), np.cos(line.heading)])
+        target = line.start - lead_in * d
+        if k > 1:
+            (s0, a), straight, (s1, b) = _dubins_csc(p, psi, target, line.heading, radius)
+            omega = speed / radius
+            segs += [(a / omega, s0 * omega, 0), (straight / speed, 0.0, 0), (b / omega, s1 * omega, 0)]
+        segs += [(lead_in / speed, 0.0, 0), (line.length / speed, 0.0, k), (lead_in / speed, 0.0, 0)]
+        p, psi = line.start + line.length * d + lead_in * d, line.heading
+    total = sum(s[0] for s in segs)
+    t = np.arange(0.0, total + DT / 2, DT)
+    omega = np.zeros_like(t)
+    label = np.zeros(len(t), np.int32)
+    edges = np.cumsum([0.0] + [s[0] for s in segs])
+    for (dur, w, k), t0 in zip(segs, edges[:-1], strict=True):
+        sel = (t >= t0) & (t < t0 + dur)
+        omega[sel] = w
+        label[sel] = k
+    win = max(1, int(round(smooth_s / DT)))
+    kernel = np.ones(win) / win
+    omega_s = np.convolve(np.convolve(omega, kernel, "same"), kernel, "same")
+    heading = start_psi + np.concatenate(([0.0], np.cumsum((omega_s[1:] + omega_s[:-1]) / 2 * DT)))
+    ve, vn = speed * np.sin(heading), speed * np.cos(heading)
+    e = start_p[0] + np.concatenate(([0.0], np.cumsum((ve[1:] + ve[:-1]) / 2 * DT)))
+    n = start_p[1] + np.concatenate(([0.0], np.cumsum((vn[1:] + vn[:-1]) / 2 * DT)))
+    pos = np.column_stack((e, n, np.full_like(e, altitude)))
+    rng = np.random.default_rng(seed)
+    ph = rng.uniform(0, 2 * np.pi, 3)
+    roll = np.arctan(speed * omega_s / G) + np.radians(0.6) * np.sin(2 * np.pi * 0.21 * t + ph[0])
+    pitch = np.radians(1.5) + np.radians(0.4) * np.sin(2 * np.pi * 0.13 * t + ph[1])
+    crab = np.radians(2.0) * np.sin(ph[2])
+    # a line keeps its label only where the smoothed turn rate has died away
+    label[np.abs(omega_s) > np.radians(0.05)] = 0
+    return Flight(t, pos, roll, pitch, heading + crab, label, speed)

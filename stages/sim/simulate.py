@@ -1,0 +1,621 @@
+"""``pipeline simulate``: one survey with known truth, in every raw format (SPEC 10).
+
+The world (:mod:`stages.sim.scene`) and the flight (:mod:`stages.sim.flight`)
+live in a local ENU frame tangent to WGS 84 at the configured origin, an
+exact rigid transform of ECEF.  For every pulse the simulator takes the
+true pose at the pulse's time, the *true* mounting (configured + injected
+error), casts the ray into the scene, and records the echo's range (with
+noise) in the scanner's frame.  Navigation files get the true trajectory
+plus the configured errors (smooth noise, per-line GNSS bias).  The truth
+is the ray's hit point, transformed to the output CRS with PROJ point by
+point.
+
+Written (``<output>/``): ``ldmrs/acquisition.log.gz`` (3.A), ``lmsq/scan.lmsq``
++ ``lmsq/nav.nmea`` + ``lmsq/ins.csv`` (3.B), ``lmsq/trajectory.sbet`` +
+``lmsq/trajectory.smrmsg`` (3.C, same stream), ``las/points.laz`` (3.D),
+``truth/points.laz``, ``truth/terrain.tif``, ``truth/faults.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stages.georef.core import Mounting, georeference, prepare_trajectory
+from stages.georef.geodesy import LocalFrame, MapTransform, ecef_to_geodetic, local_level_to_ecef
+from stages.georef.rotation import euler_matrix, quat_matrix
+from stages.sim import scene as sc
+from stages.sim.flight import DT, Flight, fly, plan_lines
+from stages.sim.sensors import MOUNTINGS, Scanner, make_scanner, navigation_sigmas
+
+D_FLIP = np.diag([1.0, -1.0, -1.0])  # NED <-> NWU and forward-right-down <-> forward-left-up
+#: truth/points.laz extra dimension ``fault``: why the reader will drop the echo (0: it will not)
+FAULT_CODES = {"none": 0, "invalid_scan": 1, "bad_gps": 2, "clutter": 3, "dirt": 4, "pps_gap": 5,
+               "invalid_quality": 6, "dust": 7}  # fmt: skip
+CHUNK_S = 2.0
+
+
+@dataclass
+class Navigation:
+    """Recorded navigation at every truth sample (200 Hz): what the INS/GNSS files say."""
+
+    t: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    roll: np.ndarray  # degrees, NED
+    pitch: np.ndarray
+    heading: np.ndarray  # degrees, clockwise from north (unwrapped)
+    sigma_pos: float
+    sigma_att: float
+
+
+@dataclass
+class SimResult:
+    output: Path
+    faults: dict
+    files: dict[str, str] = field(default_factory=dict)
+
+
+def smooth_noise(t: np.ndarray, sigma: float, tau: float, rng: np.random.Generator, dims: int = 3) -> np.ndarray:
+    """A smooth random error (knots every *tau* seconds, cubic between) with standard deviation ~*sigma*."""
+    from scipy.interpolate import CubicSpline
+
+    if sigma == 0:
+        return np.zeros((len(t), dims))
+    knots = np.arange(t[0] - tau, t[-1] + 2 * tau, tau)
+    return CubicSpline(knots, rng.normal(0, sigma, (len(knots), dims)), axis=0)(t)
+
+
+def _line_biases(flight: Flight, size: float, rng: np.random.Generator) -> np.ndarray:
+    """Per-line GNSS bias (uniform in +-size per axis), blended linearly through the turns."""
+    lines = int(flight.line.max())
+    if size == 0 or lines == 0:
+        return np.zeros((len(flight.t), 3))
+    values = rng.uniform(-size, size, (lines, 3))
+    centre = np.array([flight.t[flight.line == k].mean() for k in range(1, lines + 1)])
+    return np.column_stack([np.interp(flight.t, centre, values[:, j]) for j in range(3)])
+
+
+def _poses(frame: LocalFrame, flight: Flight, lat_s, lon_s, t: np.ndarray):
+    """True position (n, 3) and rotation local ENU <- body (forward-right-down) (n, 3, 3) at times t."""
+    pos = flight.position(t)
+    att = flight.attitude(t)
+    lat = np.interp(t, flight.t, lat_s)
+    lon = np.interp(t, flight.t, lon_s)
+    r_l_n = frame.r_enu_to_ecef.T @ local_level_to_ecef(lat, lon, "NED")
+    from stages.georef.rotation import euler_quat
+
+    r_n_b = quat_matrix(euler_quat(att[:, 0], att[:, 1], att[:, 2]))
+    return pos, r_l_n @ r_n_b
+
+
+def simulate(cfg, log=None) -> SimResult:
+    """Run the simulation described by a :class:`~stages.sim.config.SimulateConfig`."""
+
+    from stages.readers.las import output_crs
+
+    out = Path(cfg.output)
+    rng = np.random.default_rng(cfg.seed)
+    scanner = make_scanner(cfg.scanner)
+    if scanner.kind == "ldmrs" and any(f in ("lmsq_nmea", "lmsq_sbet") for f in cfg.formats):
+        raise ValueError("formats lmsq_nmea and lmsq_sbet need a RIEGL scanner (scanner.preset q140 or q280)")
+    if scanner.kind == "line" and "ldmrs_mtig" in cfg.formats:
+        raise ValueError("format ldmrs_mtig needs scanner.preset: ldmrs")
+    noise = cfg.faults.noise
+    sigma_pos, sigma_att = navigation_sigmas(cfg.navigation)
+    if not noise:
+        sigma_pos = sigma_att = 0.0
+    range_noise = scanner.range_noise_m if noise else 0.0
+    frame = LocalFrame(cfg.origin.lat, cfg.origin.lon, cfg.origin.h)
+    crs = output_crs(cfg.crs, None, (cfg.origin.lon, cfg.origin.lat))
+
+    # --- flight and scene
+    f = cfg.flight
+    swath = 2 * f.altitude_m * np.tan(np.radians(scanner.half_angle_deg))
+    spacing = swath * (1 - f.sidelap)
+    lines = plan_lines((0.0, 0.0), f.lines, spacing, f.line_length_m, f.heading_deg, f.cross_line)
+    flight = fly(lines, altitude=f.altitude_m, speed=f.speed_ms, bank_deg=f.bank_deg, lead_in=f.lead_in_m,
+                 seed=cfg.seed)  # fmt: skip
+    rec_mask = _recording_mask(flight, f.lead_in_m / f.speed_ms)
+    on_lines = flight.pos[rec_mask]
+    margin = swath / 2 + 20.0
+    extent = (on_lines[:, 0].min() - margin, on_lines[:, 0].max() + margin,
+              on_lines[:, 1].min() - margin, on_lines[:, 1].max() + margin)  # fmt: skip
+    world = sc.make_scene(extent, seed=cfg.seed)
+    lat_s, lon_s, h_s = ecef_to_geodetic(frame.to_ecef(flight.pos))
+
+    # --- mounting: configured (what the files' users are told) and true (what flew)
+    err_rot = euler_matrix(*np.radians(cfg.faults.boresight_error_deg))
+    if scanner.kind == "ldmrs":
+        # LD-MRS -> MTi-G body (forward-left-up): Ry(+90 deg), then MPOS; in forward-right-down axes:
+        from stages.georef.rotation import rot_y
+
+        r_nominal = D_FLIP @ rot_y(np.pi / 2)
+        a_nominal = D_FLIP @ np.asarray(MOUNTINGS[cfg.mounting])
+    else:
+        r_nominal = euler_matrix(*np.radians(cfg.boresight_deg))
+        a_nominal = np.asarray(cfg.lever_arm_m, dtype=float)
+    r_true = err_rot @ r_nominal
+    a_true = a_nominal + np.asarray(cfg.faults.lever_arm_error_m)
+
+    # --- recorded navigation
+    bias = _line_biases(flight, cfg.faults.strip_bias_m, rng)
+    pos_err = smooth_noise(flight.t, sigma_pos, 20.0, rng) + bias
+    lat_r, lon_r, h_r = ecef_to_geodetic(frame.to_ecef(flight.pos + pos_err))
+    att_err = smooth_noise(flight.t, sigma_att, 5.0, rng)
+    nav = Navigation(flight.t, lat_r, lon_r, h_r, np.degrees(flight.roll) + att_err[:, 0],
+                     np.degrees(flight.pitch) + att_err[:, 1], np.degrees(flight.heading) + att_err[:, 2],
+                     sigma_pos, sigma_att)  # fmt: skip
+
+    start = _gps_seconds(cfg.start_utc, cfg.leap_seconds)
+    faults = {"seed": cfg.seed, "noise": noise, "range_noise_m": range_noise, "position_noise_m": sigma_pos,
+              "attitude_noise_deg": sigma_att, "strip_bias_m": cfg.faults.strip_bias_m,
+              "line_biases_m": _bias_table(flight, bias),
+              "boresight_error_deg": list(cfg.faults.boresight_error_deg),
+              "lever_arm_error_m": list(cfg.faults.lever_arm_error_m),
+              "gps_start": start, "crs": crs.to_string()}  # fmt: skip
+
+    # --- pulses, chunk by chunk
+    plan = _fault_plan(cfg, scanner, flight, rec_mask, rng)
+    to_map_exact = MapTransform(frame, crs, np.array([extent[0], extent[2], -200.0]),
+                                np.array([extent[1], extent[3], f.altitude_m + 200.0]))  # fmt: skip
+    out.mkdir(parents=True, exist_ok=True)
+    sinks = _Sinks(cfg, out, crs, scanner, plan, start, to_map_exact, nav, flight)
+    nav_traj = prepare_trajectory(start + nav.t, nav.lat, nav.lon, nav.h, nav.roll, nav.pitch, nav.heading, "NED",
+                                  frame)  # fmt: skip
+    t_end = flight.duration
+    t0 = 0.0
+    pulse_base = 0
+    while t0 < t_end:
+        t1 = min(t0 + CHUNK_S, t_end)
+        pat = scanner.pattern(t0, t1)
+        keep = rec_mask[np.clip(np.round(pat["t"] / DT).astype(np.int64), 0, len(rec_mask) - 1)]
+        pat = {k: v[keep] for k, v in pat.items()}
+        n = len(pat["t"])
+        if n:
+            echoes = _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner, range_noise,
+                             rng, plan, pulse_base)  # fmt: skip
+            sinks.add(pat, echoes, flight, nav_traj, Mounting(r_nominal, a_nominal))
+        pulse_base += n
+        t0 = t1
+    faults.update(sinks.close())
+    files = sinks.files
+    files.update(_write_navigation(cfg, out, nav, flight, start))
+    files["truth_terrain"] = "truth/terrain.tif"
+    _write_truth_terrain(out / "truth" / "terrain.tif", world, frame, crs, extent, cfg.truth_resolution)
+    faults["files"] = files
+    (out / "truth" / "faults.json").write_text(json.dumps(faults, indent=2) + "\n")
+    return SimResult(out, faults, files)
+
+
+def _gps_seconds(start_utc: str, leap: float) -> float:
+    from stages.readers.ldmrs import utc_to_gps
+
+    value = utc_to_gps(start_utc, leap)
+    if value != round(value):
+        raise ValueError("start_utc must be a whole second")
+    return float(value)
+
+
+def _recording_mask(flight: Flight, lead_s: float) -> np.ndarray:
+    """The scanner records on the lines and for *lead_s* before and after each."""
+    on = flight.line > 0
+    k = int(round(lead_s / DT))
+    if k:
+        from scipy.ndimage import binary_dilation
+
+        on = binary_dilation(on, np.ones(2 * k + 1, bool))
+    edge = int(round(2.0 / DT))  # the navigation files start and end 2 s beyond the scanner's data
+    on[:edge] = False
+    on[-edge:] = False
+    return on
+
+
+def _bias_table(flight: Flight, bias: np.ndarray) -> dict[str, list[float]]:
+    table = {}
+    for k in range(1, int(flight.line.max()) + 1):
+        sel = flight.line == k
+        table[str(k)] = [round(float(v), 6) for v in bias[sel].mean(axis=0)]
+    return table
+
+
+@dataclass
+class _Plan:
+    """Which scans / pulses / seconds get which fault (chosen up front so counts are exact)."""
+
+    invalid_scans: set = field(default_factory=set)
+    bad_gps_scans: set = field(default_factory=set)
+    lost_scans: set = field(default_factory=set)
+    empty_scans: set = field(default_factory=set)
+    clutter_scans: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    dirt_count: int = 0
+    dust_pulses: set = field(default_factory=set)
+    invalid_pulses: set = field(default_factory=set)
+    pps_gaps: set = field(default_factory=set)
+
+
+def _fault_plan(cfg, scanner: Scanner, flight: Flight, rec_mask: np.ndarray, rng) -> _Plan:
+    fl = cfg.faults
+    plan = _Plan()
+    recorded = flight.t[rec_mask]
+    if scanner.kind == "ldmrs":
+        period = 1.0 / scanner.scan_rate_hz
+        scans = np.unique(np.ceil(recorded / period - 1e-9).astype(np.int64))
+        scans = scans[scans * period <= flight.duration]
+        need = fl.invalid_utc_scans + fl.bad_gps_scans + fl.lost_scans + fl.empty_scans
+        if need > len(scans) // 2:
+            raise ValueError(f"{need} faulty scans asked for, but the flight records only {len(scans)} scans")
+        pick = rng.choice(scans[1:-1], need, replace=False)
+        a, b, c = fl.invalid_utc_scans, fl.bad_gps_scans, fl.lost_scans
+        plan.invalid_scans = set(pick[:a].tolist())
+        plan.bad_gps_scans = set(pick[a : a + b].tolist())
+        plan.lost_scans = set(pick[a + b : a + b + c].tolist())
+        plan.empty_scans = set(pick[a + b + c :].tolist())
+        bad = plan.invalid_scans | plan.bad_gps_scans | plan.lost_scans | plan.empty_scans
+        good = np.array(sorted(set(scans.tolist()) - bad))
+        plan.clutter_scans = (
+            np.sort(rng.choice(good, fl.clutter_points, replace=True)) if fl.clutter_points else plan.clutter_scans
+        )
+        plan.dirt_count = fl.dirt_points
+        return plan
+    # line scanner: count pulses to choose fault pulses by index
+    total = 0
+    for t0 in np.arange(0.0, flight.duration, CHUNK_S):
+        pat_t = scanner.pattern(t0, min(t0 + CHUNK_S, flight.duration))["t"]
+        total += int(rec_mask[np.clip(np.round(pat_t / DT).astype(np.int64), 0, len(rec_mask) - 1)].sum())
+    if fl.dust_echoes + fl.invalid_quality > total // 10:
+        raise ValueError(f"too many faulty pulses asked for ({total} pulses in the flight)")
+    pick = rng.choice(total, fl.dust_echoes + fl.invalid_quality, replace=False)
+    plan.dust_pulses = set(pick[: fl.dust_echoes].tolist())
+    plan.invalid_pulses = set(pick[fl.dust_echoes :].tolist())
+    seconds = np.unique(np.floor(recorded).astype(np.int64))
+    if fl.pps_gaps:
+        interior = seconds[(seconds > seconds[0] + 1) & (seconds < seconds[-1] - 1)]
+        plan.pps_gaps = set(rng.choice(interior, fl.pps_gaps, replace=False).tolist())
+    return plan
+
+
+def _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner: Scanner, range_noise, rng, plan: _Plan,
+            pulse_base: int) -> dict[str, np.ndarray]:  # fmt: skip
+    """Cast every pulse: first echo on the canopy, a second through gaps in vegetation; dust; water drop-outs."""
+    t = pat["t"]
+    pos, r_l_b = _poses(frame, flight, lat_s, lon_s, t)
+    origin = pos + r_l_b @ a_true
+    d = np.einsum("nij,nj->ni", r_l_b, pat["dir"] @ r_true.T)
+    first = sc.cast(world, world.canopy, origin, d)
+    hit = origin + d * first[:, None]
+    ok = np.isfinite(first) & (first <= scanner.max_range_m)
+    veg = ok & (
+        world.sample(world.canopy, hit[:, 0], hit[:, 1]) > world.sample(world.solid, hit[:, 0], hit[:, 1]) + 0.3
+    )
+    cls1 = np.where(veg, sc.VEGETATION, world.class_at(hit[:, 0], hit[:, 1]))
+    # water: most pulses are not returned (specular)
+    ok &= ~((cls1 == sc.WATER) & (rng.random(len(t)) < 0.5))
+    # vegetation: half the pulses also reach the surface below
+    through = veg & ok & (rng.random(len(t)) < 0.5)
+    second = np.full(len(t), np.nan)
+    idx = np.flatnonzero(through)
+    if len(idx):
+        second[idx] = sc.cast(world, world.solid, origin[idx], d[idx], t_min=first[idx] + 1.5)
+    has2 = np.isfinite(second) & (second <= scanner.max_range_m)
+    hit2 = origin + d * np.nan_to_num(second)[:, None]
+    cls2 = world.class_at(hit2[:, 0], hit2[:, 1])
+    pulse_id = pulse_base + np.arange(len(t))
+    dust = np.isin(pulse_id, list(plan.dust_pulses)) if plan.dust_pulses else np.zeros(len(t), bool)
+    if dust.any():  # the pulse is answered by a dust cloud 3-30 m away, and nothing else
+        first = np.where(dust, rng.uniform(3.0, 30.0, len(t)), first)
+        ok |= dust
+        has2 &= ~dust
+        cls1 = np.where(dust, sc.NOISE, cls1)
+        hit = origin + d * first[:, None]
+    n_ret = ok.astype(np.int64) + (has2 & ok)
+    rows = []
+    for echo, rng_true, pts, cls, sel in ((0, first, hit, cls1, ok), (1, second, hit2, cls2, has2 & ok)):
+        i = np.flatnonzero(sel)
+        rows.append({"pulse": i, "echo": np.full(len(i), echo), "n": n_ret[i], "range_true": rng_true[i],
+                     "hit": pts[i], "cls": cls[i], "dust": dust[i]})  # fmt: skip
+    e = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+    order = np.lexsort((e["echo"], e["pulse"]))
+    e = {k: v[order] for k, v in e.items()}
+    e["range"] = e["range_true"] + (rng.normal(0, range_noise, len(e["pulse"])) if range_noise else 0.0)
+    e["pulse_id"] = pulse_base + e["pulse"]
+    return e
+
+
+class _Sinks:
+    """Streams every chunk of echoes to the formats' files and the truth."""
+
+    def __init__(self, cfg, out: Path, crs, scanner: Scanner, plan: _Plan, start: float, to_map, nav, flight):
+        self.cfg, self.out, self.crs, self.scanner, self.plan, self.start = cfg, out, crs, scanner, plan, start
+        self.to_map = to_map
+        self.nav, self.flight = nav, flight
+        self.files: dict[str, str] = {}
+        self.counts = {"pulses": 0, "echoes": 0, "echoes_by_class": {}}
+        (out / "truth").mkdir(parents=True, exist_ok=True)
+        self.truth = _LasSink(out / "truth" / "points.laz", crs, to_map, extra_fault=True)
+        self.files["truth_points"] = "truth/points.laz"
+        self.las = None
+        if "las" in cfg.formats:
+            (out / "las").mkdir(exist_ok=True)
+            self.las = _LasSink(out / "las" / "points.laz", crs, to_map)
+            self.files["las"] = "las/points.laz"
+        self.ldmrs = self.lmsq = None
+        if "ldmrs_mtig" in cfg.formats:
+            (out / "ldmrs").mkdir(exist_ok=True)
+            from stages.sim.writers import open_text
+
+            self.ldmrs = open_text(out / "ldmrs" / "acquisition.log.gz")
+            date = cfg.start_utc[:10]
+            self.ldmrs.write(
+                f"# LDMRS-MTIG acquisition log v1\n# date: {date}\n# simulated by pipeline simulate, seed {cfg.seed}\n"
+            )
+            self.files["ldmrs_mtig"] = "ldmrs/acquisition.log.gz"
+            self.scan_counts = {"scans_written": 0, "invalid_scans": 0, "bad_gps": 0, "lost_scans": 0,
+                                "empty_scans": 0, "rejected_clutter": 0, "rejected_dirt": 0}  # fmt: skip
+            self.dirt_left = plan.dirt_count
+        if any(f in cfg.formats for f in ("lmsq_nmea", "lmsq_sbet")):
+            (out / "lmsq").mkdir(exist_ok=True)
+            from stages.sim.writers import LmsqWriter
+
+            skip = {int(start) + s for s in plan.pps_gaps}
+            self.lmsq = LmsqWriter(out / "lmsq" / "scan.lmsq", scanner.model, skip)
+            self.files["lmsq"] = "lmsq/scan.lmsq"
+            self.lmsq_counts = {"invalid_quality": 0, "dust_echoes": 0}
+
+    def add(self, pat, e, flight: Flight, nav_traj, mounting_nominal: Mounting) -> None:
+        n = len(e["pulse"])
+        self.counts["pulses"] += len(pat["t"])
+        self.counts["echoes"] += n
+        for c, k in zip(*np.unique(e["cls"], return_counts=True), strict=True):
+            name = sc.CLASS_NAMES[int(c)]
+            self.counts["echoes_by_class"][name] = self.counts["echoes_by_class"].get(name, 0) + int(k)
+        p = e["pulse"]
+        t_rel = pat["t"][p]
+        gps = self.start + t_rel
+        v_s = pat["dir"][p] * e["range"][:, None]
+        fault = np.zeros(n, np.uint8)
+        fault[e["dust"]] = FAULT_CODES["dust"]
+        strip = flight.line_at(t_rel).astype(np.uint16)
+        keep = np.ones(n, bool)
+        if self.ldmrs is not None:
+            keep, fault = self._write_ldmrs(pat, e, v_s, gps, flight, fault)
+        if self.lmsq is not None:
+            fault = self._write_lmsq(pat, e, gps, fault)
+        cols = {"gps_time": gps, "return_number": e["echo"] + 1, "number_of_returns": e["n"],
+                "scan_angle": pat["angle"][p], "scanner_channel": pat["channel"][p], "point_source_id": strip}  # fmt: skip
+        sel = {k: v[keep] for k, v in cols.items()}
+        self.truth.add(e["hit"][keep], classification=e["cls"][keep], fault=fault[keep], **sel)
+        if self.las is not None:
+            ok_for_las = keep & ~np.isin(fault, [FAULT_CODES["invalid_quality"], FAULT_CODES["pps_gap"]])
+            xyz, ok = georeference(nav_traj, gps[ok_for_las], tuple(v_s[ok_for_las].T.copy()), mounting_nominal,
+                                   self.to_map.columns, max_gap_s=1.0)  # fmt: skip
+            s2 = {k: v[ok_for_las][ok] for k, v in cols.items()}
+            self.las.add(xyz[ok], classification=np.zeros(int(ok.sum()), np.uint8), local=False, **s2)
+
+    def _write_ldmrs(self, pat, e, v_s, gps, flight: Flight, fault):
+        from stages.sim.writers import utc_iso
+
+        plan, fh, counts = self.plan, self.ldmrs, self.scan_counts
+        leap = self.cfg.leap_seconds
+        keep = np.ones(len(e["pulse"]), bool)
+        scan_of_echo = pat["scan"][e["pulse"]]
+        scans = np.unique(pat["scan"])
+        period = 1.0 / self.scanner.scan_rate_hz
+        traj = self._mtig_record
+        rng = np.random.default_rng(self.cfg.seed + 7)
+        bounds = np.searchsorted(scan_of_echo, scans), np.searchsorted(scan_of_echo, scans, side="right")
+        for s, a, b in zip(scans, *bounds, strict=True):
+            s = int(s)
+            if s in plan.lost_scans:
+                keep[a:b] = False  # never recorded: not in the truth either
+                continue
+            counts["scans_written"] += 1
+            t_rel = s * period
+            lat, lon, h, roll, pitch, yaw, vel = traj(t_rel)
+            valid, status, utc = 1, 0x07, utc_iso(self.start + t_rel, leap)
+            if s in plan.invalid_scans:
+                counts["invalid_scans"] += 1
+                if len(plan.invalid_scans) > 1 and s % 2:
+                    utc = utc.replace("T", "X")  # unparseable
+                else:
+                    valid = 0
+                fault[a:b] = FAULT_CODES["invalid_scan"]
+            elif s in plan.bad_gps_scans:
+                counts["bad_gps"] += 1
+                status = 0x01 if s % 2 else 0x05
+                fault[a:b] = FAULT_CODES["bad_gps"]
+            points = []
+            if s in plan.empty_scans:
+                keep[a:b] = False
+            else:
+                flags = np.zeros(b - a, np.int64)
+                if self.dirt_left and b > a and valid and status == 0x07:
+                    j = int(rng.integers(a, b))
+                    flags[j - a] = 0x08
+                    fault[j] = FAULT_CODES["dirt"]
+                    self.dirt_left -= 1
+                    counts["rejected_dirt"] += 1
+                layer = pat["channel"][e["pulse"][a:b]]
+                for k in range(b - a):
+                    x, y, z = v_s[a + k]
+                    points.append(f"P {layer[k]} {e['echo'][a + k]} 0x{flags[k]:02x} {x:.4f} {y:.4f} {z:.4f}")
+                n_clutter = int(np.sum(plan.clutter_scans == s))
+                for _ in range(n_clutter):  # dust seen by the scanner and flagged by it (not in the truth)
+                    rr = rng.uniform(1.0, 8.0)
+                    al = np.radians(rng.uniform(-30, 30))
+                    points.append(f"P {rng.integers(0, 4)} 0 0x02 {rr * np.cos(al):.4f} {rr * np.sin(al):.4f} 0.0000")
+                if n_clutter and valid and status == 0x07:
+                    counts["rejected_clutter"] += n_clutter
+            valid_points = (b - a) - (1 if fault[a:b].tolist().count(FAULT_CODES["dirt"]) else 0)
+            if valid and status == 0x07 and (s in plan.empty_scans or valid_points <= 0):
+                counts["empty_scans"] += 1
+            fh.write(f"SCAN {s % 65536}\nUTC {utc}\nSTATUS 0x{status:02X}\nVALID {valid}\n")
+            fh.write(f"LLA {lat:.10f} {lon:.10f} {h:.4f}\nEULER {roll:.7f} {pitch:.7f} {yaw:.7f}\n")
+            fh.write(f"VEL {vel[0]:.3f} {vel[1]:.3f} {vel[2]:.3f}\nNPOINTS {len(points)}\n")
+            if points:
+                fh.write("\n".join(points) + "\n")
+            fh.write("END\n")
+        return keep, fault
+
+    def _mtig_record(self, t_rel: float):
+        """What the MTi-G reports at a scan: LLA, Euler angles in its NWU convention, body velocity."""
+        i = int(round(t_rel / DT))
+        nav = self.nav
+        roll, pitch, heading = nav.roll[i], nav.pitch[i], nav.heading[i]
+        yaw = -((heading + 180.0) % 360.0 - 180.0)  # counter-clockwise from north
+        v_enu = self.flight._pos(t_rel, 1)
+        v_ned = np.array([v_enu[1], v_enu[0], -v_enu[2]])
+        v_frd = euler_matrix(*np.radians([roll, pitch, heading])).T @ v_ned
+        return nav.lat[i], nav.lon[i], nav.h[i], roll, -pitch, yaw, D_FLIP @ v_frd
+
+    def _write_lmsq(self, pat, e, gps, fault):
+        plan = self.plan
+        n = len(e["pulse"])
+        quality = np.full(n, 40, np.int64)
+        bad = np.isin(e["pulse_id"], list(plan.invalid_pulses)) if plan.invalid_pulses else np.zeros(n, bool)
+        quality[bad] = 0
+        fault[bad] = FAULT_CODES["invalid_quality"]
+        self.lmsq_counts["invalid_quality"] += int(bad.sum())
+        self.lmsq_counts["dust_echoes"] += int(e["dust"].sum())
+        gps_us = np.round(gps * 1e6).astype(np.int64)
+        second = gps_us // 1_000_000
+        gap = np.isin(second - int(self.start), list(plan.pps_gaps)) if plan.pps_gaps else np.zeros(n, bool)
+        fault[gap] = FAULT_CODES["pps_gap"]
+        amplitude = np.where(e["cls"] == sc.WATER, 20, np.where(e["cls"] == sc.VEGETATION, 90, 160))
+        amplitude = (amplitude * (1 - 0.3 * e["echo"])).astype(np.uint8)
+        self.lmsq.add(gps_us, e["range"], amplitude, pat["angle"][e["pulse"]], quality, e["echo"])
+        return fault
+
+    def close(self) -> dict:
+        self.truth.close()
+        if self.las is not None:
+            self.las.close()
+        result = {"pulses": self.counts["pulses"], "echoes": self.counts["echoes"],
+                  "echoes_by_class": self.counts["echoes_by_class"]}  # fmt: skip
+        if self.ldmrs is not None:
+            self.ldmrs.close()
+            result["ldmrs_mtig"] = self.scan_counts
+        if self.lmsq is not None:
+            self.lmsq.close()
+            result["lmsq"] = {**self.lmsq_counts, "pps_gaps": len(self.plan.pps_gaps),
+                              "missed_pps": self.lmsq.skipped_measurements}  # fmt: skip
+        return result
+
+
+class _LasSink:
+    """A LAZ written chunk by chunk (laspy + lazrs), LAS 1.4 point format 6, 0.1 mm scale."""
+
+    def __init__(self, path: Path, crs, to_map, *, extra_fault: bool = False):
+        self.path, self.crs, self.to_map, self.extra_fault = path, crs, to_map, extra_fault
+        self.writer = None
+
+    def add(self, xyz: np.ndarray, *, local: bool = True, classification, fault=None, **cols) -> None:
+        import laspy
+
+        if len(xyz) == 0:
+            return
+        pts = self.to_map.exact(xyz) if local else xyz
+        if self.writer is None:
+            header = laspy.LasHeader(point_format=6, version="1.4")
+            if self.extra_fault:
+                header.add_extra_dim(laspy.ExtraBytesParams(name="fault", type=np.uint8,
+                                                            description="simulator: why a reader drops it"))  # fmt: skip
+            header.offsets = np.floor(pts.min(axis=0) / 1000.0) * 1000.0 - np.array([0, 0, 1000.0])
+            header.scales = np.array([1e-4, 1e-4, 1e-4])
+            header.add_crs(self.crs)
+            header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+            self.writer = laspy.open(self.path, mode="w", header=header, do_compress=True,
+                                     laz_backend=laspy.LazBackend.Lazrs)  # fmt: skip
+            self.header = header
+        rec = laspy.ScaleAwarePointRecord.zeros(len(pts), header=self.header)
+        rec.x, rec.y, rec.z = pts[:, 0], pts[:, 1], pts[:, 2]
+        rec.gps_time = cols["gps_time"] - 1e9  # adjusted standard GPS time (LAS 1.4)
+        rec.return_number = cols["return_number"]
+        rec.number_of_returns = cols["number_of_returns"]
+        rec.scan_angle = np.round(np.asarray(cols["scan_angle"]) / 0.006).astype(np.int16)
+        rec.scanner_channel = cols["scanner_channel"]
+        rec.point_source_id = cols["point_source_id"]
+        rec.classification = classification
+        if self.extra_fault:
+            rec.fault = fault
+        self.writer.write_points(rec)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: float) -> dict[str, str]:
+    from stages.sim.writers import SECONDS_PER_WEEK, write_ins_csv, write_nmea, write_sbet
+
+    files = {}
+    gps = start + nav.t
+    sow = np.mod(gps, SECONDS_PER_WEEK)
+    if any(f in cfg.formats for f in ("lmsq_nmea", "lmsq_sbet")):
+        step = max(1, int(round(1.0 / (cfg.navigation.gnss_rate_hz * DT))))
+        sel = slice(0, None, step)
+        vel = flight._pos(flight.t, 1)
+        course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1]))
+        speed = np.hypot(vel[:, 0], vel[:, 1])
+        sigma = np.full(len(gps), max(nav.sigma_pos, 0.01))
+        rng = np.random.default_rng(cfg.seed + 11)
+        n_sent = 5 * len(gps[sel]) + int(np.ceil(gps[-1] - gps[0])) + 1
+        k = cfg.faults.nmea_bad_checksums
+        corrupt = set(rng.choice(n_sent // 2, k, replace=False).tolist()) if k else set()
+        write_nmea(out / "lmsq" / "nav.nmea", gps[sel], nav.lat[sel], nav.lon[sel], nav.h[sel], nav.heading[sel],
+                   course[sel], speed[sel], sigma[sel], leap_seconds=cfg.leap_seconds, corrupt=corrupt)  # fmt: skip
+        write_ins_csv(out / "lmsq" / "ins.csv", sow, nav.roll, nav.pitch, nav.heading)
+        files.update(nmea="lmsq/nav.nmea", ins="lmsq/ins.csv")
+        wander = np.radians(10.0) + 1e-4 * nav.t  # a wander azimuth that drifts, as a wander-azimuth INS does
+        sbet = np.zeros((len(gps), 17))
+        sbet[:, 0] = sow
+        sbet[:, 1], sbet[:, 2], sbet[:, 3] = np.radians(nav.lat), np.radians(nav.lon), nav.h
+        sbet[:, 4], sbet[:, 5], sbet[:, 6] = vel[:, 1], vel[:, 0], -vel[:, 2]
+        sbet[:, 7], sbet[:, 8] = np.radians(nav.roll), np.radians(nav.pitch)
+        sbet[:, 9] = np.radians(nav.heading) + wander  # platform heading = true heading + wander
+        sbet[:, 10] = wander
+        write_sbet(out / "lmsq" / "trajectory.sbet", sbet)
+        smr = np.zeros((len(gps), 10))
+        smr[:, 0] = sow
+        smr[:, 1:4] = max(nav.sigma_pos, 0.01)
+        smr[:, 4:7] = 0.01
+        smr[:, 7:10] = max(nav.sigma_att, 1e-4) * 60.0  # arc-minutes
+        write_sbet(out / "lmsq" / "trajectory.smrmsg", smr)
+        files.update(sbet="lmsq/trajectory.sbet", smrmsg="lmsq/trajectory.smrmsg")
+    return files
+
+
+def _write_truth_terrain(path: Path, world, frame: LocalFrame, crs, extent, resolution: float) -> None:
+    """The bare earth on a grid of the output CRS: for each cell centre, the height where it meets the ground."""
+    import pyproj
+
+    from stages.io import NODATA, write_cog
+
+    corners = np.array([[extent[0], extent[2], 0.0], [extent[1], extent[2], 0.0],
+                        [extent[0], extent[3], 0.0], [extent[1], extent[3], 0.0]])  # fmt: skip
+    to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
+    from_crs = pyproj.Transformer.from_crs(crs, "EPSG:4978", always_xy=True)
+    ec = frame.to_ecef(corners)
+    cx, cy, _ = to_crs.transform(ec[:, 0], ec[:, 1], ec[:, 2])
+    x0 = np.ceil(min(cx) / resolution) * resolution
+    y1 = np.floor(max(cy) / resolution) * resolution
+    nx = int((np.floor(max(cx) / resolution) * resolution - x0) / resolution)
+    ny = int((y1 - np.ceil(min(cy) / resolution) * resolution) / resolution)
+    xs = x0 + (np.arange(nx) + 0.5) * resolution
+    ys = y1 - (np.arange(ny) + 0.5) * resolution
+    X, Y = np.meshgrid(xs, ys)
+    x, y = X.ravel(), Y.ravel()
+    h = np.full(len(x), frame.h0)
+    for _ in range(5):
+        ex, ey, ez = from_crs.transform(x, y, h)
+        local = frame.from_ecef(np.column_stack((ex, ey, ez)))
+        g = world.sample(world.ground, local[:, 0], local[:, 1])
+        h = h - (local[:, 2] - np.nan_to_num(g))
+    z = np.where(np.isfinite(g), h, NODATA).reshape(ny, nx)
+    from rasterio.transform import from_origin
+
+    write_cog(path, z.astype(np.float32), transform=from_origin(x0, y1, resolution, resolution), crs=crs)

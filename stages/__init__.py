@@ -20,6 +20,7 @@ from stages.georeference import Georeference
 from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
 from stages.report import Report
+from stages.sim.command import SIMULATE
 from stages.terrain import Contours, Hillshade
 
 
@@ -56,6 +57,6 @@ plugin = Plugin(
     name="dtm-pipeline",
     stages=[Parse, Georeference, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, Accuracy, ExportLas, Report],
     global_fields={"crs": _crs_field()},
-    commands=[EVALUATE, BUDGET],
+    commands=[EVALUATE, BUDGET, SIMULATE],
     versions=_versions,
 )

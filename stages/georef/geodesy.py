@@ -42,8 +42,8 @@ def local_level_to_ecef(lat_deg: np.ndarray, lon_deg: np.ndarray, frame: str = "
     up (the Xsens MTi-G).  ``ENU``: east, north, up.
 
     >>> m = local_level_to_ecef(np.array([0.0]), np.array([0.0]), "NED")[0]
-    >>> m @ [0, 0, 1]  # down at (0 N, 0 E) is -X
-    array([-1., -0., -0.])
+    >>> (m @ [0, 0, 1]).round(12) + 0.0  # down at (0 N, 0 E) is -X
+    array([-1.,  0.,  0.])
     """
     lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
     lon = np.radians(np.asarray(lon_deg, dtype=np.float64))

@@ -41,7 +41,8 @@ class NavigationConfig(StrictModel):
     )
     position_noise_m: float | None = Field(None, ge=0, description="1-sigma white position noise per epoch (preset)")
     attitude_noise_deg: float | None = Field(None, ge=0, description="1-sigma white attitude noise per epoch (preset)")
-    gnss_rate_hz: float = Field(20.0, gt=0, le=200, description="NMEA position rate (the INS and SBET run at 200 Hz)")
+    gnss_rate_hz: float = Field(20.0, gt=0, le=200, description="NMEA position rate, Hz (a divisor of 200)")
+    ins_rate_hz: float = Field(200.0, gt=0, le=200, description="INS CSV and SBET rate, Hz (a divisor of 200)")
 
 
 class FlightConfig(StrictModel):
@@ -104,3 +105,10 @@ class SimulateConfig(StrictModel):
     flight: FlightConfig = Field(default_factory=FlightConfig)
     faults: Faults = Field(default_factory=Faults)
     truth_resolution: float = Field(1.0, gt=0, description="cell of truth/terrain.tif, metres")
+    checkpoints: int = Field(40, ge=0, description="check points on the true terrain written to checkpoints.csv")
+
+
+class SimulateFile(StrictModel):
+    """A simulation file with several named surveys, each with its own ``output``."""
+
+    surveys: dict[str, SimulateConfig] = Field(description="name -> survey; each is written to its own output")

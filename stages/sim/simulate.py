@@ -55,9 +55,13 @@ class Navigation:
 
 @dataclass
 class SimResult:
+    """What was written, the fault counts (as in faults.json), and the recorded navigation at 200 Hz."""
+
     output: Path
     faults: dict
     files: dict[str, str] = field(default_factory=dict)
+    navigation: Navigation | None = None
+    gps_start: float = 0.0
 
 
 def smooth_noise(t: np.ndarray, sigma: float, tau: float, rng: np.random.Generator, dims: int = 3) -> np.ndarray:
@@ -102,9 +106,9 @@ def simulate(cfg, log=None) -> SimResult:
     rng = np.random.default_rng(cfg.seed)
     scanner = make_scanner(cfg.scanner)
     if scanner.kind == "ldmrs" and any(f in ("lmsq_nmea", "lmsq_sbet") for f in cfg.formats):
-        raise ValueError("formats lmsq_nmea and lmsq_sbet need a RIEGL scanner (scanner.preset q140 or q280)")
+        raise SimConfigError("formats lmsq_nmea and lmsq_sbet need a RIEGL scanner (scanner.preset q140 or q280)")
     if scanner.kind == "line" and "ldmrs_mtig" in cfg.formats:
-        raise ValueError("format ldmrs_mtig needs scanner.preset: ldmrs")
+        raise SimConfigError("format ldmrs_mtig needs scanner.preset: ldmrs")
     noise = cfg.faults.noise
     sigma_pos, sigma_att = navigation_sigmas(cfg.navigation)
     if not noise:
@@ -120,7 +124,8 @@ def simulate(cfg, log=None) -> SimResult:
     lines = plan_lines((0.0, 0.0), f.lines, spacing, f.line_length_m, f.heading_deg, f.cross_line)
     flight = fly(lines, altitude=f.altitude_m, speed=f.speed_ms, bank_deg=f.bank_deg, lead_in=f.lead_in_m,
                  seed=cfg.seed)  # fmt: skip
-    rec_mask = _recording_mask(flight, f.lead_in_m / f.speed_ms)
+    # RIEGL systems record on the lines (and lead-ins); the seed-0 LD-MRS logs the whole flight
+    rec_mask = _recording_mask(flight, f.lead_in_m / f.speed_ms if scanner.kind == "line" else None)
     on_lines = flight.pos[rec_mask]
     margin = swath / 2 + 20.0
     extent = (on_lines[:, 0].min() - margin, on_lines[:, 0].max() + margin,
@@ -185,11 +190,16 @@ def simulate(cfg, log=None) -> SimResult:
     faults.update(sinks.close())
     files = sinks.files
     files.update(_write_navigation(cfg, out, nav, flight, start))
+    if "lmsq" in faults:
+        faults["lmsq"]["nmea_bad_checksums"] = cfg.faults.nmea_bad_checksums
     files["truth_terrain"] = "truth/terrain.tif"
     _write_truth_terrain(out / "truth" / "terrain.tif", world, frame, crs, extent, cfg.truth_resolution)
+    if cfg.checkpoints:
+        _write_checkpoints(out / "checkpoints.csv", world, frame, crs, flight.pos[flight.line > 0], cfg.checkpoints, rng)
+        files["checkpoints"] = "checkpoints.csv"
     faults["files"] = files
     (out / "truth" / "faults.json").write_text(json.dumps(faults, indent=2) + "\n")
-    return SimResult(out, faults, files)
+    return SimResult(out, faults, files, nav, start)
 
 
 def _gps_seconds(start_utc: str, leap: float) -> float:
@@ -197,14 +207,14 @@ def _gps_seconds(start_utc: str, leap: float) -> float:
 
     value = utc_to_gps(start_utc, leap)
     if value != round(value):
-        raise ValueError("start_utc must be a whole second")
+        raise SimConfigError("start_utc must be a whole second")
     return float(value)
 
 
-def _recording_mask(flight: Flight, lead_s: float) -> np.ndarray:
-    """The scanner records on the lines and for *lead_s* before and after each."""
-    on = flight.line > 0
-    k = int(round(lead_s / DT))
+def _recording_mask(flight: Flight, lead_s: float | None) -> np.ndarray:
+    """The scanner records on the lines and for *lead_s* before and after each (None: all the time)."""
+    on = flight.line > 0 if lead_s is not None else np.ones(len(flight.t), bool)
+    k = int(round(lead_s / DT)) if lead_s is not None else 0
     if k:
         from scipy.ndimage import binary_dilation
 
@@ -248,7 +258,7 @@ def _fault_plan(cfg, scanner: Scanner, flight: Flight, rec_mask: np.ndarray, rng
         scans = scans[scans * period <= flight.duration]
         need = fl.invalid_utc_scans + fl.bad_gps_scans + fl.lost_scans + fl.empty_scans
         if need > len(scans) // 2:
-            raise ValueError(f"{need} faulty scans asked for, but the flight records only {len(scans)} scans")
+            raise SimConfigError(f"{need} faulty scans asked for, but the flight records only {len(scans)} scans")
         pick = rng.choice(scans[1:-1], need, replace=False)
         a, b, c = fl.invalid_utc_scans, fl.bad_gps_scans, fl.lost_scans
         plan.invalid_scans = set(pick[:a].tolist())
@@ -268,7 +278,7 @@ def _fault_plan(cfg, scanner: Scanner, flight: Flight, rec_mask: np.ndarray, rng
         pat_t = scanner.pattern(t0, min(t0 + CHUNK_S, flight.duration))["t"]
         total += int(rec_mask[np.clip(np.round(pat_t / DT).astype(np.int64), 0, len(rec_mask) - 1)].sum())
     if fl.dust_echoes + fl.invalid_quality > total // 10:
-        raise ValueError(f"too many faulty pulses asked for ({total} pulses in the flight)")
+        raise SimConfigError(f"too many faulty pulses asked for ({total} pulses in the flight)")
     pick = rng.choice(total, fl.dust_echoes + fl.invalid_quality, replace=False)
     plan.dust_pulses = set(pick[: fl.dust_echoes].tolist())
     plan.invalid_pulses = set(pick[fl.dust_echoes :].tolist())
@@ -324,6 +334,10 @@ def _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner: Sc
     e["range"] = e["range_true"] + (rng.normal(0, range_noise, len(e["pulse"])) if range_noise else 0.0)
     e["pulse_id"] = pulse_base + e["pulse"]
     return e
+
+
+class SimConfigError(ValueError):
+    """A combination of settings that cannot be simulated (the message says which)."""
 
 
 class _Sinks:
@@ -412,6 +426,7 @@ class _Sinks:
             s = int(s)
             if s in plan.lost_scans:
                 keep[a:b] = False  # never recorded: not in the truth either
+                counts["lost_scans"] += 1
                 continue
             counts["scans_written"] += 1
             t_rel = s * period
@@ -420,7 +435,7 @@ class _Sinks:
             if s in plan.invalid_scans:
                 counts["invalid_scans"] += 1
                 if len(plan.invalid_scans) > 1 and s % 2:
-                    utc = utc.replace("T", "X")  # unparseable
+                    utc = utc[:11] + "25" + utc[13:]  # hour 25: unparseable
                 else:
                     valid = 0
                 fault[a:b] = FAULT_CODES["invalid_scan"]
@@ -479,12 +494,13 @@ class _Sinks:
         bad = np.isin(e["pulse_id"], list(plan.invalid_pulses)) if plan.invalid_pulses else np.zeros(n, bool)
         quality[bad] = 0
         fault[bad] = FAULT_CODES["invalid_quality"]
-        self.lmsq_counts["invalid_quality"] += int(bad.sum())
-        self.lmsq_counts["dust_echoes"] += int(e["dust"].sum())
         gps_us = np.round(gps * 1e6).astype(np.int64)
         second = gps_us // 1_000_000
         gap = np.isin(second - int(self.start), list(plan.pps_gaps)) if plan.pps_gaps else np.zeros(n, bool)
         fault[gap] = FAULT_CODES["pps_gap"]
+        # what a reader sees: a measurement after a missed PPS is unusable whatever its quality
+        self.lmsq_counts["invalid_quality"] += int((bad & ~gap).sum())
+        self.lmsq_counts["dust_echoes"] += int((e["dust"] & ~gap & ~bad).sum())
         amplitude = np.where(e["cls"] == sc.WATER, 20, np.where(e["cls"] == sc.VEGETATION, 90, 160))
         amplitude = (amplitude * (1 - 0.3 * e["echo"])).astype(np.uint8)
         self.lmsq.add(gps_us, e["range"], amplitude, pat["angle"][e["pulse"]], quality, e["echo"])
@@ -550,6 +566,8 @@ class _LasSink:
 
 
 def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: float) -> dict[str, str]:
+    """NMEA, INS CSV, SBET and smrmsg from the recorded navigation; ``nmea_bad_checksums`` corrupts
+    GGA/HDT/VTG/GST sentences (never ZDA: without a date the log cannot be read at all)."""
     from stages.sim.writers import SECONDS_PER_WEEK, write_ins_csv, write_nmea, write_sbet
 
     files = {}
@@ -563,13 +581,16 @@ def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: fl
         speed = np.hypot(vel[:, 0], vel[:, 1])
         sigma = np.full(len(gps), max(nav.sigma_pos, 0.01))
         rng = np.random.default_rng(cfg.seed + 11)
-        n_sent = 5 * len(gps[sel]) + int(np.ceil(gps[-1] - gps[0])) + 1
         k = cfg.faults.nmea_bad_checksums
-        corrupt = set(rng.choice(n_sent // 2, k, replace=False).tolist()) if k else set()
+        corrupt = set(rng.choice(4 * len(gps[sel]), k, replace=False).tolist()) if k else set()
         write_nmea(out / "lmsq" / "nav.nmea", gps[sel], nav.lat[sel], nav.lon[sel], nav.h[sel], nav.heading[sel],
                    course[sel], speed[sel], sigma[sel], leap_seconds=cfg.leap_seconds, corrupt=corrupt)  # fmt: skip
-        write_ins_csv(out / "lmsq" / "ins.csv", sow, nav.roll, nav.pitch, nav.heading)
+        ins = slice(0, None, max(1, int(round(1.0 / (cfg.navigation.ins_rate_hz * DT)))))
+        write_ins_csv(out / "lmsq" / "ins.csv", sow[ins], nav.roll[ins], nav.pitch[ins], nav.heading[ins])
         files.update(nmea="lmsq/nav.nmea", ins="lmsq/ins.csv")
+        gps, sow, vel = gps[ins], sow[ins], vel[ins]
+        nav = Navigation(nav.t[ins], nav.lat[ins], nav.lon[ins], nav.h[ins], nav.roll[ins], nav.pitch[ins],
+                         nav.heading[ins], nav.sigma_pos, nav.sigma_att)  # fmt: skip
         wander = np.radians(10.0) + 1e-4 * nav.t  # a wander azimuth that drifts, as a wander-azimuth INS does
         sbet = np.zeros((len(gps), 17))
         sbet[:, 0] = sow
@@ -589,6 +610,59 @@ def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: fl
     return files
 
 
+def _ground_height(world, frame: LocalFrame, crs, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Height in the output CRS where the vertical through (x, y) meets the bare earth, and the local (e, n)."""
+    import pyproj
+
+    from_crs = pyproj.Transformer.from_crs(crs, "EPSG:4978", always_xy=True)
+    h = np.full(len(x), frame.h0)
+    for _ in range(5):
+        ex, ey, ez = from_crs.transform(x, y, h)
+        local = frame.from_ecef(np.column_stack((ex, ey, ez)))
+        g = world.sample(world.ground, local[:, 0], local[:, 1])
+        h = h - (local[:, 2] - np.nan_to_num(g))
+    return np.where(np.isfinite(g), h, np.nan), local
+
+
+def _write_checkpoints(path: Path, world, frame: LocalFrame, crs, on_lines: np.ndarray, n: int, rng) -> None:
+    """GNSS-style check points on the true terrain: two thirds in the open, one third under trees.
+
+    Drawn under the flown lines (so the DTM covers them), at least 5 m from
+    buildings, water, the bridge, breaklines and slopes over 20 %, as a
+    surveyor would place them.
+    """
+    from scipy.ndimage import binary_dilation
+
+    gy, gx = np.gradient(world.ground, world.cell)
+    steep = np.hypot(gx, gy) > 0.2  # breaklines and steep slopes: no check point within 5 m (ASPRS practice)
+    structures = binary_dilation((world.cls != sc.GROUND) | steep, iterations=int(5 / world.cell))
+    trees = world.canopy > world.solid + 0.5
+    rows = []
+    tries = 0
+    while len(rows) < n and tries < 200 * n:
+        tries += 1
+        k = int(rng.integers(len(on_lines)))
+        e, nn = on_lines[k, 0] + rng.uniform(-20, 20), on_lines[k, 1] + rng.uniform(-20, 20)
+        ix, iy = int((e - world.e0) / world.cell), int((nn - world.n0) / world.cell)
+        if not (0 <= iy < world.cls.shape[0] and 0 <= ix < world.cls.shape[1]) or structures[iy, ix]:
+            continue
+        want_tree = len(rows) % 3 == 2
+        if bool(trees[iy, ix]) != want_tree:
+            continue
+        rows.append((e, nn, "vegetated" if want_tree else "open"))
+    local = np.array([[r[0], r[1], 0.0] for r in rows])
+    ecef = frame.to_ecef(local)
+    import pyproj
+
+    x, y, _ = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True).transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
+    z, _ = _ground_height(world, frame, crs, np.asarray(x), np.asarray(y))
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(f"# true terrain of the simulated survey; {crs.to_string()}, ellipsoidal heights, metres\n")
+        fh.write("id,x,y,z,land_cover\n")
+        for i, (xi, yi, zi, r) in enumerate(zip(x, y, z, rows, strict=True), 1):
+            fh.write(f"CP{i:03d},{xi:.3f},{yi:.3f},{zi:.3f},{r[2]}\n")
+
+
 def _write_truth_terrain(path: Path, world, frame: LocalFrame, crs, extent, resolution: float) -> None:
     """The bare earth on a grid of the output CRS: for each cell centre, the height where it meets the ground."""
     import pyproj
@@ -598,7 +672,6 @@ def _write_truth_terrain(path: Path, world, frame: LocalFrame, crs, extent, reso
     corners = np.array([[extent[0], extent[2], 0.0], [extent[1], extent[2], 0.0],
                         [extent[0], extent[3], 0.0], [extent[1], extent[3], 0.0]])  # fmt: skip
     to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
-    from_crs = pyproj.Transformer.from_crs(crs, "EPSG:4978", always_xy=True)
     ec = frame.to_ecef(corners)
     cx, cy, _ = to_crs.transform(ec[:, 0], ec[:, 1], ec[:, 2])
     x0 = np.ceil(min(cx) / resolution) * resolution
@@ -608,14 +681,8 @@ def _write_truth_terrain(path: Path, world, frame: LocalFrame, crs, extent, reso
     xs = x0 + (np.arange(nx) + 0.5) * resolution
     ys = y1 - (np.arange(ny) + 0.5) * resolution
     X, Y = np.meshgrid(xs, ys)
-    x, y = X.ravel(), Y.ravel()
-    h = np.full(len(x), frame.h0)
-    for _ in range(5):
-        ex, ey, ez = from_crs.transform(x, y, h)
-        local = frame.from_ecef(np.column_stack((ex, ey, ez)))
-        g = world.sample(world.ground, local[:, 0], local[:, 1])
-        h = h - (local[:, 2] - np.nan_to_num(g))
-    z = np.where(np.isfinite(g), h, NODATA).reshape(ny, nx)
+    h, _ = _ground_height(world, frame, crs, X.ravel(), Y.ravel())
+    z = np.where(np.isfinite(h), h, NODATA).reshape(ny, nx)
     from rasterio.transform import from_origin
 
     write_cog(path, z.astype(np.float32), transform=from_origin(x0, y1, resolution, resolution), crs=crs)

@@ -67,7 +67,7 @@ class LmsqWriter:
                 continue
             offset = np.minimum(gps_us[a:b] - self.last_pps * 1_000_000, 0xFFFFFF)
             if s in self.skip:
-                self.skipped_measurements += b - a
+                self.skipped_measurements += int(b - a)
             self.fh.write(
                 encode_measurements(
                     range_m[a:b], amplitude[a:b], angle_deg[a:b], quality[a:b], echo[a:b], offset
@@ -132,11 +132,15 @@ def write_nmea(
     last_second = None
     with open_text(path) as fh:
 
+        data = 0  # index among the sentences that may be corrupted (not ZDA)
+
         def put(body: str) -> None:
-            nonlocal k
+            nonlocal k, data
             s = with_checksum(body)
-            if k in corrupt:
-                s = s[:-2] + ("00" if s[-2:] != "00" else "01")
+            if not body.startswith("INZDA"):
+                if data in corrupt:
+                    s = s[:-2] + ("00" if s[-2:] != "00" else "01")
+                data += 1
             fh.write(s + "\r\n")
             k += 1
 

@@ -106,9 +106,10 @@ def test_parse_stage_writes_columns_and_qc_files(tmp_path):
     manifest = json.loads((tmp_path / "out" / "run.json").read_text())
     parse = next(s for s in manifest["stages"] if s["name"] == "parse")
     traj, meta = read_columns(parse["outputs"]["trajectory"]["file"])
-    assert traj["scan"].tolist() == [125, 131, 133] and meta["mounting"] == "pilatus"
+    assert traj["scan"].tolist() == [125, 131, 133] and meta["convention"] == "NWU"
     assert "NWU" in meta["attitude"]
-    pulses, _ = read_columns(parse["outputs"]["pulses"]["file"])
+    pulses, pmeta = read_columns(parse["outputs"]["pulses"]["file"])
+    assert pmeta["mounting"] == "pilatus" and pmeta["lever_arm"] == [-0.023, 0.0514, -0.1365]
     assert pulses["scan"].tolist() == [125, 133, 133]
     np.testing.assert_allclose(pulses["x"], [12.345, 20.0, 21.0])
     assert pulses["flags"].tolist() == [0, 4, 1]

@@ -109,6 +109,9 @@ def group_returns(time: np.ndarray, channel: np.ndarray, angle: np.ndarray) -> n
     n = len(time)
     if n == 0:
         return np.zeros(0, np.int64)
+    # angles to 0.01 degree: 3.A angles come from printed coordinates, so the echoes of one
+    # pulse differ in the last digits
+    angle = np.round(np.asarray(angle, dtype=np.float64), 2)
     new = np.ones(n, bool)
     new[1:] = (time[1:] != time[:-1]) | (channel[1:] != channel[:-1]) | (angle[1:] != angle[:-1])
     starts = np.flatnonzero(new)

@@ -51,8 +51,8 @@ class Scene:
         fx = (np.asarray(e) - self.e0) / self.cell - 0.5
         fy = (np.asarray(n) - self.n0) / self.cell - 0.5
         inside = (fx >= 0) & (fx <= nx - 1) & (fy >= 0) & (fy <= ny - 1)
-        fx = np.clip(fx, 0, nx - 1.000001)
-        fy = np.clip(fy, 0, ny - 1.000001)
+        fx = np.clip(np.nan_to_num(fx), 0, nx - 1.000001)
+        fy = np.clip(np.nan_to_num(fy), 0, ny - 1.000001)
         ix, iy = fx.astype(np.int64), fy.astype(np.int64)
         ax, ay = fx - ix, fy - iy
         flat = grid.ravel()
@@ -63,8 +63,8 @@ class Scene:
     def class_at(self, e: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Class of the solid surface at (e, n) (nearest cell)."""
         ny, nx = self.cls.shape
-        ix = np.clip(((np.asarray(e) - self.e0) / self.cell).astype(np.int64), 0, nx - 1)
-        iy = np.clip(((np.asarray(n) - self.n0) / self.cell).astype(np.int64), 0, ny - 1)
+        ix = np.clip(np.nan_to_num((np.asarray(e) - self.e0) / self.cell).astype(np.int64), 0, nx - 1)
+        iy = np.clip(np.nan_to_num((np.asarray(n) - self.n0) / self.cell).astype(np.int64), 0, ny - 1)
         return self.cls[iy, ix]
 
 

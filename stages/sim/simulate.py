@@ -156,6 +156,12 @@ def simulate(cfg, log=None) -> SimResult:
                      np.degrees(flight.pitch) + att_err[:, 1], np.degrees(flight.heading) + att_err[:, 2],
                      sigma_pos, sigma_att)  # fmt: skip
 
+    if any(fmt in cfg.formats for fmt in ("lmsq_nmea", "lmsq_sbet")):
+        # every navigation file spans the same time: from the first to the last GNSS epoch
+        step = max(1, int(round(1.0 / (cfg.navigation.gnss_rate_hz * DT))))
+        end = (len(nav.t) - 1) // step * step + 1
+        nav = Navigation(*(getattr(nav, k)[:end] for k in ("t", "lat", "lon", "h", "roll", "pitch", "heading")),
+                         nav.sigma_pos, nav.sigma_att)  # fmt: skip
     start = _gps_seconds(cfg.start_utc, cfg.leap_seconds)
     faults = {"seed": cfg.seed, "noise": noise, "range_noise_m": range_noise, "position_noise_m": sigma_pos,
               "attitude_noise_deg": sigma_att, "strip_bias_m": cfg.faults.strip_bias_m,
@@ -195,7 +201,9 @@ def simulate(cfg, log=None) -> SimResult:
     files["truth_terrain"] = "truth/terrain.tif"
     _write_truth_terrain(out / "truth" / "terrain.tif", world, frame, crs, extent, cfg.truth_resolution)
     if cfg.checkpoints:
-        _write_checkpoints(out / "checkpoints.csv", world, frame, crs, flight.pos[flight.line > 0], cfg.checkpoints, rng)
+        _write_checkpoints(
+            out / "checkpoints.csv", world, frame, crs, flight.pos[flight.line > 0], cfg.checkpoints, rng
+        )
         files["checkpoints"] = "checkpoints.csv"
     faults["files"] = files
     (out / "truth" / "faults.json").write_text(json.dumps(faults, indent=2) + "\n")
@@ -571,12 +579,12 @@ def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: fl
     from stages.sim.writers import SECONDS_PER_WEEK, write_ins_csv, write_nmea, write_sbet
 
     files = {}
-    gps = start + nav.t
-    sow = np.mod(gps, SECONDS_PER_WEEK)
     if any(f in cfg.formats for f in ("lmsq_nmea", "lmsq_sbet")):
         step = max(1, int(round(1.0 / (cfg.navigation.gnss_rate_hz * DT))))
+        gps = start + nav.t
+        sow = np.mod(gps, SECONDS_PER_WEEK)
         sel = slice(0, None, step)
-        vel = flight._pos(flight.t, 1)
+        vel = flight._pos(nav.t, 1)
         course = np.degrees(np.arctan2(vel[:, 0], vel[:, 1]))
         speed = np.hypot(vel[:, 0], vel[:, 1])
         sigma = np.full(len(gps), max(nav.sigma_pos, 0.01))
@@ -654,7 +662,9 @@ def _write_checkpoints(path: Path, world, frame: LocalFrame, crs, on_lines: np.n
     ecef = frame.to_ecef(local)
     import pyproj
 
-    x, y, _ = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True).transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
+    x, y, _ = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True).transform(
+        ecef[:, 0], ecef[:, 1], ecef[:, 2]
+    )
     z, _ = _ground_height(world, frame, crs, np.asarray(x), np.asarray(y))
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(f"# true terrain of the simulated survey; {crs.to_string()}, ellipsoidal heights, metres\n")

@@ -131,7 +131,6 @@ def write_nmea(
     k = 0
     last_second = None
     with open_text(path) as fh:
-
         data = 0  # index among the sentences that may be corrupted (not ZDA)
 
         def put(body: str) -> None:

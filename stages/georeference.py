@@ -256,10 +256,22 @@ class Georeference(Stage):
         lt[:, 2] -= h0
         diff = lt - ex
         if len(diff):
+            # what geometry predicts: R against the radii of curvature at the point's height, M + h
+            # (meridian) and N + h (prime vertical), at the first fix; and the tangent plane's rise
+            # over the ellipsoid, d^2 / 2R
+            e2 = 6.69437999014e-3
+            w = 1.0 - e2 * np.sin(np.radians(lat0)) ** 2
+            radius_m, radius_n = 6_378_137.0 * (1 - e2) / w**1.5, 6_378_137.0 / np.sqrt(w)
+            h_pt = h0 + ex[:, 2]
+            pred_h = np.hypot((p.ltp_radius_m / (radius_n + h_pt) - 1) * ex[:, 0],
+                              (p.ltp_radius_m / (radius_m + h_pt) - 1) * ex[:, 1])  # fmt: skip
+            pred_v = (ex[:, 0] ** 2 + ex[:, 1] ** 2) / (2 * np.sqrt(radius_m * radius_n))
             ctx.metrics.update(
                 ltp_vs_exact_max_horizontal_m=float(np.max(np.hypot(diff[:, 0], diff[:, 1]))),
                 ltp_vs_exact_max_vertical_m=float(np.max(np.abs(diff[:, 2]))),
                 ltp_vs_exact_extent_m=float(np.max(np.hypot(ex[:, 0], ex[:, 1]))),
+                ltp_predicted_max_horizontal_m=float(np.max(pred_h)),
+                ltp_predicted_max_vertical_m=float(np.max(pred_v)),
             )
         ctx.metrics.update(
             pulses=n_pulses, points=written, rejected_no_trajectory=no_traj, dropped_in_turns=in_turns,

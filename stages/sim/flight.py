@@ -118,9 +118,11 @@ def fly(
     radius = speed**2 / (G * np.tan(np.radians(bank_deg)))
     # segments: (duration, heading rate, line index)
     segs: list[tuple[float, float, int]] = []
-    p = lines[0].start - lead_in * np.array([np.sin(lines[0].heading), np.cos(lines[0].heading)])
+    run_in = 3.0  # s of straight flight before the first lead-in and after the last (navigation only)
+    p = lines[0].start - (lead_in + run_in * speed) * np.array([np.sin(lines[0].heading), np.cos(lines[0].heading)])
     psi = lines[0].heading
     start_p, start_psi = p.copy(), psi
+    segs.append((run_in, 0.0, 0))
     for k, line in enumerate(lines, 1):
         d = np.array([np.sin(line.heading), np.cos(line.heading)])
         target = line.start - lead_in * d
@@ -130,6 +132,7 @@ def fly(
             segs += [(a / omega, s0 * omega, 0), (straight / speed, 0.0, 0), (b / omega, s1 * omega, 0)]
         segs += [(lead_in / speed, 0.0, 0), (line.length / speed, 0.0, k), (lead_in / speed, 0.0, 0)]
         p, psi = line.start + line.length * d + lead_in * d, line.heading
+    segs.append((run_in, 0.0, 0))
     total = sum(s[0] for s in segs)
     t = np.arange(0.0, total + DT / 2, DT)
     omega = np.zeros_like(t)

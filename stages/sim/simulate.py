@@ -126,6 +126,8 @@ def simulate(cfg, log=None) -> SimResult:
                  seed=cfg.seed)  # fmt: skip
     # RIEGL systems record on the lines (and lead-ins); the seed-0 LD-MRS logs the whole flight
     rec_mask = _recording_mask(flight, f.lead_in_m / f.speed_ms if scanner.kind == "line" else None)
+    if not rec_mask.any():
+        raise SimConfigError("the flight is too short to record anything (make the lines longer)")
     on_lines = flight.pos[rec_mask]
     margin = swath / 2 + 20.0
     extent = (on_lines[:, 0].min() - margin, on_lines[:, 0].max() + margin,

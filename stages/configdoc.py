@@ -97,5 +97,48 @@ def render() -> str:
     return HEADER + "\n".join(_rows(config_model(plugin), "")) + "\n"
 
 
+SIMULATOR_HEADER = """# Simulator configuration reference
+
+Generated from the models in `stages/sim/config.py` by
+`python -m stages.configdoc --simulator > docs/SIMULATOR.md`; a test fails
+when this page is stale.
+
+`pipeline simulate CONFIG [--out DIR] [--only NAME] [--set key=value ...]`
+writes one survey, or several under `surveys: {name: {...}}` (as
+`configs/simulate.yaml` does), each to its own `output`:
+
+| file | what |
+|---|---|
+| `ldmrs/acquisition.log.gz` | format 3.A (LD-MRS + MTi-G log, gzip) |
+| `lmsq/scan.lmsq`, `lmsq/nav.nmea`, `lmsq/ins.csv` | format 3.B |
+| `lmsq/trajectory.sbet`, `lmsq/trajectory.smrmsg` | format 3.C (same scanner stream) |
+| `las/points.laz` | format 3.D: the echoes georeferenced from the recorded navigation |
+| `truth/points.laz` | every echo at its true position: `gps_time`, return number/count, `scanner_channel`, `scan_angle`, `point_source_id` = flight line (0 off the lines), class (2 ground, 5 vegetation, 6 building, 7 noise, 9 water, 17 bridge), extra byte `fault` (0 none, 1 invalid scan, 2 bad GPS, 3 clutter, 4 dirt, 5 after a missed PPS, 6 invalid quality, 7 dust) |
+| `truth/terrain.tif` | the bare earth in the output CRS (ellipsoidal heights; water surface over water) |
+| `truth/faults.json` | every injected fault with its count as written, systematic errors, per-line GNSS biases |
+| `checkpoints.csv` | check points on the true terrain (open and under trees; none within 5 m of structures, water, breaklines or slopes over 20 %) |
+
+Truth and measurements: the scene lives in a local east-north-up frame
+tangent to WGS 84 at `origin` (an exact rigid transform of ECEF); rays are
+cast there from the true pose (cubic spline of the flown path) and the true
+mounting (configured + `faults.*_error_*`); truth points go to the output
+CRS through PROJ point by point.  Navigation errors are smooth (cubic
+between random knots every 20 s for position, 5 s for attitude) with the
+preset's sigma, plus the per-line bias.  Times are GPS seconds; UTC-stamped
+files use `leap_seconds`.
+
+| key | type | default | description |
+|---|---|---|---|
+"""
+
+
+def render_simulator() -> str:
+    from stages.sim.config import SimulateConfig
+
+    return SIMULATOR_HEADER + "\n".join(_rows(SimulateConfig, "")) + "\n"
+
+
 if __name__ == "__main__":
-    print(render(), end="")
+    import sys
+
+    print(render_simulator() if "--simulator" in sys.argv else render(), end="")

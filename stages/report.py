@@ -156,11 +156,15 @@ def build_report(
         f"<tr><td>{int(k)}</td><td>{html.escape(ASPRS_NAMES.get(int(k), 'other'))}</td><td>{int(n):,}</td><td>{100 * n / max(len(pts), 1):.2f} %</td></tr>"
         for k, n in zip(classes, counts, strict=True)
     )
+    geo = metrics.get("georeference")
     summary = [
-        ("points read", parse.get("points_read")),
+        ("points read", parse.get("points_read") or (geo or {}).get("points")),
         ("input files", len(parse.get("points_per_file", {})) or None),
-        ("CRS", parse.get("crs")),
-        ("flight strips (point_source_id)", ", ".join(str(s) for s in parse.get("strips", [])) or None),
+        ("CRS", parse.get("crs") or (geo or {}).get("crs")),
+        (
+            "flight strips (point_source_id)",
+            ", ".join(str(s) for s in parse.get("strips", []) or (geo or {}).get("strips", {})) or None,
+        ),
         (
             "low noise (7) / high noise (18)",
             f"{noise.get('low_noise', 0):,} / {noise.get('high_noise', 0):,}" if noise else None,
@@ -181,6 +185,30 @@ def build_report(
         ("DTM elevation range", f"{lo:,.2f} – {hi:,.2f} m"),
         ("mean density", f"{grid.get('density_mean')} points per cell" if grid else None),
     ]
+    if geo:
+        counters = [
+            (k.replace("_", " "), v) for k, v in parse.items() if isinstance(v, (int, float)) and k != "gps_week"
+        ]
+        geo_rows = [
+            ("pulses", geo.get("pulses")),
+            ("points written", geo.get("points")),
+            ("dropped: flown in turns", geo.get("dropped_in_turns")),
+            ("dropped: no trajectory (outside it or in a gap)", geo.get("rejected_no_trajectory")),
+            ("points per strip", ", ".join(f"{k}: {v:,}" for k, v in geo.get("strips", {}).items())),
+            ("frame / CRS", f"{geo.get('frame')} / {geo.get('crs')}"),
+            ("attitude convention", geo.get("attitude_convention")),
+            ("map transform (largest difference from PROJ, m)",
+             f"{geo.get('map_transform')} ({geo.get('map_transform_max_error_m', 0):.1e})" if geo.get("map_transform") else None),
+            ("ltp vs exact, largest horizontal / vertical difference (m)",
+             f"{geo.get('ltp_vs_exact_max_horizontal_m', 0):.3f} / {geo.get('ltp_vs_exact_max_vertical_m', 0):.3f} "
+             f"over {geo.get('ltp_vs_exact_extent_m', 0):,.0f} m (geometry predicts "
+             f"{geo.get('ltp_predicted_max_horizontal_m', 0):.3f} / {geo.get('ltp_predicted_max_vertical_m', 0):.3f})"),
+        ]  # fmt: skip
+        raw_html = (
+            f"<h3>Read and skipped (qc/debug.txt)</h3>{_table(counters)}<h3>Georeferencing</h3>{_table(geo_rows)}"
+        )
+    else:
+        raw_html = "<p>Georeferenced input (LAS/LAZ): no raw flight to report on.</p>"
     if adjust:
         adjust_html = _table([(k, v) for k, v in adjust.items() if not isinstance(v, (dict, list))])
     else:
@@ -219,6 +247,7 @@ img{{max-width:100%;border:1px solid #ccc;image-rendering:pixelated}} figcaption
 <figure>{_img(strip_png, "flight strip coverage")}<figcaption>Flight strips (point_source_id):{legend}</figcaption></figure>
 </div></section>
 <section id="classes"><h2>Classification</h2><table><tr><th>class</th><th>name</th><th>points</th><th>share</th></tr>{class_rows}</table></section>
+<section id="raw"><h2>Raw flight</h2>{raw_html}</section>
 <section id="strips"><h2>Strip adjustment</h2>{adjust_html}</section>
 <section id="accuracy"><h2>Vertical accuracy</h2>{accuracy_html}</section>
 </body></html>

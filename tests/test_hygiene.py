@@ -42,3 +42,7 @@ def test_config_reference_is_current():
 
     committed = (ROOT / "docs" / "CONFIG.md").read_text()
     assert committed == render(), "docs/CONFIG.md is stale: python -m stages.configdoc > docs/CONFIG.md"
+    from stages.configdoc import render_simulator
+
+    committed = (ROOT / "docs" / "SIMULATOR.md").read_text()
+    assert committed == render_simulator(), "stale: python -m stages.configdoc --simulator > docs/SIMULATOR.md"

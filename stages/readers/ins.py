@@ -62,9 +62,15 @@ def _increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where) -
 
 
 def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, np.ndarray]:
-    """Time (GPS s since 1980-01-06), roll, pitch, heading (degrees, NED) of the INS log."""
-    rows: list[tuple[float, float, float, float]] = []
-    lines: list[int] = []
+    """Time (GPS s since 1980-01-06), roll, pitch, heading (degrees, NED) of the INS log.
+
+    Read line by line into compact arrays (8 bytes a value), so a long
+    flight's log costs what its columns cost and no more.
+    """
+    from array import array
+
+    cols = [array("d") for _ in range(4)]
+    lines = array("q")
     with open_text(path, "ascii") as fh:
         first = fh.readline().strip()
         if first.replace(" ", "") != INS_HEADER:
@@ -77,20 +83,21 @@ def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[st
             try:
                 if len(parts) != 4:
                     raise ValueError
-                values = tuple(float(p) for p in parts)
+                values = [float(p) for p in parts]
                 if not all(math.isfinite(v) for v in values) or not 0 <= values[0] < SECONDS_PER_WEEK:
                     raise ValueError
             except ValueError:
                 counters.malformed += 1
                 counters.note(f"{path}, line {lineno}: not four finite numbers (gps_sow 0-604800); line skipped")
                 continue
-            rows.append(values)
+            for col, value in zip(cols, values, strict=True):
+                col.append(value)
             lines.append(lineno)
-    table = np.array(rows, dtype=np.float64).reshape(-1, 4)
-    t = absolute_time(table[:, 0], week)
+    table = [np.frombuffer(c, dtype=np.float64) if len(c) else np.zeros(0) for c in cols]
+    t = absolute_time(table[0], week)
     keep = _increasing(t, counters, "INS", lambda i: f"{path}, line {lines[i]}")
     counters.epochs += int(keep.sum())
-    return {"time": t[keep], "roll": table[keep, 1], "pitch": table[keep, 2], "heading": table[keep, 3]}
+    return {"time": t[keep], "roll": table[1][keep], "pitch": table[2][keep], "heading": table[3][keep]}
 
 
 def _records(path: Path, width: int, counters: TrajectoryCounters) -> np.ndarray:

@@ -39,8 +39,12 @@ class NavigationConfig(StrictModel):
     preset: Literal["mtig", "igg", "novatel-bds", "pos-av-310", "pos-av-410", "pos-av-510"] = Field(
         "pos-av-410", description="GNSS/INS preset (position and attitude sigma of the seeds)"
     )
-    position_noise_m: float | None = Field(None, ge=0, description="1-sigma white position noise per epoch (preset)")
-    attitude_noise_deg: float | None = Field(None, ge=0, description="1-sigma white attitude noise per epoch (preset)")
+    position_noise_m: float | None = Field(
+        None, ge=0, description="1-sigma position error, smooth (random knots every 20 s), metres (preset)"
+    )
+    attitude_noise_deg: float | None = Field(
+        None, ge=0, description="1-sigma attitude error per angle, smooth (knots every 5 s), degrees (preset)"
+    )
     gnss_rate_hz: float = Field(20.0, gt=0, le=200, description="NMEA position rate, Hz (a divisor of 200)")
     ins_rate_hz: float = Field(200.0, gt=0, le=200, description="INS CSV and SBET rate, Hz (a divisor of 200)")
 

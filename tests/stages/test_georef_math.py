@@ -146,3 +146,22 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
     assert m["ltp_vs_exact_max_vertical_m"] == pytest.approx(m["ltp_predicted_max_vertical_m"], abs=0.02)
     assert m["ltp_vs_exact_max_horizontal_m"] > 0.5  # not negligible: decimetres per 100 m of extent
     assert m["crs"].startswith("unknown") or "Equidistant" in m["crs"] or m["crs_epsg"] is None
+
+
+def test_geoid_grid_gives_orthometric_heights(tmp_path):
+    """A geoid grid of N = 50 m: heights drop by 50 m (H = h - N), positions do not move."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from stages.georef.geodesy import LocalFrame, MapTransform
+
+    grid = tmp_path / "geoid.tif"
+    with rasterio.open(grid, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=from_origin(-4.0, 41.0, 0.05, 0.05)) as ds:  # fmt: skip
+        ds.write(np.full((1, 20, 20), 50.0, np.float32))
+    frame = LocalFrame(40.4168, -3.7038, 650.0)
+    lo, hi = np.array([-500.0, -500.0, -100.0]), np.array([500.0, 500.0, 300.0])
+    crs = pyproj.CRS.from_epsg(32630)
+    with_geoid, without = MapTransform(frame, crs, lo, hi, geoid=grid), MapTransform(frame, crs, lo, hi)
+    pts = np.array([[10.0, 20.0, 5.0], [-400.0, 300.0, 250.0]])
+    np.testing.assert_allclose(with_geoid(pts) - without(pts), [[0, 0, -50.0]] * 2, atol=1e-6)

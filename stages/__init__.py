@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> georeference (raw formats) -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
+parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
 export_las; report (last: it reads every stage's metrics).
 """
 
@@ -21,6 +21,7 @@ from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
 from stages.report import Report
 from stages.sim.command import SIMULATE
+from stages.strip_adjust import StripAdjust
 from stages.terrain import Contours, Hillshade
 
 
@@ -55,7 +56,19 @@ def _crs_field():
 
 plugin = Plugin(
     name="dtm-pipeline",
-    stages=[Parse, Georeference, Denoise, ClassifyGround, Rasterize, Hillshade, Contours, Accuracy, ExportLas, Report],
+    stages=[
+        Parse,
+        Georeference,
+        StripAdjust,
+        Denoise,
+        ClassifyGround,
+        Rasterize,
+        Hillshade,
+        Contours,
+        Accuracy,
+        ExportLas,
+        Report,
+    ],
     global_fields={"crs": _crs_field()},
     commands=[EVALUATE, BUDGET, SIMULATE],
     versions=_versions,

@@ -70,12 +70,12 @@ class Denoise(Stage):
     version = "1"
     Params = DenoiseParams
     description = "isolated points and low outliers to noise classes 18/7"
-    inputs = ("points_georef",)
+    inputs = ("points_adjusted",)
     outputs: ClassVar = {"points_denoised": "points.las"}
-    passthrough: ClassVar = {"points_denoised": "points_georef"}
+    passthrough: ClassVar = {"points_denoised": "points_adjusted"}
 
     def run(self, ctx) -> None:
-        las = read_cloud(ctx.inputs["points_georef"])
+        las = read_cloud(ctx.inputs["points_adjusted"])
         cls = np.asarray(las.classification).copy()
         done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.asarray(las.withheld, dtype=bool)
         found = np.zeros(len(cls), dtype=np.uint8)

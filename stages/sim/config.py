@@ -76,6 +76,12 @@ class Faults(StrictModel):
     invalid_quality: int = Field(0, ge=0, description="lmsq: measurements with quality 0")
     nmea_bad_checksums: int = Field(0, ge=0, description="NMEA sentences with a corrupted checksum")
     strip_bias_m: float = Field(0.0, ge=0, description="per-line GNSS bias, largest component, metres")
+    strip_rotation_deg: float = Field(
+        0.0, ge=0, description="per-line roll and pitch bias, largest component, degrees (rigid for a straight strip)"
+    )
+    error_free_lines: list[int] = Field(
+        [], description="lines (1-based) flown without per-line bias or rotation, e.g. a reference for the datum"
+    )
     boresight_error_deg: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="true minus configured boresight roll, pitch, yaw, degrees"
     )

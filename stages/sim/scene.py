@@ -88,6 +88,9 @@ def make_scene(extent: tuple[float, float, float, float], *, seed: int = 1, cell
     # smooth hills (amplitude a few metres) on a gentle regional slope
     ground = 4.0 * np.sin(2 * np.pi * u * 1.3 + 0.4) * np.cos(2 * np.pi * v * 0.9) + 0.01 * (E - e_min)
     ground += 3.0 * np.exp(-(((u - 0.75) / 0.12) ** 2 + ((v - 0.7) / 0.15) ** 2))
+    # rolling relief of 60-90 m wavelength (slopes up to about 10 degrees): what makes horizontal
+    # strip offsets observable, as real terrain does
+    ground += 1.5 * np.sin(2 * np.pi * (E - e_min) / 70.0) * np.sin(2 * np.pi * (N - n_min) / 90.0 + 0.7)
     # a steep 30-degree slope rising eastwards over a 12 m band
     band = np.clip((E - (e_min + 0.15 * w)) / 12.0, 0.0, 1.0)
     ground += band * 12.0 * np.tan(np.radians(30.0))

@@ -74,14 +74,21 @@ def smooth_noise(t: np.ndarray, sigma: float, tau: float, rng: np.random.Generat
     return CubicSpline(knots, rng.normal(0, sigma, (len(knots), dims)), axis=0)(t)
 
 
-def _line_biases(flight: Flight, size: float, rng: np.random.Generator) -> np.ndarray:
-    """Per-line GNSS bias (uniform in +-size per axis), blended linearly through the turns."""
+def _line_biases(flight: Flight, size: float, rng: np.random.Generator, spare: list[int] = ()) -> np.ndarray:
+    """Per-line bias (uniform in +-size per axis; zero on the *spare* lines), blended linearly through the turns."""
     lines = int(flight.line.max())
     if size == 0 or lines == 0:
         return np.zeros((len(flight.t), 3))
     values = rng.uniform(-size, size, (lines, 3))
-    centre = np.array([flight.t[flight.line == k].mean() for k in range(1, lines + 1)])
-    return np.column_stack([np.interp(flight.t, centre, values[:, j]) for j in range(3)])
+    for k in spare:
+        if 1 <= k <= lines:
+            values[k - 1] = 0.0
+    # constant from the first to the last epoch of each line, linear in between
+    knots_t = np.concatenate(
+        [[flight.t[flight.line == k].min(), flight.t[flight.line == k].max()] for k in range(1, lines + 1)]
+    )
+    knots_v = np.repeat(values, 2, axis=0)
+    return np.column_stack([np.interp(flight.t, knots_t, knots_v[:, j]) for j in range(3)])
 
 
 def _poses(frame: LocalFrame, flight: Flight, lat_s, lon_s, t: np.ndarray):
@@ -150,10 +157,14 @@ def simulate(cfg, log=None) -> SimResult:
     a_true = a_nominal + np.asarray(cfg.faults.lever_arm_error_m)
 
     # --- recorded navigation
-    bias = _line_biases(flight, cfg.faults.strip_bias_m, rng)
+    bias = _line_biases(flight, cfg.faults.strip_bias_m, rng, cfg.faults.error_free_lines)
     pos_err = smooth_noise(flight.t, sigma_pos, 20.0, rng) + bias
     lat_r, lon_r, h_r = ecef_to_geodetic(frame.to_ecef(flight.pos + pos_err))
-    att_err = smooth_noise(flight.t, sigma_att, 5.0, rng)
+    # roll and pitch only: over a straight line they tilt and shift the strip rigidly; a heading bias
+    # shears it (along-track shift growing across track), which no rigid strip correction can undo
+    att_bias = _line_biases(flight, cfg.faults.strip_rotation_deg, rng, cfg.faults.error_free_lines)
+    att_bias[:, 2] = 0.0
+    att_err = smooth_noise(flight.t, sigma_att, 5.0, rng) + att_bias
     nav = Navigation(flight.t, lat_r, lon_r, h_r, np.degrees(flight.roll) + att_err[:, 0],
                      np.degrees(flight.pitch) + att_err[:, 1], np.degrees(flight.heading) + att_err[:, 2],
                      sigma_pos, sigma_att)  # fmt: skip
@@ -168,6 +179,7 @@ def simulate(cfg, log=None) -> SimResult:
     faults = {"seed": cfg.seed, "noise": noise, "range_noise_m": range_noise, "position_noise_m": sigma_pos,
               "attitude_noise_deg": sigma_att, "strip_bias_m": cfg.faults.strip_bias_m,
               "line_biases_m": _bias_table(flight, bias),
+              "line_attitude_biases_deg": _bias_table(flight, att_bias),
               "boresight_error_deg": list(cfg.faults.boresight_error_deg),
               "lever_arm_error_m": list(cfg.faults.lever_arm_error_m),
               "gps_start": start, "crs": crs.to_string()}  # fmt: skip

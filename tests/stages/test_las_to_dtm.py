@@ -107,6 +107,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
         assert status == {
             "parse": "cached",
             "georeference": "not applicable",
+            "strip_adjust": "cached",
             "denoise": "cached",
             "classify_ground": "cached",
             "rasterize": "ran",

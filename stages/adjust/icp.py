@@ -1,0 +1,374 @@
+"""Strip adjustment: one small rigid correction per flight strip, from point-to-plane ICP solved jointly.
+
+Method.  Each strip's single-return points are binned into square cells; a
+cell whose points fit a plane closely (PCA: the smallest eigenvalue of the
+covariance is the plane's RMS) becomes a *patch*: centroid, normal, RMS,
+point count.  Vegetation (multiple returns, rough) and edges fail the
+test, so correspondences come from smooth, well-sampled surfaces: open
+ground, slopes, roofs.  Wherever two strips have patches at the same place,
+the distance of one's centroid to the other's plane is an observation of
+their disagreement along the normal (point-to-plane ICP; Chen & Medioni
+1992, doi:10.1016/0262-8856(92)90066-C).  Horizontal disagreement is seen
+through sloped patches, so hills, embankments and roofs carry it.
+
+Every strip s gets a correction p' = R_s (p - c_s) + c_s + t_s about its
+centroid c_s (three translations, three small rotations).  All strips are
+solved *jointly*, by iteratively reweighted least squares over every
+correspondence of every overlapping pair (a global adjustment, as in
+Glira et al. 2015, "Rigorous strip adjustment of airborne laser scanning
+data based on the ICP algorithm", ISPRS Annals II-3/W5,
+doi:10.5194/isprsannals-II-3-W5-73-2015 — not a chain of pairwise fits);
+Huber weights (k = 2 robust sigmas) make it robust to outliers, and a weak
+prior (1 m, 0.5 degree by default) keeps unobservable directions at zero,
+so strips without error get corrections indistinguishable from zero.  The
+rotation about the vertical gets a tight prior (0.01 degree): parallel
+strips determine it only through a near-null mode (a common yaw of the
+strips with along-track shifts growing across the block leaves every
+overlap unchanged), and no error source of a flight turns a strip
+rigidly about the vertical — a heading error shears it.  The
+datum is one reference strip held fixed (default: the one with the most
+overlap) or ground control points.
+
+Departures from Glira et al.: corrections are rigid per strip (they
+estimate trajectory-based corrections with time-dependent terms); patches
+are computed once in the original coordinates and moved with each strip's
+current transform at every iteration (exact for rigid motions), so an
+iteration costs the patches, not the points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Patches:
+    """Smooth cells of one strip (original coordinates): a quadratic surface z = q(x, y) per cell."""
+
+    origin: np.ndarray  # (k, 3) cell reference point (the local frame of q)
+    coef: np.ndarray  # (k, 6) q = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2 in origin-relative x, y
+    centroid: np.ndarray  # (k, 3)
+    normal: np.ndarray  # (k, 3) unit normal of q at the centroid, pointing up
+    rms: np.ndarray  # (k,)
+    count: np.ndarray  # (k,)
+    order: np.ndarray  # indices of the points sorted by patch
+    starts: np.ndarray  # (k,) first position in `order` of each patch's points
+    cell: float = 0.0
+
+    def height(self, which: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """q of patches *which* at origin-relative (x, y)."""
+        c = self.coef[which]
+        return c[:, 0] + c[:, 1] * x + c[:, 2] * y + c[:, 3] * x * x + c[:, 4] * x * y + c[:, 5] * y * y
+
+    def gradient(self, which: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(-dq/dx, -dq/dy, 1): the (unnormalised) normal, the gradient of z - q."""
+        c = self.coef[which]
+        return np.column_stack((-(c[:, 1] + 2 * c[:, 3] * x + c[:, 4] * y), -(c[:, 2] + c[:, 4] * x + 2 * c[:, 5] * y),
+                                np.ones(len(which))))  # fmt: skip
+
+
+@dataclass
+class Transform:
+    """p' = R (p - centre) + centre + t."""
+
+    centre: np.ndarray
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def apply(self, p: np.ndarray) -> np.ndarray:
+        return (p - self.centre) @ self.rotation.T + self.centre + self.translation
+
+    def apply_normals(self, n: np.ndarray) -> np.ndarray:
+        return n @ self.rotation.T
+
+    @property
+    def rotation_vector(self) -> np.ndarray:
+        """Axis x angle (radians) of R."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_matrix(self.rotation).as_rotvec()
+
+
+def planar_patches(
+    xyz: np.ndarray, *, cell: float, min_points: int, max_rms: float, min_normal_z: float = 0.3
+) -> Patches:
+    """The smooth cells of a strip's points (see the module notes).
+
+    Each cell's points are fitted with a quadratic surface (least squares,
+    from moment sums: one pass, no per-cell Python); a cell is kept when it
+    has *min_points*, its points spread over both directions (not one scan
+    line), the fit's RMS is at most *max_rms* and it is not steeper than
+    ``acos(min_normal_z)``.  A quadratic, not a plane: on curved ground the
+    distance from one strip's plane to another strip's points depends on
+    where in the cell each strip sampled (a bias of curvature x spread),
+    which a quadratic removes.
+    """
+    empty = Patches(np.zeros((0, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                    np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), cell)  # fmt: skip
+    if len(xyz) < min_points:
+        return empty
+    ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
+    iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
+    key = (ix - ix.min()) * (iy.max() - iy.min() + 1) + (iy - iy.min())
+    order = np.argsort(key, kind="stable")
+    k_sorted = key[order]
+    starts = np.flatnonzero(np.concatenate(([True], k_sorted[1:] != k_sorted[:-1])))
+    counts = np.diff(np.append(starts, len(order)))
+    good = counts >= min_points
+    if not good.any():
+        return empty
+    p = xyz[order]
+    # cell origin: the cell's centre at the first point's height
+    origin = np.column_stack(((ix[order][starts] + 0.5) * cell, (iy[order][starts] + 0.5) * cell, p[starts, 2]))
+    q = p - np.repeat(origin, counts, axis=0)
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    basis = [np.ones_like(x), x, y, x * x, x * y, y * y]
+    ata = np.empty((len(starts), 6, 6))
+    atb = np.empty((len(starts), 6))
+    for i in range(6):
+        atb[:, i] = np.add.reduceat(basis[i] * z, starts)
+        for j in range(i, 6):
+            ata[:, i, j] = ata[:, j, i] = np.add.reduceat(basis[i] * basis[j], starts)
+    zz = np.add.reduceat(z * z, starts)
+    n = counts.astype(np.float64)
+    mx, my = ata[:, 0, 1] / n, ata[:, 0, 2] / n
+    vxx, vyy, vxy = ata[:, 0, 3] / n - mx * mx, ata[:, 0, 5] / n - my * my, ata[:, 0, 4] / n - mx * my
+    # smaller eigenvalue of the horizontal spread: the points must cover the cell in both directions
+    spread = (vxx + vyy) / 2 - np.sqrt(((vxx - vyy) / 2) ** 2 + vxy**2)
+    good &= spread > (cell / 8) ** 2
+    if not good.any():
+        return empty
+    idx = np.flatnonzero(good)
+    coef = np.linalg.solve(ata[idx] + np.eye(6) * 1e-9, atb[idx][:, :, None])[:, :, 0]
+    sse = zz[idx] - 2 * np.einsum("ki,ki->k", coef, atb[idx]) + np.einsum("ki,kij,kj->k", coef, ata[idx], coef)
+    rms = np.sqrt(np.clip(sse, 0, None) / n[idx])
+    cx, cy = mx[idx], my[idx]
+    centroid = origin[idx] + np.column_stack((cx, cy, atb[idx, 0] / n[idx]))
+    c = coef
+    g = np.column_stack((-(c[:, 1] + 2 * c[:, 3] * cx + c[:, 4] * cy), -(c[:, 2] + c[:, 4] * cx + 2 * c[:, 5] * cy),
+                         np.ones(len(idx))))  # fmt: skip
+    normal = g / np.linalg.norm(g, axis=1)[:, None]
+    keep = (rms <= max_rms) & (normal[:, 2] >= min_normal_z)
+    sel = idx[keep]
+    return Patches(
+        origin[sel], coef[keep], centroid[keep], normal[keep], rms[keep], counts[sel], order, starts[sel], cell
+    )
+
+
+def patch_points(patches: Patches, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (into the strip's points) of the points of patches *which*, and the patch of each."""
+    counts = patches.count[which]
+    first = patches.starts[which]
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    return patches.order[np.repeat(first, counts) + offsets], np.repeat(np.arange(len(which)), counts)
+
+
+@dataclass
+class Pair:
+    """Correspondences between patches of strip ``a`` (planes) and strip ``b`` (centroids)."""
+
+    a: int
+    b: int
+    ia: np.ndarray
+    ib: np.ndarray
+
+
+def match(pa: Patches, ta: Transform, pb: Patches, tb: Transform, *, max_distance: float, max_angle_deg: float = 10.0,
+          max_offset: float | None = None):  # fmt: skip
+    """Patch pairs of two strips at the same place and on the same surface, under their current transforms.
+
+    The two centroids must be within *max_offset* horizontally (default: half a cell).
+    """
+    from scipy.spatial import cKDTree
+
+    if not len(pa.centroid) or not len(pb.centroid):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ca, cb = ta.apply(pa.centroid), tb.apply(pb.centroid)
+    na, nb = ta.apply_normals(pa.normal), tb.apply_normals(pb.normal)
+    limit = pa.cell / 2 if max_offset is None else max_offset
+    dist, ia = cKDTree(ca[:, :2]).query(cb[:, :2], distance_upper_bound=limit)
+    ok = np.isfinite(dist)
+    ib = np.flatnonzero(ok)
+    ia = ia[ok]
+    r = np.einsum("ij,ij->i", na[ia], cb[ib] - ca[ia])
+    same = (np.abs(r) <= max_distance) & (np.einsum("ij,ij->i", na[ia], nb[ib]) >= np.cos(np.radians(max_angle_deg)))
+    return ia[same], ib[same]
+
+
+def _rotation(omega: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(omega).as_matrix()
+
+
+def surface_residuals(ps: Patches, ts: Transform, pt: Patches, tt: Transform, ia: np.ndarray, ib: np.ndarray,
+                      points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Distances of strip t's points to strip s's surfaces, for matched patches (``ia`` of s, ``ib`` of t).
+
+    Returns per point: the signed distance along the surface normal and the
+    pair index; per pair: the mean (x, y) of t's points in s's patch frame
+    and t's points' world centroid.
+    """
+    idx, which = patch_points(pt, ib)
+    world = tt.apply(points[idx])
+    local = (world - ts.centre - ts.translation) @ ts.rotation + ts.centre - ps.origin[ia[which]]
+    k = ia[which]
+    g = ps.gradient(k, local[:, 0], local[:, 1])
+    dist = (local[:, 2] - ps.height(k, local[:, 0], local[:, 1])) / np.linalg.norm(g, axis=1)
+    npair = len(ia)
+    cnt = np.maximum(np.bincount(which, minlength=npair), 1)
+    mean_xy = np.column_stack([np.bincount(which, local[:, j], npair) / cnt for j in range(2)])
+    centre = np.column_stack([np.bincount(which, world[:, j], npair) / cnt for j in range(3)])
+    return dist, which, mean_xy, centre
+
+
+@dataclass
+class Solution:
+    transforms: dict[int, Transform]
+    iterations: int
+    pairs: list[Pair]
+    sigma: float  # robust scale of the last iteration's residuals, metres
+    correspondences: int
+    std: dict[int, np.ndarray] = field(default_factory=dict)  # 1-sigma of (tx, ty, tz, wx, wy, wz), m and rad
+
+
+def adjust(
+    patches: dict[int, Patches],
+    centres: dict[int, np.ndarray],
+    points: np.ndarray,
+    *,
+    reference: int | None,
+    control: np.ndarray | None = None,
+    max_distance: float = 2.0,
+    max_iterations: int = 10,
+    prior_translation: float = 1.0,
+    prior_rotation: float = np.radians(0.5),
+    prior_yaw: float = np.radians(0.01),
+    tolerance: float = 1e-4,
+) -> Solution:
+    """Joint ICP over every overlapping strip pair (see the module notes).
+
+    Parameters
+    ----------
+    patches : dict
+        Strip id -> :class:`Patches` (their ``order`` indexes *points*).
+    centres : dict
+        Strip id -> rotation centre (its centroid).
+    points : ndarray, shape (n, 3)
+        The survey's points (original coordinates).
+    reference : int or None
+        Strip held fixed (the datum); None when *control* fixes it.
+    control : ndarray, shape (m, 3), optional
+        Ground control points; each constrains the strips whose patch contains it.
+    max_distance : float
+        Patches farther apart than this along the normal are not matched (m).
+    tolerance : float
+        Stop when no translation changes by more than this (m) and no rotation by more than
+        this / 1000 (rad).
+    """
+    strips = sorted(patches)
+    free = [s for s in strips if s != reference]
+    col = {s: 6 * i for i, s in enumerate(free)}
+    tf = {s: Transform(np.asarray(centres[s], float)) for s in strips}
+    pairs: list[Pair] = []
+    sigma = 0.0
+    n_corr = 0
+    it = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007 - reported
+        rows_j, rows_r, rows_w = [], [], []
+        pairs = []
+        for i, a in enumerate(strips):
+            for b in strips[i + 1 :]:
+                for s, t in ((a, b), (b, a)):
+                    ia, ib = match(patches[s], tf[s], patches[t], tf[t], max_distance=max_distance)
+                    if len(ia) == 0:
+                        continue
+                    if s < t:
+                        pairs.append(Pair(s, t, ia, ib))
+                    dist, which, mean_xy, ct = surface_residuals(patches[s], tf[s], patches[t], tf[t], ia, ib, points)
+                    cnt = np.bincount(which, minlength=len(ia)).astype(np.float64)
+                    r = np.bincount(which, dist, len(ia)) / np.maximum(cnt, 1)
+                    # t's points must fit s's surface as well as each fits its own: where they do not,
+                    # the surface is not the same or not smooth enough there (edges, kinks, canopy)
+                    spread = np.sqrt(np.bincount(which, dist**2, len(ia)) / np.maximum(cnt, 1) - r**2)
+                    fits = spread <= 2.0 * np.hypot(patches[s].rms[ia], patches[t].rms[ib]) + 0.005
+                    if not fits.all():
+                        ia, ib, r, cnt, ct, mean_xy = ia[fits], ib[fits], r[fits], cnt[fits], ct[fits], mean_xy[fits]
+                        if s < t:
+                            pairs[-1] = Pair(s, t, ia, ib)
+                        if len(ia) == 0:
+                            continue
+                    g = patches[s].gradient(ia, mean_xy[:, 0], mean_xy[:, 1])
+                    n_w = tf[s].apply_normals(g / np.linalg.norm(g, axis=1)[:, None])
+                    jac = np.zeros((len(r), 6 * len(free)))
+                    if t in col:
+                        jac[:, col[t] : col[t] + 3] = n_w
+                        jac[:, col[t] + 3 : col[t] + 6] = np.cross(ct - (tf[t].centre + tf[t].translation), n_w)
+                    if s in col:
+                        jac[:, col[s] : col[s] + 3] = -n_w
+                        jac[:, col[s] + 3 : col[s] + 6] = -np.cross(ct - (tf[s].centre + tf[s].translation), n_w)
+                    rows_j.append(jac)
+                    rows_r.append(r)
+                    rows_w.append(cnt)
+        if control is not None and len(control):
+            from scipy.spatial import cKDTree
+
+            for s in strips:
+                if not len(patches[s].centroid) or s not in col:
+                    continue
+                cs = tf[s].apply(patches[s].centroid)
+                dist, k = cKDTree(cs[:, :2]).query(control[:, :2], distance_upper_bound=patches[s].cell / 2)
+                ok = np.isfinite(dist)
+                if not ok.any():
+                    continue
+                k = k[ok]
+                local = (control[ok] - tf[s].centre - tf[s].translation) @ tf[s].rotation + tf[s].centre
+                local -= patches[s].origin[k]
+                g = patches[s].gradient(k, local[:, 0], local[:, 1])
+                norm = np.linalg.norm(g, axis=1)
+                r = (local[:, 2] - patches[s].height(k, local[:, 0], local[:, 1])) / norm
+                n_w = tf[s].apply_normals(g / norm[:, None])
+                jac = np.zeros((len(r), 6 * len(free)))
+                jac[:, col[s] : col[s] + 3] = -n_w
+                jac[:, col[s] + 3 : col[s] + 6] = -np.cross(control[ok] - (tf[s].centre + tf[s].translation), n_w)
+                rows_j.append(jac)
+                rows_r.append(r)
+                rows_w.append(np.full(len(r), 100.0))  # a surveyed point weighs as a patch of 100 points
+        if not rows_r or not free:
+            break
+        jac = np.vstack(rows_j)
+        r = np.concatenate(rows_r)
+        cnt = np.concatenate(rows_w)
+        n_corr = len(r)
+        # residuals are means of `cnt` points: scale them to one point before the robust estimate
+        z = r * np.sqrt(cnt)
+        sigma = max(1.4826 * np.median(np.abs(z - np.median(z))), 0.002)
+        w = cnt * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12))  # Huber, per point
+        # prior on the total correction: (x + dx) ~ N(0, diag)
+        x = np.concatenate([np.concatenate((tf[s].translation, tf[s].rotation_vector)) for s in free])
+        prior = np.tile(np.r_[np.full(3, 1 / prior_translation**2), np.full(2, 1 / prior_rotation**2), 1 / prior_yaw**2],
+                        len(free))  # fmt: skip
+        jw = jac * (w / sigma**2)[:, None]
+        normal = jac.T @ jw + np.diag(prior)
+        rhs = -(jw.T @ r) - prior * x
+        dx = np.linalg.solve(normal, rhs)
+        cov = np.linalg.inv(normal)
+        for s in free:
+            d = dx[col[s] : col[s] + 6]
+            tf[s].rotation = _rotation(d[3:]) @ tf[s].rotation
+            tf[s].translation = tf[s].translation + d[:3]
+        moves = dx.reshape(-1, 6)
+        if np.max(np.abs(moves[:, :3])) < tolerance and np.max(np.abs(moves[:, 3:])) < tolerance / 1000:
+            break
+    std = {}
+    if free and n_corr:
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        std = {s: sd[col[s] : col[s] + 6] for s in free}
+    return Solution(tf, it, pairs, sigma, n_corr, std)
+
+
+def point_to_plane(points_b: np.ndarray, centroid_a: np.ndarray, normal_a: np.ndarray) -> np.ndarray:
+    """Signed distances of points to planes (one plane per point)."""
+    return np.einsum("ij,ij->i", normal_a, points_b - centroid_a)

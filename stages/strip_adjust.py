@@ -1,0 +1,271 @@
+"""Stage ``strip_adjust``: make overlapping flight strips agree (SPEC 6).
+
+The algorithm is :mod:`stages.adjust.icp`.  This driver splits the points
+by strip (``point_source_id``; 0 = not a strip, e.g. points kept in turns,
+is left as it is), finds the planar patches of each strip's single returns,
+picks the datum (a reference strip or ground control points), solves, and
+applies each strip's correction to all its points.
+
+Products: ``strip_corrections.json`` (per strip: translation in metres and
+rotation in degrees about its centroid, the datum, per-pair figures),
+``strip_difference_before.tif`` / ``strip_difference_after.tif`` (mean
+signed distance between overlapping strips at planar patches, per cell, like
+LAStools' lasoverlap), and ``strip_difference.png`` (before | after).
+
+A survey with one strip, or strips that do not overlap, passes through
+unchanged with a note in the log and the metrics.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from pipeline.config import InputFile
+from pipeline.stage import Stage, StageParams
+from stages.glossary import cell_size
+
+
+class StripAdjustParams(StageParams):
+    cell: float = cell_size(4.0)
+    min_points: int = Field(8, ge=4, description="fewest single returns of one strip in a cell for a plane")
+    max_plane_rms: float = Field(
+        0.1, gt=0, description="a cell is planar when its points are this close to a plane, metres"
+    )
+    max_distance: float = Field(
+        2.0, gt=0, description="strips farther apart than this along the normal are not matched, metres"
+    )
+    reference_strip: int | Literal["most_overlap"] = Field(
+        "most_overlap", description="strip held fixed (the datum): a point_source_id, or most_overlap"
+    )
+    control_points: InputFile | None = Field(
+        None, description="CSV id,x,y,z of ground control points (output CRS): the datum instead of a reference strip"
+    )
+    max_iterations: int = Field(10, ge=1, description="ICP iterations at most")
+    prior_translation_m: float = Field(1.0, gt=0, description="prior sigma of a strip's translation, metres")
+    prior_rotation_deg: float = Field(0.5, gt=0, description="prior sigma of a strip's roll and pitch, degrees")
+    prior_yaw_deg: float = Field(
+        0.01, gt=0, description="prior sigma of a strip's rotation about the vertical, degrees"
+    )
+    difference_resolution: float = Field(5.0, gt=0, description="cell of the strip-difference rasters, metres")
+
+
+def _read_control(path) -> np.ndarray:
+    from stages.accuracy import read_checkpoints
+
+    xyz, _ = read_checkpoints(path)
+    return np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+
+
+class StripAdjust(Stage):
+    name = "strip_adjust"
+    version = "2"
+    Params = StripAdjustParams
+    description = "joint point-to-plane ICP: one rigid correction per strip"
+    inputs: ClassVar = ("points_georef",)
+    outputs: ClassVar = {
+        "points_adjusted": "points.las",
+        "strip_corrections": "strip_corrections.json",
+        "strip_difference_before": "strip_difference_before.tif",
+        "strip_difference_after": "strip_difference_after.tif",
+        "strip_difference_png": "strip_difference.png",
+    }
+    products: ClassVar = {
+        "strip_corrections": "strip_corrections.json",
+        "strip_difference_before": "strip_difference_before.tif",
+        "strip_difference_after": "strip_difference_after.tif",
+        "strip_difference_png": "strip_difference.png",
+    }
+    passthrough: ClassVar = {"points_adjusted": "points_georef"}
+
+    def external_files(self, params, config):
+        return [params.control_points] if params.control_points is not None else []
+
+    def run(self, ctx) -> None:
+        from stages.adjust.icp import adjust, match, planar_patches
+        from stages.io import cloud_crs, read_cloud, write_cloud, xyz
+
+        p = ctx.params
+        las = read_cloud(ctx.inputs["points_georef"])
+        pts = xyz(las)
+        sid = np.asarray(las.point_source_id).astype(np.int64)
+        single = np.asarray(las.number_of_returns) <= 1
+        strips = [int(s) for s in np.unique(sid) if s > 0 and np.sum(sid == s) >= p.min_points]
+        patches, centres, index = {}, {}, {}
+        for s in strips:
+            idx = np.flatnonzero(sid == s)
+            index[s] = idx
+            centres[s] = pts[idx].mean(axis=0)
+            sel = idx[single[idx]]
+            patches[s] = planar_patches(pts[sel], cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
+            patches[s].order = sel[patches[s].order]  # indices into the whole cloud
+        # smooth means smooth for this survey: at most 2.5 x the median patch RMS (the noise level)
+        all_rms = np.concatenate([patches[s].rms for s in strips]) if strips else np.zeros(0)
+        if len(all_rms):
+            limit = min(p.max_plane_rms, 2.5 * float(np.median(all_rms)))
+            for s in strips:
+                _keep_patches(patches[s], patches[s].rms <= limit)
+            ctx.metrics.update(plane_rms_limit_m=limit)
+        # overlap with identity transforms: which strips take part, and the reference
+        from stages.adjust.icp import Transform
+
+        ident = {s: Transform(centres[s]) for s in strips}
+        overlap = dict.fromkeys(strips, 0)
+        for i, a in enumerate(strips):
+            for b in strips[i + 1 :]:
+                ia, _ = match(patches[a], ident[a], patches[b], ident[b], max_distance=p.max_distance)
+                overlap[a] += len(ia)
+                overlap[b] += len(ia)
+        linked = [s for s in strips if overlap[s] > 0]
+        control = _read_control(p.control_points) if p.control_points is not None else None
+        skipped_note = None
+        if len(linked) < 2:
+            skipped_note = (
+                f"{len(strips)} strip(s), {len(linked)} with overlap: nothing to adjust, points passed on unchanged"
+            )
+        if p.reference_strip == "most_overlap":
+            reference = max(linked, key=lambda s: overlap[s]) if linked else None
+        else:
+            reference = p.reference_strip
+            if linked and reference not in linked:
+                from pipeline.errors import ConfigError
+
+                raise ConfigError(
+                    f"stages.strip_adjust.reference_strip: strip {reference} has no overlap with another strip "
+                    f"(strips with overlap: {', '.join(map(str, linked))})."
+                )
+        if control is not None and len(control):
+            reference = None
+        corrections = {}
+        pair_rows = []
+        before = after = None
+        if skipped_note is None:
+            sol = adjust({s: patches[s] for s in linked}, centres, pts, reference=reference, control=control,
+                         max_distance=p.max_distance, max_iterations=p.max_iterations,
+                         prior_translation=p.prior_translation_m, prior_rotation=np.radians(p.prior_rotation_deg),
+                         prior_yaw=np.radians(p.prior_yaw_deg))  # fmt: skip
+            for s, tf in sol.transforms.items():
+                corrections[str(s)] = {
+                    "translation_m": [round(float(v), 5) for v in tf.translation],
+                    "rotation_deg": [round(float(v), 6) for v in np.degrees(tf.rotation_vector)],
+                    "centre": [round(float(v), 3) for v in tf.centre],
+                    "sigma_translation_m": [round(float(v), 5) for v in sol.std.get(s, np.zeros(6))[:3]],
+                    "sigma_rotation_deg": [round(float(v), 6) for v in np.degrees(sol.std.get(s, np.zeros(6))[3:])],
+                    "points": int(len(index[s])),
+                }
+            before, after = [], []
+            for pair in sol.pairs:
+                row, b_vals, a_vals = _pair_figures(pair, patches, pts, ident, sol.transforms, p.cell)
+                pair_rows.append(row)
+                before.append(b_vals)
+                after.append(a_vals)
+            new = pts.copy()
+            for s, tf in sol.transforms.items():
+                new[index[s]] = tf.apply(pts[index[s]])
+            las.x, las.y, las.z = new[:, 0], new[:, 1], new[:, 2]
+            ctx.metrics.update(iterations=sol.iterations, correspondences=sol.correspondences,
+                               residual_sigma_m=sol.sigma)  # fmt: skip
+        write_cloud(las, ctx.outputs["points_adjusted"])
+        crs = cloud_crs(las)
+        _difference_rasters(ctx, pts, before, after, p.difference_resolution, crs)
+        datum = "control points" if reference is None and control is not None else f"strip {reference}"
+        summary = {
+            "datum": datum if skipped_note is None else None,
+            "note": skipped_note,
+            "strips": corrections,
+            "pairs": pair_rows,
+        }
+        ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
+        rms_b = _combined_rms([r["rms_before_m"] for r in pair_rows], [r["points"] for r in pair_rows])
+        rms_a = _combined_rms([r["rms_after_m"] for r in pair_rows], [r["points"] for r in pair_rows])
+        largest_t = max((float(np.linalg.norm(c["translation_m"])) for c in corrections.values()), default=0.0)
+        largest_r = max((float(np.max(np.abs(c["rotation_deg"]))) for c in corrections.values()), default=0.0)
+        ctx.metrics.update(
+            strips=len(strips), strips_adjusted=len(corrections), datum=summary["datum"], note=skipped_note,
+            overlap_rms_before_m=rms_b, overlap_rms_after_m=rms_a, largest_translation_m=largest_t,
+            largest_rotation_deg=largest_r, pairs=len(pair_rows),
+        )  # fmt: skip
+        if skipped_note:
+            ctx.log.info("strip adjustment skipped: %s", skipped_note)
+        else:
+            ctx.log.info(
+                "%d strips adjusted (datum %s): overlap RMS %.3f m -> %.3f m; largest correction %.3f m, %.4f deg",
+                len(corrections), datum, rms_b or 0.0, rms_a or 0.0, largest_t, largest_r,
+            )  # fmt: skip
+
+
+def _keep_patches(patches, keep: np.ndarray) -> None:
+    for name in ("origin", "coef", "centroid", "normal", "rms", "count", "starts"):
+        setattr(patches, name, getattr(patches, name)[keep])
+
+
+def _combined_rms(values: list[float], weights: list[int]) -> float | None:
+    if not values:
+        return None
+    v, w = np.asarray(values), np.asarray(weights, dtype=np.float64)
+    return float(np.sqrt(np.sum(w * v**2) / np.sum(w)))
+
+
+def _pair_figures(pair, patches, pts, ident, final, cell):
+    """Per-point distances of strip b's patch points to strip a's surfaces, before and after."""
+    from stages.adjust.icp import surface_residuals
+
+    pa, pb = patches[pair.a], patches[pair.b]
+    out = {}
+    for label, tf in (("before", ident), ("after", final)):
+        dist, which, _, _ = surface_residuals(pa, tf[pair.a], pb, tf[pair.b], pair.ia, pair.ib, pts)
+        out[label] = dist
+    row = {
+        "strips": [pair.a, pair.b],
+        "overlap_area_m2": round(float(len(pair.ia) * cell * cell), 1),
+        "patches": int(len(pair.ia)),
+        "points": int(len(which)),
+        "rms_before_m": round(float(np.sqrt(np.mean(out["before"] ** 2))), 4),
+        "rms_after_m": round(float(np.sqrt(np.mean(out["after"] ** 2))), 4),
+    }
+    # per patch, for the difference maps: the patch centre and its mean distance
+    centre = pa.centroid[pair.ia]
+    cnt = np.maximum(np.bincount(which, minlength=len(pair.ia)), 1)
+    mean_b = np.bincount(which, out["before"], len(pair.ia)) / cnt
+    mean_a = np.bincount(which, out["after"], len(pair.ia)) / cnt
+    return row, (centre, mean_b), (centre, mean_a)
+
+
+def _difference_rasters(ctx, pts, before, after, resolution, crs) -> None:
+    """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after."""
+    from rasterio.transform import from_origin
+
+    from stages.io import NODATA, png_bytes, write_cog
+    from stages.report import colour_ramp
+
+    x0 = np.floor(pts[:, 0].min() / resolution) * resolution if len(pts) else 0.0
+    y1 = np.ceil(pts[:, 1].max() / resolution) * resolution if len(pts) else resolution
+    cols = max(1, int(np.ceil((pts[:, 0].max() - x0) / resolution))) if len(pts) else 1
+    rows = max(1, int(np.ceil((y1 - pts[:, 1].min()) / resolution))) if len(pts) else 1
+    images = []
+    for name, parts in (("strip_difference_before", before), ("strip_difference_after", after)):
+        total = np.zeros(rows * cols)
+        count = np.zeros(rows * cols)
+        for centre, value in parts or []:
+            c = np.clip(((centre[:, 0] - x0) / resolution).astype(int), 0, cols - 1)
+            r = np.clip(((y1 - centre[:, 1]) / resolution).astype(int), 0, rows - 1)
+            np.add.at(total, r * cols + c, value)
+            np.add.at(count, r * cols + c, 1)
+        grid = np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(rows, cols)
+        write_cog(ctx.outputs[name], np.where(np.isfinite(grid), grid, NODATA).astype(np.float32),
+                  transform=from_origin(x0, y1, resolution, resolution), crs=crs)  # fmt: skip
+        images.append(grid)
+    # PNG: before | after, blue (-0.3 m) - white (0) - red (+0.3 m), grey where no overlap
+    ramp = [(0.0, (59, 76, 192)), (0.5, (245, 245, 245)), (1.0, (180, 4, 38))]
+    panels = []
+    for grid in images:
+        rgb = colour_ramp(np.nan_to_num(grid), ramp, -0.3, 0.3)
+        rgb[~np.isfinite(grid)] = 200.0
+        panels.append(rgb)
+    gap = np.full((rows, 4, 3), 255.0)
+    ctx.outputs["strip_difference_png"].write_bytes(
+        png_bytes(np.concatenate((panels[0], gap, panels[1]), axis=1).round())
+    )

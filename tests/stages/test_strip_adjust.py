@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow  # simulates two flights of about 1 M pulses (abou
 
 def _flight(root: Path, bias: float, rotation: float) -> Path:
     simulate(SimulateConfig(
-        output=root / "sim", seed=11, formats=["las"], checkpoints=0,
+        output=root / "sim", seed=11, formats=["las"], checkpoints=40,
         scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": 30000},
         navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
         flight={"altitude_m": 150, "speed_ms": 40, "lines": 5, "sidelap": 0.5, "line_length_m": 400,
@@ -70,6 +70,15 @@ def test_adjusted_points_sit_on_the_truth(injected):
     rms = lambda d: float(np.sqrt(np.mean(np.sum(d**2, axis=1))))  # noqa: E731
     assert rms(before) > 0.3
     assert rms(after) <= 0.03  # 3D, range noise (2 cm) included
+
+
+def test_control_points_fix_the_datum(injected, tmp_path):
+    """No reference strip: 40 surveyed points on the ground hold the block; heights land on the truth."""
+    _, sim, _ = injected
+    stage = _adjust(tmp_path, sim, f"control_points: {sim}/checkpoints.csv")
+    assert stage["metrics"]["datum"] == "control points"
+    _, _, _, _, after = _match(sim / "truth" / "points.laz", Path(stage["outputs"]["points_adjusted"]["file"]))
+    assert float(np.sqrt(np.mean(after[:, 2] ** 2))) <= 0.03  # vertical: what ground control fixes
 
 
 def test_difference_map_shows_the_improvement(injected):

@@ -117,7 +117,7 @@ def make_scene(extent: tuple[float, float, float, float], *, seed: int = 1, cell
         j0, j1 = int(max(0, (cy - ry - n_min) / cell)), int(min(ny, (cy + ry - n_min) / cell + 2))
         return slice(j0, j1), slice(i0, i1)
 
-    for k in range(max(2, int(w * h / 12000))):
+    for k in range(max(2, int(w * h / 3000))):
         for _ in range(50):
             cx, cy = rng.uniform(e_min + 0.1 * w, e_max - 0.1 * w), rng.uniform(n_min + 0.1 * h, n_max - 0.1 * h)
             bw, bh = rng.uniform(8, 20), rng.uniform(8, 16)

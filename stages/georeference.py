@@ -45,6 +45,21 @@ class StripParams(StrictModel):
     keep_turns: bool = Field(False, description="keep the points flown in turns (strip id 0); default: drop and count")
 
 
+class UncertaintyParams(StrictModel):
+    """One-sigma errors for the per-point propagated uncertainty (none is guessed)."""
+
+    range_m: float = Field(gt=0, description="scanner range error, metres (e.g. 0.025 for the LMS-Q140i)")
+    scan_angle_deg: float = Field(ge=0, description="scanner angle error, degrees (e.g. 0.005 for the LMS-Q140i)")
+    position_m: float | None = Field(
+        None, gt=0, description="position error per axis, metres; default: the trajectory's own sigmas (GST, smrmsg)"
+    )
+    attitude_deg: float | None = Field(
+        None, gt=0, description="roll, pitch and heading error, degrees; default: the trajectory's sigmas (smrmsg)"
+    )
+    boresight_deg: float = Field(0.0, ge=0, description="boresight calibration error, degrees (0: treated as exact)")
+    lever_arm_m: float = Field(0.0, ge=0, description="lever-arm measurement error per axis, metres (0: exact)")
+
+
 class GeoreferenceParams(StageParams):
     frame: Literal["exact", "ltp"] = Field(
         "exact", description="exact (PROJ to crs) or ltp (seed-0 local tangent plane)"
@@ -58,6 +73,10 @@ class GeoreferenceParams(StageParams):
     ltp_radius_m: float = Field(6_371_000.0, gt=0, description="ltp: the Earth radius R of the seed-0 formula, metres")
     strips: StripParams = Field(default_factory=StripParams)
     batch_size: int = Field(2_000_000, ge=10_000, description="pulses georeferenced per batch (memory ~ 200 B each)")
+    uncertainty: UncertaintyParams | None = Field(
+        None,
+        description="per-point propagated uncertainty (LAS extra bytes sigma_horizontal, sigma_vertical); off when absent",
+    )
 
 
 def ltp_crs(lat0: float, lon0: float, radius: float):
@@ -93,6 +112,54 @@ def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: f
     return Trajectory(time, position, q, theta, inv_sin, frame)
 
 
+def _epoch_sigmas(u: UncertaintyParams, traj: dict) -> dict:
+    """Per-epoch position and attitude sigmas: from the configuration, else from the trajectory's columns."""
+    from pipeline.errors import ConfigError
+
+    n = len(traj["time"])
+    out = {"sources": {}}
+    if u.position_m is not None:
+        out["position"] = tuple(np.full(n, u.position_m) for _ in range(3))
+        out["sources"]["position"] = "configuration"
+    elif all(k in traj for k in ("sigma_east_m", "sigma_north_m", "sigma_up_m")):
+        out["position"] = tuple(
+            np.asarray(traj[k], dtype=np.float64) for k in ("sigma_east_m", "sigma_north_m", "sigma_up_m")
+        )
+        out["sources"]["position"] = "trajectory"
+    else:
+        raise ConfigError(
+            "stages.georeference.uncertainty.position_m: the trajectory has no position sigmas "
+            "(no $GST, no smrmsg), so state the position error."
+        )
+    if u.attitude_deg is not None:
+        out["attitude"] = tuple(np.full(n, np.radians(u.attitude_deg)) for _ in range(3))
+        out["sources"]["attitude"] = "configuration"
+    elif all(k in traj for k in ("sigma_roll_deg", "sigma_pitch_deg", "sigma_heading_deg")):
+        out["attitude"] = tuple(np.radians(np.asarray(traj[k], dtype=np.float64))
+                                for k in ("sigma_roll_deg", "sigma_pitch_deg", "sigma_heading_deg"))  # fmt: skip
+        out["sources"]["attitude"] = "trajectory"
+    else:
+        raise ConfigError(
+            "stages.georeference.uncertainty.attitude_deg: the trajectory has no attitude sigmas "
+            "(only smrmsg files carry them), so state the attitude error."
+        )
+    return out
+
+
+def _propagate(traj, t, cols, mounting, p, sigmas, scan_axis):
+    from stages.georef.core import locate
+    from stages.georef.uncertainty import Sigmas, propagate
+
+    i, f, _ = locate(traj, t, float("inf"))
+    u = p.uncertainty
+    sig = Sigmas(
+        range_m=u.range_m, scan_angle_rad=np.radians(u.scan_angle_deg),
+        position_enu_m=tuple(c[i] for c in sigmas["position"]), attitude_rad=tuple(c[i] for c in sigmas["attitude"]),
+        boresight_rad=np.radians(u.boresight_deg), lever_arm_m=u.lever_arm_m,
+    )  # fmt: skip
+    return propagate(traj, i, f, tuple(cols), mounting, sig, scan_axis)
+
+
 def _nearest(times: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Index of the epoch nearest to each time."""
     idx = np.clip(np.searchsorted(times, t, side="left"), 0, len(times) - 1)
@@ -123,7 +190,7 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "1"
+    version = "2"
     Params = GeoreferenceParams
     can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
@@ -200,8 +267,15 @@ class Georeference(Stage):
         header.scales = np.array([1e-4, 1e-4, 1e-4])
         header.add_crs(crs)
         header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+        sigmas = _epoch_sigmas(p.uncertainty, traj) if p.uncertainty is not None else None
+        if sigmas is not None:
+            for name, what in (("sigma_horizontal", "horizontal"), ("sigma_vertical", "vertical")):
+                header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float32,
+                                                            description=f"propagated 1-sigma {what}, m"))  # fmt: skip
+            scan_axis = (0.0, 0.0, 1.0) if pmeta.get("format") == "ldmrs_mtig" else (1.0, 0.0, 0.0)
         workers = max(1, int(getattr(ctx.config.executor, "workers", 1) or 1))
         written = no_traj = in_turns = 0
+        sig_sum = 0.0
         per_strip: dict[int, int] = {}
         tmp = ctx.outputs["points_georef"]
         with (
@@ -237,6 +311,12 @@ class Georeference(Stage):
                     rec.scan_angle = np.clip(np.round(angle[keep] / 0.006), -30000, 30000).astype(np.int16)
                     rec.scanner_channel = channel[keep] & 3
                     rec.point_source_id = strip[keep]
+                    if sigmas is not None:
+                        sh, sv = _propagate(traj_used, t[keep], [c[keep] for c in cols], mounting, p, sigmas,
+                                            scan_axis)  # fmt: skip
+                        rec.sigma_horizontal = sh.astype(np.float32)
+                        rec.sigma_vertical = sv.astype(np.float32)
+                        sig_sum += float(np.sum(sv))
                     writer.write_points(rec)
                     for sid, cnt in zip(*np.unique(strip[keep], return_counts=True), strict=True):
                         per_strip[int(sid)] = per_strip.get(int(sid), 0) + int(cnt)
@@ -273,6 +353,8 @@ class Georeference(Stage):
                 ltp_predicted_max_horizontal_m=float(np.max(pred_h)),
                 ltp_predicted_max_vertical_m=float(np.max(pred_v)),
             )
+        if sigmas is not None and written:
+            ctx.metrics.update(sigma_vertical_mean_m=sig_sum / written, uncertainty_sources=sigmas["sources"])
         ctx.metrics.update(
             pulses=n_pulses, points=written, rejected_no_trajectory=no_traj, dropped_in_turns=in_turns,
             strips={str(k): v for k, v in sorted(per_strip.items())}, trajectory_epochs=len(traj["time"]),

@@ -9,6 +9,12 @@
   value of the nearest full cell within ``nodata_distance``.
 - ``ndsm.tif``: DSM - DTM (height above ground), negatives set to 0.
 - ``density.tif``: points per cell (all points but noise and withheld).
+- ``dtm_uncertainty.tif`` (when the points carry ``sigma_vertical``, i.e.
+  ``stages.georeference.uncertainty`` is set): the mean propagated vertical
+  sigma of the ground points in each cell, cells without one taking the
+  nearest value within ``nodata_distance``.  Not divided by the square root
+  of the point count: the navigation errors that dominate it are shared by
+  neighbouring points, so averaging them does not shrink them.
 
 The grid covers all points of the survey, cell-aligned to multiples of
 ``resolution``.  All rasters are Cloud Optimized GeoTIFF, float32, with the
@@ -26,7 +32,7 @@ from pipeline.config import StrictModel
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.grid.interpolate import Grid, cell_count, cell_max, idw, nearest, tin
+from stages.grid.interpolate import Grid, cell_count, cell_max, cell_mean, idw, nearest, tin
 from stages.ground.surface import fill_nearest
 from stages.io import NODATA, read_cloud, write_cog, xyz
 
@@ -61,12 +67,21 @@ def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, pro
 
 class Rasterize(Stage):
     name = "rasterize"
-    version = "2"
+    version = "3"
     Params = RasterizeParams
     description = "DTM, DSM, nDSM and density rasters"
     inputs = ("points_classified",)
     outputs: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
     products: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
+
+    def declare(self, params, config):
+        from pipeline.stage import StageIO
+
+        outputs, products = dict(self.outputs), dict(self.products)
+        geo = getattr(config.stages, "georeference", None)
+        if config.input.format != "las" and geo is not None and geo.uncertainty is not None:
+            outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
+        return StageIO(tuple(self.inputs), outputs, products)
 
     def run(self, ctx) -> None:
         p = ctx.params
@@ -95,6 +110,16 @@ class Rasterize(Stage):
         for name, array in (("dtm", dtm), ("dsm", dsm), ("ndsm", ndsm)):
             write_cog(ctx.outputs[name], np.where(np.isnan(array), NODATA, array), transform=grid.transform, crs=crs)
         write_cog(ctx.outputs["density"], density, transform=grid.transform, crs=crs)
+        if "dtm_uncertainty" in ctx.outputs:
+            if "sigma_vertical" not in las.point_format.dimension_names:
+                raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
+            sv = np.asarray(las["sigma_vertical"], dtype=np.float64)[cls == glossary.GROUND]
+            unc = fill_nearest(cell_mean(ground, sv, grid), max_cells=p.nodata_distance / p.resolution)
+            unc = np.where(np.isnan(dtm), np.nan, unc)
+            write_cog(
+                ctx.outputs["dtm_uncertainty"], np.where(np.isnan(unc), NODATA, unc), transform=grid.transform, crs=crs
+            )
+            ctx.metrics.update(dtm_sigma_median_m=float(np.nanmedian(unc)) if np.isfinite(unc).any() else None)
         empty = int(np.isnan(dtm).sum())
         ctx.metrics.update(
             method=p.method,

@@ -51,6 +51,12 @@ class StripAdjustParams(StageParams):
         0.01, gt=0, description="prior sigma of a strip's rotation about the vertical, degrees"
     )
     difference_resolution: float = Field(5.0, gt=0, description="cell of the strip-difference rasters, metres")
+    max_sigma_translation_m: float = Field(
+        0.05,
+        gt=0,
+        description="a strip whose correction is less certain than this (1-sigma, any axis) is left as it is",
+    )
+    max_sigma_rotation_deg: float = Field(0.01, gt=0, description="likewise for its roll and pitch (1-sigma, degrees)")
 
 
 def _read_control(path) -> np.ndarray:
@@ -62,7 +68,7 @@ def _read_control(path) -> np.ndarray:
 
 class StripAdjust(Stage):
     name = "strip_adjust"
-    version = "2"
+    version = "4"
     Params = StripAdjustParams
     description = "joint point-to-plane ICP: one rigid correction per strip"
     inputs: ClassVar = ("points_georef",)
@@ -140,13 +146,28 @@ class StripAdjust(Stage):
         if control is not None and len(control):
             reference = None
         corrections = {}
+        weak: dict[int, list[float]] = {}
         pair_rows = []
         before = after = None
         if skipped_note is None:
-            sol = adjust({s: patches[s] for s in linked}, centres, pts, reference=reference, control=control,
-                         max_distance=p.max_distance, max_iterations=p.max_iterations,
-                         prior_translation=p.prior_translation_m, prior_rotation=np.radians(p.prior_rotation_deg),
-                         prior_yaw=np.radians(p.prior_yaw_deg))  # fmt: skip
+            # a correction the overlaps do not determine (small or flat overlap) is not applied: the
+            # strip is held as it is and the others are solved again without it moving
+            while True:
+                sol = adjust({s: patches[s] for s in linked}, centres, pts, reference=reference, control=control,
+                             fixed=tuple(weak), max_distance=p.max_distance, max_iterations=p.max_iterations,
+                             prior_translation=p.prior_translation_m, prior_rotation=np.radians(p.prior_rotation_deg),
+                             prior_yaw=np.radians(p.prior_yaw_deg))  # fmt: skip
+                new_weak = {
+                    s: sd for s, sd in sol.std.items()
+                    if np.max(sd[:3]) > p.max_sigma_translation_m or np.degrees(np.max(sd[3:5])) > p.max_sigma_rotation_deg
+                }  # fmt: skip
+                if not new_weak:
+                    break
+                weak.update({s: [round(float(v), 4) for v in sd[:3]] for s, sd in new_weak.items()})
+            if weak:
+                ctx.log.warning("strips %s left unadjusted: their corrections are not determined by the overlaps "
+                                "(1-sigma translation %s m)", ", ".join(map(str, weak)), list(weak.values()))  # fmt: skip
+            ctx.metrics.update(strips_not_determined=sorted(weak))
             for s, tf in sol.transforms.items():
                 corrections[str(s)] = {
                     "translation_m": [round(float(v), 5) for v in tf.translation],
@@ -176,6 +197,7 @@ class StripAdjust(Stage):
             "datum": datum if skipped_note is None else None,
             "note": skipped_note,
             "strips": corrections,
+            "not_determined": {str(k): {"sigma_translation_m": v} for k, v in weak.items()},
             "pairs": pair_rows,
         }
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
@@ -185,6 +207,7 @@ class StripAdjust(Stage):
         largest_r = max((float(np.max(np.abs(c["rotation_deg"]))) for c in corrections.values()), default=0.0)
         ctx.metrics.update(
             strips=len(strips), strips_adjusted=len(corrections), datum=summary["datum"], note=skipped_note,
+            strips_estimated=len([s for s in corrections if int(s) != reference and int(s) not in weak]),
             overlap_rms_before_m=rms_b, overlap_rms_after_m=rms_a, largest_translation_m=largest_t,
             largest_rotation_deg=largest_r, pairs=len(pair_rows),
         )  # fmt: skip
@@ -192,8 +215,9 @@ class StripAdjust(Stage):
             ctx.log.info("strip adjustment skipped: %s", skipped_note)
         else:
             ctx.log.info(
-                "%d strips adjusted (datum %s): overlap RMS %.3f m -> %.3f m; largest correction %.3f m, %.4f deg",
-                len(corrections), datum, rms_b or 0.0, rms_a or 0.0, largest_t, largest_r,
+                "%d strips, %d corrected (datum %s): overlap RMS %.3f m -> %.3f m; largest correction %.3f m, %.4f deg",
+                len(corrections), len([s for s in corrections if int(s) != reference and int(s) not in weak]), datum,
+                rms_b or 0.0, rms_a or 0.0, largest_t, largest_r,
             )  # fmt: skip
 
 

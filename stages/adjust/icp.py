@@ -241,6 +241,7 @@ def adjust(
     *,
     reference: int | None,
     control: np.ndarray | None = None,
+    fixed: tuple[int, ...] = (),
     max_distance: float = 2.0,
     max_iterations: int = 10,
     prior_translation: float = 1.0,
@@ -262,6 +263,8 @@ def adjust(
         Strip held fixed (the datum); None when *control* fixes it.
     control : ndarray, shape (m, 3), optional
         Ground control points; each constrains the strips whose patch contains it.
+    fixed : tuple of int
+        Strips held as they are besides the reference (e.g. poorly determined ones).
     max_distance : float
         Patches farther apart than this along the normal are not matched (m).
     tolerance : float
@@ -269,7 +272,7 @@ def adjust(
         this / 1000 (rad).
     """
     strips = sorted(patches)
-    free = [s for s in strips if s != reference]
+    free = [s for s in strips if s != reference and s not in fixed]
     col = {s: 6 * i for i, s in enumerate(free)}
     tf = {s: Transform(np.asarray(centres[s], float)) for s in strips}
     pairs: list[Pair] = []

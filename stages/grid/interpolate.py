@@ -254,6 +254,16 @@ def cell_count(points: np.ndarray, grid: Grid) -> np.ndarray:
     return counts.reshape(grid.rows, grid.cols)
 
 
+def cell_mean(points: np.ndarray, values: np.ndarray, grid: Grid) -> np.ndarray:
+    """Mean of *values* over the points of each cell (NaN where a cell holds no point)."""
+    row, col = cell_of(points, grid)
+    inside = row >= 0
+    k = row[inside] * grid.cols + col[inside]
+    total = np.bincount(k, np.asarray(values, dtype=np.float64)[inside], grid.rows * grid.cols)
+    count = np.bincount(k, minlength=grid.rows * grid.cols)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(grid.rows, grid.cols)
+
+
 def cell_max(points: np.ndarray, grid: Grid, nodata: float = np.nan) -> np.ndarray:
     """Highest z per cell (*nodata* where a cell holds no point)."""
     row, col = cell_of(points, grid)

@@ -40,13 +40,16 @@ class NavigationConfig(StrictModel):
         "pos-av-410", description="GNSS/INS preset (position and attitude sigma of the seeds)"
     )
     position_noise_m: float | None = Field(
-        None, ge=0, description="1-sigma position error, smooth (random knots every 20 s), metres (preset)"
+        None, ge=0, description="1-sigma position error per axis, smooth (see error_period_s), metres (preset)"
     )
     attitude_noise_deg: float | None = Field(
-        None, ge=0, description="1-sigma attitude error per angle, smooth (knots every 5 s), degrees (preset)"
+        None, ge=0, description="1-sigma attitude error per angle, smooth, degrees (preset)"
     )
     gnss_rate_hz: float = Field(20.0, gt=0, le=200, description="NMEA position rate, Hz (a divisor of 200)")
     ins_rate_hz: float = Field(200.0, gt=0, le=200, description="INS CSV and SBET rate, Hz (a divisor of 200)")
+    error_period_s: float = Field(
+        20.0, gt=0, description="shortest period of the position error, seconds (attitude: a quarter of it)"
+    )
 
 
 class FlightConfig(StrictModel):
@@ -94,6 +97,10 @@ class SimulateConfig(StrictModel):
     name: str = Field("simulated", description="survey name (file names)")
     output: RelPath = Field(..., description="folder to write, relative to this file")
     seed: int = Field(1, description="random seed: the same seed gives the same files")
+    noise_seed: int | None = Field(
+        None,
+        description="seed of the noise alone (default: from seed): other values give other noise on the same echoes",
+    )
     formats: list[Literal["ldmrs_mtig", "lmsq_nmea", "lmsq_sbet", "las"]] = Field(
         list(FORMATS), description="formats to write (ldmrs_mtig needs the ldmrs scanner; the others a RIEGL)"
     )

@@ -65,13 +65,19 @@ class SimResult:
 
 
 def smooth_noise(t: np.ndarray, sigma: float, tau: float, rng: np.random.Generator, dims: int = 3) -> np.ndarray:
-    """A smooth random error (knots every *tau* seconds, cubic between) with standard deviation ~*sigma*."""
-    from scipy.interpolate import CubicSpline
-
+    """A smooth, stationary random error: per axis, a sum of 16 cosines of random phase with periods
+    between *tau* and 5 *tau* seconds, scaled so its variance is *sigma*^2 at every instant (over
+    realisations): what a navigation solution's slowly wandering error looks like, and what the
+    propagated per-point sigma must match."""
     if sigma == 0:
         return np.zeros((len(t), dims))
-    knots = np.arange(t[0] - tau, t[-1] + 2 * tau, tau)
-    return CubicSpline(knots, rng.normal(0, sigma, (len(knots), dims)), axis=0)(t)
+    k = 16
+    out = np.zeros((len(t), dims))
+    for d in range(dims):
+        freq = rng.uniform(1 / (5 * tau), 1 / tau, k)
+        phase = rng.uniform(0, 2 * np.pi, k)
+        out[:, d] = sigma * np.sqrt(2.0 / k) * np.cos(2 * np.pi * np.outer(t, freq) + phase).sum(axis=1)
+    return out
 
 
 def _line_biases(flight: Flight, size: float, rng: np.random.Generator, spare: list[int] = ()) -> np.ndarray:
@@ -111,6 +117,8 @@ def simulate(cfg, log=None) -> SimResult:
 
     out = Path(cfg.output)
     rng = np.random.default_rng(cfg.seed)
+    # noise has its own stream: realisations with another noise_seed see the same scene, flight and echoes
+    noise_rng = np.random.default_rng([cfg.seed, 1, cfg.noise_seed if cfg.noise_seed is not None else cfg.seed])
     scanner = make_scanner(cfg.scanner)
     if scanner.kind == "ldmrs" and any(f in ("lmsq_nmea", "lmsq_sbet") for f in cfg.formats):
         raise SimConfigError("formats lmsq_nmea and lmsq_sbet need a RIEGL scanner (scanner.preset q140 or q280)")
@@ -158,13 +166,14 @@ def simulate(cfg, log=None) -> SimResult:
 
     # --- recorded navigation
     bias = _line_biases(flight, cfg.faults.strip_bias_m, rng, cfg.faults.error_free_lines)
-    pos_err = smooth_noise(flight.t, sigma_pos, 20.0, rng) + bias
+    tau = cfg.navigation.error_period_s
+    pos_err = smooth_noise(flight.t, sigma_pos, tau, noise_rng) + bias
     lat_r, lon_r, h_r = ecef_to_geodetic(frame.to_ecef(flight.pos + pos_err))
     # roll and pitch only: over a straight line they tilt and shift the strip rigidly; a heading bias
     # shears it (along-track shift growing across track), which no rigid strip correction can undo
     att_bias = _line_biases(flight, cfg.faults.strip_rotation_deg, rng, cfg.faults.error_free_lines)
     att_bias[:, 2] = 0.0
-    att_err = smooth_noise(flight.t, sigma_att, 5.0, rng) + att_bias
+    att_err = smooth_noise(flight.t, sigma_att, tau / 4, noise_rng) + att_bias
     nav = Navigation(flight.t, lat_r, lon_r, h_r, np.degrees(flight.roll) + att_err[:, 0],
                      np.degrees(flight.pitch) + att_err[:, 1], np.degrees(flight.heading) + att_err[:, 2],
                      sigma_pos, sigma_att)  # fmt: skip
@@ -203,7 +212,7 @@ def simulate(cfg, log=None) -> SimResult:
         n = len(pat["t"])
         if n:
             echoes = _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner, range_noise,
-                             rng, plan, pulse_base)  # fmt: skip
+                             rng, plan, pulse_base, noise_rng)  # fmt: skip
             sinks.add(pat, echoes, flight, nav_traj, Mounting(r_nominal, a_nominal))
         pulse_base += n
         t0 = t1
@@ -312,7 +321,7 @@ def _fault_plan(cfg, scanner: Scanner, flight: Flight, rec_mask: np.ndarray, rng
 
 
 def _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner: Scanner, range_noise, rng, plan: _Plan,
-            pulse_base: int) -> dict[str, np.ndarray]:  # fmt: skip
+            pulse_base: int, noise_rng) -> dict[str, np.ndarray]:  # fmt: skip
     """Cast every pulse: first echo on the canopy, a second through gaps in vegetation; dust; water drop-outs."""
     t = pat["t"]
     pos, r_l_b = _poses(frame, flight, lat_s, lon_s, t)
@@ -353,7 +362,7 @@ def _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner: Sc
     e = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
     order = np.lexsort((e["echo"], e["pulse"]))
     e = {k: v[order] for k, v in e.items()}
-    e["range"] = e["range_true"] + (rng.normal(0, range_noise, len(e["pulse"])) if range_noise else 0.0)
+    e["range"] = e["range_true"] + (noise_rng.normal(0, range_noise, len(e["pulse"])) if range_noise else 0.0)
     e["pulse_id"] = pulse_base + e["pulse"]
     return e
 

@@ -116,3 +116,14 @@ def test_single_strip_passes_through(tmp_path):
     stage = _adjust(tmp_path, tmp_path, "enabled: true")
     assert "nothing to adjust" in stage["metrics"]["note"]
     assert stage["metrics"]["strips_adjusted"] == 0
+
+
+def test_undetermined_corrections_are_not_applied(injected, tmp_path):
+    """A correction less certain than the limit is not applied: the strip stays as flown, and is listed."""
+    _, sim, _ = injected
+    stage = _adjust(tmp_path, sim, "reference_strip: 1, max_sigma_translation_m: 0.0001")
+    m = stage["metrics"]
+    assert m["strips_not_determined"] == [2, 3, 4, 5, 6] and m["strips_estimated"] == 0
+    assert m["largest_translation_m"] == 0.0
+    report = json.loads((tmp_path / "out" / "strip_corrections.json").read_text())
+    assert set(report["not_determined"]) == {"2", "3", "4", "5", "6"}

@@ -21,14 +21,14 @@ SIGMA = 0.02
 pytestmark = pytest.mark.slow  # simulates two flights of about 1 M pulses (about 40 s in all)
 
 
-def _flight(root: Path, bias: float, rotation: float) -> Path:
+def _flight(root: Path, bias: float, rotation: float, noise: bool = True) -> Path:
     simulate(SimulateConfig(
         output=root / "sim", seed=11, formats=["las"], checkpoints=40,
         scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": 30000},
         navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
         flight={"altitude_m": 150, "speed_ms": 40, "lines": 5, "sidelap": 0.5, "line_length_m": 400,
                 "cross_line": True, "bank_deg": 45, "lead_in_m": 0},
-        faults={"noise": True, "strip_bias_m": bias, "strip_rotation_deg": rotation, "error_free_lines": [1]},
+        faults={"noise": noise, "strip_bias_m": bias, "strip_rotation_deg": rotation, "error_free_lines": [1]},
     ))  # fmt: skip
     return root / "sim"
 
@@ -93,8 +93,17 @@ def test_difference_map_shows_the_improvement(injected):
     assert np.nanpercentile(np.abs(before), 50) > 0.1 and np.nanpercentile(np.abs(after), 95) < 0.03
 
 
-def test_no_error_gives_no_correction(tmp_path):
-    """Strips without systematic error: every correction within 3 sigma of zero (its own propagated sigma)."""
+def test_no_injected_error_gives_no_correction(tmp_path):
+    """Nothing injected (no strip error, no noise): every correction below 5 mm and 0.001 degree."""
+    sim = _flight(tmp_path, bias=0.0, rotation=0.0, noise=False)
+    _adjust(tmp_path, sim, "reference_strip: most_overlap")
+    report = json.loads((tmp_path / "out" / "strip_corrections.json").read_text())
+    for strip in report["strips"].values():
+        assert np.max(np.abs(strip["translation_m"])) < 0.005 and np.max(np.abs(strip["rotation_deg"])) < 0.001
+
+
+def test_noise_alone_gives_no_significant_correction(tmp_path):
+    """No strip error but 2 cm range noise: every correction within 3 sigma of zero (its own propagated sigma)."""
     sim = _flight(tmp_path, bias=0.0, rotation=0.0)
     _adjust(tmp_path, sim, "reference_strip: most_overlap")
     report = json.loads((tmp_path / "out" / "strip_corrections.json").read_text())

@@ -68,7 +68,7 @@ def _read_control(path) -> np.ndarray:
 
 class StripAdjust(Stage):
     name = "strip_adjust"
-    version = "4"
+    version = "5"
     Params = StripAdjustParams
     description = "joint point-to-plane ICP: one rigid correction per strip"
     inputs: ClassVar = ("points_georef",)
@@ -108,12 +108,15 @@ class StripAdjust(Stage):
             sel = idx[single[idx]]
             patches[s] = planar_patches(pts[sel], cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
             patches[s].order = sel[patches[s].order]  # indices into the whole cloud
-        # smooth means smooth for this survey: at most 2.5 x the median patch RMS (the noise level)
+        # smooth means smooth for this survey: at most 2.5 x the median patch RMS (the noise level);
+        # well sampled means at least half the strip's median points per patch, which drops water
+        # (specular: most pulses return nothing) and the thinly sampled swath edges
         all_rms = np.concatenate([patches[s].rms for s in strips]) if strips else np.zeros(0)
         if len(all_rms):
             limit = min(p.max_plane_rms, 2.5 * float(np.median(all_rms)))
             for s in strips:
-                _keep_patches(patches[s], patches[s].rms <= limit)
+                dense = patches[s].count >= 0.5 * np.median(patches[s].count) if len(patches[s].count) else True
+                _keep_patches(patches[s], (patches[s].rms <= limit) & dense)
             ctx.metrics.update(plane_rms_limit_m=limit)
         # overlap with identity transforms: which strips take part, and the reference
         from stages.adjust.icp import Transform

@@ -1,11 +1,11 @@
 """Strip adjustment: one small rigid correction per flight strip, from point-to-plane ICP solved jointly.
 
 Method.  Each strip's single-return points are binned into square cells; a
-cell whose points fit a plane closely (PCA: the smallest eigenvalue of the
-covariance is the plane's RMS) becomes a *patch*: centroid, normal, RMS,
-point count.  Vegetation (multiple returns, rough) and edges fail the
-test, so correspondences come from smooth, well-sampled surfaces: open
-ground, slopes, roofs.  Wherever two strips have patches at the same place,
+cell whose points fit a smooth surface closely (a quadratic, see
+:func:`planar_patches`) becomes a *patch*.  Vegetation (multiple returns,
+rough) and edges fail the test, and the stage drops thinly sampled patches
+(water, swath edges), so correspondences come from smooth, well-sampled
+surfaces: open ground, slopes, roofs.  Wherever two strips have patches at the same place,
 the distance of one's centroid to the other's plane is an observation of
 their disagreement along the normal (point-to-plane ICP; Chen & Medioni
 1992, doi:10.1016/0262-8856(92)90066-C).  Horizontal disagreement is seen

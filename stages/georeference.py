@@ -190,7 +190,7 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "2"
+    version = "3"
     Params = GeoreferenceParams
     can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
@@ -331,21 +331,24 @@ class Georeference(Stage):
         i, f, ok = locate(exact, t, p.max_gap_s)
         cols = tuple(c[ok] for c in cols)
         ex = np.column_stack(georeference_local(exact, *cols, mounting, i[ok], f[ok]))
+        ie, fe = i[ok], f[ok]
+        platform = exact.position[ie] + (exact.position[ie + 1] - exact.position[ie]) * fe[:, None]
         i, f, _ = locate(ltp, t, p.max_gap_s)
         lt = np.column_stack(georeference_local(ltp, *cols, mounting, i[ok], f[ok]))
         lt[:, 2] -= h0
         diff = lt - ex
         if len(diff):
-            # what geometry predicts: R against the radii of curvature at the point's height, M + h
-            # (meridian) and N + h (prime vertical), at the first fix; and the tangent plane's rise
-            # over the ellipsoid, d^2 / 2R
+            # what geometry predicts: the platform is placed with R instead of the radii of curvature
+            # at its height, M + h (meridian) and N + h (prime vertical), and the tangent plane rises
+            # over the ellipsoid by d^2 / 2R; the pulse offsets themselves are not scaled (they are
+            # added in the plane, which tilts by d/R against the true local level: a term left out)
             e2 = 6.69437999014e-3
             w = 1.0 - e2 * np.sin(np.radians(lat0)) ** 2
             radius_m, radius_n = 6_378_137.0 * (1 - e2) / w**1.5, 6_378_137.0 / np.sqrt(w)
-            h_pt = h0 + ex[:, 2]
-            pred_h = np.hypot((p.ltp_radius_m / (radius_n + h_pt) - 1) * ex[:, 0],
-                              (p.ltp_radius_m / (radius_m + h_pt) - 1) * ex[:, 1])  # fmt: skip
-            pred_v = (ex[:, 0] ** 2 + ex[:, 1] ** 2) / (2 * np.sqrt(radius_m * radius_n))
+            h_p = h0 + platform[:, 2]
+            pred_h = np.hypot((p.ltp_radius_m / (radius_n + h_p) - 1) * platform[:, 0],
+                              (p.ltp_radius_m / (radius_m + h_p) - 1) * platform[:, 1])  # fmt: skip
+            pred_v = (platform[:, 0] ** 2 + platform[:, 1] ** 2) / (2 * np.sqrt(radius_m * radius_n))
             ctx.metrics.update(
                 ltp_vs_exact_max_horizontal_m=float(np.max(np.hypot(diff[:, 0], diff[:, 1]))),
                 ltp_vs_exact_max_vertical_m=float(np.max(np.abs(diff[:, 2]))),

@@ -479,7 +479,8 @@ class _Sinks:
                 keep[a:b] = False
             else:
                 flags = np.zeros(b - a, np.int64)
-                if self.dirt_left and b > a and valid and status == 0x07:
+                # dirt only in scans the reader accepts (an invalid or bad-GPS scan is skipped whole)
+                if self.dirt_left and b > a and s not in plan.invalid_scans and s not in plan.bad_gps_scans:
                     j = int(rng.integers(a, b))
                     flags[j - a] = 0x08
                     fault[j] = FAULT_CODES["dirt"]
@@ -494,10 +495,11 @@ class _Sinks:
                     rr = rng.uniform(1.0, 8.0)
                     al = np.radians(rng.uniform(-30, 30))
                     points.append(f"P {rng.integers(0, 4)} 0 0x02 {rr * np.cos(al):.4f} {rr * np.sin(al):.4f} 0.0000")
-                if n_clutter and valid and status == 0x07:
+                if n_clutter and s not in plan.invalid_scans and s not in plan.bad_gps_scans:
                     counts["rejected_clutter"] += n_clutter
             valid_points = (b - a) - (1 if fault[a:b].tolist().count(FAULT_CODES["dirt"]) else 0)
-            if valid and status == 0x07 and (s in plan.empty_scans or valid_points <= 0):
+            accepted = s not in plan.invalid_scans and s not in plan.bad_gps_scans
+            if accepted and (s in plan.empty_scans or valid_points <= 0):
                 counts["empty_scans"] += 1
             fh.write(f"SCAN {s % 65536}\nUTC {utc}\nSTATUS 0x{status:02X}\nVALID {valid}\n")
             fh.write(f"LLA {lat:.10f} {lon:.10f} {h:.4f}\nEULER {roll:.7f} {pitch:.7f} {yaw:.7f}\n")

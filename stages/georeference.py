@@ -199,7 +199,16 @@ class Georeference(Stage):
     description = "pulses + trajectory -> points in the output CRS (raw formats only)"
 
     def is_enabled(self, params, config) -> bool:
-        return config.input.format != "las"
+        if config.input.format == "las":
+            return False  # already georeferenced: "not applicable"
+        if not params.enabled:
+            from pipeline.errors import ConfigError
+
+            raise ConfigError(
+                f"stages.georeference.enabled: false, but input.format {config.input.format} is a raw format: "
+                "its pulses must be georeferenced before anything else can run."
+            )
+        return True
 
     def external_files(self, params, config):
         return [params.geoid] if params.geoid is not None else []

@@ -208,3 +208,10 @@ def test_simulation_is_reproducible(tmp_path):
             [hashlib.sha256((sim / f).read_bytes()).hexdigest() for f in ("lmsq/scan.lmsq", "lmsq/nav.nmea")]
         )
     assert digests[0] == digests[1]
+
+
+def test_raw_input_cannot_skip_georeferencing(capsys):
+    config = Path(__file__).resolve().parents[2] / "configs" / "flight.yaml"
+    assert main(["validate", str(config), "--set", "stages.georeference.enabled=false"]) == 2
+    err = capsys.readouterr().err
+    assert "stages.georeference.enabled" in err and "raw format" in err and err.count("\n") == 1

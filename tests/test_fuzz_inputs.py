@@ -118,3 +118,90 @@ def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
     assert counters.scans_accepted + skipped <= counters.scans_total + 1  # + a garbled SCAN line
     for s in scans:
         assert np.isfinite(s.points).all()
+
+
+# Raw formats 3.B and 3.C: one small simulated flight, damaged at random.
+
+
+@pytest.fixture(scope="module")
+def raw_flight(tmp_path_factory):
+    from stages.sim.config import SimulateConfig
+    from stages.sim.simulate import simulate
+
+    root = tmp_path_factory.mktemp("fuzz_raw")
+    simulate(SimulateConfig(output=root, seed=9, formats=["lmsq_nmea", "lmsq_sbet"], checkpoints=0,
+                            scanner={"preset": "q140", "pulse_rate_hz": 1000},
+                            navigation={"preset": "pos-av-410", "ins_rate_hz": 50},
+                            flight={"altitude_m": 100, "speed_ms": 40, "lines": 1, "line_length_m": 80,
+                                    "cross_line": False, "lead_in_m": 0}))  # fmt: skip
+    return root / "lmsq"
+
+
+def _damage(data, blob: bytes) -> bytes:
+    out = bytearray(blob)
+    for _ in range(data.draw(st.integers(1, 5))):
+        action = data.draw(st.sampled_from(["truncate", "flip", "insert", "delete"]))
+        if not out:
+            break
+        i = data.draw(st.integers(0, len(out) - 1))
+        if action == "truncate":
+            del out[i:]
+        elif action == "flip":
+            out[i] ^= data.draw(st.integers(1, 255))
+        elif action == "insert":
+            out[i:i] = data.draw(st.binary(min_size=1, max_size=40))
+        else:
+            del out[i : i + data.draw(st.integers(1, 40))]
+    return bytes(out)
+
+
+RAW_FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@RAW_FUZZ
+@given(data=st.data())
+def test_lmsq_stream_damage_is_counted_or_located(tmp_path, raw_flight, data):
+    from stages.readers.lmsq import LmsqCounters, read_lmsq
+
+    path = tmp_path / "scan.lmsq"
+    path.write_bytes(_damage(data, (raw_flight / "scan.lmsq").read_bytes()))
+    counters = LmsqCounters()
+    try:
+        n = sum(len(b["time"]) for b in read_lmsq(path, counters, chunk_bytes=4096))
+    except InputDataError as exc:
+        assert "scan.lmsq, byte" in str(exc)
+        return
+    assert n <= counters.measurements and all(v >= 0 for v in vars(counters).values())
+
+
+@RAW_FUZZ
+@given(data=st.data())
+def test_nmea_and_ins_damage_is_counted_or_located(tmp_path, raw_flight, data):
+    from stages.readers.ins import TrajectoryCounters, read_ins_csv
+    from stages.readers.nmea import NmeaCounters, read_nmea
+
+    which = data.draw(st.sampled_from(["nav.nmea", "ins.csv"]))
+    path = tmp_path / which
+    path.write_bytes(_damage(data, (raw_flight / which).read_bytes()))
+    try:
+        if which == "nav.nmea":
+            log = read_nmea(path, NmeaCounters())
+            assert np.all(np.isfinite(log.position["lat"]))
+        else:
+            ins = read_ins_csv(path, 2400, TrajectoryCounters())
+            assert np.all(np.diff(ins["time"]) > 0)
+    except InputDataError as exc:
+        assert which in str(exc) and "line" in str(exc)
+
+
+@RAW_FUZZ
+@given(data=st.data())
+def test_sbet_damage_is_counted(tmp_path, raw_flight, data):
+    from stages.readers.ins import TrajectoryCounters, read_sbet
+
+    path = tmp_path / "t.sbet"
+    path.write_bytes(_damage(data, (raw_flight / "trajectory.sbet").read_bytes()))
+    counters = TrajectoryCounters()
+    sb = read_sbet(path, 2400, counters)
+    assert np.all(np.diff(sb["time"]) > 0) and np.all(np.isfinite(sb["lat"])) and np.all(np.isfinite(sb["heading"]))
+    assert counters.epochs == len(sb["time"])

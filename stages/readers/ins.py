@@ -86,9 +86,14 @@ def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[st
                 values = [float(p) for p in parts]
                 if not all(math.isfinite(v) for v in values) or not 0 <= values[0] < SECONDS_PER_WEEK:
                     raise ValueError
+                if abs(values[1]) > 180 or abs(values[2]) > 90 or abs(values[3]) > 720:
+                    raise ValueError
             except ValueError:
                 counters.malformed += 1
-                counters.note(f"{path}, line {lineno}: not four finite numbers (gps_sow 0-604800); line skipped")
+                counters.note(
+                    f"{path}, line {lineno}: not four numbers in range (gps_sow 0-604800, |roll| <= 180, "
+                    "|pitch| <= 90, |heading| <= 720); line skipped"
+                )
                 continue
             for col, value in zip(cols, values, strict=True):
                 col.append(value)
@@ -118,12 +123,18 @@ def read_sbet(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, 
     """
     rec = _records(path, 17, counters)
     finite = np.all(np.isfinite(rec), axis=1) if len(rec) else np.zeros(0, bool)
-    sane = finite & (np.abs(rec[:, 1]) <= np.pi / 2) & (np.abs(rec[:, 2]) <= 2 * np.pi) if len(rec) else finite
-    sane &= (rec[:, 0] >= 0) & (rec[:, 0] < SECONDS_PER_WEEK) if len(rec) else sane
+    if len(rec):
+        # physically possible values only: a flipped byte can make any float64 finite but absurd
+        sane = finite & (np.abs(rec[:, 1]) <= np.pi / 2) & (np.abs(rec[:, 2]) <= 2 * np.pi)
+        sane &= (rec[:, 0] >= 0) & (rec[:, 0] < SECONDS_PER_WEEK) & (np.abs(rec[:, 3]) < 1e5)
+        sane &= (np.abs(rec[:, 7]) <= np.pi) & (np.abs(rec[:, 8]) <= np.pi / 2)
+        sane &= (np.abs(rec[:, 9]) <= 4 * np.pi) & (np.abs(rec[:, 10]) <= 4 * np.pi)
+    else:
+        sane = finite
     bad = np.flatnonzero(~sane)
     counters.malformed += len(bad)
     for i in bad[:3]:
-        counters.note(f"{path}, byte {i * 136}: record with a non-finite or out-of-range value; skipped")
+        counters.note(f"{path}, byte {i * 136}: record with a non-finite or impossible value; skipped")
     idx = np.flatnonzero(sane)
     t = absolute_time(rec[idx, 0], week)
     keep = _increasing(t, counters, "SBET", lambda i: f"{path}, byte {idx[i] * 136}")

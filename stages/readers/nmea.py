@@ -138,7 +138,13 @@ def read_nmea(path: Path, counters: NmeaCounters, *, day: date | None = None, le
                     lat, lon = _degrees(f[1], f[2], 2), _degrees(f[3], f[4], 3)
                     msl, sep = float(f[8]), float(f[10])
                     values = (lat, lon, msl, sep, float(f[7]))
-                    if not all(math.isfinite(v) for v in values) or abs(lat) > 90 or abs(lon) > 180:
+                    if (
+                        not all(math.isfinite(v) for v in values)
+                        or abs(lat) > 90
+                        or abs(lon) > 180
+                        or abs(msl) > 1e5
+                        or abs(sep) > 1e3
+                    ):
                         raise ValueError("out of range")
                     epoch_time = gps(tod, where)
                     rows["position"].append((epoch_time, lat, lon, msl + sep, msl, quality, int(f[6]), float(f[7])))

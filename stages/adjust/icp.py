@@ -370,8 +370,3 @@ def adjust(
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
         std = {s: sd[col[s] : col[s] + 6] for s in free}
     return Solution(tf, it, pairs, sigma, n_corr, std)
-
-
-def point_to_plane(points_b: np.ndarray, centroid_a: np.ndarray, normal_a: np.ndarray) -> np.ndarray:
-    """Signed distances of points to planes (one plane per point)."""
-    return np.einsum("ij,ij->i", normal_a, points_b - centroid_a)

@@ -11,9 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Local-level frame conventions of the navigation systems (SPEC 4).
-LOCAL_LEVEL = ("NED", "NWU")
-
 
 def _transformer(src, dst):
     import pyproj
@@ -119,16 +116,14 @@ class MapTransform:
         self.frame = frame
         self.crs = crs
         self.geoid = geoid
-        if geoid is None:
-            self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
-        else:
+        self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
+        if geoid is not None:
             pipeline = (
                 "+proj=pipeline +step +proj=cart +inv +ellps=WGS84 "
                 f"+step +proj=vgridshift +grids={geoid} +multiplier=-1 "
-                f"+step +inv +proj=longlat +ellps=WGS84 +step +proj=cart +ellps=WGS84"
+                "+step +inv +proj=longlat +ellps=WGS84 +step +proj=cart +ellps=WGS84"
             )
             self._geoid = pyproj.Transformer.from_pipeline(pipeline)
-            self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
         self.lo = np.asarray(lo, dtype=np.float64) - 1.0
         self.hi = np.asarray(hi, dtype=np.float64) + 1.0
         self.centre = (self.lo + self.hi) / 2

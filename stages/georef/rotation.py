@@ -1,7 +1,7 @@
 """Rotations for georeferencing: Euler conventions, quaternions, SLERP.
 
 Quaternions are ``(w, x, y, z)`` arrays of shape ``(..., 4)``, Hamilton
-convention, active rotations: ``rotate(q, v)`` is ``R(q) @ v``.
+convention, active rotations: ``quat_matrix(q) @ v`` turns v by q.
 
 Per-epoch conversions are few (one per trajectory epoch) and could use
 :class:`scipy.spatial.transform.Rotation`; the per-pulse work (SLERP and
@@ -97,14 +97,6 @@ def quat_matrix(q: np.ndarray) -> np.ndarray:
         ),
         -2,
     )
-
-
-def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R(q) @ v for rows of quaternions and vectors: v + 2w(u x v) + 2 u x (u x v)."""
-    w = q[:, 0:1]
-    u = q[:, 1:4]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
 
 
 def unwrap_signs(q: np.ndarray) -> np.ndarray:

@@ -26,10 +26,6 @@ from stages.readers import SkipLog, open_text
 
 SECONDS_PER_WEEK = 604_800.0
 INS_HEADER = "gps_sow,roll_deg,pitch_deg,heading_deg"
-SBET_FIELDS = ("sow", "lat", "lon", "h", "vx", "vy", "vz", "roll", "pitch", "platform_heading", "wander",
-               "ax", "ay", "az", "wx", "wy", "wz")  # fmt: skip
-SMRMSG_FIELDS = ("sow", "sigma_north_m", "sigma_east_m", "sigma_down_m", "sigma_vn", "sigma_ve", "sigma_vd",
-                 "sigma_roll_arcmin", "sigma_pitch_arcmin", "sigma_heading_arcmin")  # fmt: skip
 
 
 @dataclass

@@ -90,59 +90,46 @@ def ltp_crs(lat0: float, lon0: float, radius: float):
 
 def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: float):
     """A :class:`~stages.georef.core.Trajectory` in the seed-0 LTP: formula positions, one fixed local level."""
-    from stages.georef.core import Trajectory
-    from stages.georef.geodesy import LocalFrame
-    from stages.georef.rotation import euler_quat, matrix_quat, quat_mul, slerp_weights, unwrap_signs
+    from stages.georef.core import trajectory_from
+    from stages.georef.geodesy import LocalFrame, local_level_to_ecef
+    from stages.georef.rotation import euler_quat, matrix_quat, quat_mul
 
     lat, lon, h = (np.asarray(traj[k], dtype=np.float64) for k in ("lat", "lon", "h"))
     e = radius * np.radians(lon - lon0) * np.cos(np.radians(lat0))
     n = radius * np.radians(lat - lat0)
     position = np.column_stack((e, n, h))
-    to_enu = {
-        "NED": np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]]),
-        "NWU": np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]),
-    }
+    # the one local level of the plane: ENU <- the convention's axes at the first fix, for every epoch
+    enu, level = (local_level_to_ecef(np.array([lat0]), np.array([lon0]), f)[0] for f in ("ENU", convention))
     q_n_b = euler_quat(*(np.radians(np.asarray(traj[k], dtype=np.float64)) for k in ("roll", "pitch", "yaw")))
-    q = unwrap_signs(quat_mul(matrix_quat(to_enu[convention])[None, :], q_n_b))
+    q = quat_mul(matrix_quat(enu.T @ level)[None, :], q_n_b)
     time = np.asarray(traj["time"], dtype=np.float64)
-    if len(time) == 1:
-        time, position, q = np.append(time, time[0] + 1.0), np.repeat(position, 2, 0), np.repeat(q, 2, 0)
-    theta, inv_sin = slerp_weights(q[:-1], q[1:])
-    frame = LocalFrame(lat0, lon0, float(h[0]))
-    return Trajectory(time, position, q, theta, inv_sin, frame)
+    return trajectory_from(time, position, q, LocalFrame(lat0, lon0, float(h[0])))
 
 
 def _epoch_sigmas(u: UncertaintyParams, traj: dict) -> dict:
-    """Per-epoch position and attitude sigmas: from the configuration, else from the trajectory's columns."""
+    """Per-epoch position (m, east north up) and attitude (rad, roll pitch heading) sigmas: from the
+    configuration, else from the trajectory's columns; neither is an error naming the key to set."""
     from pipeline.errors import ConfigError
 
     n = len(traj["time"])
     out = {"sources": {}}
-    if u.position_m is not None:
-        out["position"] = tuple(np.full(n, u.position_m) for _ in range(3))
-        out["sources"]["position"] = "configuration"
-    elif all(k in traj for k in ("sigma_east_m", "sigma_north_m", "sigma_up_m")):
-        out["position"] = tuple(
-            np.asarray(traj[k], dtype=np.float64) for k in ("sigma_east_m", "sigma_north_m", "sigma_up_m")
-        )
-        out["sources"]["position"] = "trajectory"
-    else:
-        raise ConfigError(
-            "stages.georeference.uncertainty.position_m: the trajectory has no position sigmas "
-            "(no $GST, no smrmsg), so state the position error."
-        )
-    if u.attitude_deg is not None:
-        out["attitude"] = tuple(np.full(n, np.radians(u.attitude_deg)) for _ in range(3))
-        out["sources"]["attitude"] = "configuration"
-    elif all(k in traj for k in ("sigma_roll_deg", "sigma_pitch_deg", "sigma_heading_deg")):
-        out["attitude"] = tuple(np.radians(np.asarray(traj[k], dtype=np.float64))
-                                for k in ("sigma_roll_deg", "sigma_pitch_deg", "sigma_heading_deg"))  # fmt: skip
-        out["sources"]["attitude"] = "trajectory"
-    else:
-        raise ConfigError(
-            "stages.georeference.uncertainty.attitude_deg: the trajectory has no attitude sigmas "
-            "(only smrmsg files carry them), so state the attitude error."
-        )
+    wanted = (
+        ("position", u.position_m, 1.0, ("sigma_east_m", "sigma_north_m", "sigma_up_m"), "position_m",
+         "no position sigmas (no $GST, no smrmsg)"),
+        ("attitude", u.attitude_deg, np.pi / 180, ("sigma_roll_deg", "sigma_pitch_deg", "sigma_heading_deg"),
+         "attitude_deg", "no attitude sigmas (only smrmsg files carry them)"),
+    )  # fmt: skip
+    for name, stated, scale, columns, key, missing in wanted:
+        if stated is not None:
+            out[name] = tuple(np.full(n, stated * scale) for _ in range(3))
+            out["sources"][name] = "configuration"
+        elif all(c in traj for c in columns):
+            out[name] = tuple(np.asarray(traj[c], dtype=np.float64) * scale for c in columns)
+            out["sources"][name] = "trajectory"
+        else:
+            raise ConfigError(
+                f"stages.georeference.uncertainty.{key}: the trajectory has {missing}, so state the {name} error."
+            )
     return out
 
 

@@ -86,7 +86,12 @@ def prepare_trajectory(
     position = frame.from_geodetic(lat, lon, h)
     q_n_b = euler_quat(np.radians(roll), np.radians(pitch), np.radians(yaw))
     r_local_n = frame.r_enu_to_ecef.T @ local_level_to_ecef(lat, lon, convention)  # (m, 3, 3)
-    q = unwrap_signs(quat_mul(matrix_quat(r_local_n), q_n_b))
+    return trajectory_from(time, position, quat_mul(matrix_quat(r_local_n), q_n_b), frame)
+
+
+def trajectory_from(time: np.ndarray, position: np.ndarray, q: np.ndarray, frame: LocalFrame) -> Trajectory:
+    """A :class:`Trajectory` from epochs already in a local frame (position, quaternion frame <- body)."""
+    q = unwrap_signs(q)
     if len(time) == 1:  # one epoch: an interval of zero motion, so pulses at it interpolate to it
         time, position, q = np.append(time, time[0] + 1.0), np.repeat(position, 2, 0), np.repeat(q, 2, 0)
     theta, inv_sin = slerp_weights(q[:-1], q[1:])

@@ -171,8 +171,7 @@ class Parse(Stage):
     def _run_ldmrs(self, ctx) -> None:
         from stages.georef.rotation import rot_y
         from stages.io import NpyColumns
-        from stages.readers.ldmrs import Counters, read_ldmrs_mtig
-        from stages.sim.sensors import MOUNTINGS
+        from stages.readers.ldmrs import MOUNTINGS, Counters, read_ldmrs_mtig
 
         p = ctx.params
         counters = Counters()
@@ -405,14 +404,14 @@ def _nmea_ins_trajectory(p, week: int, counters, log) -> tuple[dict[str, np.ndar
     """
     from scipy.interpolate import CubicSpline
 
-    from stages.readers.ins import _increasing, read_ins_csv
+    from stages.readers.ins import increasing, read_ins_csv
     from stages.readers.nmea import NmeaCounters, read_nmea
 
     nmea_counters = NmeaCounters()
     nav = read_nmea(p.nmea, nmea_counters, day=p.nmea_date, leap_seconds=p.leap_seconds)
     counters.locations.extend(nmea_counters.locations[:10])
     pos = nav.position
-    keep = _increasing(pos["time"], counters, "GGA", lambda i: f"{p.nmea}, GGA epoch {i + 1}")
+    keep = increasing(pos["time"], counters, "GGA", lambda i: f"{p.nmea}, GGA epoch {i + 1}")
     pos = {k: v[keep] for k, v in pos.items()}
     ins = read_ins_csv(p.ins, week, counters)
     extra = {f"nmea_{k}": v for k, v in vars(nmea_counters).items() if k != "locations"}

@@ -68,7 +68,7 @@ def _read_control(path) -> np.ndarray:
 
 class StripAdjust(Stage):
     name = "strip_adjust"
-    version = "5"
+    version = "6"
     Params = StripAdjustParams
     description = "joint point-to-plane ICP: one rigid correction per strip"
     inputs: ClassVar = ("points_georef",)
@@ -116,7 +116,7 @@ class StripAdjust(Stage):
             limit = min(p.max_plane_rms, 2.5 * float(np.median(all_rms)))
             for s in strips:
                 dense = patches[s].count >= 0.5 * np.median(patches[s].count) if len(patches[s].count) else True
-                _keep_patches(patches[s], (patches[s].rms <= limit) & dense)
+                patches[s].keep((patches[s].rms <= limit) & dense)
             ctx.metrics.update(plane_rms_limit_m=limit)
         # overlap with identity transforms: which strips take part, and the reference
         from stages.adjust.icp import Transform
@@ -224,11 +224,6 @@ class StripAdjust(Stage):
             )  # fmt: skip
 
 
-def _keep_patches(patches, keep: np.ndarray) -> None:
-    for name in ("origin", "coef", "centroid", "normal", "rms", "count", "starts"):
-        setattr(patches, name, getattr(patches, name)[keep])
-
-
 def _combined_rms(values: list[float], weights: list[int]) -> float | None:
     if not values:
         return None
@@ -263,36 +258,28 @@ def _pair_figures(pair, patches, pts, ident, final, cell):
 
 def _difference_rasters(ctx, pts, before, after, resolution, crs) -> None:
     """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after."""
-    from rasterio.transform import from_origin
-
+    from stages.grid.interpolate import Grid, cell_mean
     from stages.io import NODATA, png_bytes, write_cog
     from stages.report import colour_ramp
 
-    x0 = np.floor(pts[:, 0].min() / resolution) * resolution if len(pts) else 0.0
-    y1 = np.ceil(pts[:, 1].max() / resolution) * resolution if len(pts) else resolution
-    cols = max(1, int(np.ceil((pts[:, 0].max() - x0) / resolution))) if len(pts) else 1
-    rows = max(1, int(np.ceil((y1 - pts[:, 1].min()) / resolution))) if len(pts) else 1
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
+    grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], resolution)
     images = []
     for name, parts in (("strip_difference_before", before), ("strip_difference_after", after)):
-        total = np.zeros(rows * cols)
-        count = np.zeros(rows * cols)
-        for centre, value in parts or []:
-            c = np.clip(((centre[:, 0] - x0) / resolution).astype(int), 0, cols - 1)
-            r = np.clip(((y1 - centre[:, 1]) / resolution).astype(int), 0, rows - 1)
-            np.add.at(total, r * cols + c, value)
-            np.add.at(count, r * cols + c, 1)
-        grid = np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(rows, cols)
-        write_cog(ctx.outputs[name], np.where(np.isfinite(grid), grid, NODATA).astype(np.float32),
-                  transform=from_origin(x0, y1, resolution, resolution), crs=crs)  # fmt: skip
-        images.append(grid)
+        centres = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, 3))
+        values = np.concatenate([v for _, v in parts]) if parts else np.zeros(0)
+        grid_values = cell_mean(centres, values, grid)
+        write_cog(ctx.outputs[name], np.where(np.isfinite(grid_values), grid_values, NODATA).astype(np.float32),
+                  transform=grid.transform, crs=crs)  # fmt: skip
+        images.append(grid_values)
     # PNG: before | after, blue (-0.3 m) - white (0) - red (+0.3 m), grey where no overlap
     ramp = [(0.0, (59, 76, 192)), (0.5, (245, 245, 245)), (1.0, (180, 4, 38))]
     panels = []
-    for grid in images:
-        rgb = colour_ramp(np.nan_to_num(grid), ramp, -0.3, 0.3)
-        rgb[~np.isfinite(grid)] = 200.0
+    for image in images:
+        rgb = colour_ramp(np.nan_to_num(image), ramp, -0.3, 0.3)
+        rgb[~np.isfinite(image)] = 200.0
         panels.append(rgb)
-    gap = np.full((rows, 4, 3), 255.0)
+    gap = np.full((grid.rows, 4, 3), 255.0)
     ctx.outputs["strip_difference_png"].write_bytes(
         png_bytes(np.concatenate((panels[0], gap, panels[1]), axis=1).round())
     )

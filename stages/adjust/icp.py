@@ -57,6 +57,11 @@ class Patches:
     starts: np.ndarray  # (k,) first position in `order` of each patch's points
     cell: float = 0.0
 
+    def keep(self, mask: np.ndarray) -> None:
+        """Drop the patches where *mask* is False (the point order stays: ``starts`` index into it)."""
+        for name in ("origin", "coef", "centroid", "normal", "rms", "count", "starts"):
+            setattr(self, name, getattr(self, name)[mask])
+
     def height(self, which: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """q of patches *which* at origin-relative (x, y)."""
         c = self.coef[which]

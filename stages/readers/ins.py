@@ -43,7 +43,7 @@ def absolute_time(sow: np.ndarray, week: int) -> np.ndarray:
     return (week + rollover) * SECONDS_PER_WEEK + sow
 
 
-def _increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where) -> np.ndarray:
+def increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where) -> np.ndarray:
     """Mask of epochs kept: each strictly later than the last kept one."""
     keep = np.ones(len(t), bool)
     if len(t) < 2:
@@ -96,7 +96,7 @@ def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[st
             lines.append(lineno)
     table = [np.frombuffer(c, dtype=np.float64) if len(c) else np.zeros(0) for c in cols]
     t = absolute_time(table[0], week)
-    keep = _increasing(t, counters, "INS", lambda i: f"{path}, line {lines[i]}")
+    keep = increasing(t, counters, "INS", lambda i: f"{path}, line {lines[i]}")
     counters.epochs += int(keep.sum())
     return {"time": t[keep], "roll": table[1][keep], "pitch": table[2][keep], "heading": table[3][keep]}
 
@@ -133,7 +133,7 @@ def read_sbet(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, 
         counters.note(f"{path}, byte {i * 136}: record with a non-finite or impossible value; skipped")
     idx = np.flatnonzero(sane)
     t = absolute_time(rec[idx, 0], week)
-    keep = _increasing(t, counters, "SBET", lambda i: f"{path}, byte {idx[i] * 136}")
+    keep = increasing(t, counters, "SBET", lambda i: f"{path}, byte {idx[i] * 136}")
     idx = idx[keep]
     counters.epochs += len(idx)
     r = np.asarray(rec[idx])
@@ -159,7 +159,7 @@ def read_smrmsg(path: Path, week: int, counters: TrajectoryCounters) -> dict[str
     counters.malformed += int((~ok).sum())
     idx = np.flatnonzero(ok)
     t = absolute_time(rec[idx, 0], week)
-    keep = _increasing(t, counters, "smrmsg", lambda i: f"{path}, byte {idx[i] * 80}")
+    keep = increasing(t, counters, "smrmsg", lambda i: f"{path}, byte {idx[i] * 80}")
     r = np.asarray(rec[idx[keep]])
     return {
         "time": t[keep],

@@ -44,6 +44,12 @@ import numpy as np
 
 from stages.readers import SkipLog, open_text
 
+#: Seed 0, Table 15: lever arm MPOS (m, MTi-G axes) of each mounting; LD-MRS -> MTi-G is Ry(+90 deg) first.
+MOUNTINGS = {
+    "laboratorio": (-0.0027, -0.0221, -0.0535),
+    "pilatus": (-0.023, 0.0514, -0.1365),
+    "cb5000": (0.013, 0.0299, -0.0565),
+}
 STATUS_XKF_VALID = 0b010
 STATUS_GPS_FIX = 0b100
 FLAG_CLUTTER = 0b0010

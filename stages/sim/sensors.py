@@ -30,12 +30,6 @@ LDMRS = {
 }
 #: Seed 0: the Xsens MTi-G (data sheet: 2.5 m CEP position, 0.5 deg roll/pitch, 1 deg heading).
 MTIG = {"position_noise_m": 2.5, "attitude_noise_deg": 0.5}
-#: Seed 0, Table 15: lever arm MPOS (m, MTi-G axes) of each mounting.
-MOUNTINGS = {
-    "laboratorio": (-0.0027, -0.0221, -0.0535),
-    "pilatus": (-0.023, 0.0514, -0.1365),
-    "cb5000": (0.013, 0.0299, -0.0565),
-}
 RIEGL = {"q140": "LMS-Q140i", "q280": "LMS-Q280"}
 INS = {
     "igg": ("IGg", "ProPack-G2"),

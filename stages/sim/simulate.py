@@ -27,9 +27,10 @@ import numpy as np
 from stages.georef.core import Mounting, georeference, prepare_trajectory
 from stages.georef.geodesy import LocalFrame, MapTransform, ecef_to_geodetic, local_level_to_ecef
 from stages.georef.rotation import euler_matrix, quat_matrix
+from stages.readers.ldmrs import MOUNTINGS
 from stages.sim import scene as sc
 from stages.sim.flight import DT, Flight, fly, plan_lines
-from stages.sim.sensors import MOUNTINGS, Scanner, make_scanner, navigation_sigmas
+from stages.sim.sensors import Scanner, make_scanner, navigation_sigmas
 
 D_FLIP = np.diag([1.0, -1.0, -1.0])  # NED <-> NWU and forward-right-down <-> forward-left-up
 #: truth/points.laz extra dimension ``fault``: why the reader will drop the echo (0: it will not)

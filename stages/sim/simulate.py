@@ -37,6 +37,7 @@ D_FLIP = np.diag([1.0, -1.0, -1.0])  # NED <-> NWU and forward-right-down <-> fo
 FAULT_CODES = {"none": 0, "invalid_scan": 1, "bad_gps": 2, "clutter": 3, "dirt": 4, "pps_gap": 5,
                "invalid_quality": 6, "dust": 7}  # fmt: skip
 CHUNK_S = 2.0
+P_LINE = "P {} {} 0x{:02x} {:.4f} {:.4f} {:.4f}"
 
 
 @dataclass
@@ -476,30 +477,30 @@ class _Sinks:
                 status = 0x01 if s % 2 else 0x05
                 fault[a:b] = FAULT_CODES["bad_gps"]
             points = []
+            accepted = s not in plan.invalid_scans and s not in plan.bad_gps_scans  # as the reader will judge
             if s in plan.empty_scans:
                 keep[a:b] = False
             else:
                 flags = np.zeros(b - a, np.int64)
                 # dirt only in scans the reader accepts (an invalid or bad-GPS scan is skipped whole)
-                if self.dirt_left and b > a and s not in plan.invalid_scans and s not in plan.bad_gps_scans:
+                if self.dirt_left and b > a and accepted:
                     j = int(rng.integers(a, b))
                     flags[j - a] = 0x08
                     fault[j] = FAULT_CODES["dirt"]
                     self.dirt_left -= 1
                     counts["rejected_dirt"] += 1
-                layer = pat["channel"][e["pulse"][a:b]]
-                for k in range(b - a):
-                    x, y, z = v_s[a + k]
-                    points.append(f"P {layer[k]} {e['echo'][a + k]} 0x{flags[k]:02x} {x:.4f} {y:.4f} {z:.4f}")
+                # plain Python numbers: formatting NumPy scalars one by one is several times slower
+                rows = zip(pat["channel"][e["pulse"][a:b]].tolist(), e["echo"][a:b].tolist(), flags.tolist(),
+                           *v_s[a:b].T.tolist(), strict=True)  # fmt: skip
+                points = [P_LINE.format(*row) for row in rows]
                 n_clutter = int(np.sum(plan.clutter_scans == s))
                 for _ in range(n_clutter):  # dust seen by the scanner and flagged by it (not in the truth)
                     rr = rng.uniform(1.0, 8.0)
                     al = np.radians(rng.uniform(-30, 30))
                     points.append(f"P {rng.integers(0, 4)} 0 0x02 {rr * np.cos(al):.4f} {rr * np.sin(al):.4f} 0.0000")
-                if n_clutter and s not in plan.invalid_scans and s not in plan.bad_gps_scans:
+                if n_clutter and accepted:
                     counts["rejected_clutter"] += n_clutter
-            valid_points = (b - a) - (1 if fault[a:b].tolist().count(FAULT_CODES["dirt"]) else 0)
-            accepted = s not in plan.invalid_scans and s not in plan.bad_gps_scans
+            valid_points = (b - a) - int(np.sum(fault[a:b] == FAULT_CODES["dirt"]))
             if accepted and (s in plan.empty_scans or valid_points <= 0):
                 counts["empty_scans"] += 1
             fh.write(f"SCAN {s % 65536}\nUTC {utc}\nSTATUS 0x{status:02X}\nVALID {valid}\n")

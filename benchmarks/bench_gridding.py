@@ -11,12 +11,9 @@ fresh process.  Prints a Markdown table for docs/BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
-import sys
 import time
 
-from _isolated import emit, machine
+from _isolated import emit, machine, run_child
 
 
 def _one(points: float, method: str) -> None:
@@ -52,10 +49,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for points in args.points:
         for method in args.methods:
-            out = subprocess.run(
-                [sys.executable, __file__, "--one", str(points), method], capture_output=True, text=True, check=True
-            )
-            r = json.loads(out.stdout.strip().splitlines()[-1])
+            r = run_child(__file__, str(points), method)
             print(
                 f"| {r['points']:,} | {r['cells']:,} | {method} | {r['seconds']:.1f} | {r['points'] / r['seconds']:,.0f} | {r['peak_mb']:,.0f} |",
                 flush=True,

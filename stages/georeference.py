@@ -177,7 +177,7 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "3"
+    version = "4"
     Params = GeoreferenceParams
     can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
@@ -230,16 +230,16 @@ class Georeference(Stage):
         # extent of the survey in the local frame (platform +- the longest pulse), and the strips that
         # have pulses, numbered 1, 2, ... in time order
         reach = 0.0
-        used = set()
+        pulse_strip = np.empty(n_pulses, np.int32)  # the strip of each pulse, looked up once
         for s in range(0, n_pulses, p.batch_size):
             sl = slice(s, s + p.batch_size)
             r = np.sqrt(pulses["x"][sl] ** 2 + pulses["y"][sl] ** 2 + pulses["z"][sl] ** 2)
             reach = max(reach, float(r.max()))
-            used.update(np.unique(strips_epoch[_nearest(traj["time"], np.asarray(pulses["time"][sl]))]).tolist())
+            pulse_strip[sl] = strips_epoch[_nearest(traj["time"], np.asarray(pulses["time"][sl]))]
+        used = np.unique(pulse_strip)
         renumber = np.zeros(int(strips_epoch.max()) + 1, np.int32)
-        for k, sid in enumerate(sorted(x for x in used if x > 0), 1):
-            renumber[sid] = k
-        strips_epoch = renumber[strips_epoch]
+        renumber[used[used > 0]] = np.arange(1, int(np.sum(used > 0)) + 1)
+        pulse_strip = renumber[pulse_strip]
         reach += float(np.linalg.norm(mounting.lever_arm)) + 1.0
         lo = exact.position.min(axis=0) - reach
         hi = exact.position.max(axis=0) + reach
@@ -288,7 +288,7 @@ class Georeference(Stage):
                 cols = tuple(np.ascontiguousarray(pulses[k][sl], dtype=np.float64) for k in ("x", "y", "z"))
                 xyz, ok = georeference(traj_used, t, cols, mounting, map_columns, max_gap_s=p.max_gap_s,
                                        workers=workers)  # fmt: skip
-                strip = strips_epoch[_nearest(traj["time"], t)]
+                strip = pulse_strip[sl]
                 channel = np.asarray(pulses["channel"][sl])
                 angle = np.asarray(pulses["angle"][sl])
                 n_ret = group_returns(t, channel, angle)

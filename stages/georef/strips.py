@@ -38,16 +38,13 @@ def segment_strips(
     rate = np.degrees(np.abs(np.gradient(h, t)))
     steady = rate < turn_rate_deg_s
     gaps = np.concatenate(([False], np.diff(t) > 2.0))
-    strips = np.zeros(n, np.int32)
-    run_start = None
-    k = 0
-    for i in range(n + 1):
-        inside = i < n and steady[i] and not (gaps[i] and run_start is not None)
-        if inside and run_start is None:
-            run_start = i
-        elif not inside and run_start is not None:
-            if t[i - 1] - t[run_start] >= min_line_s:
-                k += 1
-                strips[run_start:i] = k
-            run_start = i if (i < n and steady[i]) else None
-    return strips
+    # runs of steady epochs, a gap in the trajectory also starting a new run (vectorised: a
+    # trajectory has an epoch every 5 ms, hours of them)
+    before = np.concatenate(([False], steady[:-1]))
+    after = np.concatenate((steady[1:], [False]))
+    first = np.flatnonzero(steady & (~before | gaps))
+    last = np.flatnonzero(steady & (~after | np.concatenate((gaps[1:], [False]))))
+    run = np.cumsum(steady & (~before | gaps)) * steady
+    long_enough = t[last] - t[first] >= min_line_s
+    label = np.concatenate(([0], np.where(long_enough, np.cumsum(long_enough), 0))).astype(np.int32)
+    return label[run]

@@ -206,7 +206,7 @@ class Georeference(Stage):
         from stages.georef.core import Mounting, georeference, georeference_local, locate, prepare_trajectory
         from stages.georef.geodesy import LocalFrame, MapTransform
         from stages.georef.strips import segment_strips
-        from stages.io import read_columns
+        from stages.io import point_header, read_columns
         from stages.readers.las import output_crs
 
         p = ctx.params
@@ -258,10 +258,7 @@ class Georeference(Stage):
             bounds = np.array([ltp.position.min(axis=0) - reach, ltp.position.max(axis=0) + reach])
         ctx.metrics.update(frame=p.frame, crs=crs.name, crs_epsg=crs.to_epsg(), attitude_convention=convention)
 
-        header = laspy.LasHeader(point_format=6, version="1.4")
-        header.offsets = np.floor(bounds.min(axis=0) / 1000.0) * 1000.0
-        header.scales = np.array([1e-4, 1e-4, 1e-4])
-        header.add_crs(crs)
+        header = point_header(crs, bounds.min(axis=0), bounds.max(axis=0))
         header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
         sigmas = _epoch_sigmas(p.uncertainty, traj) if p.uncertainty is not None else None
         if sigmas is not None:

@@ -22,6 +22,28 @@ NODATA = -9999.0
 COG_BLOCKSIZE = 256
 
 
+def point_header(crs, lo=None, hi=None):
+    """The header of every point cloud the pipeline writes: LAS 1.4, point format 6, the CRS as WKT.
+
+    Offsets are *lo* rounded down to whole kilometres; the scale is 0.1 mm —
+    finer than any airborne LiDAR's precision, and int32 holds +-214 km
+    around the offset — and 1 mm, 1 cm, ... for a survey reaching farther
+    (*hi*).  Without bounds (an empty cloud) offsets are 0.
+    """
+    import laspy
+
+    header = laspy.LasHeader(point_format=POINT_FORMAT, version="1.4")
+    scale = 1e-4
+    if lo is not None:
+        header.offsets = np.floor(np.asarray(lo, dtype=np.float64) / 1000.0) * 1000.0
+        reach = float(np.max(np.asarray(hi, dtype=np.float64) - header.offsets))
+        while reach / scale > 2.0e9:
+            scale *= 10.0
+    header.scales = np.array([scale, scale, scale])
+    header.add_crs(crs)
+    return header
+
+
 def read_cloud(path: Path):
     """Read a whole LAS/LAZ file into a :class:`laspy.LasData`."""
     import laspy

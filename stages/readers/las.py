@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputDataError
-from stages.io import POINT_FORMAT
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
@@ -275,20 +274,14 @@ def read_las_files(
 def _build(cols: dict[str, np.ndarray], crs):
     import laspy
 
-    header = laspy.LasHeader(point_format=POINT_FORMAT, version="1.4")
+    from stages.io import point_header
+
     n = len(cols["x"])
-    scale = 1e-4
     if n:
-        mins = np.array([cols["x"].min(), cols["y"].min(), cols["z"].min()])
-        maxs = np.array([cols["x"].max(), cols["y"].max(), cols["z"].max()])
-        header.offsets = np.floor(mins / 1000.0) * 1000.0
-        # 0.1 mm: finer than any airborne LiDAR's precision, and int32 holds
-        # +-214 km around the offset; a wider survey gets 1 mm, 1 cm, ...
-        reach = float(np.max(maxs - header.offsets))
-        while reach / scale > 2.0e9:
-            scale *= 10.0
-    header.scales = np.array([scale, scale, scale])
-    header.add_crs(crs)
+        xyz = np.column_stack((cols["x"], cols["y"], cols["z"]))
+        header = point_header(crs, xyz.min(axis=0), xyz.max(axis=0))
+    else:
+        header = point_header(crs)
     las = laspy.LasData(header)
     las.points = laspy.ScaleAwarePointRecord.zeros(n, header=header)
     las.x, las.y, las.z = cols["x"], cols["y"], cols["z"]

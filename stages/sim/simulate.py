@@ -393,9 +393,9 @@ class _Sinks:
         self.ldmrs = self.lmsq = None
         if "ldmrs_mtig" in cfg.formats:
             (out / "ldmrs").mkdir(exist_ok=True)
-            from stages.sim.writers import open_text
+            from stages.sim.writers import create_text
 
-            self.ldmrs = open_text(out / "ldmrs" / "acquisition.log.gz")
+            self.ldmrs = create_text(out / "ldmrs" / "acquisition.log.gz")
             date = cfg.start_utc[:10]
             self.ldmrs.write(
                 f"# LDMRS-MTIG acquisition log v1\n# date: {date}\n# simulated by pipeline simulate, seed {cfg.seed}\n"
@@ -571,13 +571,15 @@ class _LasSink:
             return
         pts = self.to_map.exact(xyz) if local else xyz
         if self.writer is None:
-            header = laspy.LasHeader(point_format=6, version="1.4")
+            from stages.io import point_header
+
+            # later chunks lie elsewhere in the survey: a kilometre of margin below, and the scale
+            # chosen for 200 km around the first chunk
+            lo = pts.min(axis=0) - np.array([0.0, 0.0, 1000.0])
+            header = point_header(self.crs, lo, pts.max(axis=0))
             if self.extra_fault:
                 header.add_extra_dim(laspy.ExtraBytesParams(name="fault", type=np.uint8,
                                                             description="simulator: why a reader drops it"))  # fmt: skip
-            header.offsets = np.floor(pts.min(axis=0) / 1000.0) * 1000.0 - np.array([0, 0, 1000.0])
-            header.scales = np.array([1e-4, 1e-4, 1e-4])
-            header.add_crs(self.crs)
             header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
             self.writer = laspy.open(self.path, mode="w", header=header, do_compress=True,
                                      laz_backend=laspy.LazBackend.Lazrs)  # fmt: skip

@@ -14,16 +14,15 @@ from stages.readers.nmea import with_checksum
 SECONDS_PER_WEEK = 604_800.0
 
 
-def open_text(path: Path, mode: str = "wt"):
-    """Plain or gzip text by the file's suffix (``.gz``)."""
+def create_text(path: Path):
+    """A new text file to write, gzip by the suffix (``.gz``); reading is ``stages.readers.open_text``."""
     path = Path(path)
     if path.suffix == ".gz":
         # mtime=0: the same content gives the same bytes (reproducible samples)
         import io
 
-        raw = gzip.GzipFile(path, mode.replace("t", "b"), mtime=0)
-        return io.TextIOWrapper(raw, encoding="ascii", newline="\n" if "w" in mode else None)
-    return open(path, mode, encoding="ascii", newline="\n")
+        return io.TextIOWrapper(gzip.GzipFile(path, "wb", mtime=0), encoding="ascii", newline="\n")
+    return open(path, "w", encoding="ascii", newline="\n")
 
 
 def gps_to_utc(gps: float, leap_seconds: float) -> datetime:
@@ -130,7 +129,7 @@ def write_nmea(
     corrupt = corrupt or set()
     k = 0
     last_second = None
-    with open_text(path) as fh:
+    with create_text(path) as fh:
         data = 0  # index among the sentences that may be corrupted (not ZDA)
 
         def put(body: str) -> None:
@@ -165,7 +164,7 @@ def write_nmea(
 def write_ins_csv(path: Path, sow: np.ndarray, roll: np.ndarray, pitch: np.ndarray, heading: np.ndarray) -> None:
     """``gps_sow,roll_deg,pitch_deg,heading_deg`` (NED, heading clockwise from north, 0-360)."""
     table = np.column_stack((sow, roll, pitch, np.mod(heading, 360.0)))
-    with open_text(path) as fh:
+    with create_text(path) as fh:
         fh.write("gps_sow,roll_deg,pitch_deg,heading_deg\n")
         np.savetxt(fh, table, fmt=["%.6f", "%.9f", "%.9f", "%.9f"], delimiter=",")
 

@@ -10,14 +10,25 @@ whose upstream re-ran but produced identical bytes is still a cache hit.
 
 Entries are built in a temporary folder beside their final place and renamed
 into it as a whole, after ``entry.json`` is written: a killed run never leaves
-an entry that a later run would trust.  Nothing here uses pickle: entries are
-plain files and JSON.
+an entry that a later run would trust.  Every output's SHA-256 (and the
+checksum of ``entry.json`` itself) is verified when an entry is read, so an
+entry damaged on disk is recomputed, with a warning, never used.
+
+Runs sharing a cache take an exclusive lock per entry (``.<key>.lock``, POSIX
+``flock``) while they look it up and, on a miss, compute it: a second run of
+the same configuration waits and then reuses the first run's entry instead of
+racing it.  A workspace left behind by a killed run is removed by the next run
+that holds its key's lock.  Nothing here uses pickle: entries are plain files
+and JSON.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -28,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 ENTRY_FILE = "entry.json"
+META_SUM = "entry_sha256"  # checksum of entry.json's other fields
 _CHUNK = 1 << 20
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -104,6 +116,45 @@ def atomic_copy(src: Path, dst: Path) -> None:
         raise
 
 
+@contextlib.contextmanager
+def exclusive_lock(path: Path, on_wait: Any = None):
+    """Hold an exclusive ``flock`` on *path* (created if needed) for the block.
+
+    ``on_wait()`` is called once if another process holds the lock and this
+    one has to wait.  The lock is released by the kernel when its holder dies,
+    so a killed run never leaves a lock behind.  (POSIX only: the pipeline
+    runs on Linux and macOS; ``fcntl`` saves a dependency for these lines.)
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if on_wait is not None:
+                on_wait()
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _is_locked(path: Path) -> bool:
+    """Whether a live process holds the lock file *path*."""
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
 @dataclass
 class Entry:
     """A complete cache entry."""
@@ -121,30 +172,78 @@ class Entry:
 class Cache:
     """The cache folder of one configuration."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, log: logging.Logger | logging.LoggerAdapter | None = None):
         self.root = Path(root)
+        self.log = log or logging.getLogger(__name__)
 
     def entry_folder(self, stage: str, key: str) -> Path:
         return self.root / stage / key
 
-    def lookup(self, stage: str, key: str) -> Entry | None:
-        """The complete entry for *key*, or None (missing or incomplete)."""
+    def lock(self, stage: str, key: str, on_wait: Any = None) -> contextlib.AbstractContextManager:
+        """The exclusive lock of one entry (see :func:`exclusive_lock`)."""
+        return exclusive_lock(self.root / stage / f".{key}.lock", on_wait)
+
+    def lookup(self, stage: str, key: str, verify: bool = True) -> Entry | None:
+        """The complete, undamaged entry for *key*, or None.
+
+        An entry whose ``entry.json`` or any output fails its size or SHA-256
+        check is reported with a warning and treated as missing (the caller
+        recomputes it).  ``verify=False`` checks sizes only.
+        """
         folder = self.entry_folder(stage, key)
+        if not (folder / ENTRY_FILE).exists():
+            return None
         try:
             meta = json.loads((folder / ENTRY_FILE).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return None
-        for out in meta.get("outputs", {}).values():
-            target = folder / out["file"]
-            if not target.exists() or path_size(target) != out["bytes"]:
-                return None
+            expected = meta.pop(META_SUM)
+            outputs = meta["outputs"]
+            files = [(out["file"], out["bytes"], out["sha256"]) for out in outputs.values()]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return self._damaged(stage, key, f"{ENTRY_FILE} is unreadable")
+        if hash_value(meta) != expected:
+            return self._damaged(stage, key, f"{ENTRY_FILE} fails its checksum")
+        for name, size, digest in files:
+            target = folder / name
+            if not target.exists():
+                return self._damaged(stage, key, f"{name} is missing")
+            if path_size(target) != size:
+                return self._damaged(stage, key, f"{name} has {path_size(target)} bytes, not {size}")
+            if verify and hash_path(target) != digest:
+                return self._damaged(stage, key, f"{name} fails its SHA-256 checksum")
         return Entry(folder, meta)
 
-    def new_workspace(self, stage: str) -> Path:
-        """A fresh temporary folder in which a stage writes its outputs."""
+    def _damaged(self, stage: str, key: str, why: str) -> None:
+        self.log.warning("cache entry %s/%s is damaged (%s); it will be recomputed", stage, key[:12], why)
+        return None
+
+    def new_workspace(self, stage: str, key: str = "") -> Path:
+        """A fresh temporary folder in which a stage writes its outputs.
+
+        Workspaces of killed runs (their key's lock is free) are removed.
+        """
         parent = self.root / stage
         parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=".tmp-", dir=parent))
+        self.sweep(stage, key)
+        return Path(tempfile.mkdtemp(prefix=f".tmp-{key}-", dir=parent))
+
+    def sweep(self, stage: str, held: str) -> int:
+        """Remove the workspaces killed runs left in *stage*'s folder.
+
+        A workspace ``.tmp-<key>-*`` is dead when no live process holds its
+        key's lock (a run holds it for as long as it computes the entry); those
+        of *held*, the key whose lock the caller holds, are dead too (a lock
+        held by this process looks taken to ``_is_locked``).  Returns how many
+        were removed.
+        """
+        removed = 0
+        for old in (self.root / stage).glob(".tmp-*"):
+            old_key = old.name[len(".tmp-") :].rsplit("-", 1)[0]
+            if old_key and (old_key == held or not _is_locked(self.root / stage / f".{old_key}.lock")):
+                shutil.rmtree(old, ignore_errors=True)
+                removed += 1
+        if removed:
+            self.log.info("removed %d workspace(s) of killed runs from the cache of %s", removed, stage)
+        return removed
 
     def commit(self, stage: str, key: str, workspace: Path, meta: dict[str, Any]) -> Entry:
         """Record checksums, write ``entry.json`` and move the workspace into place."""
@@ -155,9 +254,11 @@ class Cache:
                 raise FileNotFoundError(f"stage {stage} did not write its output '{artifact}' ({file_name})")
             outputs[artifact] = {"file": file_name, "sha256": hash_path(target), "bytes": path_size(target)}
         meta = {**meta, "outputs": outputs, "key": key, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-        atomic_write_text(workspace / ENTRY_FILE, json.dumps(meta, indent=2, sort_keys=True, default=str))
+        meta = json.loads(json.dumps(meta, default=str))  # the form it will be read back in
+        text = json.dumps({**meta, META_SUM: hash_value(meta)}, indent=2, sort_keys=True)
+        atomic_write_text(workspace / ENTRY_FILE, text)
         final = self.entry_folder(stage, key)
-        existing = self.lookup(stage, key)
+        existing = self.lookup(stage, key, verify=False)
         if existing is not None:
             # Same key, same content: a concurrent run finished first; keep its entry.
             self.discard(workspace)

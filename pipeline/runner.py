@@ -15,6 +15,7 @@ import json
 import logging
 import os
 import platform
+import shutil
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -24,12 +25,42 @@ from typing import Any
 from pydantic import BaseModel
 
 from pipeline import __version__
-from pipeline.cache import Cache, Entry, atomic_copy, atomic_write_text, hash_path, hash_value, path_size
+from pipeline.cache import (
+    Cache,
+    Entry,
+    atomic_copy,
+    atomic_write_text,
+    exclusive_lock,
+    hash_path,
+    hash_value,
+    path_size,
+)
 from pipeline.errors import ConfigError, PipelineError, PlanError
 from pipeline.log import LOGGER_NAME, Progress, stage_logger
 from pipeline.stage import Plugin, Stage, StageIO, get_dotted
 
 MANIFEST = "run.json"
+PRODUCTS_LOCK = ".products.lock"
+
+
+def _inside(folder: Path, name: str) -> Path:
+    """``folder / name``, refusing a name that would leave *folder*."""
+    path = folder / name
+    if not path.resolve().is_relative_to(folder.resolve()):
+        raise PlanError(f"the product name '{name}' would be written outside the output folder {folder}.")
+    return path
+
+
+def _remove_leftovers(folder: Path) -> None:
+    """Remove temporary copies (``.NAME.*.tmp``) left in *folder* by killed runs.
+
+    Called with the products lock held, so no live run is writing them.
+    """
+    for tmp in folder.glob(".*.tmp"):
+        if tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            tmp.unlink(missing_ok=True)
 
 
 @dataclass
@@ -241,7 +272,7 @@ def run(
     log = logging.getLogger(LOGGER_NAME)
     force = set(force)
     plan = build_plan(config, plugin, until, force)
-    cache = Cache(cache_root(config))
+    cache = Cache(cache_root(config), log)
     output = Path(config.output)
     if not dry_run:
         check_writable(output, "output")
@@ -276,13 +307,15 @@ def run(
         manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]
         if dry_run:
             return manifest
-        for step in plan.steps:
-            for artifact, file_name in step.io.products.items():
-                src, digest = artifacts[artifact]
-                dst = output / file_name
-                if not (dst.exists() and path_size(dst) == path_size(src) and hash_path(dst) == digest):
-                    atomic_copy(src, dst)
-                manifest["products"][file_name] = {"sha256": digest, "bytes": path_size(dst)}
+        with exclusive_lock(output / PRODUCTS_LOCK, lambda: log.info("waiting for another run to copy its products")):
+            _remove_leftovers(output)
+            for step in plan.steps:
+                for artifact, file_name in step.io.products.items():
+                    src, digest = artifacts[artifact]
+                    dst = _inside(output, file_name)
+                    if not (dst.exists() and path_size(dst) == path_size(src) and hash_path(dst) == digest):
+                        atomic_copy(src, dst)
+                    manifest["products"][file_name] = {"sha256": digest, "bytes": path_size(dst)}
         manifest["status"] = "ok"
         return manifest
     except PipelineError as exc:
@@ -300,7 +333,8 @@ def run(
             manifest["seconds"] = round(finished - started, 3)
             if not manifest["stages"]:
                 manifest["stages"] = list(records.values())
-            atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
+            with exclusive_lock(output / PRODUCTS_LOCK):
+                atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
             log.info("run %s in %.2f s; manifest %s", manifest["status"], finished - started, output / MANIFEST)
 
 
@@ -339,8 +373,8 @@ def _run_step(
         upstream = {name: r["metrics"] for name, r in records.items()}
     key = _stage_key(step, config, input_hashes, files, upstream)
     record.update(key=key, inputs=input_hashes)
-    entry = None if step.name in force else cache.lookup(step.name, key)
     if dry_run:
+        entry = None if step.name in force else cache.lookup(step.name, key)
         if entry is None:
             unknown.update(step.io.outputs)
             record["status"] = "run"
@@ -349,14 +383,18 @@ def _run_step(
             record["status"] = "cached"
             record["metrics"] = entry.meta.get("metrics", {})
         return record
-    if entry is not None:
-        slog.info("cache hit (key %s)", key[:12])
-        record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
-    else:
-        entry = _execute(
-            step, config, cache, key, {n: artifacts[r][0] for n, r in resolved.items()}, input_hashes, slog, upstream
-        )
-        record.update(status="ran", seconds=entry.meta["seconds"])
+    # One run at a time computes an entry; a concurrent run of the same
+    # configuration waits here and then finds the entry complete.
+    with cache.lock(step.name, key, lambda: slog.info("another run is computing this stage; waiting for it")):
+        entry = None if step.name in force else cache.lookup(step.name, key)
+        if entry is not None:
+            cache.sweep(step.name, key)
+            slog.info("cache hit (key %s)", key[:12])
+            record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
+        else:
+            inputs = {n: artifacts[r][0] for n, r in resolved.items()}
+            entry = _execute(step, config, cache, key, inputs, input_hashes, slog, upstream)
+            record.update(status="ran", seconds=entry.meta["seconds"])
     _remember(entry, step, artifacts)
     record["outputs"] = {
         a: {"file": str(entry.output_path(a)), "sha256": o["sha256"], "bytes": o["bytes"]}
@@ -381,7 +419,7 @@ def _execute(
     slog: logging.LoggerAdapter,
     upstream: dict[str, dict[str, Any]] | None = None,
 ) -> Entry:
-    workspace = cache.new_workspace(step.name)
+    workspace = cache.new_workspace(step.name, key)
     ctx = StageContext(
         name=step.name,
         params=step.params,

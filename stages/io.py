@@ -155,11 +155,17 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
     """Write 2D line strings with an ``elevation`` attribute to a GeoPackage.
 
     Geometries are encoded as WKB here (a LineString is a byte-order flag,
-    type 2, a point count and the coordinates) and written by pyogrio.
+    type 2, a point count and the coordinates) and written by pyogrio.  The
+    GeoPackage's ``last_change`` timestamps are fixed (GDAL's
+    ``OGR_CURRENT_DATE``) so the same lines give the same bytes on every run:
+    products are compared and cached by checksum.
     """
     import struct
 
+    import pyogrio
     import pyogrio.raw
+
+    pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
 
     wkb = np.empty(len(lines), dtype=object)
     for i, (_, xy) in enumerate(lines):

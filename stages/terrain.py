@@ -53,7 +53,7 @@ class ContoursParams(StageParams):
 
 class Contours(Stage):
     name = "contours"
-    version = "1"
+    version = "2"  # 2: reproducible GeoPackage bytes
     Params = ContoursParams
     description = "contour lines of the DTM (GeoPackage)"
     inputs = ("dtm",)

@@ -149,7 +149,8 @@ def test_failing_stage_leaves_no_cache_entry_and_a_failed_manifest(toy, capsys):
     manifest = toy.manifest()
     assert manifest["status"] == "failed"
     cache = toy.root / "out" / ".cache" / "scale"
-    assert not [p for p in cache.iterdir()]  # no entry, no leftover workspace
+    # no entry, no leftover workspace (only the entry's lock file, kept on purpose)
+    assert not [p for p in cache.iterdir() if p.suffix != ".lock"]
     assert not (toy.root / "out" / "total.json").exists()
 
 
@@ -269,3 +270,37 @@ def test_full_disk_is_reported_in_one_sentence(toy, capsys, monkeypatch):
     assert "the disk is full while writing numbers.json" in capsys.readouterr().err
     # nothing half-written: no cache entry for the stage
     assert not list((toy.root / "out" / ".cache" / "load").glob("*/entry.json"))
+
+
+def test_tampered_entry_json_is_recomputed(toy, capsys):
+    assert toy.run() == 0
+    entry = next((toy.root / "out" / ".cache" / "load").glob("*/entry.json"))
+    entry.write_text(entry.read_text().replace('"count": 4', '"count": 5'))  # valid JSON, wrong content
+    capsys.readouterr()
+    assert toy.run() == 0
+    assert toy.statuses()["load"] == "ran"
+    assert "entry.json fails its checksum" in capsys.readouterr().err
+    load = next(s for s in toy.manifest()["stages"] if s["name"] == "load")
+    assert load["metrics"] == {"count": 4}
+
+
+def test_workspace_of_a_killed_run_is_removed_but_a_live_one_is_kept(tmp_path):
+    import fcntl
+    import os
+
+    dead, live = tmp_path / "s" / ".tmp-k1-abc", tmp_path / "s" / ".tmp-k2-def"
+    dead.mkdir(parents=True)
+    live.mkdir()
+    fd = os.open(tmp_path / "s" / ".k2.lock", os.O_RDWR | os.O_CREAT)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # as a live run computing k2 would
+        import subprocess
+        import sys
+
+        # Another process sweeps: it must see k2's lock as taken.
+        code = f"from pipeline.cache import Cache; print(Cache({str(tmp_path)!r}).sweep('s', 'k3'))"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    finally:
+        os.close(fd)
+    assert out.strip() == "1"
+    assert not dead.exists() and live.exists()

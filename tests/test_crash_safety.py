@@ -1,0 +1,218 @@
+"""Crash safety, damaged cache entries and concurrent runs, on the real stages.
+
+A run is killed with SIGKILL (no clean-up handler runs) at several points of
+every stage of the LAS job: when the stage starts, when it has written its
+outputs but not yet committed them, and inside the commit (``entry.json``
+written, the rename not yet done); then once while products are being copied.
+Each killed run is a child process with one function patched to kill it; the
+stages themselves are unchanged.  After each kill the cache must hold no
+entry for the killed stage; the final re-run must finish, reuse the entries
+of the stages that completed, and write products byte-identical to an
+uninterrupted run's.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+
+from pipeline.cli import main
+from stages import plugin
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow
+
+# Products whose bytes legitimately depend on where and when a run happened.
+VARIABLE = {"report.html"}
+
+
+@pytest.fixture(scope="module")
+def small_job(tmp_path_factory):
+    """A 120 m x 120 m cut of the LAS sample with its check points and a config."""
+    root = tmp_path_factory.mktemp("crash")
+    las = laspy.read(ROOT / "data_samples" / "las" / "sample.laz")
+    x0, y0 = las.header.mins[:2] + 150.0
+    keep = (las.x >= x0) & (las.x < x0 + 120) & (las.y >= y0) & (las.y < y0 + 120)
+    small = laspy.LasData(las.header)
+    small.points = las.points[np.flatnonzero(keep)].copy()
+    small.write(str(root / "small.laz"))
+    lines = (ROOT / "data_samples" / "las" / "checkpoints.csv").read_text().splitlines()
+    rows = [r for r in lines[2:] if x0 <= float(r.split(",")[1]) < x0 + 120 and y0 <= float(r.split(",")[2]) < y0 + 120]
+    assert rows, "the cut must hold check points"
+    (root / "cp.csv").write_text("\n".join(lines[:2] + rows) + "\n")
+    config = (ROOT / "configs" / "las.yaml").read_text()
+    config = config.replace("../data_samples/las/sample.laz", "small.laz").replace(
+        "../data_samples/las/checkpoints.csv", "cp.csv"
+    )
+    (root / "job.yaml").write_text(config)
+    return root
+
+
+def _args(root: Path, tag: str) -> list[str]:
+    return [
+        "run",
+        str(root / "job.yaml"),
+        "-q",
+        "--set",
+        f"output={root / tag / 'out'}",
+        "--set",
+        f"cache={root / tag / 'cache'}",
+    ]
+
+
+def _products(root: Path, tag: str) -> dict[str, str]:
+    manifest = json.loads((root / tag / "out" / "run.json").read_text())
+    assert manifest["status"] == "ok"
+    return {name: p["sha256"] for name, p in manifest["products"].items() if name not in VARIABLE}
+
+
+def _die() -> None:
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _killed_child(args: list[str], stage: str, point: str) -> None:
+    """Run the pipeline and SIGKILL this process at *point* of *stage*."""
+    import pipeline.cache as cachemod
+    import pipeline.runner as runnermod
+
+    if point == "products":
+
+        def copy_then_die(src, dst):
+            shutil.copyfile(src, Path(dst).parent / f".{Path(dst).name}.half.tmp")
+            _die()
+
+        runnermod.atomic_copy = copy_then_die
+    else:
+        cls = next(c for c in plugin.stages if c.name == stage)
+        original = cls.run
+        if point == "start":
+            cls.run = lambda self, ctx: _die()
+        elif point == "written":
+
+            def run_then_die(self, ctx):
+                original(self, ctx)
+                _die()
+
+            cls.run = run_then_die
+        elif point == "commit":
+            replace = os.replace
+
+            def replace_or_die(src, dst):
+                if Path(src).name.startswith(".tmp-") and Path(dst).parent.name == stage:
+                    assert (Path(src) / "entry.json").exists()
+                    _die()
+                replace(src, dst)
+
+            cachemod.os.replace = replace_or_die  # os is shared: this child only
+    sys.exit(main(args))
+
+
+def _kill(args: list[str], stage: str, point: str) -> int:
+    # spawn, not fork: a forked child would inherit the parent's dead thread pools.
+    proc = multiprocessing.get_context("spawn").Process(target=_killed_child, args=(args, stage, point))
+    proc.start()
+    proc.join(300)
+    if proc.exitcode is None:
+        proc.kill()
+    return proc.exitcode
+
+
+def _complete_entries(cache: Path, stage: str) -> list[Path]:
+    folder = cache / stage
+    return (
+        [d for d in folder.iterdir() if not d.name.startswith(".") and (d / "entry.json").exists()]
+        if folder.exists()
+        else []
+    )
+
+
+def test_sigkill_inside_every_stage_then_rerun_equals_uninterrupted(small_job):
+    root = small_job
+    assert main(_args(root, "reference")) == 0
+    reference = _products(root, "reference")
+    ran = [
+        s["name"]
+        for s in json.loads((root / "reference" / "out" / "run.json").read_text())["stages"]
+        if s["status"] == "ran"
+    ]
+    assert len(ran) >= 8, ran
+    args = _args(root, "killed")
+    cache = root / "killed" / "cache"
+    kills = 0
+    for stage in ran:
+        for point in ("start", "written", "commit"):
+            assert _kill(args, stage, point) == -signal.SIGKILL, (stage, point)
+            kills += 1
+            assert _complete_entries(cache, stage) == [], f"{stage}/{point}: an entry of a killed stage is trusted"
+            if point != "start":  # the kill left a workspace behind, as a real crash would
+                assert list((cache / stage).glob(".tmp-*")), (stage, point)
+    assert _kill(args, "", "products") == -signal.SIGKILL
+    assert list((root / "killed" / "out").glob(".*.tmp")), "the products kill left a partial copy"
+    assert main(args) == 0
+    manifest = json.loads((root / "killed" / "out" / "run.json").read_text())
+    # Every stage had completed before the products kill: all are reused.
+    assert {s["status"] for s in manifest["stages"] if s["name"] in ran} == {"cached"}
+    assert _products(root, "killed") == reference
+    # Leftovers of the killed runs are cleaned up by the runs that followed.
+    assert not list((root / "killed" / "out").glob(".*.tmp"))
+    assert not [p for p in cache.rglob(".tmp-*")]
+    assert kills == 3 * len(ran)
+
+
+def test_damaged_cache_entry_is_recomputed_with_a_warning(small_job, capsys):
+    root = small_job
+    args = _args(root, "damaged")
+    assert main(args) == 0
+    before = _products(root, "damaged")
+    manifest = json.loads((root / "damaged" / "out" / "run.json").read_text())
+    ground = next(s for s in manifest["stages"] if s["name"] == "classify_ground")
+    path = Path(next(iter(ground["outputs"].values()))["file"])
+    blob = bytearray(path.read_bytes())
+    blob[len(blob) // 2] ^= 0x40  # same size: only the checksum can tell
+    path.write_bytes(bytes(blob))
+    capsys.readouterr()
+    assert main(args) == 0
+    statuses = {
+        s["name"]: s["status"] for s in json.loads((root / "damaged" / "out" / "run.json").read_text())["stages"]
+    }
+    assert statuses["classify_ground"] == "ran" and statuses["parse"] == "cached"
+    err = capsys.readouterr().err
+    assert "cache entry classify_ground/" in err and "fails its SHA-256 checksum" in err
+    assert _products(root, "damaged") == before
+
+
+def test_two_concurrent_runs_on_one_cache_both_succeed_identically(small_job):
+    root = small_job
+    shared_cache = root / "concurrent" / "cache"
+    procs = []
+    for tag in ("a", "b"):
+        cmd = [sys.executable, "-m", "pipeline", *_args(root, f"concurrent/{tag}")]
+        cmd[cmd.index(f"cache={root / 'concurrent' / tag / 'cache'}")] = f"cache={shared_cache}"
+        procs.append(subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    results = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], results
+    a, b = _products(root, "concurrent/a"), _products(root, "concurrent/b")
+    assert a == b
+    # Each entry was computed once: whatever one run computed, the other reused.
+    stages = [
+        {
+            s["name"]: s["status"]
+            for s in json.loads((root / "concurrent" / t / "out" / "run.json").read_text())["stages"]
+        }
+        for t in ("a", "b")
+    ]
+    for name, status in stages[0].items():
+        if status in ("ran", "cached"):
+            assert {status, stages[1][name]} == {"ran", "cached"}, (name, status, stages[1][name])
+    for stage_dir in shared_cache.iterdir():
+        assert len(_complete_entries(shared_cache, stage_dir.name)) == 1

@@ -11,7 +11,9 @@ is a pure function on coordinates returning a ground mask:
   ``cloth-simulation-filter`` package, :func:`stages.ground.csf.csf`.
 
 Points already classified as noise (7, 18) or flagged withheld keep their
-class and are not given to the algorithm.  With ``last_returns`` (default),
+class and are not given to the algorithm; so do points the input classified
+as water (9), with ``keep_water`` (default): a water surface is not bare
+earth (hydro-flattening is left to breaklines).  With ``last_returns`` (default),
 only last (or single) returns may become ground: first and intermediate
 returns of a multi-return pulse hit something above the ground.  Why SMRF is
 the default, and how each algorithm scores: docs/GROUND.md.
@@ -73,6 +75,7 @@ class ClassifyGroundParams(StageParams):
         default_factory=lambda: SmrfParams(name="smrf"), description="the ground algorithm and its parameters"
     )
     last_returns: bool = Field(True, description="only last or single returns can be ground")
+    keep_water: bool = Field(True, description="points the input classified as water (9) keep it; never ground")
 
 
 def ground_mask(points: np.ndarray, algorithm: StrictModel) -> np.ndarray:
@@ -101,9 +104,10 @@ def classify(
     withheld: np.ndarray,
     params: ClassifyGroundParams,
 ) -> np.ndarray:
-    """New classes: 2 ground, 1 other; noise (7, 18) and withheld points unchanged."""
+    """New classes: 2 ground, 1 other; noise (7, 18), withheld and (``keep_water``) water (9) points unchanged."""
     cls = np.asarray(classification).copy()
-    keep = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.asarray(withheld, dtype=bool)
+    kept_classes = (glossary.LOW_NOISE, glossary.HIGH_NOISE) + ((glossary.WATER,) if params.keep_water else ())
+    keep = np.isin(cls, kept_classes) | np.asarray(withheld, dtype=bool)
     candidates = ~keep
     if params.last_returns:
         candidates &= np.asarray(return_number) >= np.asarray(number_of_returns)
@@ -117,7 +121,7 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "2"
+    version = "3"  # 3: keep_water
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)

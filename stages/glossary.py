@@ -17,6 +17,7 @@ from pydantic import Field
 UNCLASSIFIED = 1
 GROUND = 2
 LOW_NOISE = 7
+WATER = 9
 HIGH_NOISE = 18
 
 

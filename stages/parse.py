@@ -272,7 +272,8 @@ class Parse(Stage):
             trajectory, extra = _sbet_trajectory(p, week, nav_counters)
         if len(trajectory["time"]) < 2:
             where = nav_counters.locations[0] if nav_counters.locations else "no epoch with position and attitude"
-            raise InputDataError(f"the navigation files give fewer than two usable epochs (first problem: {where}).")
+            files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)))
+            raise InputDataError(f"{files}: fewer than two usable navigation epochs (first problem: {where}).")
         conventions = {"format": p.format, "time": "GPS seconds since 1980-01-06", "gps_week": week}
         traj_meta = {
             **conventions,
@@ -453,6 +454,9 @@ def _sbet_trajectory(p, week: int, counters) -> tuple[dict[str, np.ndarray], dic
     if p.smrmsg is not None:
         sm = read_smrmsg(p.smrmsg, week, counters)
         extra["smrmsg_epochs"] = len(sm["time"])
+        if not len(sm["time"]):
+            where = counters.locations[0] if counters.locations else f"{p.smrmsg.stat().st_size} bytes"
+            raise InputDataError(f"{p.smrmsg}: no usable smrmsg record ({where}); fix the file or remove input.smrmsg.")
         if len(sm["time"]):
             for src, dst in (("sigma_north_m", "sigma_north_m"), ("sigma_east_m", "sigma_east_m"),
                              ("sigma_down_m", "sigma_up_m"), ("sigma_roll_deg", "sigma_roll_deg"),

@@ -93,9 +93,11 @@ class Rasterize(Stage):
         cls = np.asarray(las.classification)
         ground = pts[cls == glossary.GROUND]
         if len(ground) < 3:
+            values, counts = np.unique(cls, return_counts=True)
+            classes = ", ".join(f"class {v}: {c:,}" for v, c in zip(values, counts, strict=True))
             raise InputDataError(
-                f"only {len(ground)} ground points (class 2): a DTM needs at least 3; "
-                "check the ground classification or enable classify_ground."
+                f"only {len(ground)} ground points (class 2) among {len(pts):,} points ({classes}): a DTM needs "
+                "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
             )
         usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.asarray(las.withheld, dtype=bool)
         lo, hi = pts.min(axis=0), pts.max(axis=0)

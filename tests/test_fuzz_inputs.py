@@ -4,6 +4,7 @@ exception (a traceback for the user)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,12 @@ from stages.readers.las import read_las_files
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_CONFIG = (ROOT / "configs" / "las.yaml").read_text()
-FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# Examples per test: the suite's defaults, times FUZZ_SCALE for a longer
+# campaign (FUZZ_SCALE=20 pytest tests/test_fuzz_inputs.py).
+SCALE = float(os.environ.get("FUZZ_SCALE", "1"))
+FUZZ = settings(
+    max_examples=int(150 * SCALE), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 @FUZZ
@@ -71,7 +77,7 @@ def small_laz(tmp_path_factory):
     return path.read_bytes()
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=int(60 * SCALE), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
     blob = bytearray(small_laz)
@@ -155,7 +161,9 @@ def _damage(data, blob: bytes) -> bytes:
     return bytes(out)
 
 
-RAW_FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+RAW_FUZZ = settings(
+    max_examples=int(60 * SCALE), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 @RAW_FUZZ

@@ -45,7 +45,8 @@ def contour_lines(
     Returns
     -------
     list of (elevation, (m, 2) array of map x, y)
-        One entry per line; lines stop at nodata cells.
+        One entry per line; lines stop at nodata cells.  A DEM less than
+        two cells wide or high has no contour lines.
 
     Notes
     -----
@@ -57,7 +58,7 @@ def contour_lines(
 
     z = np.asarray(dem, dtype=np.float64)
     mask = ~np.isfinite(z) if nodata_mask is None else (nodata_mask | ~np.isfinite(z))
-    if mask.all():
+    if mask.all() or min(z.shape) < 2:  # marching squares needs a 2 x 2 block of cells
         return []
     rows, cols = z.shape
     xs = transform.c + (np.arange(cols) + 0.5) * transform.a

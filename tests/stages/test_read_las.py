@@ -119,7 +119,9 @@ def test_damaged_scale_is_refused_with_the_file_name(tmp_path):
 
 
 def test_headers_announcing_impossible_sizes_are_refused_before_allocating(tmp_path):
-    path = _write(tmp_path / "ok.las", np.array([1.0, 2.0]), np.array([1.0, 2.0]), np.zeros(2), crs="EPSG:25830")
+    path = _write(
+        tmp_path / "ok.las", np.array([1.0, 2.0]), np.array([1.0, 2.0]), np.zeros(2), crs="EPSG:25830", version="1.4"
+    )
     blob = bytearray(path.read_bytes())
     huge = bytearray(blob)
     huge[107:111] = (4_000_000_000).to_bytes(4, "little")  # legacy point count
@@ -131,3 +133,14 @@ def test_headers_announcing_impossible_sizes_are_refused_before_allocating(tmp_p
     (tmp_path / "vlrs.las").write_bytes(bytes(vlrs))
     with pytest.raises(InputDataError, match=r"vlrs.las, byte 100: the header announces 3,000,000,000 VLRs"):
         read_las_files([tmp_path / "vlrs.las"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    assert blob[24:26] == b"\x01\x04"  # LAS 1.4: the 64-bit point count at byte 247
+    trillion = bytearray(blob)
+    trillion[247:255] = (10**12).to_bytes(8, "little")
+    (tmp_path / "trillion.las").write_bytes(bytes(trillion))
+    import tracemalloc
+
+    tracemalloc.start()
+    with pytest.raises(InputDataError, match=r"trillion.las, byte 107: the header announces 1,000,000,000,000 points"):
+        read_las_files([tmp_path / "trillion.las"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    assert tracemalloc.get_traced_memory()[1] < 50e6  # nothing near 10^12 points was allocated
+    tracemalloc.stop()

@@ -183,37 +183,44 @@ class Cache:
         """The exclusive lock of one entry (see :func:`exclusive_lock`)."""
         return exclusive_lock(self.root / stage / f".{key}.lock", on_wait)
 
-    def lookup(self, stage: str, key: str, verify: bool = True) -> Entry | None:
+    def lookup(self, stage: str, key: str, verify: bool = True, warn: bool = True) -> Entry | None:
         """The complete, undamaged entry for *key*, or None.
 
         An entry whose ``entry.json`` or any output fails its size or SHA-256
-        check is reported with a warning and treated as missing (the caller
-        recomputes it).  ``verify=False`` checks sizes only.
+        check is reported with a warning (unless ``warn`` is False) and
+        treated as missing (the caller recomputes it).  ``verify=False``
+        checks sizes only.  An entry written before entries carried their own
+        checksum is recomputed with a note, not a warning.
         """
         folder = self.entry_folder(stage, key)
         if not (folder / ENTRY_FILE).exists():
             return None
         try:
             meta = json.loads((folder / ENTRY_FILE).read_text(encoding="utf-8"))
+            if isinstance(meta, dict) and "outputs" in meta and META_SUM not in meta:
+                if warn:
+                    self.log.info("cache entry %s/%s predates entry checksums; recomputing it", stage, key[:12])
+                return None
             expected = meta.pop(META_SUM)
             outputs = meta["outputs"]
             files = [(out["file"], out["bytes"], out["sha256"]) for out in outputs.values()]
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            return self._damaged(stage, key, f"{ENTRY_FILE} is unreadable")
+            return self._damaged(stage, key, f"{ENTRY_FILE} is unreadable", warn)
         if hash_value(meta) != expected:
-            return self._damaged(stage, key, f"{ENTRY_FILE} fails its checksum")
+            return self._damaged(stage, key, f"{ENTRY_FILE} fails its checksum", warn)
         for name, size, digest in files:
             target = folder / name
             if not target.exists():
-                return self._damaged(stage, key, f"{name} is missing")
+                return self._damaged(stage, key, f"{name} is missing", warn)
             if path_size(target) != size:
-                return self._damaged(stage, key, f"{name} has {path_size(target)} bytes, not {size}")
+                return self._damaged(stage, key, f"{name} has {path_size(target)} bytes, not {size}", warn)
             if verify and hash_path(target) != digest:
-                return self._damaged(stage, key, f"{name} fails its SHA-256 checksum")
+                return self._damaged(stage, key, f"{name} fails its SHA-256 checksum", warn)
         return Entry(folder, meta)
 
-    def _damaged(self, stage: str, key: str, why: str) -> None:
-        self.log.warning("cache entry %s/%s is damaged (%s); it will be recomputed", stage, key[:12], why)
+    def _damaged(self, stage: str, key: str, why: str, warn: bool) -> None:
+        if warn:
+            self.log.warning("cache entry %s/%s is damaged (%s); it will be recomputed", stage, key[:12], why)
         return None
 
     def new_workspace(self, stage: str, key: str = "") -> Path:
@@ -258,7 +265,7 @@ class Cache:
         text = json.dumps({**meta, META_SUM: hash_value(meta)}, indent=2, sort_keys=True)
         atomic_write_text(workspace / ENTRY_FILE, text)
         final = self.entry_folder(stage, key)
-        existing = self.lookup(stage, key, verify=False)
+        existing = self.lookup(stage, key, verify=False, warn=False)
         if existing is not None:
             # Same key, same content: a concurrent run finished first; keep its entry.
             self.discard(workspace)

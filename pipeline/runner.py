@@ -274,6 +274,9 @@ def run(
     plan = build_plan(config, plugin, until, force)
     cache = Cache(cache_root(config), log)
     output = Path(config.output)
+    for step in plan.steps:  # before anything runs: every product lands inside the output folder
+        for file_name in step.io.products.values():
+            _inside(output, file_name)
     if not dry_run:
         check_writable(output, "output")
         check_writable(cache.root, "cache")

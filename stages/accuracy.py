@@ -7,8 +7,9 @@ the absolute errors in vegetated land cover.  Errors are DTM - reference.
 
 Check points: a CSV file with a header, comma-separated, ``#`` starts a
 comment; columns ``x``, ``y``, ``z`` (or ``easting``, ``northing``,
-``elevation``), in the DTM's CRS and height system, metres; optionally a
-land-cover column (default name ``land_cover``).  The DTM is interpolated
+``elevation``), in the DTM's CRS, height system and units (feet for a CRS in
+feet: :mod:`stages.units`); optionally a land-cover column (default name
+``land_cover``).  Errors are reported in metres whatever the CRS.  The DTM is interpolated
 bilinearly at each check point; points outside the DTM or on nodata cells
 are counted and left out.
 
@@ -178,7 +179,12 @@ class Accuracy(Stage):
 
         p = ctx.params
         points, cover = read_checkpoints(p.checkpoints, p.land_cover_column)
-        errors = sample_dtm(ctx.inputs["dtm"], points[:, :2]) - points[:, 2]
+        from stages.io import read_raster
+        from stages.units import raster_units
+
+        units = raster_units(read_raster(ctx.inputs["dtm"])[2])
+        # the DTM and the check points are in the CRS's units; errors are reported in metres
+        errors = (sample_dtm(ctx.inputs["dtm"], points[:, :2]) - points[:, 2]) * units.vertical
         result = vertical_accuracy(errors, cover, p.vegetated)
         ctx.metrics.update(result)
         ctx.outputs["accuracy"].write_text(json.dumps(result, indent=2))

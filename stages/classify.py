@@ -29,7 +29,7 @@ from pydantic import Field
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.io import read_cloud, write_cloud, xyz
+from stages.io import read_cloud, write_cloud, xyz_metres
 
 
 class SmrfParams(StrictModel):
@@ -130,7 +130,8 @@ class ClassifyGround(Stage):
 
     def run(self, ctx) -> None:
         las = read_cloud(ctx.inputs["points_denoised"])
-        cls = classify(xyz(las), las.classification, las.return_number, las.number_of_returns, las.withheld, ctx.params)
+        points, _ = xyz_metres(las)  # the parameters are in metres, whatever the CRS
+        cls = classify(points, las.classification, las.return_number, las.number_of_returns, las.withheld, ctx.params)
         las.classification = cls
         n = len(cls)
         ground = int((cls == glossary.GROUND).sum())

@@ -16,7 +16,7 @@ from pydantic import Field
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.io import read_cloud, write_cloud, xyz
+from stages.io import read_cloud, write_cloud, xyz_metres
 from stages.noise import isolated_points, low_outliers
 
 
@@ -79,7 +79,7 @@ class Denoise(Stage):
         cls = np.asarray(las.classification).copy()
         done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.asarray(las.withheld, dtype=bool)
         found = np.zeros(len(cls), dtype=np.uint8)
-        found[~done] = noise_classes(xyz(las)[~done], ctx.params)
+        found[~done] = noise_classes(xyz_metres(las)[0][~done], ctx.params)  # parameters are in metres
         cls[found > 0] = found[found > 0]
         las.classification = cls
         ctx.metrics.update(

@@ -177,7 +177,7 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "4"
+    version = "5"  # 5: heights in the units of a 2-D CRS; units in the metrics
     Params = GeoreferenceParams
     can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
@@ -256,7 +256,11 @@ class Georeference(Stage):
             crs = ltp_crs(lat0, lon0, p.ltp_radius_m)
             traj_used, map_columns = ltp, (lambda e, n, u: (e, n, u))
             bounds = np.array([ltp.position.min(axis=0) - reach, ltp.position.max(axis=0) + reach])
-        ctx.metrics.update(frame=p.frame, crs=crs.name, crs_epsg=crs.to_epsg(), attitude_convention=convention)
+        from stages.units import Units
+
+        ctx.metrics.update(frame=p.frame, crs=crs.name, crs_epsg=crs.to_epsg(), attitude_convention=convention,
+                           units=Units.of(crs).describe())  # fmt: skip
+        ctx.log.info("output CRS %s: %s", crs.name, ctx.metrics["units"])
 
         header = point_header(crs, bounds.min(axis=0), bounds.max(axis=0))
         header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD

@@ -2,9 +2,9 @@
 
 A parameter that means the same thing in two stages has the same name, unit
 and description in both; it is defined here once.  Linear quantities are in
-the linear unit of the output CRS (metres: the pipeline refuses CRSs in other
-units for now, so "metres" is exact).  The table in docs/GLOSSARY.md lists
-them with their defaults.
+metres whatever the unit of the output CRS: stages convert coordinates to
+metres before using them (:mod:`stages.units`).  docs/CONFIG.md lists them
+with their defaults.
 """
 
 from __future__ import annotations

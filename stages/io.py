@@ -65,6 +65,19 @@ def xyz(las) -> np.ndarray:
     return np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))
 
 
+def cloud_units(las):
+    """The :class:`stages.units.Units` of a LasData's CRS (metres when it has none)."""
+    from stages.units import Units
+
+    return Units.of(cloud_crs(las))
+
+
+def xyz_metres(las) -> tuple[np.ndarray, object]:
+    """The coordinates in metres (see :mod:`stages.units`) and the cloud's units."""
+    units = cloud_units(las)
+    return units.to_metres(xyz(las)), units
+
+
 def cloud_crs(las):
     """The pyproj CRS of a LasData, or None when its header has none."""
     try:

@@ -137,7 +137,7 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "3"
+    version = "4"  # 4: units in the metrics
     Params = InputConfig
     config_path = "input"
     can_disable = False
@@ -365,7 +365,10 @@ class Parse(Stage):
             crs_source=report.crs_source,
             strips=[int(s) for s in np.unique(np.asarray(las.point_source_id))],
         )
-        ctx.log.info("%d points in %s", ctx.metrics["points_read"], crs.name)
+        from stages.units import Units
+
+        ctx.metrics.update(units=Units.of(crs).describe())
+        ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
         write_cloud(las, ctx.outputs["points_georef"])
 
 

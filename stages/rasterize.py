@@ -18,7 +18,9 @@
 
 The grid covers all points of the survey, cell-aligned to multiples of
 ``resolution``.  All rasters are Cloud Optimized GeoTIFF, float32, with the
-nodata value -9999.
+nodata value -9999.  Parameters are in metres; the rasters are in the CRS's
+units (cells and height values: a 1 m grid of a survey in US survey feet has
+cells of 3.2808 ftUS and heights in ftUS; :mod:`stages.units`).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from pipeline.stage import Stage, StageParams
 from stages import glossary
 from stages.grid.interpolate import Grid, cell_count, cell_max, cell_mean, idw, nearest, tin
 from stages.ground.surface import fill_nearest
-from stages.io import NODATA, read_cloud, write_cog, xyz
+from stages.io import NODATA, read_cloud, write_cog, xyz_metres
 
 
 class IdwParams(StrictModel):
@@ -67,7 +69,7 @@ def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, pro
 
 class Rasterize(Stage):
     name = "rasterize"
-    version = "3"
+    version = "4"  # 4: units in the metrics
     Params = RasterizeParams
     description = "DTM, DSM, nDSM and density rasters"
     inputs = ("points_classified",)
@@ -87,7 +89,7 @@ class Rasterize(Stage):
         p = ctx.params
         las = read_cloud(ctx.inputs["points_classified"])
         crs = las.header.parse_crs()
-        pts = xyz(las)
+        pts, units = xyz_metres(las)  # gridded in metres (resolution, nodata_distance); written in CRS units
         if len(pts) == 0:
             raise InputDataError("the point cloud is empty: there is nothing to grid.")
         cls = np.asarray(las.classification)
@@ -109,26 +111,30 @@ class Rasterize(Stage):
         dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
         ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
         density = cell_count(pts[usable], grid).astype(np.float64)
+        transform = units.transform_from_metres(grid.transform)
+        dtm, dsm, ndsm = dtm / units.vertical, dsm / units.vertical, ndsm / units.vertical
         for name, array in (("dtm", dtm), ("dsm", dsm), ("ndsm", ndsm)):
-            write_cog(ctx.outputs[name], np.where(np.isnan(array), NODATA, array), transform=grid.transform, crs=crs)
-        write_cog(ctx.outputs["density"], density, transform=grid.transform, crs=crs)
+            write_cog(ctx.outputs[name], np.where(np.isnan(array), NODATA, array), transform=transform, crs=crs)
+        write_cog(ctx.outputs["density"], density, transform=transform, crs=crs)
         if "dtm_uncertainty" in ctx.outputs:
             if "sigma_vertical" not in las.point_format.dimension_names:
                 raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
             sv = np.asarray(las["sigma_vertical"], dtype=np.float64)[cls == glossary.GROUND]
             unc = fill_nearest(cell_mean(ground, sv, grid), max_cells=p.nodata_distance / p.resolution)
             unc = np.where(np.isnan(dtm), np.nan, unc)
-            write_cog(
-                ctx.outputs["dtm_uncertainty"], np.where(np.isnan(unc), NODATA, unc), transform=grid.transform, crs=crs
-            )
             ctx.metrics.update(dtm_sigma_median_m=float(np.nanmedian(unc)) if np.isfinite(unc).any() else None)
+            unc = unc / units.vertical
+            write_cog(
+                ctx.outputs["dtm_uncertainty"], np.where(np.isnan(unc), NODATA, unc), transform=transform, crs=crs
+            )
         empty = int(np.isnan(dtm).sum())
         ctx.metrics.update(
             method=p.method,
             resolution=p.resolution,
             cols=grid.cols,
             rows=grid.rows,
-            origin=[grid.xmin, grid.ymax],
+            origin=[transform.c, transform.f],
+            units=units.describe(),
             ground_points=int(len(ground)),
             nodata_cells=empty,
             nodata_fraction=round(empty / dtm.size, 4),

@@ -128,7 +128,10 @@ def build_report(
     grid = metrics.get("rasterize", {})
     accuracy = metrics.get("accuracy")
     adjust = metrics.get("strip_adjust")
-    relief, lo, hi = relief_image(dtm, resolution, max_size)
+    from stages.units import Units
+
+    units = Units.of(las.header.parse_crs())
+    relief, lo, hi = relief_image(dtm * units.vertical, resolution * units.horizontal, max_size)
     dens = _thin(density, max_size)
     dmax = float(np.nanpercentile(dens, 99)) if np.isfinite(dens).any() else 1.0
     density_png = png_bytes(colour_ramp(dens, VIRIDIS, 0.0, max(dmax, 1.0)).round())
@@ -178,6 +181,7 @@ def build_report(
             if grid
             else None,
         ),
+        ("units of the products", grid.get("units")),
         (
             "DTM nodata cells",
             f"{grid.get('nodata_cells', 0):,} ({100 * grid.get('nodata_fraction', 0):.2f} %)" if grid else None,
@@ -256,7 +260,7 @@ img{{max-width:100%;border:1px solid #ccc;image-rendering:pixelated}} figcaption
 
 class Report(Stage):
     name = "report"
-    version = "1"
+    version = "2"  # 2: units of the products
     Params = ReportParams
     description = "self-contained QC page (report.html)"
     inputs = ("dtm", "density", "points_classified")

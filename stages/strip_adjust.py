@@ -92,11 +92,11 @@ class StripAdjust(Stage):
 
     def run(self, ctx) -> None:
         from stages.adjust.icp import adjust, match, planar_patches
-        from stages.io import cloud_crs, read_cloud, write_cloud, xyz
+        from stages.io import cloud_crs, read_cloud, write_cloud, xyz_metres
 
         p = ctx.params
         las = read_cloud(ctx.inputs["points_georef"])
-        pts = xyz(las)
+        pts, units = xyz_metres(las)  # everything below in metres, like the parameters
         sid = np.asarray(las.point_source_id).astype(np.int64)
         single = np.asarray(las.number_of_returns) <= 1
         strips = [int(s) for s in np.unique(sid) if s > 0 and np.sum(sid == s) >= p.min_points]
@@ -129,7 +129,7 @@ class StripAdjust(Stage):
                 overlap[a] += len(ia)
                 overlap[b] += len(ia)
         linked = [s for s in strips if overlap[s] > 0]
-        control = _read_control(p.control_points) if p.control_points is not None else None
+        control = units.to_metres(_read_control(p.control_points)) if p.control_points is not None else None
         skipped_note = None
         if len(linked) < 2:
             skipped_note = (
@@ -189,12 +189,13 @@ class StripAdjust(Stage):
             new = pts.copy()
             for s, tf in sol.transforms.items():
                 new[index[s]] = tf.apply(pts[index[s]])
+            new = units.from_metres(new)
             las.x, las.y, las.z = new[:, 0], new[:, 1], new[:, 2]
             ctx.metrics.update(iterations=sol.iterations, correspondences=sol.correspondences,
                                residual_sigma_m=sol.sigma)  # fmt: skip
         write_cloud(las, ctx.outputs["points_adjusted"])
         crs = cloud_crs(las)
-        _difference_rasters(ctx, pts, before, after, p.difference_resolution, crs)
+        _difference_rasters(ctx, pts, before, after, p.difference_resolution, crs, units)
         datum = "control points" if reference is None and control is not None else f"strip {reference}"
         summary = {
             "datum": datum if skipped_note is None else None,
@@ -256,8 +257,10 @@ def _pair_figures(pair, patches, pts, ident, final, cell):
     return row, (centre, mean_b), (centre, mean_a)
 
 
-def _difference_rasters(ctx, pts, before, after, resolution, crs) -> None:
-    """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after."""
+def _difference_rasters(ctx, pts, before, after, resolution, crs, units) -> None:
+    """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after.
+
+    Computed in metres; the rasters are written in the CRS's units (cells and values)."""
     from stages.grid.interpolate import Grid, cell_mean
     from stages.io import NODATA, png_bytes, write_cog
     from stages.report import colour_ramp
@@ -269,8 +272,9 @@ def _difference_rasters(ctx, pts, before, after, resolution, crs) -> None:
         centres = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, 3))
         values = np.concatenate([v for _, v in parts]) if parts else np.zeros(0)
         grid_values = cell_mean(centres, values, grid)
-        write_cog(ctx.outputs[name], np.where(np.isfinite(grid_values), grid_values, NODATA).astype(np.float32),
-                  transform=grid.transform, crs=crs)  # fmt: skip
+        values_crs = grid_values / units.vertical
+        write_cog(ctx.outputs[name], np.where(np.isfinite(values_crs), values_crs, NODATA).astype(np.float32),
+                  transform=units.transform_from_metres(grid.transform), crs=crs)  # fmt: skip
         images.append(grid_values)
     # PNG: before | after, blue (-0.3 m) - white (0) - red (+0.3 m), grey where no overlap
     ramp = [(0.0, (59, 76, 192)), (0.5, (245, 245, 245)), (1.0, (180, 4, 38))]

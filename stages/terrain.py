@@ -3,7 +3,8 @@
 - ``hillshade``: ``hillshade.tif`` (COG, float32 0-255, nodata -9999) and
   ``hillshade.png`` (8-bit grey, nodata black), Horn's method.
 - ``contours``: ``contours.gpkg``, a GeoPackage layer ``contours`` of line
-  strings with an ``elevation`` attribute (m), every ``interval`` metres.
+  strings with an ``elevation`` attribute, every ``interval`` metres; lines
+  and elevations in the CRS's units (:mod:`stages.units`).
 
 Separate stages so that restyling them never re-grids the DTM.
 """
@@ -17,6 +18,7 @@ from pydantic import Field
 
 from pipeline.stage import Stage, StageParams
 from stages.io import NODATA, png_bytes, read_raster, write_cog, write_lines_gpkg
+from stages.units import raster_units
 
 
 class HillshadeParams(StageParams):
@@ -41,7 +43,10 @@ class Hillshade(Stage):
 
         dem, transform, crs, res = read_raster(ctx.inputs["dtm"])
         p = ctx.params
-        shade = hillshade(dem, res, azimuth=p.azimuth, altitude=p.altitude, z_factor=p.z_factor)
+        units = raster_units(crs)  # slopes from metres on both axes, whatever the CRS's units
+        shade = hillshade(
+            dem * units.vertical, res * units.horizontal, azimuth=p.azimuth, altitude=p.altitude, z_factor=p.z_factor
+        )
         write_cog(ctx.outputs["hillshade"], np.where(np.isnan(shade), NODATA, shade), transform=transform, crs=crs)
         ctx.outputs["hillshade_png"].write_bytes(png_bytes(np.nan_to_num(shade, nan=0.0).round()))
         ctx.metrics.update(azimuth=p.azimuth, altitude=p.altitude)
@@ -64,7 +69,10 @@ class Contours(Stage):
         from stages.grid.terrain import contour_lines
 
         dem, transform, crs, _ = read_raster(ctx.inputs["dtm"])
-        lines = contour_lines(dem, transform, interval=ctx.params.interval)
+        units = raster_units(crs)  # levels every interval metres; written in the CRS's units
+        lines = contour_lines(dem * units.vertical, units.transform_to_metres(transform), interval=ctx.params.interval)
+        if not units.is_metre:
+            lines = [(level / units.vertical, xy / units.horizontal) for level, xy in lines]
         write_lines_gpkg(ctx.outputs["contours"], lines, crs=crs)
         levels = sorted({level for level, _ in lines})
         ctx.metrics.update(

@@ -216,3 +216,38 @@ def test_two_concurrent_runs_on_one_cache_both_succeed_identically(small_job):
             assert {status, stages[1][name]} == {"ran", "cached"}, (name, status, stages[1][name])
     for stage_dir in shared_cache.iterdir():
         assert len(_complete_entries(shared_cache, stage_dir.name)) == 1
+
+
+def test_a_run_writes_only_inside_its_output_and_cache_folders(small_job, tmp_path, monkeypatch):
+    root = small_job
+    monkeypatch.chdir(tmp_path)  # a working directory that must stay untouched
+
+    def snapshot() -> dict[str, int]:
+        files = {}
+        for base in (root, tmp_path):
+            for p in base.rglob("*"):
+                rel = p.relative_to(root if base == root else tmp_path.parent)
+                if p.is_file() and not str(rel).startswith(
+                    ("contained/", "reference/", "killed/", "damaged/", "concurrent/")
+                ):
+                    files[str(rel)] = p.stat().st_mtime_ns
+        return files
+
+    before = snapshot()
+    assert main(_args(root, "contained")) == 0
+    assert snapshot() == before
+    written = {p.relative_to(root / "contained").parts[0] for p in (root / "contained").rglob("*") if p.is_file()}
+    assert written == {"out", "cache"}
+
+
+def test_a_product_name_leaving_the_output_folder_is_refused(tmp_path, monkeypatch, capsys):
+    from tests.pipeline import toy
+
+    monkeypatch.setenv("PIPELINE_PLUGIN", "tests.pipeline.toy:plugin")
+    monkeypatch.setattr(toy.Total, "products", {"total": "../escaped.json"})
+    (tmp_path / "numbers.txt").write_text("1\n2\n")
+    (tmp_path / "toy.yaml").write_text("source: {path: numbers.txt}\noutput: out\n")
+    assert main(["run", str(tmp_path / "toy.yaml"), "-q"]) == 2
+    assert "would be written outside the output folder" in capsys.readouterr().err
+    assert not (tmp_path / "escaped.json").exists()
+    assert not (tmp_path / "out" / ".cache").exists()  # refused at planning: no stage ran

@@ -81,18 +81,34 @@ def small_laz(tmp_path_factory):
 @given(data=st.data())
 def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
     blob = bytearray(small_laz)
-    if data.draw(st.booleans()):
+    kind = data.draw(st.sampled_from(["truncate", "bytes", "header"]))
+    if kind == "truncate":
         blob = blob[: data.draw(st.integers(0, len(blob)))]
-    else:
+    elif kind == "bytes":
         for _ in range(data.draw(st.integers(1, 8))):
             i = data.draw(st.integers(0, len(blob) - 1))
             blob[i] = data.draw(st.integers(0, 255))
+    else:  # extreme values in the header's counts, scales, offsets and bounds
+        for _ in range(data.draw(st.integers(1, 3))):
+            field = data.draw(st.sampled_from(["count32", "count64", "double", "offset"]))
+            if field == "count32":
+                blob[107:111] = data.draw(st.sampled_from([0, 1, 2**31, 2**32 - 1])).to_bytes(4, "little")
+            elif field == "count64":
+                blob[247:255] = data.draw(st.sampled_from([0, 10**12, 2**63, 2**64 - 1])).to_bytes(8, "little")
+            elif field == "offset":
+                blob[96:100] = data.draw(st.sampled_from([0, 227, 2**31, 2**32 - 1])).to_bytes(4, "little")
+            else:  # x/y/z scale, offset, max, min: 12 doubles from byte 131
+                i = 131 + 8 * data.draw(st.integers(0, 11))
+                value = data.draw(st.sampled_from([np.nan, np.inf, -np.inf, 0.0, 1e308, -1e308, 5e-324, 1e19]))
+                blob[i : i + 8] = np.float64(value).tobytes()
     path = tmp_path / "damaged.laz"
     path.write_bytes(bytes(blob))
     try:
         las, _ = read_las_files([path], crs_setting="auto-utm", assign_crs=None, chunk_size=500)
     except InputDataError as exc:
         assert "damaged.laz" in str(exc)
+        return
+    assert np.all(np.isfinite(las.x)) and np.all(np.isfinite(las.z))
 
 
 @FUZZ
@@ -213,3 +229,110 @@ def test_sbet_damage_is_counted(tmp_path, raw_flight, data):
     sb = read_sbet(path, 2400, counters)
     assert np.all(np.diff(sb["time"]) > 0) and np.all(np.isfinite(sb["lat"])) and np.all(np.isfinite(sb["heading"]))
     assert counters.epochs == len(sb["time"])
+
+
+# Extreme values in otherwise well-formed records: a numeric field of a line
+# (NMEA with its checksum recomputed, so the sentence is parsed, not just
+# rejected) or a binary field replaced by NaN, infinities, huge, tiny or
+# negative numbers.  Outcome: a count or a located error, and every value that
+# comes out is finite.
+
+EXTREME = ["nan", "NaN", "inf", "-inf", "1e308", "-1e308", "1e-320", "-0", "0", "99999999999999999999", "-1", "1e19"]
+_NUMBER = __import__("re").compile(r"(?<![\w.])[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?(?![\w.])")
+
+
+def _extreme_lines(data, lines: list[str], first: int = 0) -> list[str]:
+    lines = list(lines)
+    for _ in range(data.draw(st.integers(1, 4))):
+        i = data.draw(st.integers(first, len(lines) - 1))
+        numbers = list(_NUMBER.finditer(lines[i]))
+        if not numbers:
+            continue
+        m = numbers[data.draw(st.integers(0, len(numbers) - 1))]
+        lines[i] = lines[i][: m.start()] + data.draw(st.sampled_from(EXTREME)) + lines[i][m.end() :]
+    return lines
+
+
+def _nmea_checksum(sentence: str) -> str:
+    body = sentence.split("*")[0]
+    crc = 0
+    for ch in body[1:]:
+        crc ^= ord(ch)
+    return f"{body}*{crc:02X}"
+
+
+@RAW_FUZZ
+@given(data=st.data())
+def test_extreme_values_in_text_records(tmp_path, raw_flight, data):
+    from stages.readers.ins import TrajectoryCounters, read_ins_csv
+    from stages.readers.ldmrs import Counters, read_ldmrs_mtig
+    from stages.readers.nmea import NmeaCounters, read_nmea
+    from tests.stages.test_read_ldmrs import LOG
+
+    which = data.draw(st.sampled_from(["nav.nmea", "ins.csv", "acq.log"]))
+    path = tmp_path / which
+    if which == "acq.log":
+        path.write_text("\n".join(_extreme_lines(data, LOG.splitlines(), first=2)))
+        counters = Counters()
+        scans = list(read_ldmrs_mtig(path, counters))
+        assert counters.scans_accepted == len(scans)
+        for s in scans:
+            assert np.isfinite(s.points).all()
+        return
+    lines = (raw_flight / which).read_text().splitlines()[:400]
+    lines = _extreme_lines(data, lines, first=1 if which == "ins.csv" else 0)
+    if which == "nav.nmea":
+        lines = [_nmea_checksum(s) if s.startswith("$") and "*" in s else s for s in lines]
+    path.write_text("\n".join(lines) + "\n")
+    try:
+        if which == "nav.nmea":
+            log = read_nmea(path, NmeaCounters())
+            for column in log.position.values():
+                if np.asarray(column).dtype.kind == "f":
+                    assert np.all(np.isfinite(column))
+            assert np.all(np.abs(log.position["lat"]) <= 90) and np.all(np.abs(log.position["lon"]) <= 180)
+        else:
+            ins = read_ins_csv(path, 2400, TrajectoryCounters())
+            assert np.all(np.diff(ins["time"]) > 0)
+            assert all(np.all(np.isfinite(ins[k])) for k in ins)
+            assert np.all(np.abs(ins["roll"]) <= 360) and np.all(np.abs(ins["pitch"]) <= 90)
+            assert np.all(np.abs(ins["heading"]) <= 720)
+    except InputDataError as exc:
+        assert which in str(exc) and "line" in str(exc)
+
+
+@RAW_FUZZ
+@given(data=st.data())
+def test_extreme_values_in_binary_records(tmp_path, raw_flight, data):
+    from stages.readers.ins import TrajectoryCounters, read_sbet, read_smrmsg
+    from stages.readers.lmsq import LmsqCounters, read_lmsq
+
+    which = data.draw(st.sampled_from(["trajectory.sbet", "trajectory.smrmsg", "scan.lmsq"]))
+    blob = bytearray((raw_flight / which).read_bytes())
+    width = 8 if which != "scan.lmsq" else data.draw(st.sampled_from([2, 4, 8]))
+    for _ in range(data.draw(st.integers(1, 6))):
+        i = data.draw(st.integers(0, len(blob) // width - 1)) * width
+        if width == 8:
+            value = data.draw(st.sampled_from([np.nan, np.inf, -np.inf, 1e308, -1e308, 5e-324, -0.0, 1e19]))
+            blob[i : i + 8] = np.float64(value).tobytes()
+        else:
+            blob[i : i + width] = data.draw(st.sampled_from([b"\xff", b"\x00", b"\x7f", b"\x80"])) * width
+    path = tmp_path / which
+    path.write_bytes(bytes(blob))
+    if which == "scan.lmsq":
+        counters = LmsqCounters()
+        try:
+            for b in read_lmsq(path, counters, chunk_bytes=4096):
+                assert all(np.all(np.isfinite(v)) for v in b.values() if np.asarray(v).dtype.kind == "f")
+        except InputDataError as exc:
+            assert "scan.lmsq, byte" in str(exc)
+        return
+    counters = TrajectoryCounters()
+    out = (read_sbet if which.endswith("sbet") else read_smrmsg)(path, 2400, counters)
+    assert np.all(np.diff(out["time"]) > 0)
+    assert all(np.all(np.isfinite(v)) for v in out.values())
+    if which.endswith("smrmsg"):  # a sigma is never negative, nor beyond any survey
+        assert all(np.all((out[k] >= 0) & (out[k] < 1e6)) for k in out if k.startswith("sigma"))
+    else:
+        assert np.all(np.abs(out["lat"]) <= np.pi / 2 + 1e-9) or np.all(np.abs(out["lat"]) <= 90)
+        assert np.all(np.abs(out["h"]) < 1e5)

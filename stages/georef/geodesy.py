@@ -117,6 +117,11 @@ class MapTransform:
         self.crs = crs
         self.geoid = geoid
         self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
+        # PROJ leaves the ellipsoidal height in metres when the CRS has no vertical axis; heights are
+        # written in the CRS's units (stages.units: its horizontal unit then), so scale them here
+        from stages.units import Units
+
+        self._height_unit = 1.0 if len(crs.axis_info) >= 3 else Units.of(crs).vertical
         if geoid is not None:
             pipeline = (
                 "+proj=pipeline +step +proj=cart +inv +ellps=WGS84 "
@@ -144,7 +149,7 @@ class MapTransform:
             # vgridshift on geodetic heights: ECEF of the point lowered by the geoid height
             ecef = np.column_stack(self._geoid.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2]))
         x, y, z = self._exact.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
-        return np.column_stack((x, y, z))
+        return np.column_stack((x, y, np.asarray(z) / self._height_unit))
 
     def _poly(self, local: np.ndarray) -> np.ndarray:
         return np.column_stack(self.poly_columns(local[:, 0], local[:, 1], local[:, 2]))

@@ -156,7 +156,12 @@ def read_smrmsg(path: Path, week: int, counters: TrajectoryCounters) -> dict[str
         if len(rec)
         else np.zeros(0, bool)
     )
-    counters.malformed += int((~ok).sum())
+    if len(rec):  # a sigma is never negative; none beyond 10 km or 180 degrees (10,800 arc minutes) is real
+        ok &= np.all((rec[:, 1:] >= 0) & (rec[:, 1:] <= 1e4), axis=1) & np.all(rec[:, 7:] <= 10_800, axis=1)
+    bad = np.flatnonzero(~ok)
+    for i in bad[:3]:
+        counters.note(f"{path}, byte {i * 80}: smrmsg record with a non-finite or impossible value; skipped")
+    counters.malformed += len(bad)
     idx = np.flatnonzero(ok)
     t = absolute_time(rec[idx, 0], week)
     keep = increasing(t, counters, "smrmsg", lambda i: f"{path}, byte {idx[i] * 80}")

@@ -60,7 +60,8 @@ def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | No
 
     ``auto-utm`` keeps a projected input CRS and otherwise picks the WGS 84 /
     UTM zone of *lon_lat_centre*.  Any other value is a pyproj user input
-    (``EPSG:25830``, WKT, ...).  Only CRSs in metres are accepted.
+    (``EPSG:25830``, WKT, ...).  The CRS must be projected; its linear unit
+    may be any (metre, foot, US survey foot: see :mod:`stages.units`).
     """
     import pyproj
 
@@ -73,14 +74,15 @@ def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | No
             crs = pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
     else:
         crs = pyproj.CRS.from_user_input(setting)
-    if not crs.is_projected:
-        raise InputDataError(f"output CRS {crs.name} is not projected; choose a projected CRS in metres for crs.")
-    unit = crs.axis_info[0].unit_name if crs.axis_info else "metre"
-    if unit not in ("metre", "meter"):
-        raise InputDataError(
-            f"output CRS {crs.name} is in '{unit}', but the pipeline works in metres for now; "
-            "set crs to a metre-based CRS (for example its UTM zone)."
-        )
+    horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
+    if not horizontal.is_projected:
+        raise InputDataError(f"output CRS {crs.name} is not projected; choose a projected CRS for crs.")
+    from stages.units import Units
+
+    try:
+        Units.of(crs)
+    except ValueError as exc:
+        raise InputDataError(f"output CRS {crs.name}: {exc}; choose a projected CRS for crs.") from None
     return crs
 
 
@@ -135,6 +137,15 @@ def check_header_sizes(path: Path) -> None:
         evlr_start = int.from_bytes(head[235:243], "little")
         evlr_count = int.from_bytes(head[243:247], "little")
         count = max(count, int.from_bytes(head[247:255], "little"))
+    scales = np.frombuffer(head[131:155], dtype="<f8")
+    offsets = np.frombuffer(head[155:179], dtype="<f8")
+    for axis, (scale, offset) in enumerate(zip(scales, offsets, strict=True)):
+        if not (np.isfinite(scale) and scale != 0 and np.isfinite(offset)):
+            name = "xyz"[axis]
+            raise InputDataError(
+                f"{path}, byte {131 + 8 * axis}: the {name} scale factor {scale!r} or offset {offset!r} is not usable "
+                "(a scale must be a finite non-zero number, an offset finite)."
+            )
     if header_size + 54 * vlr_count > min(offset_points, size):
         raise InputDataError(
             f"{path}, byte 100: the header announces {vlr_count:,} VLRs, more than fit before the point data."
@@ -261,7 +272,10 @@ def read_las_files(
                 raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
             report.points[str(path)] = n_read
             if n_read:
-                span = max(float(np.ptp(np.concatenate(columns[k][first_chunk:]))) for k in ("x", "y", "z"))
+                from stages.units import Units
+
+                metres = Units.of(target).horizontal
+                span = metres * max(float(np.ptp(np.concatenate(columns[k][first_chunk:]))) for k in ("x", "y", "z"))
                 if span > MAX_SPAN_M:
                     raise InputDataError(
                         f"{path}: the points span {span:.3g} m, more than any survey on Earth "

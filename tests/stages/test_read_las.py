@@ -58,9 +58,10 @@ def test_missing_crs_is_an_input_error_unless_assigned(tmp_path):
     assert report.crs_source[str(path)] == "input.crs"
 
 
-def test_crs_in_feet_is_refused_with_a_way_out():
-    with pytest.raises(InputDataError, match="in 'US survey foot'.*set crs to a metre-based CRS"):
-        output_crs("EPSG:2227", None, None)
+def test_crs_in_feet_is_accepted_and_a_geographic_one_refused():
+    assert output_crs("EPSG:2227", None, None).to_epsg() == 2227  # units: tests/stages/test_feet_crs.py
+    with pytest.raises(InputDataError, match="is not projected"):
+        output_crs("EPSG:4326", None, None)
 
 
 def test_not_a_las_file_exits_3_with_the_file_name(tmp_path, capsys):

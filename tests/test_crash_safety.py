@@ -251,3 +251,21 @@ def test_a_product_name_leaving_the_output_folder_is_refused(tmp_path, monkeypat
     assert "would be written outside the output folder" in capsys.readouterr().err
     assert not (tmp_path / "escaped.json").exists()
     assert not (tmp_path / "out" / ".cache").exists()  # refused at planning: no stage ran
+
+
+def test_two_concurrent_runs_of_one_configuration_same_output(small_job):
+    """The overlapping-cron-job case: same configuration, same output and cache folders."""
+    root = small_job
+    reference = _products(root, "reference") if (root / "reference" / "out" / "run.json").exists() else None
+    cmd = [sys.executable, "-m", "pipeline", *_args(root, "same")]
+    procs = [subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in "ab"]
+    results = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], results
+    products = _products(root, "same")
+    if reference is not None:
+        assert products == reference
+    for name, digest in products.items():
+        import hashlib
+
+        assert hashlib.sha256((root / "same" / "out" / name).read_bytes()).hexdigest() == digest
+    assert not list((root / "same" / "out").glob(".*.tmp"))

@@ -137,7 +137,7 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "4"  # 4: units in the metrics
+    version = "5"  # 5: NMEA GST/VTG range checks; 4: units in the metrics
     Params = InputConfig
     config_path = "input"
     can_disable = False

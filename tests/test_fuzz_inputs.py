@@ -291,6 +291,9 @@ def test_extreme_values_in_text_records(tmp_path, raw_flight, data):
                 if np.asarray(column).dtype.kind == "f":
                     assert np.all(np.isfinite(column))
             assert np.all(np.abs(log.position["lat"]) <= 90) and np.all(np.abs(log.position["lon"]) <= 180)
+            for column in log.sigma.values():
+                assert np.all(np.isfinite(column))
+            assert all(np.all(log.sigma[k] >= 0) for k in log.sigma if k.startswith("sigma"))
         else:
             ins = read_ins_csv(path, 2400, TrajectoryCounters())
             assert np.all(np.diff(ins["time"]) > 0)

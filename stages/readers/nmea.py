@@ -156,11 +156,15 @@ def read_nmea(path: Path, counters: NmeaCounters, *, day: date | None = None, le
                         rows["heading"].append((epoch_time, heading))
                 elif kind == "VTG":
                     course, knots = float(f[0]), float(f[4])
+                    if not (0.0 <= course <= 360.0 and 0.0 <= knots < 1e4):
+                        raise ValueError("course or speed out of range")
                     if epoch_time is not None:
                         rows["course"].append((epoch_time, course, knots * 1852.0 / 3600.0))
                 elif kind == "GST":
                     tod = _time_of_day(f[0])
                     sl, so, sh = float(f[5]), float(f[6]), float(f[7])
+                    if not all(0.0 <= v <= 1e4 for v in (sl, so, sh)):  # also rejects NaN
+                        raise ValueError("sigma out of range")
                     rows["sigma"].append((gps(tod, where), sl, so, sh))
                 elif kind == "ZDA":
                     zda_day = date(int(f[3]), int(f[2]), int(f[1]))
@@ -168,7 +172,7 @@ def read_nmea(path: Path, counters: NmeaCounters, *, day: date | None = None, le
                     counters.unknown += 1
             except InputDataError:
                 raise
-            except (ValueError, IndexError):
+            except (ValueError, IndexError, OverflowError):  # OverflowError: a 20-digit year
                 counters.malformed += 1
                 counters.note(f"{where}: malformed {kind} sentence")
     names = {

@@ -1,0 +1,141 @@
+"""LAZ -> classified LAZ + DTM at survey scale: wall time, points/s and peak RSS per stage.
+
+    .venv/bin/python benchmarks/bench_scale.py --points 10e6 [--points 50e6] [--workdir /tmp/bench_scale]
+
+The job matches the PDAL reference of issue 9 (LAZ -> SMRF -> LAZ, ground ->
+1 m IDW DTM): ``parse -> classify_ground (SMRF) -> rasterize (IDW, 1 m) ->
+export_las``; denoise, strip adjustment and the map products are disabled.
+The survey is the synthetic scene of :mod:`stages.synthetic` at 8 pulses/m2
+(trees give second returns), written as LAZ.
+
+Each stage is measured in its own process (``pipeline run --until STAGE``,
+the stages before it cache hits), so its peak RSS is its own; the whole job
+is also run once in one process on an empty cache.  The I/O floor is laspy +
+lazrs reading the same LAZ and writing it again, in chunks.  Prints Markdown
+rows for docs/BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _isolated import emit, machine, run_child  # noqa: E402
+
+STAGES = ["parse", "classify_ground", "rasterize", "export_las"]
+CONFIG = """input: {{format: las, paths: [{laz}]}}
+output: {out}
+cache: {cache}
+stages:
+  strip_adjust: {{enabled: false}}
+  denoise: {{enabled: false}}
+  classify_ground: {{algorithm: {{name: smrf}}}}
+  rasterize: {{resolution: 1.0, method: idw}}
+  hillshade: {{enabled: false}}
+  contours: {{enabled: false}}
+  report: {{enabled: false}}
+  export_las: {{compress: true}}
+"""
+
+
+def _make(laz: Path, points: float) -> None:
+    from stages.synthetic import make_scene, write_scene_las
+
+    density = 8.0
+    area = points / (density * 1.1)  # about 10 % of pulses give a second return
+    width = float(int((area * 1.25) ** 0.5))
+    height = float(int(area / width))
+    scene = make_scene(width=width, height=height, density=density, n_trees=int(width * height / 4000))
+    write_scene_las(scene, laz)
+    emit(points=len(scene.x))
+
+
+def _floor(laz: Path, out: Path) -> None:
+    import laspy
+
+    t0 = time.perf_counter()
+    n = 0
+    with laspy.open(str(laz)) as reader, laspy.open(str(out), mode="w", header=reader.header, do_compress=True) as w:
+        for chunk in reader.chunk_iterator(1_000_000):
+            w.write_points(chunk)
+            n += len(chunk)
+    emit(seconds=time.perf_counter() - t0, points=n)
+
+
+def _measured(cmd: list[str]) -> tuple[float, float]:
+    """Wall seconds and peak RSS (MB) of one child process."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    seconds = time.perf_counter() - t0
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"failed: {' '.join(cmd)}")
+    return seconds, usage.ru_maxrss / 1024
+
+
+def bench(points: float, workdir: Path) -> list[str]:
+    tag = f"{points / 1e6:g}M"
+    work = workdir / tag
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    laz = work / "survey.laz"
+    made = run_child(__file__, "make", str(laz), str(points))
+    n = made["points"]
+    floor = run_child(__file__, "floor", str(laz), str(work / "copy.laz"))
+    pipeline = str(Path(sys.executable).with_name("pipeline"))
+    rows = []
+    # the whole job in one process, empty cache
+    config = work / "job.yaml"
+    config.write_text(CONFIG.format(laz=laz, out=work / "out", cache=work / "cache"))
+    total, total_rss = _measured([pipeline, "run", str(config), "-q"])
+    run = json.loads((work / "out" / "run.json").read_text())
+    ran = {s["name"]: s.get("seconds") for s in run["stages"]}
+    # each stage alone (the stages before it cached) for its own peak RSS
+    config2 = work / "job2.yaml"
+    config2.write_text(CONFIG.format(laz=laz, out=work / "out2", cache=work / "cache2"))
+    for stage in STAGES:
+        seconds, rss = _measured([pipeline, "run", str(config2), "-q", "--until", stage])
+        rows.append(
+            f"| {tag} | {stage} | {ran.get(stage, 0):.1f} | {n / max(ran.get(stage, 0) or 1e-9, 1e-9) / 1e6:.2f} "
+            f"| {rss:,.0f} |"
+        )
+    rows.append(f"| {tag} | **whole job** (one process) | {total:.1f} | {n / total / 1e6:.2f} | {total_rss:,.0f} |")
+    rows.append(
+        f"| {tag} | I/O floor (laspy+lazrs read + write) | {floor['seconds']:.1f} | "
+        f"{n / floor['seconds'] / 1e6:.2f} | {floor['peak_mb']:,.0f} |"
+    )
+    rows.append(f"| {tag} | job / floor | {total / floor['seconds']:.1f} x | | |")
+    print(f"{tag}: {n:,} points, LAZ {laz.stat().st_size / 1e6:.0f} MB", file=sys.stderr)
+    return rows
+
+
+def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--one":
+        what, *rest = sys.argv[2:]
+        if what == "make":
+            _make(Path(rest[0]), float(rest[1]))
+        else:
+            _floor(Path(rest[0]), Path(rest[1]))
+        return
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--points", type=float, action="append", help="survey size (repeatable); default 10e6")
+    parser.add_argument("--workdir", type=Path, default=Path("/tmp/bench_scale"))
+    args = parser.parse_args()
+    print(machine())
+    print("| points | stage | seconds | M points/s | peak RSS MB |")
+    print("|---|---|---|---|---|")
+    for points in args.points or [10e6]:
+        for row in bench(points, args.workdir):
+            print(row, flush=True)
+
+
+if __name__ == "__main__":
+    main()

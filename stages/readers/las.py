@@ -156,6 +156,8 @@ def check_header_sizes(path: Path) -> None:
         raise InputDataError(
             f"{path}, byte 107: the header announces {count:,} points, more than the file's {size:,} bytes can hold."
         )
+    if compressed and count and offset_points + 8 <= size:
+        _check_chunk_table(path, offset_points, size)
     if evlr_count:
         if evlr_start + 60 * evlr_count > size:
             raise InputDataError(f"{path}, byte 235: the extended VLRs start beyond the end of the file.")
@@ -169,6 +171,34 @@ def check_header_sizes(path: Path) -> None:
                     raise InputDataError(
                         f"{path}, byte {position - length - 40}: an extended VLR runs past the end of the file."
                     )
+
+
+def _check_chunk_table(path: Path, offset_points: int, size: int) -> None:
+    """Refuse a LAZ chunk table whose offset or chunk count cannot be right.
+
+    LASzip stores the chunk table's offset in the first 8 bytes of the point
+    data (-1: in the last 8 bytes of the file), and the number of chunks in
+    the table's second 4 bytes.  A damaged count made lazrs ask for 64 GB
+    (found by fuzzing); every chunk holds at least one byte, so the count is
+    at most the file size.
+    """
+    with open(path, "rb") as fh:
+        fh.seek(offset_points)
+        table = int.from_bytes(fh.read(8), "little", signed=True)
+        where = offset_points
+        if table == -1:
+            fh.seek(size - 8)
+            table = int.from_bytes(fh.read(8), "little", signed=True)
+            where = size - 8
+        if not offset_points + 8 <= table <= size - 8:
+            raise InputDataError(f"{path}, byte {where}: the LAZ chunk table offset {table} is outside the file.")
+        fh.seek(table + 4)
+        chunks = int.from_bytes(fh.read(4), "little")
+    if chunks > size:
+        raise InputDataError(
+            f"{path}, byte {table + 4}: the LAZ chunk table announces {chunks:,} chunks, "
+            f"more than the file's {size:,} bytes can hold."
+        )
 
 
 def _open(path: Path):

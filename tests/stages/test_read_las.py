@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import laspy
 import numpy as np
 import pyproj
@@ -10,6 +12,8 @@ import pytest
 from pipeline.cli import main
 from pipeline.errors import InputDataError
 from stages.readers.las import output_crs, read_las_files
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _write(path, x, y, z, crs=None, point_format=3, version="1.2"):
@@ -145,3 +149,30 @@ def test_headers_announcing_impossible_sizes_are_refused_before_allocating(tmp_p
         read_las_files([tmp_path / "trillion.las"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
     assert tracemalloc.get_traced_memory()[1] < 50e6  # nothing near 10^12 points was allocated
     tracemalloc.stop()
+
+
+def test_laz_chunk_table_claiming_billions_of_chunks_is_refused_before_allocating(tmp_path):
+    """Found by the fuzz campaign: one flipped byte in the chunk count made lazrs allocate 64 GB."""
+    las = laspy.read(ROOT / "data_samples" / "las" / "sample.laz")
+    small = laspy.LasData(las.header)
+    small.points = las.points[:2000].copy()
+    small.write(str(tmp_path / "ok.laz"))
+    blob = bytearray((tmp_path / "ok.laz").read_bytes())
+    start = int.from_bytes(blob[96:100], "little")
+    table = int.from_bytes(blob[start : start + 8], "little")
+    chunks = bytearray(blob)
+    chunks[table + 4 : table + 8] = (2**32 - 1).to_bytes(4, "little")
+    (tmp_path / "chunks.laz").write_bytes(bytes(chunks))
+    with pytest.raises(
+        InputDataError, match=rf"chunks.laz, byte {table + 4}: the LAZ chunk table announces 4,294,967,295"
+    ):
+        read_las_files([tmp_path / "chunks.laz"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    offset = bytearray(blob)
+    offset[start : start + 8] = (2**40).to_bytes(8, "little")
+    (tmp_path / "offset.laz").write_bytes(bytes(offset))
+    with pytest.raises(
+        InputDataError, match=rf"offset.laz, byte {start}: the LAZ chunk table offset .* outside the file"
+    ):
+        read_las_files([tmp_path / "offset.laz"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    las, _ = read_las_files([tmp_path / "ok.laz"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
+    assert len(las.points) == 2000  # the check leaves a sound file alone

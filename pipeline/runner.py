@@ -315,7 +315,7 @@ def run(
             for step in plan.steps:
                 for artifact, file_name in step.io.products.items():
                     src, digest = artifacts[artifact]
-                    dst = _inside(output, file_name)
+                    dst = output / file_name  # inside the output folder: checked at planning
                     if not (dst.exists() and path_size(dst) == path_size(src) and hash_path(dst) == digest):
                         atomic_copy(src, dst)
                     manifest["products"][file_name] = {"sha256": digest, "bytes": path_size(dst)}

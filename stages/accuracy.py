@@ -71,11 +71,17 @@ def read_checkpoints(path: Path, land_cover_column: str = "land_cover") -> tuple
     return np.array(coords), (np.array(cover, dtype=object) if lc is not None else None)
 
 
-def sample_dtm(path: Path, xy: np.ndarray) -> np.ndarray:
-    """Bilinear DTM value at each (x, y) from cell centres; NaN outside or near nodata."""
+def checkpoint_errors(dtm_path: Path, points: np.ndarray) -> np.ndarray:
+    """DTM - check point height at each (x, y, z) in the DTM's CRS units, in metres (NaN: not covered)."""
     from stages.io import read_raster
+    from stages.units import raster_units
 
-    band, transform, _, _ = read_raster(path)
+    band, transform, crs, _ = read_raster(dtm_path)
+    return (sample_dtm(band, transform, points[:, :2]) - points[:, 2]) * raster_units(crs).vertical
+
+
+def sample_dtm(band: np.ndarray, transform, xy: np.ndarray) -> np.ndarray:
+    """Bilinear value of *band* (NaN = nodata) at each (x, y) from cell centres; NaN outside or near nodata."""
     inv = ~transform
     col = inv.a * xy[:, 0] + inv.b * xy[:, 1] + inv.c
     row = inv.d * xy[:, 0] + inv.e * xy[:, 1] + inv.f
@@ -131,14 +137,19 @@ def vertical_accuracy(errors: np.ndarray, land_cover: np.ndarray | None = None, 
 
 
 def compare_with_truth(dtm_path: Path, truth_path: Path) -> np.ndarray:
-    """DTM - truth per DTM cell; the truth raster is resampled (bilinear) onto the DTM grid."""
+    """DTM - truth per DTM cell, in metres; the truth raster is resampled (bilinear) onto the DTM grid.
+
+    Each raster's heights are taken in its own CRS's vertical unit (:mod:`stages.units`).
+    """
     import rasterio
     from rasterio.warp import Resampling, reproject
 
     from stages.io import read_raster
+    from stages.units import raster_units
 
     dtm, transform, crs, _ = read_raster(dtm_path)
     with rasterio.open(truth_path) as ts:
+        truth_unit = raster_units(ts.crs).vertical
         truth = np.full(dtm.shape, np.nan)
         reproject(
             source=rasterio.band(ts, 1),
@@ -148,7 +159,7 @@ def compare_with_truth(dtm_path: Path, truth_path: Path) -> np.ndarray:
             dst_nodata=np.nan,
             resampling=Resampling.bilinear,
         )
-    return dtm - truth
+    return dtm * raster_units(crs).vertical - truth * truth_unit
 
 
 class AccuracyParams(StageParams):
@@ -179,12 +190,7 @@ class Accuracy(Stage):
 
         p = ctx.params
         points, cover = read_checkpoints(p.checkpoints, p.land_cover_column)
-        from stages.io import read_raster
-        from stages.units import raster_units
-
-        units = raster_units(read_raster(ctx.inputs["dtm"])[2])
-        # the DTM and the check points are in the CRS's units; errors are reported in metres
-        errors = (sample_dtm(ctx.inputs["dtm"], points[:, :2]) - points[:, 2]) * units.vertical
+        errors = checkpoint_errors(ctx.inputs["dtm"], points)  # metres, whatever the CRS's units
         result = vertical_accuracy(errors, cover, p.vegetated)
         ctx.metrics.update(result)
         ctx.outputs["accuracy"].write_text(json.dumps(result, indent=2))

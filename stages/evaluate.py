@@ -122,7 +122,7 @@ def _hidden_log_args(p: argparse.ArgumentParser) -> None:
 def _run_dtm(args: argparse.Namespace) -> int:
     from rasterio.errors import RasterioError
 
-    from stages.accuracy import compare_with_truth, read_checkpoints, sample_dtm, vertical_accuracy
+    from stages.accuracy import checkpoint_errors, compare_with_truth, read_checkpoints, vertical_accuracy
 
     for path in (args.dtm, args.truth or args.checkpoints):
         if not path.is_file():
@@ -132,7 +132,7 @@ def _run_dtm(args: argparse.Namespace) -> int:
             result = vertical_accuracy(compare_with_truth(args.dtm, args.truth).ravel())
         else:
             points, cover = read_checkpoints(args.checkpoints, args.land_cover_column)
-            result = vertical_accuracy(sample_dtm(args.dtm, points[:, :2]) - points[:, 2], cover, args.vegetated)
+            result = vertical_accuracy(checkpoint_errors(args.dtm, points), cover, args.vegetated)
     except RasterioError as exc:
         raise InputDataError(f"{args.dtm} or its reference cannot be read as a raster ({exc}).") from None
     if args.json:

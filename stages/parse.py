@@ -460,9 +460,8 @@ def _sbet_trajectory(p, week: int, counters) -> tuple[dict[str, np.ndarray], dic
         if not len(sm["time"]):
             where = counters.locations[0] if counters.locations else f"{p.smrmsg.stat().st_size} bytes"
             raise InputDataError(f"{p.smrmsg}: no usable smrmsg record ({where}); fix the file or remove input.smrmsg.")
-        if len(sm["time"]):
-            for src, dst in (("sigma_north_m", "sigma_north_m"), ("sigma_east_m", "sigma_east_m"),
-                             ("sigma_down_m", "sigma_up_m"), ("sigma_roll_deg", "sigma_roll_deg"),
-                             ("sigma_pitch_deg", "sigma_pitch_deg"), ("sigma_heading_deg", "sigma_heading_deg")):  # fmt: skip
-                out[dst] = np.interp(out["time"], sm["time"], sm[src])
+        for src, dst in (("sigma_north_m", "sigma_north_m"), ("sigma_east_m", "sigma_east_m"),
+                         ("sigma_down_m", "sigma_up_m"), ("sigma_roll_deg", "sigma_roll_deg"),
+                         ("sigma_pitch_deg", "sigma_pitch_deg"), ("sigma_heading_deg", "sigma_heading_deg")):  # fmt: skip
+            out[dst] = np.interp(out["time"], sm["time"], sm[src])
     return out, extra

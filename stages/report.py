@@ -128,9 +128,9 @@ def build_report(
     grid = metrics.get("rasterize", {})
     accuracy = metrics.get("accuracy")
     adjust = metrics.get("strip_adjust")
-    from stages.units import Units
+    from stages.io import cloud_units
 
-    units = Units.of(las.header.parse_crs())
+    units = cloud_units(las)
     relief, lo, hi = relief_image(dtm * units.vertical, resolution * units.horizontal, max_size)
     dens = _thin(density, max_size)
     dmax = float(np.nanpercentile(dens, 99)) if np.isfinite(dens).any() else 1.0

@@ -5,6 +5,7 @@ exception (a traceback for the user)."""
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -182,53 +183,90 @@ RAW_FUZZ = settings(
 )
 
 
+# One check per reader, shared by the damage and the extreme-value tests: the
+# outcome is a count or an InputDataError naming the file and line/byte, and
+# every value that comes out is finite and physically possible.
+
+
+def _check_lmsq(path: Path) -> None:
+    from stages.readers.lmsq import LmsqCounters, read_lmsq
+
+    counters = LmsqCounters()
+    n = 0
+    try:
+        for b in read_lmsq(path, counters, chunk_bytes=4096):
+            n += len(b["time"])
+            assert all(np.all(np.isfinite(v)) for v in b.values() if np.asarray(v).dtype.kind == "f")
+    except InputDataError as exc:
+        assert f"{path.name}, byte" in str(exc)
+        return
+    assert n <= counters.measurements and all(v >= 0 for v in vars(counters).values())
+
+
+def _check_text_navigation(path: Path) -> None:
+    """nav.nmea or ins.csv."""
+    from stages.readers.ins import TrajectoryCounters, read_ins_csv
+    from stages.readers.nmea import NmeaCounters, read_nmea
+
+    try:
+        if path.suffix == ".nmea":
+            log = read_nmea(path, NmeaCounters())
+            for column in log.position.values():
+                if np.asarray(column).dtype.kind == "f":
+                    assert np.all(np.isfinite(column))
+            assert np.all(np.abs(log.position["lat"]) <= 90) and np.all(np.abs(log.position["lon"]) <= 180)
+            for column in log.sigma.values():
+                assert np.all(np.isfinite(column))
+            assert all(np.all(log.sigma[k] >= 0) for k in log.sigma if k.startswith("sigma"))
+        else:
+            ins = read_ins_csv(path, 2400, TrajectoryCounters())
+            assert np.all(np.diff(ins["time"]) > 0)
+            assert all(np.all(np.isfinite(ins[k])) for k in ins)
+            assert np.all(np.abs(ins["roll"]) <= 360) and np.all(np.abs(ins["pitch"]) <= 90)
+            assert np.all(np.abs(ins["heading"]) <= 720)
+    except InputDataError as exc:
+        assert path.name in str(exc) and "line" in str(exc)
+
+
+def _check_binary_trajectory(path: Path) -> None:
+    """An SBET or an smrmsg file: damage is counted, never raised."""
+    from stages.readers.ins import TrajectoryCounters, read_sbet, read_smrmsg
+
+    counters = TrajectoryCounters()
+    sbet = path.suffix == ".sbet"
+    out = (read_sbet if sbet else read_smrmsg)(path, 2400, counters)
+    assert np.all(np.diff(out["time"]) > 0)
+    assert all(np.all(np.isfinite(v)) for v in out.values())
+    if sbet:
+        assert np.all(np.abs(out["lat"]) <= 90) and np.all(np.abs(out["h"]) < 1e5)
+        assert counters.epochs == len(out["time"])
+    else:  # a sigma is never negative, nor beyond any survey
+        assert all(np.all((out[k] >= 0) & (out[k] < 1e6)) for k in out if k.startswith("sigma"))
+
+
 @RAW_FUZZ
 @given(data=st.data())
 def test_lmsq_stream_damage_is_counted_or_located(tmp_path, raw_flight, data):
-    from stages.readers.lmsq import LmsqCounters, read_lmsq
-
     path = tmp_path / "scan.lmsq"
     path.write_bytes(_damage(data, (raw_flight / "scan.lmsq").read_bytes()))
-    counters = LmsqCounters()
-    try:
-        n = sum(len(b["time"]) for b in read_lmsq(path, counters, chunk_bytes=4096))
-    except InputDataError as exc:
-        assert "scan.lmsq, byte" in str(exc)
-        return
-    assert n <= counters.measurements and all(v >= 0 for v in vars(counters).values())
+    _check_lmsq(path)
 
 
 @RAW_FUZZ
 @given(data=st.data())
 def test_nmea_and_ins_damage_is_counted_or_located(tmp_path, raw_flight, data):
-    from stages.readers.ins import TrajectoryCounters, read_ins_csv
-    from stages.readers.nmea import NmeaCounters, read_nmea
-
     which = data.draw(st.sampled_from(["nav.nmea", "ins.csv"]))
     path = tmp_path / which
     path.write_bytes(_damage(data, (raw_flight / which).read_bytes()))
-    try:
-        if which == "nav.nmea":
-            log = read_nmea(path, NmeaCounters())
-            assert np.all(np.isfinite(log.position["lat"]))
-        else:
-            ins = read_ins_csv(path, 2400, TrajectoryCounters())
-            assert np.all(np.diff(ins["time"]) > 0)
-    except InputDataError as exc:
-        assert which in str(exc) and "line" in str(exc)
+    _check_text_navigation(path)
 
 
 @RAW_FUZZ
 @given(data=st.data())
 def test_sbet_damage_is_counted(tmp_path, raw_flight, data):
-    from stages.readers.ins import TrajectoryCounters, read_sbet
-
     path = tmp_path / "t.sbet"
     path.write_bytes(_damage(data, (raw_flight / "trajectory.sbet").read_bytes()))
-    counters = TrajectoryCounters()
-    sb = read_sbet(path, 2400, counters)
-    assert np.all(np.diff(sb["time"]) > 0) and np.all(np.isfinite(sb["lat"])) and np.all(np.isfinite(sb["heading"]))
-    assert counters.epochs == len(sb["time"])
+    _check_binary_trajectory(path)
 
 
 # Extreme values in otherwise well-formed records: a numeric field of a line
@@ -238,7 +276,7 @@ def test_sbet_damage_is_counted(tmp_path, raw_flight, data):
 # comes out is finite.
 
 EXTREME = ["nan", "NaN", "inf", "-inf", "1e308", "-1e308", "1e-320", "-0", "0", "99999999999999999999", "-1", "1e19"]
-_NUMBER = __import__("re").compile(r"(?<![\w.])[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?(?![\w.])")
+_NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?(?![\w.])")
 
 
 def _extreme_lines(data, lines: list[str], first: int = 0) -> list[str]:
@@ -264,9 +302,7 @@ def _nmea_checksum(sentence: str) -> str:
 @RAW_FUZZ
 @given(data=st.data())
 def test_extreme_values_in_text_records(tmp_path, raw_flight, data):
-    from stages.readers.ins import TrajectoryCounters, read_ins_csv
     from stages.readers.ldmrs import Counters, read_ldmrs_mtig
-    from stages.readers.nmea import NmeaCounters, read_nmea
     from tests.stages.test_read_ldmrs import LOG
 
     which = data.draw(st.sampled_from(["nav.nmea", "ins.csv", "acq.log"]))
@@ -284,32 +320,12 @@ def test_extreme_values_in_text_records(tmp_path, raw_flight, data):
     if which == "nav.nmea":
         lines = [_nmea_checksum(s) if s.startswith("$") and "*" in s else s for s in lines]
     path.write_text("\n".join(lines) + "\n")
-    try:
-        if which == "nav.nmea":
-            log = read_nmea(path, NmeaCounters())
-            for column in log.position.values():
-                if np.asarray(column).dtype.kind == "f":
-                    assert np.all(np.isfinite(column))
-            assert np.all(np.abs(log.position["lat"]) <= 90) and np.all(np.abs(log.position["lon"]) <= 180)
-            for column in log.sigma.values():
-                assert np.all(np.isfinite(column))
-            assert all(np.all(log.sigma[k] >= 0) for k in log.sigma if k.startswith("sigma"))
-        else:
-            ins = read_ins_csv(path, 2400, TrajectoryCounters())
-            assert np.all(np.diff(ins["time"]) > 0)
-            assert all(np.all(np.isfinite(ins[k])) for k in ins)
-            assert np.all(np.abs(ins["roll"]) <= 360) and np.all(np.abs(ins["pitch"]) <= 90)
-            assert np.all(np.abs(ins["heading"]) <= 720)
-    except InputDataError as exc:
-        assert which in str(exc) and "line" in str(exc)
+    _check_text_navigation(path)
 
 
 @RAW_FUZZ
 @given(data=st.data())
 def test_extreme_values_in_binary_records(tmp_path, raw_flight, data):
-    from stages.readers.ins import TrajectoryCounters, read_sbet, read_smrmsg
-    from stages.readers.lmsq import LmsqCounters, read_lmsq
-
     which = data.draw(st.sampled_from(["trajectory.sbet", "trajectory.smrmsg", "scan.lmsq"]))
     blob = bytearray((raw_flight / which).read_bytes())
     width = 8 if which != "scan.lmsq" else data.draw(st.sampled_from([2, 4, 8]))
@@ -323,19 +339,6 @@ def test_extreme_values_in_binary_records(tmp_path, raw_flight, data):
     path = tmp_path / which
     path.write_bytes(bytes(blob))
     if which == "scan.lmsq":
-        counters = LmsqCounters()
-        try:
-            for b in read_lmsq(path, counters, chunk_bytes=4096):
-                assert all(np.all(np.isfinite(v)) for v in b.values() if np.asarray(v).dtype.kind == "f")
-        except InputDataError as exc:
-            assert "scan.lmsq, byte" in str(exc)
-        return
-    counters = TrajectoryCounters()
-    out = (read_sbet if which.endswith("sbet") else read_smrmsg)(path, 2400, counters)
-    assert np.all(np.diff(out["time"]) > 0)
-    assert all(np.all(np.isfinite(v)) for v in out.values())
-    if which.endswith("smrmsg"):  # a sigma is never negative, nor beyond any survey
-        assert all(np.all((out[k] >= 0) & (out[k] < 1e6)) for k in out if k.startswith("sigma"))
+        _check_lmsq(path)
     else:
-        assert np.all(np.abs(out["lat"]) <= np.pi / 2 + 1e-9) or np.all(np.abs(out["lat"]) <= 90)
-        assert np.all(np.abs(out["h"]) < 1e5)
+        _check_binary_trajectory(path)

@@ -127,11 +127,15 @@ def test_same_contours_and_hillshade(twin_runs):
         np.testing.assert_allclose(b.read(1), a.read(1), atol=0.05)
 
 
-def test_same_errors_at_check_points_reported_in_metres(twin_runs):
+def test_same_errors_at_check_points_reported_in_metres(twin_runs, capsys):
     am = json.loads((twin_runs / "out_m" / "accuracy.json").read_text())
     af = json.loads((twin_runs / "out_ft" / "accuracy.json").read_text())
     assert am["n"] == af["n"] >= 5
     assert af["rmse_z"] == pytest.approx(am["rmse_z"], abs=1e-3)
+    # the command line gives the same metres from the feet DTM and check points
+    args = ["evaluate", "dtm", str(twin_runs / "out_ft" / "dtm.tif"), "--checkpoints", str(twin_runs / "ft.csv")]
+    assert main([*args, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["rmse_z"] == pytest.approx(am["rmse_z"], abs=1e-3)
     run = json.loads((twin_runs / "out_ft" / "run.json").read_text())
     parse = next(s for s in run["stages"] if s["name"] == "parse")
     assert parse["metrics"]["units"] == "x, y in US survey foot (0.3048006 m), heights in US survey foot (0.3048006 m)"

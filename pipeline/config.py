@@ -61,16 +61,42 @@ InputFile = Annotated[Path, AfterValidator(_resolve_path), AfterValidator(_must_
 
 
 class ExecutorConfig(StrictModel):
-    """Where tasks run: this machine's processes or a Dask cluster."""
+    """Where tiled work runs: this machine's processes or a Dask cluster."""
 
-    kind: Literal["local", "dask"] = Field("local", description="local processes or a Dask cluster")
+    kind: Literal["local", "dask"] = Field(
+        "local", description="local: worker processes on this machine; dask: a Dask distributed cluster"
+    )
     workers: int = Field(
         default_factory=lambda: os.cpu_count() or 1,
         ge=1,
-        description="parallel workers for tiled work (this version runs stages one after another)",
+        description="tiles processed at a time (local processes, or the workers of a local Dask cluster); "
+        "default: the number of CPUs",
     )
     address: str | None = Field(
-        None, description="Dask scheduler address, e.g. tcp://host:8786; none = a local cluster"
+        None,
+        description="Dask scheduler address, e.g. tcp://host:8786 (workers must see the cache folder at the same "
+        "path); none = a local Dask cluster of `workers` processes",
+    )
+
+
+class TilingConfig(StrictModel):
+    """How stages that work tile by tile cut the survey.
+
+    Tiles are squares of ``size`` aligned on multiples of ``size``; each task
+    gets its tile plus a buffer and keeps only the tile.  Lengths are in the
+    unit the stages measure their extent in (metres for this pipeline's
+    stages, whatever the CRS).
+    """
+
+    enabled: bool = Field(True, description="cut large surveys into tiles; false: every stage sees the whole survey")
+    size: float = Field(
+        500.0, gt=0, description="tile side (metres); memory per worker grows with size**2 x point density"
+    )
+    buffer: float | None = Field(
+        None,
+        ge=0,
+        description="buffer around each tile (metres); none = each stage's own, the reach of its algorithm, "
+        "which makes tiled results identical to untiled ones",
     )
 
 

@@ -36,6 +36,7 @@ from pipeline.cache import (
     path_size,
 )
 from pipeline.errors import ConfigError, PipelineError, PlanError
+from pipeline.executor import LocalExecutor, make_executor
 from pipeline.log import LOGGER_NAME, Progress, stage_logger
 from pipeline.stage import Plugin, Stage, StageIO, get_dotted
 
@@ -107,6 +108,8 @@ class StageContext:
         Artifact name -> path of the file (or folder) to read.
     outputs : dict
         Artifact name -> path to write (inside a private workspace).
+    executor : LocalExecutor or DaskExecutor
+        Runs the tasks of tiled work (:func:`pipeline.tiling.run_tiled`).
     metrics : dict
         JSON-serialisable figures the stage wants in the manifest and report;
         they are cached with the outputs.
@@ -120,6 +123,7 @@ class StageContext:
     workdir: Path
     workers: int
     log: logging.LoggerAdapter
+    executor: Any = None
     metrics: dict[str, Any] = field(default_factory=dict)
     upstream_metrics: dict[str, dict[str, Any]] = field(default_factory=dict)
 
@@ -301,9 +305,12 @@ def run(
     artifacts: dict[str, tuple[Path, str]] = {}
     unknown: set[str] = set()  # dry run: artifacts whose content is not known yet
     records: dict[str, dict[str, Any]] = {}
+    executor = make_executor(config)
     try:
         for step in plan.steps:
-            record = _run_step(step, plan, config, cache, artifacts, unknown, force, dry_run, manifest, records)
+            record = _run_step(
+                step, plan, config, cache, artifacts, unknown, force, dry_run, manifest, records, executor
+            )
             records[step.name] = record
         for step in plan.skipped:
             records[step.name] = {"name": step.name, "status": step.note or "disabled"}
@@ -330,6 +337,7 @@ def run(
         manifest["error"] = f"internal error: {type(exc).__name__}: {exc}"
         raise
     finally:
+        executor.close()
         if not dry_run:
             finished = time.time()
             manifest["finished"] = _utc(finished)
@@ -352,6 +360,7 @@ def _run_step(
     dry_run: bool,
     manifest: dict[str, Any],
     records: dict[str, dict[str, Any]],
+    executor: Any = None,
 ) -> dict[str, Any]:
     slog = stage_logger(step.name)
     resolved = {name: plan.resolve(name) for name in step.io.inputs}
@@ -396,7 +405,7 @@ def _run_step(
             record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
         else:
             inputs = {n: artifacts[r][0] for n, r in resolved.items()}
-            entry = _execute(step, config, cache, key, inputs, input_hashes, slog, upstream)
+            entry = _execute(step, config, cache, key, inputs, input_hashes, slog, upstream, executor)
             record.update(status="ran", seconds=entry.meta["seconds"])
     _remember(entry, step, artifacts)
     record["outputs"] = {
@@ -421,6 +430,7 @@ def _execute(
     input_hashes: dict[str, str],
     slog: logging.LoggerAdapter,
     upstream: dict[str, dict[str, Any]] | None = None,
+    executor: Any = None,
 ) -> Entry:
     workspace = cache.new_workspace(step.name, key)
     ctx = StageContext(
@@ -432,6 +442,7 @@ def _execute(
         workdir=workspace,
         workers=getattr(getattr(config, "executor", None), "workers", 1),
         log=slog,
+        executor=executor if executor is not None else LocalExecutor(1),
         upstream_metrics=upstream or {},
     )
     slog.info("running")

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from pydantic import BaseModel, Field, create_model
 
-from pipeline.config import ExecutorConfig, RelPath, StrictModel
+from pipeline.config import ExecutorConfig, RelPath, StrictModel, TilingConfig
 
 if TYPE_CHECKING:
     from pipeline.runner import StageContext
@@ -138,7 +138,7 @@ class Plugin:
 def config_model(plugin: Plugin) -> type[BaseModel]:
     """Build the configuration model of a plugin's stages.
 
-    The top level has ``name``, ``output``, ``cache``, ``executor``, the
+    The top level has ``name``, ``output``, ``cache``, ``executor``, ``tiling``, the
     plugin's global fields, ``stages`` (one block per stage whose parameters
     live under ``stages.``) and any stage parameters placed elsewhere by
     ``config_path`` (for example ``input``).
@@ -166,7 +166,8 @@ def config_model(plugin: Plugin) -> type[BaseModel]:
             RelPath | None,
             Field(None, description="cache folder, relative to the config file (default: <output>/.cache)"),
         ),
-        "executor": (ExecutorConfig, Field(default_factory=ExecutorConfig, description="where tasks run")),
+        "executor": (ExecutorConfig, Field(default_factory=ExecutorConfig, description="where tiled work runs")),
+        "tiling": (TilingConfig, Field(default_factory=TilingConfig, description="how large surveys are cut")),
         **plugin.global_fields,
         **top_fields,
         "stages": (stages_model, Field(default_factory=stages_model, description="one block per stage")),

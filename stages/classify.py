@@ -21,6 +21,7 @@ the default, and how each algorithm scores: docs/GROUND.md.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
 import numpy as np
@@ -29,7 +30,6 @@ from pydantic import Field
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.io import read_cloud, write_cloud, xyz_metres
 
 
 class SmrfParams(StrictModel):
@@ -78,6 +78,24 @@ class ClassifyGroundParams(StageParams):
     keep_water: bool = Field(True, description="points the input classified as water (9) keep it; never ground")
 
 
+def reach(algorithm: StrictModel) -> float:
+    """How far (metres) the algorithm looks from a point: the buffer a tile needs.
+
+    SMRF: an opening of radius ``w_max`` reads ``2 w_max`` around a cell, and
+    a gap it fills (a building, at most ``2 w_max`` wide by the parameter's
+    definition) takes its values from cells that far again, so ``4 w_max``
+    plus two cells.  PMF: the largest square window, twice, plus two cells.
+    CSF: the cloth is one global simulation; 50 m is a practical margin and
+    tiled CSF results may differ from untiled ones within a few metres of
+    tile edges (docs/ARCHITECTURE.md).
+    """
+    if algorithm.name == "smrf":
+        return 4.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size
+    if algorithm.name == "pmf":
+        return 2.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size
+    return 50.0
+
+
 def ground_mask(points: np.ndarray, algorithm: StrictModel) -> np.ndarray:
     """Run the configured algorithm on (n, 3) coordinates; True = ground."""
     params = algorithm.model_dump(exclude={"name"})
@@ -121,27 +139,89 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "3"  # 3: keep_water
+    version = "4"  # 4: grids anchored on whole cells; tiles
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)
     outputs: ClassVar = {"points_classified": "points.las"}
     passthrough: ClassVar = {"points_classified": "points_denoised"}
 
+    config_keys = ("tiling.buffer",)
+
     def run(self, ctx) -> None:
-        las = read_cloud(ctx.inputs["points_denoised"])
-        points, _ = xyz_metres(las)  # the parameters are in metres, whatever the CRS
-        cls = classify(points, las.classification, las.return_number, las.number_of_returns, las.withheld, ctx.params)
-        las.classification = cls
-        n = len(cls)
-        ground = int((cls == glossary.GROUND).sum())
+        from pipeline.tiling import run_tiled
+        from stages.tiles import cleanup, las_extent_metres, merge_classes, split_cloud, task_folder
+
+        src = ctx.inputs["points_denoised"]
+        extent, _, total = las_extent_metres(src)
+        work = task_folder(ctx.workdir, self.name)
+        params = ctx.params.model_dump(mode="json")
+
+        def split(layout):
+            with ctx.progress(total, "tiling", unit="pt") as bar:
+                rows, _ = split_cloud(src, layout, work / "in", _classify_columns, progress=bar)
+            return [
+                {"tile": t, "source": str(work / "in" / str(t)), "result": str(work / "out" / str(t)), "params": params}
+                for t in sorted(rows)
+                if rows[t][1]  # a tile with no point of its own has nothing to classify
+            ]
+
+        def merge(layout, tasks, results):
+            with ctx.progress(total, "writing", unit="pt") as bar:
+                merge_classes(src, ctx.outputs["points_classified"], [Path(t["result"]) for t in tasks], progress=bar)
+            return {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground")}
+
+        try:
+            counts = run_tiled(
+                ctx, extent=extent, buffer=reach(ctx.params.algorithm), split=split, task=classify_tile, merge=merge
+            )
+        finally:
+            cleanup(work)
+        n, ground, other = counts["points"], counts["ground"], counts["non_ground"]
         ctx.metrics.update(
             algorithm=ctx.params.algorithm.model_dump(),
             points=int(n),
             ground=ground,
-            non_ground=int((cls == glossary.UNCLASSIFIED).sum()),
-            noise_or_withheld=int(n - ground - (cls == glossary.UNCLASSIFIED).sum()),
+            non_ground=other,
+            noise_or_withheld=int(n - ground - other),
             ground_fraction=round(ground / n, 4) if n else 0.0,
         )
         ctx.log.info("%d of %d points are ground (%.1f %%)", ground, n, 100.0 * ground / max(n, 1))
-        write_cloud(las, ctx.outputs["points_classified"])
+
+
+def _classify_columns(chunk, xyz: np.ndarray) -> dict[str, np.ndarray]:
+    return {
+        "x": xyz[:, 0],
+        "y": xyz[:, 1],
+        "z": xyz[:, 2],
+        "classification": np.asarray(chunk.classification, dtype=np.uint8),
+        "return_number": np.asarray(chunk.return_number, dtype=np.uint8),
+        "number_of_returns": np.asarray(chunk.number_of_returns, dtype=np.uint8),
+        "withheld": np.asarray(chunk.withheld, dtype=bool),
+    }
+
+
+def classify_tile(task: dict) -> dict:
+    """Classify one tile's points (core plus buffer); write the classes of its core points.
+
+    Runs in a worker process: reads ``task["source"]`` (columns written by
+    :func:`stages.tiles.split_cloud`), writes ``idx`` and ``classification``
+    of the core points to ``task["result"]``, returns counts.
+    """
+    from stages.tiles import read_tile, write_result
+
+    cols = read_tile(Path(task["source"]))
+    params = ClassifyGroundParams.model_validate(task["params"])
+    points = np.column_stack((cols["x"], cols["y"], cols["z"]))
+    cls = classify(
+        points, cols["classification"], cols["return_number"], cols["number_of_returns"], cols["withheld"], params
+    )
+    core = cols["core"]
+    write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
+    kept = cls[core]
+    return {
+        "tile": task["tile"],
+        "points": int(core.sum()),
+        "ground": int((kept == glossary.GROUND).sum()),
+        "non_ground": int((kept == glossary.UNCLASSIFIED).sum()),
+    }

@@ -198,6 +198,18 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
     )
 
 
+def npy_header(dtype, rows: int, size: int = 128) -> bytes:
+    """The fixed-size (*size* bytes) NPY 1.0 header of a 1-D array of *rows* values of *dtype*.
+
+    Written in front of a column whose values were streamed to disk first.
+    """
+    dtype = np.dtype(dtype)
+    header = repr({"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": (int(rows),)})
+    body = header.encode("latin1")
+    pad = size - 10 - len(body) - 1
+    return b"\x93NUMPY\x01\x00" + np.uint16(size - 10).tobytes() + body + b" " * pad + b"\n"
+
+
 class NpyColumns:
     """Write a table as one ``.npy`` file per column in a folder, streaming.
 
@@ -233,12 +245,8 @@ class NpyColumns:
         import json
 
         for name, fh in self._files.items():
-            dtype = self.schema[name]
-            header = repr({"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": (self.rows,)})
-            body = header.encode("latin1")
-            pad = self.HEADER_BYTES - 10 - len(body) - 1
             fh.seek(0)
-            fh.write(b"\x93NUMPY\x01\x00" + np.uint16(self.HEADER_BYTES - 10).tobytes() + body + b" " * pad + b"\n")
+            fh.write(npy_header(self.schema[name], self.rows))
             fh.close()
         meta = {**self.meta, "rows": self.rows, "columns": {n: str(d) for n, d in self.schema.items()}}
         (self.folder / "meta.json").write_text(json.dumps(meta, indent=2, default=str))

@@ -77,8 +77,12 @@ def low_outliers(xyz: np.ndarray, *, cell_size: float = 10.0, elevation_threshol
     n = len(xyz)
     if n == 0:
         return np.zeros(0, dtype=bool)
-    col = ((xyz[:, 0] - xyz[:, 0].min()) / cell_size).astype(np.int64)
-    row = ((xyz[:, 1] - xyz[:, 1].min()) / cell_size).astype(np.int64)
+    # Cells on whole multiples of cell_size (not on the data's corner), so a
+    # tile of the survey cuts the same cells as the whole survey.
+    col = np.floor(xyz[:, 0] / cell_size).astype(np.int64)
+    row = np.floor(xyz[:, 1] / cell_size).astype(np.int64)
+    col -= col.min()
+    row -= row.min()
     cell = row * (int(col.max()) + 1) + col
     order = np.lexsort((xyz[:, 2], cell))
     c, z = cell[order], xyz[order, 2]

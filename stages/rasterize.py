@@ -25,6 +25,7 @@ cells of 3.2808 ftUS and heights in ftUS; :mod:`stages.units`).
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -36,7 +37,7 @@ from pipeline.stage import Stage, StageParams
 from stages import glossary
 from stages.grid.interpolate import Grid, cell_count, cell_max, cell_mean, idw, nearest, tin
 from stages.ground.surface import fill_nearest
-from stages.io import NODATA, read_cloud, write_cog, xyz_metres
+from stages.io import NODATA
 
 
 class IdwParams(StrictModel):
@@ -69,7 +70,7 @@ def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, pro
 
 class Rasterize(Stage):
     name = "rasterize"
-    version = "4"  # 4: units in the metrics
+    version = "5"  # 5: tiles; TIN and IDW sum in a canonical order
     Params = RasterizeParams
     description = "DTM, DSM, nDSM and density rasters"
     inputs = ("points_classified",)
@@ -85,49 +86,136 @@ class Rasterize(Stage):
             outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
         return StageIO(tuple(self.inputs), outputs, products)
 
+    config_keys = ("tiling.buffer",)
+
     def run(self, ctx) -> None:
+        from pipeline.tiling import run_tiled
+        from stages.tiles import RasterMosaic, cleanup, core_window, las_extent_metres, split_cloud, task_folder
+
         p = ctx.params
-        las = read_cloud(ctx.inputs["points_classified"])
-        crs = las.header.parse_crs()
-        pts, units = xyz_metres(las)  # gridded in metres (resolution, nodata_distance); written in CRS units
-        if len(pts) == 0:
+        src = ctx.inputs["points_classified"]
+        extent, units, total = las_extent_metres(src)
+        if total == 0:
             raise InputDataError("the point cloud is empty: there is nothing to grid.")
-        cls = np.asarray(las.classification)
-        ground = pts[cls == glossary.GROUND]
-        if len(ground) < 3:
-            values, counts = np.unique(cls, return_counts=True)
-            classes = ", ".join(f"class {v}: {c:,}" for v, c in zip(values, counts, strict=True))
-            raise InputDataError(
-                f"only {len(ground)} ground points (class 2) among {len(pts):,} points ({classes}): a DTM needs "
-                "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
+        import laspy
+
+        with laspy.open(str(src)) as reader:
+            crs = reader.header.parse_crs()
+            sigma = "sigma_vertical" in reader.header.point_format.dimension_names
+        if "dtm_uncertainty" in ctx.outputs and not sigma:
+            raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
+        grid = Grid.covering(*extent, p.resolution)  # in metres, written in CRS units
+        names = [n for n in ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty") if n in ctx.outputs]
+        work = task_folder(ctx.workdir, self.name)
+        params = p.model_dump(mode="json")
+        grid_args = {
+            "xmin": grid.xmin,
+            "ymax": grid.ymax,
+            "resolution": grid.resolution,
+            "cols": grid.cols,
+            "rows": grid.rows,
+        }
+        totals: dict[str, int] = {}
+
+        def columns(chunk, xyz):
+            cols = {
+                "x": xyz[:, 0],
+                "y": xyz[:, 1],
+                "z": xyz[:, 2],
+                "classification": np.asarray(chunk.classification, dtype=np.uint8),
+                "withheld": np.asarray(chunk.withheld, dtype=bool),
+            }
+            if "dtm_uncertainty" in ctx.outputs:
+                cols["sigma_vertical"] = np.asarray(chunk["sigma_vertical"], dtype=np.float64)
+            return cols
+
+        def count(cols):
+            return {f"class {c}": n for c, n in enumerate(np.bincount(cols["classification"], minlength=256)) if n}
+
+        def split(layout):
+            with ctx.progress(total, "tiling", unit="pt") as bar:
+                rows, sums = split_cloud(src, layout, work / "in", columns, progress=bar, count=count)
+            totals.update(sums)
+            ground = sums.get(f"class {glossary.GROUND}", 0)
+            if ground < 3:
+                classes = ", ".join(
+                    f"{k}: {sums[k]:,}" for k in sorted((k for k in sums if k != "points"), key=lambda k: int(k[6:]))
+                )
+                raise InputDataError(
+                    f"only {ground} ground points (class 2) among {sums['points']:,} points ({classes}): a DTM needs "
+                    "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
+                )
+            return [
+                {
+                    "tile": tile.index,
+                    "window": core_window(grid, tile.as_dict()),
+                    "source": str(work / "in" / str(tile.index)),
+                    "result": str(work / "out" / str(tile.index)),
+                    "grid": grid_args,
+                    "params": params,
+                    "buffer": layout.buffer,
+                    "vertical": units.vertical,
+                    "outputs": names,
+                }
+                for tile in layout.tiles
+                if tile.index in rows
+            ]
+
+        def merge(layout, tasks, results):
+            transform = units.transform_from_metres(grid.transform)
+            mosaics = {
+                n: RasterMosaic(
+                    ctx.outputs[n],
+                    rows=grid.rows,
+                    cols=grid.cols,
+                    transform=transform,
+                    crs=crs,
+                    nodata=NODATA,
+                    fill=0.0 if n == "density" else NODATA,
+                )
+                for n in names
+            }
+            try:
+                done = {t["tile"] for t in tasks}
+                for task in tasks:
+                    r0, r1, c0, c1 = task["window"]
+                    for n in names:
+                        mosaics[n].write(r0, c0, np.load(Path(task["result"]) / f"{n}.npy"))
+                for tile in layout.tiles:
+                    if tile.index not in done:
+                        for n in names:
+                            mosaics[n].write_fill(*core_window(grid, tile.as_dict()))
+                for m in mosaics.values():
+                    m.finish()
+            except BaseException:
+                for m in mosaics.values():
+                    m.abort()
+                raise
+            return results, transform
+
+        ctx.log.info(
+            "%s DTM from %d ground points on %d x %d cells",
+            p.method,
+            totals.get(f"class {glossary.GROUND}", 0),
+            grid.cols,
+            grid.rows,
+        )
+        try:
+            results, transform = run_tiled(
+                ctx, extent=extent, buffer=reach(p), split=split, task=rasterize_tile, merge=merge
             )
-        usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.asarray(las.withheld, dtype=bool)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], p.resolution)
-        ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, len(ground), grid.cols, grid.rows)
-        with ctx.progress(grid.rows, f"{p.method} DTM", unit="row") as bar:
-            dtm = interpolate_dtm(ground, grid, p, progress=bar)
-        dsm = fill_nearest(cell_max(pts[usable], grid), max_cells=p.nodata_distance / p.resolution)
-        dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
-        ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
-        density = cell_count(pts[usable], grid).astype(np.float64)
-        transform = units.transform_from_metres(grid.transform)
-        dtm, dsm, ndsm = dtm / units.vertical, dsm / units.vertical, ndsm / units.vertical
-        for name, array in (("dtm", dtm), ("dsm", dsm), ("ndsm", ndsm)):
-            write_cog(ctx.outputs[name], np.where(np.isnan(array), NODATA, array), transform=transform, crs=crs)
-        write_cog(ctx.outputs["density"], density, transform=transform, crs=crs)
+        finally:
+            cleanup(work)
+        cells = grid.rows * grid.cols
+        empty = sum(r["nodata_cells"] for r in results) + (cells - sum(r["cells"] for r in results))
+        mins = [r["dtm_min"] for r in results if r["dtm_min"] is not None]
+        maxs = [r["dtm_max"] for r in results if r["dtm_max"] is not None]
+        ndsm = [r["ndsm_max"] for r in results if r["ndsm_max"] is not None]
         if "dtm_uncertainty" in ctx.outputs:
-            if "sigma_vertical" not in las.point_format.dimension_names:
-                raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
-            sv = np.asarray(las["sigma_vertical"], dtype=np.float64)[cls == glossary.GROUND]
-            unc = fill_nearest(cell_mean(ground, sv, grid), max_cells=p.nodata_distance / p.resolution)
-            unc = np.where(np.isnan(dtm), np.nan, unc)
+            from stages.io import read_raster
+
+            unc = read_raster(ctx.outputs["dtm_uncertainty"])[0] * units.vertical
             ctx.metrics.update(dtm_sigma_median_m=float(np.nanmedian(unc)) if np.isfinite(unc).any() else None)
-            unc = unc / units.vertical
-            write_cog(
-                ctx.outputs["dtm_uncertainty"], np.where(np.isnan(unc), NODATA, unc), transform=transform, crs=crs
-            )
-        empty = int(np.isnan(dtm).sum())
         ctx.metrics.update(
             method=p.method,
             resolution=p.resolution,
@@ -135,12 +223,91 @@ class Rasterize(Stage):
             rows=grid.rows,
             origin=[transform.c, transform.f],
             units=units.describe(),
-            ground_points=int(len(ground)),
-            nodata_cells=empty,
-            nodata_fraction=round(empty / dtm.size, 4),
-            dtm_min=float(np.nanmin(dtm)) if empty < dtm.size else None,
-            dtm_max=float(np.nanmax(dtm)) if empty < dtm.size else None,
-            density_mean=round(float(density.mean()), 3),
-            ndsm_max=float(np.nanmax(ndsm)) if np.isfinite(ndsm).any() else None,
+            ground_points=int(totals.get(f"class {glossary.GROUND}", 0)),
+            nodata_cells=int(empty),
+            nodata_fraction=round(empty / cells, 4),
+            dtm_min=float(min(mins)) if mins else None,
+            dtm_max=float(max(maxs)) if maxs else None,
+            density_mean=round(sum(r["density_sum"] for r in results) / cells, 3),
+            ndsm_max=float(max(ndsm)) if ndsm else None,
         )
         ctx.log.info("DTM %d x %d cells at %g m, %d nodata", grid.cols, grid.rows, p.resolution, empty)
+
+
+def reach(params: RasterizeParams) -> float:
+    """The buffer (metres) a tile needs for its cells to equal the untiled ones.
+
+    IDW and nearest use points within ``nodata_distance`` of a cell centre,
+    as does the DSM's gap filling: ``nodata_distance`` plus a cell.  A TIN
+    triangle covering a cell may reach farther (across a gap up to
+    ``nodata_distance`` from both sides): twice ``nodata_distance``.
+    """
+    far = 2.0 if params.method == "tin" else 1.0
+    return far * params.nodata_distance + 2.0 * params.resolution
+
+
+def rasterize_tile(task: dict) -> dict:
+    """The rasters of one tile's core cells, from its points (core plus buffer).
+
+    Runs in a worker process; writes one ``.npy`` per raster (in the CRS's
+    height unit, NaN = nodata) to ``task["result"]`` and returns figures.
+    """
+    import math
+
+    from stages.tiles import read_tile
+
+    p = RasterizeParams.model_validate(task["params"])
+    g = task["grid"]
+    grid = Grid(g["xmin"], g["ymax"], g["resolution"], g["cols"], g["rows"])
+    r0, r1, c0, c1 = task["window"]
+    core = grid.window(r0, r1, c0, c1)
+    pad = int(math.ceil(task["buffer"] / grid.resolution))
+    br0, br1 = max(r0 - pad, 0), min(r1 + pad, grid.rows)
+    bc0, bc1 = max(c0 - pad, 0), min(c1 + pad, grid.cols)
+    wide = grid.window(br0, br1, bc0, bc1)
+    crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
+    cols = read_tile(Path(task["source"]))
+    pts = np.column_stack((cols["x"], cols["y"], cols["z"]))
+    cls = cols["classification"]
+    is_ground = cls == glossary.GROUND
+    ground = pts[is_ground]
+    usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~cols["withheld"]
+    max_cells = p.nodata_distance / p.resolution
+    dtm = np.full((core.rows, core.cols), np.nan)
+    if core.rows and core.cols and len(ground) >= (3 if p.method == "tin" else 1):
+        try:
+            dtm = interpolate_dtm(ground, core, p)
+        except Exception as exc:  # Qhull: collinear or coincident ground points in a corner tile
+            from scipy.spatial import QhullError
+
+            if not isinstance(exc, QhullError):
+                raise
+    dsm = _fill(cell_max(pts[usable], wide), max_cells)[crop]
+    dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
+    ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
+    density = cell_count(pts[usable], core).astype(np.float64)
+    out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
+    if "dtm_uncertainty" in task["outputs"]:
+        unc = _fill(cell_mean(ground, cols["sigma_vertical"][is_ground], wide), max_cells)[crop]
+        out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
+    vertical = task["vertical"]
+    folder = Path(task["result"])
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in task["outputs"]:
+        values = out[name] if name == "density" else out[name] / vertical
+        np.save(folder / f"{name}.npy", np.where(np.isnan(values), NODATA, values).astype(np.float32))
+    finite = np.isfinite(dtm)
+    return {
+        "tile": task["tile"],
+        "cells": int(dtm.size),
+        "nodata_cells": int((~finite).sum()),
+        "dtm_min": float(dtm[finite].min()) / vertical if finite.any() else None,
+        "dtm_max": float(dtm[finite].max()) / vertical if finite.any() else None,
+        "density_sum": int(density.sum()),
+        "ndsm_max": float(np.nanmax(ndsm)) / vertical if np.isfinite(ndsm).any() else None,
+    }
+
+
+def _fill(grid: np.ndarray, max_cells: float) -> np.ndarray:
+    """:func:`fill_nearest` that leaves a grid without any value as it is."""
+    return grid if np.isnan(grid).all() else fill_nearest(grid, max_cells=max_cells)

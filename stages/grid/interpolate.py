@@ -15,13 +15,22 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Grid:
-    """A north-up raster grid: top-left corner, resolution, size."""
+    """A north-up raster grid: top-left corner, resolution, size.
+
+    A *window* of a grid (:meth:`window`) keeps the grid's corner as its
+    anchor and counts its first row and column from it (``row0``,
+    ``col0``): every coordinate is computed from the anchor and the global
+    cell index, so a window's values are bit for bit those of the same cells
+    of the whole grid (what makes tiled rasters identical to untiled ones).
+    """
 
     xmin: float
     ymax: float
     resolution: float
     cols: int
     rows: int
+    row0: int = 0
+    col0: int = 0
 
     @classmethod
     def covering(cls, xmin: float, ymin: float, xmax: float, ymax: float, resolution: float) -> Grid:
@@ -40,18 +49,29 @@ class Grid:
         rows = int(math.floor((y1 - ymin) / resolution)) + 1
         return cls(float(x0), float(y1), float(resolution), cols, rows)
 
+    def window(self, r0: int, r1: int, c0: int, c1: int) -> Grid:
+        """Rows ``r0:r1`` and columns ``c0:c1`` of this grid (indices of this grid)."""
+        return Grid(self.xmin, self.ymax, self.resolution, c1 - c0, r1 - r0, self.row0 + r0, self.col0 + c0)
+
     @property
     def transform(self):
         """The affine pixel-to-map transform (rasterio convention)."""
         from affine import Affine
 
-        return Affine(self.resolution, 0.0, self.xmin, 0.0, -self.resolution, self.ymax)
+        return Affine(
+            self.resolution,
+            0.0,
+            self.xmin + self.col0 * self.resolution,
+            0.0,
+            -self.resolution,
+            self.ymax - self.row0 * self.resolution,
+        )
 
     def centres(self, row_start: int = 0, row_stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """x, y of the centres of rows ``row_start:row_stop``, each (rows, cols)."""
         row_stop = self.rows if row_stop is None else row_stop
-        xs = self.xmin + (np.arange(self.cols) + 0.5) * self.resolution
-        ys = self.ymax - (np.arange(row_start, row_stop) + 0.5) * self.resolution
+        xs = self.xmin + (np.arange(self.col0, self.col0 + self.cols) + 0.5) * self.resolution
+        ys = self.ymax - (np.arange(self.row0 + row_start, self.row0 + row_stop) + 0.5) * self.resolution
         return np.meshgrid(xs, ys)
 
 
@@ -105,8 +125,15 @@ def tin(
     origin = np.array([grid.xmin, grid.ymax])
     xy = pts[:, :2] - origin
     tri = Delaunay(xy)
+    # Canonical triangles: vertices in ascending index, triangles in
+    # lexicographic order.  A subset of the points (a tile) triangulates its
+    # interior into the same triangles; drawn in the same order from the same
+    # vertex order, they give the same values bit for bit (a cell on an edge
+    # shared by two triangles takes the later one's, everywhere alike).
+    simplices = np.sort(tri.simplices, axis=1)
+    simplices = simplices[np.lexsort(simplices.T[::-1])]
     out = np.full(grid.rows * grid.cols, np.nan)
-    _draw_triangles(xy, pts[:, 2], tri.simplices, grid, out, batch_cells, progress)
+    _draw_triangles(xy, pts[:, 2], simplices, grid, out, batch_cells, progress)
     out = out.reshape(grid.rows, grid.cols)
     # Cells far from every point are nodata even inside the hull (water).
     gx, gy = grid.centres()
@@ -124,8 +151,9 @@ def tin(
 def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: int, progress) -> None:
     """Fill *out* (flat, rows * cols) with each triangle's plane at the cell centres inside it.
 
-    Coordinates *xy* are relative to the grid's top-left corner; cell
-    centres are at ``((col + 0.5) r, -(row + 0.5) r)``.
+    Coordinates *xy* are relative to the grid's anchor (top-left corner of
+    the whole grid); cell centres are at ``((col + 0.5) r, -(row + 0.5) r)``
+    with the whole grid's row and column.
     """
     res = grid.resolution
     p0, p1, p2 = xy[simplices[:, 0]], xy[simplices[:, 1]], xy[simplices[:, 2]]
@@ -134,10 +162,10 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     det = ax * by - ay * bx
     tx = np.stack((p0[:, 0], p1[:, 0], p2[:, 0]), axis=1)
     ty = np.stack((p0[:, 1], p1[:, 1], p2[:, 1]), axis=1)
-    c0 = np.maximum(np.ceil(tx.min(axis=1) / res - 0.5), 0).astype(np.int64)
-    c1 = np.minimum(np.floor(tx.max(axis=1) / res - 0.5), grid.cols - 1).astype(np.int64)
-    r0 = np.maximum(np.ceil(-ty.max(axis=1) / res - 0.5), 0).astype(np.int64)
-    r1 = np.minimum(np.floor(-ty.min(axis=1) / res - 0.5), grid.rows - 1).astype(np.int64)
+    c0 = np.maximum(np.ceil(tx.min(axis=1) / res - 0.5), grid.col0).astype(np.int64)
+    c1 = np.minimum(np.floor(tx.max(axis=1) / res - 0.5), grid.col0 + grid.cols - 1).astype(np.int64)
+    r0 = np.maximum(np.ceil(-ty.max(axis=1) / res - 0.5), grid.row0).astype(np.int64)
+    r1 = np.minimum(np.floor(-ty.min(axis=1) / res - 0.5), grid.row0 + grid.rows - 1).astype(np.int64)
     width = np.maximum(c1 - c0 + 1, 0)
     count = width * np.maximum(r1 - r0 + 1, 0)
     count[np.abs(det) < 1e-12] = 0  # degenerate (collinear) triangles draw nothing
@@ -162,24 +190,47 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
             l2 = (ax[t] * vy - ay[t] * vx) / det[t]
             inside = (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1.0 + eps)
             value = z0[t] + l1 * (z1[t] - z0[t]) + l2 * (z2[t] - z0[t])  # exact on flat triangles
-            out[row[inside] * grid.cols + col[inside]] = value[inside]
+            out[(row[inside] - grid.row0) * grid.cols + (col[inside] - grid.col0)] = value[inside]
         if progress is not None and total:
             progress.update(grid.rows * n / total)
         first = last
 
 
 def _query_grid(points: np.ndarray, grid: Grid, k: int, nodata_distance: float, block_rows: int, progress):
-    """Yield (row slice, distances, indices) of the k nearest points of each cell centre."""
+    """Yield (row slice, distances, indices) of the k nearest points of each cell centre.
+
+    Neighbours are chosen canonically: by distance, ties by index.  (A
+    k-d tree breaks a tie at the k-th distance by its own traversal order,
+    which changes with the set of points; coordinates on a millimetre grid
+    tie often.)  Rows are sorted by distance, then index.
+    """
     from scipy.spatial import cKDTree
 
     origin = np.array([grid.xmin, grid.ymax])
+    n = len(points)
     tree = cKDTree(points[:, :2] - origin)
     for start in range(0, grid.rows, block_rows):
         stop = min(grid.rows, start + block_rows)
         gx, gy = grid.centres(start, stop)
         q = np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1]))
-        dist, idx = tree.query(q, k=k, distance_upper_bound=nodata_distance, workers=-1)
-        yield start, stop, dist.reshape(len(q), k), idx.reshape(len(q), k)
+        kk = min(k + 1, n)
+        dist, idx = tree.query(q, k=kk, distance_upper_bound=nodata_distance, workers=-1)
+        dist, idx = dist.reshape(len(q), kk), idx.reshape(len(q), kk)
+        if kk > k:
+            # Rows whose k-th and (k+1)-th neighbours tie: ask for more until the tie is inside.
+            tied = np.flatnonzero(np.isfinite(dist[:, k]) & (dist[:, k] == dist[:, k - 1]))
+            more = kk
+            while len(tied) and more < n:
+                more = min(2 * more + 8, n)
+                d2, i2 = tree.query(q[tied], k=more, distance_upper_bound=nodata_distance, workers=-1)
+                d2, i2 = d2.reshape(len(tied), more), i2.reshape(len(tied), more)
+                order = np.lexsort((i2, d2), axis=1)[:, :kk]
+                dist[tied] = np.take_along_axis(d2, order, axis=1)
+                idx[tied] = np.take_along_axis(i2, order, axis=1)
+                still = np.isfinite(d2[:, -1]) & (d2[:, -1] == dist[tied, k - 1])
+                tied = tied[still]
+        order = np.lexsort((idx, dist), axis=1)[:, :k]
+        yield start, stop, np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
         if progress is not None:
             progress.update(stop - start)
 
@@ -207,6 +258,11 @@ def idw(
     out = np.empty((grid.rows, grid.cols), dtype=np.float64)
     z = np.append(pts[:, 2], np.nan)  # index len(pts) = "no neighbour"
     for start, stop, dist, idx in _query_grid(pts, grid, k, nodata_distance, block_rows, progress):
+        # Sum the neighbours in index order, not in the tree's order: the
+        # same neighbours then give the same sum bit for bit whatever subset
+        # of the points (a tile) the tree was built on.
+        order = np.argsort(idx, axis=1, kind="stable")
+        idx, dist = np.take_along_axis(idx, order, axis=1), np.take_along_axis(dist, order, axis=1)
         valid = np.isfinite(dist)
         with np.errstate(divide="ignore"):
             w = np.where(valid, 1.0 / np.maximum(dist, 1e-12) ** power, 0.0)
@@ -238,8 +294,8 @@ def nearest(
 
 def cell_of(points: np.ndarray, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     """Row and column of the cell holding each point (-1 outside the grid)."""
-    col = np.floor((points[:, 0] - grid.xmin) / grid.resolution).astype(np.int64)
-    row = np.floor((grid.ymax - points[:, 1]) / grid.resolution).astype(np.int64)
+    col = np.floor((points[:, 0] - grid.xmin) / grid.resolution).astype(np.int64) - grid.col0
+    row = np.floor((grid.ymax - points[:, 1]) / grid.resolution).astype(np.int64) - grid.row0
     outside = (col < 0) | (col >= grid.cols) | (row < 0) | (row >= grid.rows)
     col[outside] = -1
     row[outside] = -1

@@ -40,10 +40,16 @@ class CellIndex:
 
 
 def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
-    """Grid the bounding box of *xy* with square cells of *cell_size*."""
-    x0, y0 = float(xy[:, 0].min()), float(xy[:, 1].min())
-    col = ((xy[:, 0] - x0) / cell_size).astype(np.int64)
-    row = ((xy[:, 1] - y0) / cell_size).astype(np.int64)
+    """Grid the bounding box of *xy* with square cells of *cell_size*.
+
+    The grid's corner is the box's corner rounded down to a whole multiple
+    of *cell_size*, so every subset of the points (a tile) puts each point in
+    the same cell, at the same place in the cell, as the whole set does.
+    """
+    x0 = float(np.floor(xy[:, 0].min() / cell_size) * cell_size)
+    y0 = float(np.floor(xy[:, 1].min() / cell_size) * cell_size)
+    col = np.floor((xy[:, 0] - x0) / cell_size).astype(np.int64)
+    row = np.floor((xy[:, 1] - y0) / cell_size).astype(np.int64)
     return CellIndex(x0, y0, cell_size, int(row.max()) + 1, int(col.max()) + 1, row, col)
 
 

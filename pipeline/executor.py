@@ -1,0 +1,150 @@
+"""Executors: where the tasks of a tiled stage run.
+
+- :class:`LocalExecutor`: worker processes on this machine
+  (``executor: {kind: local, workers: N}``); one task, or one worker, runs
+  in this process.
+- :class:`DaskExecutor`: a Dask distributed cluster
+  (``executor: {kind: dask, address: tcp://host:8786}``), or, with no
+  address, a local Dask cluster of ``workers`` processes.  The workers must
+  have this package installed and see the cache folder at the same path.
+
+Tasks are module-level functions called with a small dict (paths and
+parameters, never large arrays) and returning something small; results come
+back in the order of the tasks.  The transport between processes is the
+executors' own (``concurrent.futures`` and Dask serialise the small task
+dicts); nothing they serialise is ever stored.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
+from typing import Any
+
+from pipeline.errors import ConfigError
+
+
+class LocalExecutor:
+    """Worker processes on this machine (started once per run, on first use)."""
+
+    def __init__(self, workers: int = 1):
+        self.workers = max(1, int(workers))
+        self._pool: ProcessPoolExecutor | None = None
+
+    def describe(self) -> str:
+        return f"local, {self.workers} worker{'s' if self.workers > 1 else ''}"
+
+    def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
+        """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task."""
+        if self.workers == 1 or len(tasks) <= 1:
+            results = []
+            for i, t in enumerate(tasks):
+                results.append(fn(t))
+                _done(log, i + 1, len(tasks), what)
+            return results
+        if self._pool is None:
+            # spawn: a clean interpreter per worker (fork would copy the
+            # parent's threads and GDAL/PROJ state).
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        futures = [self._pool.submit(fn, t) for t in tasks]
+        return _collect(futures, log, what, cancel=lambda: [f.cancel() for f in futures])
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+class DaskExecutor:
+    """A Dask distributed cluster: the one at ``address``, or a local one started on first use."""
+
+    def __init__(self, address: str | None = None, workers: int = 1):
+        self.address = address
+        self.workers = max(1, int(workers))
+        self._client = None
+        self._cluster = None
+
+    def describe(self) -> str:
+        return f"dask {self.address}" if self.address else f"dask local cluster, {self.workers} workers"
+
+    def _connect(self):
+        if self._client is not None:
+            return self._client
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:  # pragma: no cover - a dependency
+            raise ConfigError(
+                "executor.kind: dask needs the 'distributed' package (pip install distributed)."
+            ) from None
+        for name in ("distributed", "bokeh", "tornado"):
+            logging.getLogger(name).setLevel(logging.ERROR)
+        try:
+            if self.address:
+                self._client = Client(self.address, timeout="30s")
+            else:
+                self._cluster = LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+                self._client = Client(self._cluster)
+        except OSError as exc:
+            raise ConfigError(f"executor.address: cannot reach the Dask scheduler at {self.address} ({exc}).") from None
+        return self._client
+
+    def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
+        if not tasks:
+            return []
+        client = self._connect()
+        futures = client.map(fn, list(tasks), pure=False)
+        return _collect(futures, log, what, cancel=lambda: client.cancel(futures))
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+
+def _done(log: Any, k: int, n: int, what: str) -> None:
+    if log is not None and n > 1:
+        log.info("%s: %d of %d done", what, k, n)
+
+
+def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any]) -> list[Any]:
+    """Wait for every future (logging progress); the first failure cancels the rest and is raised."""
+    pending = set(range(len(futures)))
+    done_count = 0
+    while pending:
+        if isinstance(futures[0], Future):
+            done, _ = wait([futures[i] for i in pending], return_when=FIRST_EXCEPTION)
+            finished = [i for i in pending if futures[i] in done]
+        else:  # dask futures
+            time.sleep(0.05)
+            finished = [i for i in pending if futures[i].done()]
+        for i in finished:
+            pending.discard(i)
+            exc = futures[i].exception()
+            if exc is not None:
+                cancel()
+                raise exc
+            done_count += 1
+            _done(log, done_count, len(futures), what)
+    return [f.result() for f in futures]
+
+
+def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
+    """The executor the configuration's ``executor`` block names."""
+    ex = getattr(config, "executor", None)
+    if ex is None:
+        return LocalExecutor(1)
+    if ex.kind == "dask":
+        return DaskExecutor(ex.address, ex.workers)
+    return LocalExecutor(ex.workers)

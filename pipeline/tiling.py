@@ -1,0 +1,207 @@
+"""Tiles with buffers: cutting a plane extent into square tasks.
+
+The engine knows nothing about what lies on the plane.  A stage that works
+tile by tile gives :func:`run_tiled` its extent, the buffer its algorithm
+needs, and three functions: ``split`` (make each tile's task from the input:
+the items inside the tile plus its buffer), ``task`` (a module-level
+function run by the executor on one task: small arguments, paths, and a
+small result) and ``merge`` (assemble the results, keeping each tile's core
+only).  Tiles are squares aligned on multiples of their size, so the tiles
+of neighbouring jobs line up; each point of the plane belongs to the core
+of exactly one tile (cores are closed at their low edges, open at their high
+edges).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One tile: its index in the layout and its core rectangle."""
+
+    index: int
+    col: int
+    row: int
+    xmin: float
+    ymin: float
+    xmax: float
+    ymax: float
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able form, for task arguments."""
+        return {
+            "index": self.index,
+            "col": self.col,
+            "row": self.row,
+            "xmin": self.xmin,
+            "ymin": self.ymin,
+            "xmax": self.xmax,
+            "ymax": self.ymax,
+        }
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Square tiles of side ``size`` over an extent; ``size`` None = a single tile.
+
+    Tile ``(col, row)`` covers ``[(c0 + col) size, (c0 + col + 1) size)`` in x
+    and likewise in y (rows grow northwards here).
+    """
+
+    extent: tuple[float, float, float, float]
+    size: float | None
+    buffer: float
+    c0: int = 0
+    r0: int = 0
+    cols: int = 1
+    rows: int = 1
+
+    @classmethod
+    def of(cls, extent: Sequence[float], size: float | None, buffer: float) -> Layout:
+        """The layout covering *extent* (xmin, ymin, xmax, ymax)."""
+        xmin, ymin, xmax, ymax = (float(v) for v in extent)
+        if size is None or not math.isfinite(size):
+            return cls((xmin, ymin, xmax, ymax), None, float(buffer))
+        c0, r0 = math.floor(xmin / size), math.floor(ymin / size)
+        cols = math.floor(xmax / size) - c0 + 1
+        rows = math.floor(ymax / size) - r0 + 1
+        return cls((xmin, ymin, xmax, ymax), float(size), float(buffer), c0, r0, cols, rows)
+
+    def __len__(self) -> int:
+        return self.cols * self.rows
+
+    @property
+    def tiles(self) -> list[Tile]:
+        if self.size is None:
+            return [Tile(0, 0, 0, *self.extent)]
+        s = self.size
+        return [
+            Tile(
+                r * self.cols + c,
+                c,
+                r,
+                (self.c0 + c) * s,
+                (self.r0 + r) * s,
+                (self.c0 + c + 1) * s,
+                (self.r0 + r + 1) * s,
+            )
+            for r in range(self.rows)
+            for c in range(self.cols)
+        ]
+
+    def _cells(self, v: np.ndarray, origin: int, count: int, shift: float) -> np.ndarray:
+        return np.clip(
+            np.floor((np.asarray(v, dtype=np.float64) + shift) / self.size).astype(np.int64) - origin, -1, count
+        )
+
+    def locate(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Index of the tile whose core holds each point (-1 outside the layout)."""
+        if self.size is None:
+            return np.zeros(len(x), dtype=np.int64)
+        c = self._cells(x, self.c0, self.cols, 0.0)
+        r = self._cells(y, self.r0, self.rows, 0.0)
+        inside = (c >= 0) & (c < self.cols) & (r >= 0) & (r < self.rows)
+        return np.where(inside, r * self.cols + c, -1)
+
+    def memberships(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every (point, tile) pair with the point inside the tile's core plus buffer.
+
+        Returns
+        -------
+        point, tile : ndarray of int64
+            Pairs sorted by tile, then by point.
+        """
+        n = len(x)
+        if self.size is None:
+            return np.arange(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+        b = self.buffer
+        # Tile i holds x in [lo_i - b, hi_i + b): i from floor((x - b) / s) to floor((x + b) / s).
+        c_lo, c_hi = self._cells(x, self.c0, self.cols, -b), self._cells(x, self.c0, self.cols, b)
+        r_lo, r_hi = self._cells(y, self.r0, self.rows, -b), self._cells(y, self.r0, self.rows, b)
+        points, tiles = [], []
+        for dc in range(int((c_hi - c_lo).max(initial=0)) + 1):
+            c = c_lo + dc
+            cok = (c <= c_hi) & (c >= 0) & (c < self.cols)
+            for dr in range(int((r_hi - r_lo).max(initial=0)) + 1):
+                r = r_lo + dr
+                ok = cok & (r <= r_hi) & (r >= 0) & (r < self.rows)
+                sel = np.flatnonzero(ok)
+                points.append(sel)
+                tiles.append(r[sel] * self.cols + c[sel])
+        point = np.concatenate(points) if points else np.zeros(0, dtype=np.int64)
+        tile = np.concatenate(tiles) if tiles else np.zeros(0, dtype=np.int64)
+        key = np.sort(tile * max(n, 1) + point)  # one integer sort: by tile, then by point
+        return key % max(n, 1), key // max(n, 1)
+
+
+def layout_for(config: Any, extent: Sequence[float], buffer: float) -> Layout:
+    """The layout the configuration's ``tiling`` block asks for (a single tile when disabled)."""
+    tiling = getattr(config, "tiling", None)
+    if tiling is None or not tiling.enabled:
+        return Layout.of(extent, None, buffer)
+    if tiling.buffer is not None:
+        buffer = float(tiling.buffer)
+    return Layout.of(extent, tiling.size, buffer)
+
+
+def run_tiled(
+    ctx: Any,
+    *,
+    extent: Sequence[float],
+    buffer: float,
+    split: Callable[[Layout], list[dict[str, Any]]],
+    task: Callable[[dict[str, Any]], Any],
+    merge: Callable[[Layout, list[dict[str, Any]], list[Any]], Any],
+    what: str = "tiles",
+) -> Any:
+    """Run a stage's work tile by tile on the run's executor.
+
+    Parameters
+    ----------
+    ctx : StageContext
+        Gives the configuration, the executor and the log.
+    extent : (xmin, ymin, xmax, ymax)
+        What the tiles must cover.
+    buffer : float
+        The margin each task needs around its tile (the reach of the
+        algorithm), unless the configuration sets ``tiling.buffer``.
+    split : callable
+        ``split(layout) -> tasks``: one dict of small arguments per tile
+        that holds something (paths, not arrays).
+    task : callable
+        Module-level function run on each task (in another process or on a
+        Dask worker); returns something small.
+    merge : callable
+        ``merge(layout, tasks, results)``, results in the tasks' order.
+
+    Returns
+    -------
+    The value of *merge*.
+    """
+    layout = layout_for(ctx.config, extent, buffer)
+    ctx.metrics["tiling"] = {
+        "tiles": len(layout),
+        "size": layout.size,
+        "buffer": layout.buffer,
+        "executor": ctx.executor.describe(),
+    }
+    tasks = split(layout)
+    ctx.metrics["tiling"]["tasks"] = len(tasks)
+    if len(layout) > 1:
+        ctx.log.info(
+            "%d tiles of %g with a buffer of %g (%d hold data) on %s",
+            len(layout),
+            layout.size,
+            layout.buffer,
+            len(tasks),
+            ctx.executor.describe(),
+        )
+    results = ctx.executor.map(task, tasks, log=ctx.log, what=what)
+    return merge(layout, tasks, results)

@@ -1,0 +1,383 @@
+"""Point clouds and rasters cut into the engine's tiles, and put back together.
+
+The engine (:mod:`pipeline.tiling`) cuts a plane into tiles; this module
+does the LiDAR side, streaming, so that memory depends on the tile size and
+not on the survey:
+
+- :func:`split_cloud` reads a LAS file chunk by chunk and writes, for every
+  tile, the columns its task needs (coordinates in metres, classes, ...) of
+  the points inside the tile plus its buffer, in file order, with each
+  point's index in the file (``idx``) and whether it lies in the tile's core
+  (``core``).
+- :func:`merge_classes` writes the input file again, chunk by chunk, with
+  the classes the tiles computed for their core points: every point is in
+  exactly one core, so the output has the input's points in the input's
+  order, byte for byte what an untiled run writes.
+- :class:`RasterMosaic` assembles rasters from windows (a tiled GeoTIFF on
+  disk) and converts them to Cloud Optimized GeoTIFF.
+
+Why tiled and untiled results are identical: every algorithm the tiles run
+computes on grids anchored at whole multiples of their cell size (not at the
+data's corner), sees the points in the file's order, and gets a buffer at
+least as wide as its reach; the same code runs untiled as a single tile.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stages.io import npy_header
+
+#: Bytes of tile columns held in memory before they are appended to disk.
+SPILL_BYTES = 64 * 2**20
+#: Values read at a time from each tile's result files while merging.
+MERGE_BLOCK = 65_536
+
+
+class _Spill:
+    """Per-tile columns appended to ``<root>/<tile>/<name>.npy``, buffered in memory up to a budget."""
+
+    def __init__(self, root: Path, budget: int = SPILL_BYTES):
+        self.root = Path(root)
+        self.budget = budget
+        self.pending: dict[int, list[dict[str, np.ndarray]]] = {}
+        self.pending_bytes = 0
+        self.rows: dict[int, int] = {}
+        self.dtypes: dict[str, np.dtype] = {}
+
+    def add(self, tile: int, columns: dict[str, np.ndarray]) -> None:
+        self.pending.setdefault(tile, []).append(columns)
+        self.pending_bytes += sum(a.nbytes for a in columns.values())
+        if self.pending_bytes > self.budget:
+            self.flush()
+
+    def flush(self) -> None:
+        for tile, parts in self.pending.items():
+            folder = self.root / str(tile)
+            new = tile not in self.rows
+            folder.mkdir(parents=True, exist_ok=True)
+            for name in parts[0]:
+                self.dtypes.setdefault(name, parts[0][name].dtype)
+                with open(folder / f"{name}.npy", "wb" if new else "ab") as fh:
+                    if new:
+                        fh.write(b"\0" * 128)
+                    for part in parts:
+                        fh.write(np.ascontiguousarray(part[name]).tobytes())
+            self.rows[tile] = self.rows.get(tile, 0) + sum(len(p["idx"]) for p in parts)
+        self.pending.clear()
+        self.pending_bytes = 0
+
+    def close(self) -> dict[int, int]:
+        self.flush()
+        for tile, rows in self.rows.items():
+            for name, dtype in self.dtypes.items():
+                with open(self.root / str(tile) / f"{name}.npy", "r+b") as fh:
+                    fh.write(npy_header(dtype, rows))
+        return dict(self.rows)
+
+
+def las_extent_metres(path: Path) -> tuple[tuple[float, float, float, float], Any, int]:
+    """The (xmin, ymin, xmax, ymax) of a LAS file's header in metres, its units and its point count."""
+    import laspy
+
+    from stages.units import Units
+
+    with laspy.open(str(path)) as reader:
+        header = reader.header
+        try:
+            crs = header.parse_crs()
+        except Exception:  # laspy raises various errors for malformed GeoTIFF keys
+            crs = None
+        units = Units.of(crs)
+        lo = units.to_metres(np.array([[header.mins[0], header.mins[1], header.mins[2]]]))[0]
+        hi = units.to_metres(np.array([[header.maxs[0], header.maxs[1], header.maxs[2]]]))[0]
+        return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), units, int(header.point_count)
+
+
+def split_cloud(
+    path: Path,
+    layout,
+    folder: Path,
+    columns: Callable[[Any, np.ndarray], dict[str, np.ndarray]],
+    *,
+    chunk_size: int = 1_000_000,
+    progress=None,
+    count: Callable[[dict[str, np.ndarray]], dict[str, int]] | None = None,
+) -> tuple[dict[int, tuple[int, int]], dict[str, int]]:
+    """Write each tile's points (core plus buffer) as ``.npy`` columns under ``folder/<tile>/``.
+
+    Parameters
+    ----------
+    path : Path
+        The LAS file.
+    layout : pipeline.tiling.Layout
+        Tiles and buffer, in metres.
+    folder : Path
+        Where the tiles' folders go.
+    columns : callable
+        ``columns(chunk, xyz_metres) -> {name: array}``: what the tasks need
+        of a chunk of points (laspy record), one value per point.
+    chunk_size : int
+        Points read at a time.
+    progress : Progress, optional
+        Advanced by the points read.
+    count : callable, optional
+        ``count(cols) -> {name: n}`` summed over the chunks (totals the
+        caller checks before running the tasks).
+
+    Returns
+    -------
+    rows : dict
+        Tile index -> (points written, of which in the core); tiles with
+        none are absent.
+    totals : dict
+        ``points`` read and the sums of *count*.
+    """
+    import laspy
+
+    from stages.units import Units
+
+    spill = _Spill(folder)
+    core_rows: dict[int, int] = {}
+    totals: dict[str, int] = {"points": 0}
+    with laspy.open(str(path)) as reader:
+        try:
+            crs = reader.header.parse_crs()
+        except Exception:
+            crs = None
+        units = Units.of(crs)
+        start = 0
+        for chunk in reader.chunk_iterator(chunk_size):
+            n = len(chunk)
+            xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
+            cols = columns(chunk, xyz)
+            cols["idx"] = np.arange(start, start + n, dtype=np.int64)
+            if count is not None:
+                for k, v in count(cols).items():
+                    totals[k] = totals.get(k, 0) + int(v)
+            home = layout.locate(xyz[:, 0], xyz[:, 1])
+            point, tile = layout.memberships(xyz[:, 0], xyz[:, 1])
+            bounds = np.flatnonzero(np.diff(tile)) + 1
+            for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(tile)], strict=True):
+                if lo == hi:
+                    continue
+                t = int(tile[lo])
+                sel = point[lo:hi]
+                part = {k: np.asarray(v)[sel] for k, v in cols.items()}
+                part["core"] = home[sel] == t
+                core_rows[t] = core_rows.get(t, 0) + int(part["core"].sum())
+                spill.add(t, part)
+            start += n
+            totals["points"] += n
+            if progress is not None:
+                progress.update(n)
+    rows = spill.close()
+    return {t: (n, core_rows[t]) for t, n in rows.items()}, totals
+
+
+def read_tile(folder: Path) -> dict[str, np.ndarray]:
+    """The columns :func:`split_cloud` wrote for one tile (read into memory)."""
+    return {p.stem: np.load(p) for p in sorted(Path(folder).glob("*.npy"))}
+
+
+def write_result(folder: Path, **columns: np.ndarray) -> None:
+    """Write a task's per-point results (``idx`` ascending plus values) as ``.npy`` files."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, values in columns.items():
+        np.save(folder / f"{name}.npy", np.ascontiguousarray(values))
+
+
+class _Run:
+    """One tile's results (``idx`` ascending, values), read in blocks from disk."""
+
+    def __init__(self, folder: Path, names: list[str]):
+        self.names = ["idx", *names]
+        self.files = {}
+        self.dtypes = {}
+        self.left = None
+        for name in self.names:
+            fh = open(Path(folder) / f"{name}.npy", "rb")  # noqa: SIM115 - closed in close()
+            major, minor = np.lib.format.read_magic(fh)
+            read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(fh)
+            self.files[name], self.dtypes[name] = fh, dtype
+            self.left = int(shape[0])
+        self.buf = {n: np.zeros(0, self.dtypes[n]) for n in self.names}
+
+    def take_below(self, stop: int) -> dict[str, np.ndarray]:
+        parts = []
+        while True:
+            if len(self.buf["idx"]) == 0:
+                if self.left == 0:
+                    break
+                k = min(MERGE_BLOCK, self.left)
+                self.buf = {n: np.fromfile(self.files[n], dtype=self.dtypes[n], count=k) for n in self.names}
+                self.left -= k
+            cut = int(np.searchsorted(self.buf["idx"], stop))
+            parts.append({n: a[:cut] for n, a in self.buf.items()})
+            self.buf = {n: a[cut:] for n, a in self.buf.items()}
+            if len(self.buf["idx"]):
+                break
+        if not parts:
+            return {n: np.zeros(0, self.dtypes[n]) for n in self.names}
+        return {n: np.concatenate([p[n] for p in parts]) for n in self.names}
+
+    def close(self) -> None:
+        for fh in self.files.values():
+            fh.close()
+
+
+def merge_classes(
+    src: Path,
+    dst: Path,
+    results: list[Path],
+    *,
+    chunk_size: int = 1_000_000,
+    progress=None,
+) -> None:
+    """Copy the LAS *src* to *dst* with the classes of the tiles' results.
+
+    Each result folder holds ``idx`` (ascending) and ``classification`` for
+    the core points of one tile; together they cover every point once.
+    """
+    import laspy
+
+    runs = [_Run(folder, ["classification"]) for folder in results]
+    try:
+        with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+            start = 0
+            for chunk in reader.chunk_iterator(chunk_size):
+                n = len(chunk)
+                cls = np.asarray(chunk.classification).copy()
+                filled = np.zeros(n, dtype=bool)
+                for run in runs:
+                    got = run.take_below(start + n)
+                    where = got["idx"] - start
+                    cls[where] = got["classification"]
+                    filled[where] = True
+                if not filled.all():  # pragma: no cover - a broken layout, never a user error
+                    raise RuntimeError(f"tiling left {int((~filled).sum())} points without a result")
+                chunk.classification = cls
+                writer.write_points(chunk)
+                start += n
+                if progress is not None:
+                    progress.update(n)
+    finally:
+        for run in runs:
+            run.close()
+
+
+def core_window(grid, tile) -> tuple[int, int, int, int]:
+    """Rows and columns ``(r0, r1, c0, c1)`` of *grid* whose cell centres lie in *tile*'s core.
+
+    Cell centres on a core's low edge belong to it, on its high edge to the
+    next tile, so the windows of a layout's tiles partition the grid.
+    """
+    import math
+
+    res = grid.resolution
+    c0 = math.ceil((tile["xmin"] - grid.xmin) / res - 0.5)
+    c1 = math.ceil((tile["xmax"] - grid.xmin) / res - 0.5)
+    r0 = math.floor((grid.ymax - tile["ymax"]) / res - 0.5) + 1
+    r1 = math.floor((grid.ymax - tile["ymin"]) / res - 0.5) + 1
+    clip_c = lambda v: min(max(v, 0), grid.cols)  # noqa: E731
+    clip_r = lambda v: min(max(v, 0), grid.rows)  # noqa: E731
+    return clip_r(r0), clip_r(r1), clip_c(c0), clip_c(c1)
+
+
+class RasterMosaic:
+    """A float32 raster assembled from windows on disk, then written as a COG.
+
+    Windows go into a tiled, uncompressed GeoTIFF beside the destination;
+    :meth:`finish` converts it with GDAL's COG driver (which streams) and
+    removes it.  Windows nobody writes hold *fill*.
+    """
+
+    def __init__(self, path: Path, *, rows: int, cols: int, transform, crs, nodata: float, fill: float):
+        import rasterio
+
+        from stages.io import COG_BLOCKSIZE
+
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.name}.mosaic.tif")
+        wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
+        self.rows, self.cols, self.fill = rows, cols, fill
+        self.ds = rasterio.open(
+            self.tmp,
+            "w",
+            driver="GTiff",
+            width=cols,
+            height=rows,
+            count=1,
+            dtype="float32",
+            crs=rasterio.crs.CRS.from_wkt(wkt),
+            transform=transform,
+            nodata=nodata,
+            tiled=True,
+            blockxsize=COG_BLOCKSIZE,
+            blockysize=COG_BLOCKSIZE,
+            BIGTIFF="IF_SAFER",
+        )
+        self.covered = 0
+
+    def write(self, r0: int, c0: int, array: np.ndarray) -> None:
+        from rasterio.windows import Window
+
+        data = np.asarray(array, dtype=np.float32)
+        if data.size:
+            self.ds.write(data, 1, window=Window(c0, r0, data.shape[1], data.shape[0]))
+            self.covered += data.size
+
+    def write_fill(self, r0: int, r1: int, c0: int, c1: int) -> None:
+        """Fill a window no task wrote (a tile without any point near it)."""
+        if r1 > r0 and c1 > c0:
+            self.write(r0, c0, np.full((r1 - r0, c1 - c0), self.fill, dtype=np.float32))
+
+    def finish(self) -> None:
+        import rasterio
+        import rasterio.shutil
+
+        from stages.io import COG_BLOCKSIZE
+
+        if self.covered != self.rows * self.cols:  # pragma: no cover - a broken layout, never a user error
+            raise RuntimeError(f"mosaic {self.path.name}: {self.covered} of {self.rows * self.cols} cells written")
+        self.ds.close()
+        with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(self.tmp) as src:
+            rasterio.shutil.copy(
+                src,
+                str(self.path),
+                driver="COG",
+                COMPRESS="DEFLATE",
+                PREDICTOR="YES",
+                BLOCKSIZE=str(COG_BLOCKSIZE),
+                OVERVIEW_RESAMPLING="AVERAGE",
+                BIGTIFF="IF_SAFER",
+                NUM_THREADS="ALL_CPUS",
+            )
+        self.tmp.unlink()
+
+    def abort(self) -> None:
+        try:
+            self.ds.close()
+        finally:
+            self.tmp.unlink(missing_ok=True)
+
+
+def task_folder(workdir: Path, name: str) -> Path:
+    """A fresh folder for tile work inside a stage's workspace (removed by :func:`cleanup`)."""
+    folder = Path(workdir) / f".tiles-{name}"
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    return folder
+
+
+def cleanup(folder: Path) -> None:
+    """Remove a tile work folder (it must not enter the cache entry)."""
+    shutil.rmtree(folder, ignore_errors=True)

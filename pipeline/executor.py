@@ -21,7 +21,7 @@ import logging
 import multiprocessing
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
 
 from pipeline.errors import ConfigError
@@ -124,7 +124,7 @@ def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any]) -> l
     done_count = 0
     while pending:
         if isinstance(futures[0], Future):
-            done, _ = wait([futures[i] for i in pending], return_when=FIRST_EXCEPTION)
+            done, _ = wait([futures[i] for i in pending], return_when=FIRST_COMPLETED)
             finished = [i for i in pending if futures[i] in done]
         else:  # dask futures
             time.sleep(0.05)

@@ -212,7 +212,7 @@ def classify_tile(task: dict) -> dict:
 
     cols = read_tile(Path(task["source"]))
     params = ClassifyGroundParams.model_validate(task["params"])
-    points = np.column_stack((cols["x"], cols["y"], cols["z"]))
+    points = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed: memory is per tile
     cls = classify(
         points, cols["classification"], cols["return_number"], cols["number_of_returns"], cols["withheld"], params
     )

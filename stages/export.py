@@ -37,7 +37,8 @@ class ExportLas(Stage):
 
         src_path = ctx.inputs["points_classified"]
         dst_path = ctx.outputs["points_export"]
-        backend = laspy.LazBackend.Lazrs if ctx.params.compress else None
+        # LazrsParallel: chunks of 50,000 points compressed on every core (same format).
+        backend = laspy.LazBackend.LazrsParallel if ctx.params.compress else None
         with laspy.open(str(src_path)) as reader:
             header = reader.header
             with (

@@ -32,7 +32,6 @@ from pydantic import Field, field_validator
 from pipeline.config import InputFile, StrictModel
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageIO
-from stages.io import write_cloud
 
 
 def _check_crs(value: str | None) -> str | None:
@@ -137,7 +136,7 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "5"  # 5: NMEA GST/VTG range checks; 4: units in the metrics
+    version = "6"  # 6: LAS input converted chunk by chunk (offsets from the headers); 5: NMEA GST/VTG checks
     Params = InputConfig
     config_path = "input"
     can_disable = False
@@ -341,14 +340,15 @@ class Parse(Stage):
     def _run_las(self, ctx) -> None:
         import pyproj
 
-        from stages.readers.las import count_points, read_las_files
+        from stages.readers.las import convert_las_files, count_points
 
         params = ctx.params
         total = count_points(list(params.paths))
         assign = pyproj.CRS.from_user_input(params.crs) if params.crs else None
         with ctx.progress(total, "reading LAS/LAZ", unit="pt") as bar:
-            las, report = read_las_files(
+            crs, report, strips = convert_las_files(
                 list(params.paths),
+                ctx.outputs["points_georef"],
                 crs_setting=ctx.config.crs,
                 assign_crs=assign,
                 chunk_size=params.chunk_size,
@@ -356,20 +356,18 @@ class Parse(Stage):
             )
         if report.gps_time_missing:
             ctx.log.warning("no GPS time in %s: gps_time set to 0", ", ".join(report.gps_time_missing))
-        crs = las.header.parse_crs()
+        from stages.units import Units
+
         ctx.metrics.update(
             points_read=int(sum(report.points.values())),
             points_per_file=report.points,
             crs=crs.name,
             crs_epsg=crs.to_epsg(),
             crs_source=report.crs_source,
-            strips=[int(s) for s in np.unique(np.asarray(las.point_source_id))],
+            strips=sorted(strips),
+            units=Units.of(crs).describe(),
         )
-        from stages.units import Units
-
-        ctx.metrics.update(units=Units.of(crs).describe())
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
-        write_cloud(las, ctx.outputs["points_georef"])
 
 
 def _guard_stream(iterator, path: Path, counters):

@@ -145,10 +145,11 @@ class Rasterize(Stage):
                     f"only {ground} ground points (class 2) among {sums['points']:,} points ({classes}): a DTM needs "
                     "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
                 )
+            ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, ground, grid.cols, grid.rows)
             return [
                 {
                     "tile": tile.index,
-                    "window": core_window(grid, tile.as_dict()),
+                    "window": core_window(grid, tile.as_dict(), layout),
                     "source": str(work / "in" / str(tile.index)),
                     "result": str(work / "out" / str(tile.index)),
                     "grid": grid_args,
@@ -184,7 +185,7 @@ class Rasterize(Stage):
                 for tile in layout.tiles:
                     if tile.index not in done:
                         for n in names:
-                            mosaics[n].write_fill(*core_window(grid, tile.as_dict()))
+                            mosaics[n].write_fill(*core_window(grid, tile.as_dict(), layout))
                 for m in mosaics.values():
                     m.finish()
             except BaseException:
@@ -193,13 +194,6 @@ class Rasterize(Stage):
                 raise
             return results, transform
 
-        ctx.log.info(
-            "%s DTM from %d ground points on %d x %d cells",
-            p.method,
-            totals.get(f"class {glossary.GROUND}", 0),
-            grid.cols,
-            grid.rows,
-        )
         try:
             results, transform = run_tiled(
                 ctx, extent=extent, buffer=reach(p), split=split, task=rasterize_tile, merge=merge

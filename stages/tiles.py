@@ -273,11 +273,13 @@ def merge_classes(
             run.close()
 
 
-def core_window(grid, tile) -> tuple[int, int, int, int]:
+def core_window(grid, tile: dict, layout) -> tuple[int, int, int, int]:
     """Rows and columns ``(r0, r1, c0, c1)`` of *grid* whose cell centres lie in *tile*'s core.
 
     Cell centres on a core's low edge belong to it, on its high edge to the
-    next tile, so the windows of a layout's tiles partition the grid.
+    next tile, so the windows of a layout's tiles partition the grid; the
+    layout's outer tiles also take the grid's cells beyond it (a grid may
+    reach a cell past the points).
     """
     import math
 
@@ -286,9 +288,20 @@ def core_window(grid, tile) -> tuple[int, int, int, int]:
     c1 = math.ceil((tile["xmax"] - grid.xmin) / res - 0.5)
     r0 = math.floor((grid.ymax - tile["ymax"]) / res - 0.5) + 1
     r1 = math.floor((grid.ymax - tile["ymin"]) / res - 0.5) + 1
-    clip_c = lambda v: min(max(v, 0), grid.cols)  # noqa: E731
-    clip_r = lambda v: min(max(v, 0), grid.rows)  # noqa: E731
-    return clip_r(r0), clip_r(r1), clip_c(c0), clip_c(c1)
+    if tile["col"] == 0:
+        c0 = 0
+    if tile["col"] == layout.cols - 1:
+        c1 = grid.cols
+    if tile["row"] == layout.rows - 1:  # northernmost
+        r0 = 0
+    if tile["row"] == 0:  # southernmost
+        r1 = grid.rows
+    return (
+        min(max(r0, 0), grid.rows),
+        min(max(r1, 0), grid.rows),
+        min(max(c0, 0), grid.cols),
+        min(max(c1, 0), grid.cols),
+    )
 
 
 class RasterMosaic:

@@ -137,7 +137,7 @@ def tin(
     out = out.reshape(grid.rows, grid.cols)
     # Cells far from every point are nodata even inside the hull (water).
     gx, gy = grid.centres()
-    dist, _ = cKDTree(xy).query(
+    dist, _ = cKDTree(xy, balanced_tree=False, compact_nodes=False).query(
         np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1])),
         k=1,
         distance_upper_bound=nodata_distance,
@@ -208,7 +208,7 @@ def _query_grid(points: np.ndarray, grid: Grid, k: int, nodata_distance: float, 
 
     origin = np.array([grid.xmin, grid.ymax])
     n = len(points)
-    tree = cKDTree(points[:, :2] - origin)
+    tree = cKDTree(points[:, :2] - origin, balanced_tree=False, compact_nodes=False)  # 3x faster to build
     for start in range(0, grid.rows, block_rows):
         stop = min(grid.rows, start + block_rows)
         gx, gy = grid.centres(start, stop)

@@ -23,6 +23,8 @@ from stages.ground.surface import (
     slope_grid,
 )
 
+#: Points tested against the provisional DEM at a time.
+_BLOCK = 1 << 20
 _CROSS = ndimage.generate_binary_structure(2, 1)
 _SQUARE = ndimage.generate_binary_structure(2, 2)
 
@@ -151,6 +153,11 @@ def smrf(
     if np.isnan(provisional).all():
         return np.zeros(len(xyz), dtype=bool)
     dem = inpaint(provisional)
-    at = sample_bilinear(dem, idx, xyz[:, 0], xyz[:, 1])
-    grad = sample_bilinear(slope_grid(dem, cell_size), idx, xyz[:, 0], xyz[:, 1])
-    return np.abs(xyz[:, 2] - at) <= elevation_threshold + elevation_scalar * grad
+    slope_dem = slope_grid(dem, cell_size)
+    ground = np.empty(len(xyz), dtype=bool)
+    for a in range(0, len(xyz), _BLOCK):  # in blocks: bilinear sampling makes ten temporaries per point
+        x, y, z = xyz[a : a + _BLOCK, 0], xyz[a : a + _BLOCK, 1], xyz[a : a + _BLOCK, 2]
+        at = sample_bilinear(dem, idx, x, y)
+        grad = sample_bilinear(slope_dem, idx, x, y)
+        ground[a : a + _BLOCK] = np.abs(z - at) <= elevation_threshold + elevation_scalar * grad
+    return ground

@@ -48,8 +48,11 @@ def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
     """
     x0 = float(np.floor(xy[:, 0].min() / cell_size) * cell_size)
     y0 = float(np.floor(xy[:, 1].min() / cell_size) * cell_size)
-    col = np.floor((xy[:, 0] - x0) / cell_size).astype(np.int64)
-    row = np.floor((xy[:, 1] - y0) / cell_size).astype(np.int64)
+    col = np.floor((xy[:, 0] - x0) / cell_size)
+    row = np.floor((xy[:, 1] - y0) / cell_size)
+    small = col.max() * (row.max() + 1) + col.max() < 2**31  # int32 indices when the grid allows (memory)
+    col = col.astype(np.int32 if small else np.int64)
+    row = row.astype(np.int32 if small else np.int64)
     return CellIndex(x0, y0, cell_size, int(row.max()) + 1, int(col.max()) + 1, row, col)
 
 

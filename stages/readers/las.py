@@ -221,6 +221,95 @@ def count_points(paths: list[Path]) -> int:
     return total
 
 
+def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, report, progress=None):
+    """Read LAS/LAZ files chunk by chunk, in the output CRS.
+
+    Yields
+    ------
+    crs : pyproj.CRS
+        The output CRS (the same for every chunk).
+    columns : dict
+        ``x``, ``y``, ``z`` (float64, output CRS), ``scan_angle`` (degrees),
+        ``gps_time`` and the copied attributes of one chunk of points.
+
+    The *report* (:class:`LasReadReport`) is filled as files are read.
+
+    Raises
+    ------
+    InputDataError
+        When a file is not LAS/LAZ, is truncated, or has no usable CRS.
+    """
+    import pyproj
+
+    target = None
+    for path in paths:
+        with _open(path) as reader:
+            header = reader.header
+            src_crs, source = _file_crs(path, header, assign_crs)
+            report.crs_source[str(path)] = source
+            if target is None:
+                centre = None
+                if not src_crs.is_projected:
+                    centre = (
+                        float((header.mins[0] + header.maxs[0]) / 2),
+                        float((header.mins[1] + header.maxs[1]) / 2),
+                    )
+                target = output_crs(crs_setting, src_crs, centre)
+            transformer = None
+            if not src_crs.equals(target):
+                transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
+            dims = set(header.point_format.dimension_names)
+            if "gps_time" not in dims:
+                report.gps_time_missing.append(str(path))
+            n_read = 0
+            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+            try:
+                for chunk in reader.chunk_iterator(chunk_size):
+                    x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+                    if transformer is not None:
+                        x, y, z = transformer.transform(x, y, z)
+                    bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
+                    if bad.any():
+                        raise InputDataError(
+                            f"{path}: point {n_read + int(np.argmax(bad))} has coordinates that are not finite "
+                            "numbers (damaged scale or offset in the header?)."
+                        )
+                    n = len(chunk)
+                    cols = {
+                        "x": np.asarray(x, dtype=np.float64),
+                        "y": np.asarray(y, dtype=np.float64),
+                        "z": np.asarray(z, dtype=np.float64),
+                    }
+                    if n:
+                        xyz = (cols["x"], cols["y"], cols["z"])
+                        lo = np.minimum(lo, [v.min() for v in xyz])
+                        hi = np.maximum(hi, [v.max() for v in xyz])
+                        from stages.units import Units
+
+                        span = Units.of(target).horizontal * float(np.max(hi - lo))
+                        if span > MAX_SPAN_M:
+                            raise InputDataError(
+                                f"{path}: the points span {span:.3g} m, more than any survey on Earth "
+                                "(damaged scale or offset in the header?)."
+                            )
+                    if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
+                        cols["scan_angle"] = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
+                    else:  # formats 0-5: scan angle rank, whole degrees
+                        cols["scan_angle"] = np.asarray(chunk.scan_angle_rank, dtype=np.float64)
+                    cols["gps_time"] = (
+                        np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
+                    )
+                    for name in _COPIED:
+                        cols[name] = np.asarray(chunk[name])
+                    n_read += n
+                    if progress is not None:
+                        progress.update(n)
+                    yield target, cols
+            except _parse_errors() as exc:
+                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+            report.points[str(path)] = n_read
+
+
 def read_las_files(
     paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None
 ) -> tuple[object, LasReadReport]:
@@ -244,75 +333,131 @@ def read_las_files(
     InputDataError
         When a file is not LAS/LAZ, is truncated, or has no usable CRS.
     """
+    report = LasReadReport()
+    parts: list[dict[str, np.ndarray]] = []
+    target = None
+    for crs, cols in las_chunks(
+        paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, report=report, progress=progress
+    ):
+        target = crs
+        parts.append(cols)
+    if target is None:  # no point at all: still resolve the CRS from the first header
+        with _open(paths[0]) as reader:
+            src_crs, _ = _file_crs(paths[0], reader.header, assign_crs)
+            centre = None
+            if not src_crs.is_projected:
+                h = reader.header
+                centre = (float((h.mins[0] + h.maxs[0]) / 2), float((h.mins[1] + h.maxs[1]) / 2))
+            target = output_crs(crs_setting, src_crs, centre)
+    names = ("x", "y", "z", "scan_angle", "gps_time", *_COPIED)
+    merged = {k: (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)) for k in names}
+    return _build(merged, target), report
+
+
+def header_bounds(paths: list[Path], target, assign_crs) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
+
+    Horizontal bounds of a file in another CRS are transformed with the
+    edges densified (pyproj ``transform_bounds``).  Non-finite bounds (a
+    damaged header) are left out; the points are checked against the
+    writer's range as they are written (:func:`convert_las_files`).
+    """
     import pyproj
 
-    report = LasReadReport()
-    columns: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "z", "scan_angle", "gps_time", *_COPIED)}
-    target = None
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for path in paths:
         with _open(path) as reader:
-            header = reader.header
-            src_crs, source = _file_crs(path, header, assign_crs)
-            report.crs_source[str(path)] = source
-            if target is None:
-                centre = None
-                if not src_crs.is_projected:
-                    centre = (
-                        float((header.mins[0] + header.maxs[0]) / 2),
-                        float((header.mins[1] + header.maxs[1]) / 2),
-                    )
-                target = output_crs(crs_setting, src_crs, centre)
-            transformer = None
-            if not src_crs.equals(target):
-                transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
-            dims = set(header.point_format.dimension_names)
-            if "gps_time" not in dims:
-                report.gps_time_missing.append(str(path))
-            n_read = 0
-            first_chunk = len(columns["x"])  # this file's chunks start here
-            try:
-                for chunk in reader.chunk_iterator(chunk_size):
-                    x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-                    if transformer is not None:
-                        x, y, z = transformer.transform(x, y, z)
-                    bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
-                    if bad.any():
-                        raise InputDataError(
-                            f"{path}: point {n_read + int(np.argmax(bad))} has coordinates that are not finite "
-                            "numbers (damaged scale or offset in the header?)."
-                        )
-                    columns["x"].append(np.asarray(x, dtype=np.float64))
-                    columns["y"].append(np.asarray(y, dtype=np.float64))
-                    columns["z"].append(np.asarray(z, dtype=np.float64))
-                    if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
-                        angle = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
-                    else:  # formats 0-5: scan angle rank, whole degrees
-                        angle = np.asarray(chunk.scan_angle_rank, dtype=np.float64)
-                    columns["scan_angle"].append(angle)
-                    n = len(chunk)
-                    columns["gps_time"].append(
-                        np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
-                    )
-                    for name in _COPIED:
-                        columns[name].append(np.asarray(chunk[name]))
-                    n_read += n
-                    if progress is not None:
-                        progress.update(n)
-            except _parse_errors() as exc:
-                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
-            report.points[str(path)] = n_read
-            if n_read:
-                from stages.units import Units
+            h = reader.header
+            mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
+            if h.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+                continue
+            crs, _ = _file_crs(path, h, assign_crs)
+            if not crs.equals(target):
+                t = pyproj.Transformer.from_crs(crs, target, always_xy=True)
+                x0, y0, x1, y1 = t.transform_bounds(mins[0], mins[1], maxs[0], maxs[1], densify_pts=21)
+                mins, maxs = np.array([x0, y0, mins[2]]), np.array([x1, y1, maxs[2]])
+            lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
+    return lo, hi
 
-                metres = Units.of(target).horizontal
-                span = metres * max(float(np.ptp(np.concatenate(columns[k][first_chunk:]))) for k in ("x", "y", "z"))
-                if span > MAX_SPAN_M:
+
+def convert_las_files(
+    paths: list[Path], dst: Path, *, crs_setting: str, assign_crs, chunk_size: int, progress=None
+) -> tuple[object, LasReadReport, set[int]]:
+    """Convert LAS/LAZ files to one LAS 1.4 format-6 file in the output CRS, chunk by chunk.
+
+    Memory holds one chunk, whatever the survey's size.  The writer's
+    offsets and scale come from the headers' bounds (:func:`header_bounds`;
+    from the first chunk when no header has usable bounds); a point outside
+    the range they allow is an error naming the file (its header's bounds
+    are wrong).
+
+    Returns
+    -------
+    crs : pyproj.CRS
+        The output CRS.
+    report : LasReadReport
+    strips : set of int
+        The point source ids met.
+    """
+    import laspy
+
+    from stages.io import point_header
+
+    report = LasReadReport()
+    strips: set[int] = set()
+    writer = None
+    target = None
+    try:
+        for target, cols in las_chunks(
+            paths,
+            crs_setting=crs_setting,
+            assign_crs=assign_crs,
+            chunk_size=chunk_size,
+            report=report,
+            progress=progress,
+        ):
+            n = len(cols["x"])
+            if writer is None:
+                lo, hi = header_bounds(paths, target, assign_crs)
+                if not np.isfinite(lo).all():
+                    lo = np.array([cols[k].min() for k in "xyz"]) if n else None
+                    hi = np.array([cols[k].max() for k in "xyz"]) if n else None
+                header = point_header(target, lo, hi)
+                writer = laspy.open(str(dst), mode="w", header=header)
+            if not n:
+                continue
+            for k, axis in zip("xyz", range(3), strict=True):
+                units = (cols[k] - header.offsets[axis]) / header.scales[axis]
+                if units.min() < -(2.0**31) or units.max() >= 2.0**31:
                     raise InputDataError(
-                        f"{path}: the points span {span:.3g} m, more than any survey on Earth "
-                        "(damaged scale or offset in the header?)."
+                        f"the points of {', '.join(str(p) for p in paths)} reach {k} = "
+                        f"{float(cols[k][np.argmax(np.abs(units))]):.3f}, outside the bounds their LAS headers "
+                        "announce (a damaged header: bytes 179-226)."
                     )
-    merged = {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in columns.items()}
-    return _build(merged, target), report
+            writer.write_points(_record(cols, header))
+            strips.update(int(v) for v in np.unique(cols["point_source_id"]))
+        if writer is None:  # no point at all: an empty file with the output CRS
+            las, _ = read_las_files(paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size)
+            target = las.header.parse_crs()
+            writer = laspy.open(str(dst), mode="w", header=point_header(target))
+    finally:
+        if writer is not None:
+            writer.close()
+    return target, report, strips
+
+
+def _record(cols: dict[str, np.ndarray], header):
+    """A chunk of columns as a format-6 point record for *header*."""
+    import laspy
+
+    n = len(cols["x"])
+    rec = laspy.ScaleAwarePointRecord.zeros(n, header=header)
+    rec.x, rec.y, rec.z = cols["x"], cols["y"], cols["z"]
+    rec.scan_angle = np.clip(np.round(cols["scan_angle"] / SCAN_ANGLE_UNIT_DEG), -30000, 30000).astype(np.int16)
+    rec.gps_time = cols["gps_time"]
+    for name in _COPIED:
+        rec[name] = cols[name]
+    return rec
 
 
 def _build(cols: dict[str, np.ndarray], crs):
@@ -327,10 +472,5 @@ def _build(cols: dict[str, np.ndarray], crs):
     else:
         header = point_header(crs)
     las = laspy.LasData(header)
-    las.points = laspy.ScaleAwarePointRecord.zeros(n, header=header)
-    las.x, las.y, las.z = cols["x"], cols["y"], cols["z"]
-    las.scan_angle = np.clip(np.round(cols["scan_angle"] / SCAN_ANGLE_UNIT_DEG), -30000, 30000).astype(np.int16)
-    las.gps_time = cols["gps_time"]
-    for name in _COPIED:
-        las[name] = cols[name]
+    las.points = _record(cols, header)
     return las

@@ -8,6 +8,7 @@ noise (18), the others low noise (7); low outliers become low noise (7).
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -16,8 +17,7 @@ from pydantic import Field
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.io import read_cloud, write_cloud, xyz_metres
-from stages.noise import isolated_points, low_outliers
+from stages.noise import exact_mean_std, low_outliers, neighbour_distance
 
 
 class IsolatedParams(StrictModel):
@@ -26,6 +26,9 @@ class IsolatedParams(StrictModel):
     enabled: bool = Field(True, description="look for isolated points")
     neighbors: int = Field(8, ge=1, description="k: neighbours per point")
     multiplier: float = Field(5.0, gt=0, description="standard deviations above the mean neighbour distance")
+    radius: float = Field(
+        20.0, gt=0, description="neighbour distances are counted up to this (m); it bounds how far the test looks"
+    )
 
 
 class LowParams(StrictModel):
@@ -43,22 +46,62 @@ class DenoiseParams(StageParams):
     low: LowParams = Field(default_factory=LowParams, description="low outliers (multipath, below-ground echoes)")
 
 
+def reach(params: DenoiseParams) -> float:
+    """The buffer (metres) a tile needs for results equal to untiled ones.
+
+    A point's neighbour distance depends on the points within ``radius``;
+    whether an isolated point is high or low noise, on the non-isolated
+    points within ``radius`` of it, whose own test looks ``radius`` farther:
+    ``2 radius``.  A low-outlier cell must be whole: ``cell_size``.
+    """
+    return max(2.0 * params.isolated.radius, params.low.cell_size) + 1.0
+
+
 def noise_classes(points: np.ndarray, params: DenoiseParams) -> np.ndarray:
     """ASPRS noise class per point: 0 (not noise), 7 (low) or 18 (high)."""
+    distance = None
+    threshold = np.inf
+    if params.isolated.enabled and len(points) > params.isolated.neighbors:
+        p = params.isolated
+        distance = neighbour_distance(points, neighbors=p.neighbors, radius=p.radius)
+        mean, std, _ = exact_mean_std(lambda: [distance])
+        threshold = mean + p.multiplier * std
+    return classes_given(points, distance, threshold, params)
+
+
+def classes_given(points: np.ndarray, distance, threshold: float, params: DenoiseParams) -> np.ndarray:
+    """Noise classes once the isolation threshold (over the whole survey) is known.
+
+    An isolated point (``distance > threshold``) above the median height of
+    the non-isolated points among its ``neighbors`` nearest within
+    ``radius`` (in plan) is high noise (18), otherwise low noise (7); one
+    with no such point within ``radius`` is high noise (a bird, a cloud).
+    Low outliers (:func:`stages.noise.low_outliers`) are low noise.
+    """
     out = np.zeros(len(points), dtype=np.uint8)
     if len(points) == 0:
         return out
-    if params.isolated.enabled:
-        iso = isolated_points(points, neighbors=params.isolated.neighbors, multiplier=params.isolated.multiplier)
-        if iso.any() and (~iso).sum() > 0:
+    if distance is not None:
+        iso = distance > threshold
+        if iso.any():
             from scipy.spatial import cKDTree
 
+            from stages.grid.interpolate import canonical_neighbours
+
             rest = points[~iso]
-            k = min(params.isolated.neighbors, len(rest))
-            _, nb = cKDTree(rest[:, :2] - rest[:, :2].min(axis=0)).query(points[iso, :2] - rest[:, :2].min(axis=0), k=k)
-            nb = np.asarray(nb).reshape(int(iso.sum()), -1)  # (m,) when k == 1
-            local = np.median(rest[nb, 2], axis=1)
-            out[iso] = np.where(points[iso, 2] > local, glossary.HIGH_NOISE, glossary.LOW_NOISE)
+            high = np.ones(int(iso.sum()), dtype=bool)
+            if len(rest):
+                anchor = np.floor(points[:, :2].min(axis=0))  # whole metres: exact, tile or not
+                tree = cKDTree(rest[:, :2] - anchor, balanced_tree=False, compact_nodes=False)
+                k = min(params.isolated.neighbors, len(rest))
+                dist, nb = canonical_neighbours(tree, points[iso, :2] - anchor, k, params.isolated.radius)
+                found = np.isfinite(dist)
+                z = np.where(found, np.append(rest[:, 2], np.nan)[nb], np.nan)
+                has = found.any(axis=1)
+                local = np.full(len(z), np.nan)
+                local[has] = np.nanmedian(z[has], axis=1)
+                high = ~has | (points[iso, 2] > local)
+            out[iso] = np.where(high, glossary.HIGH_NOISE, glossary.LOW_NOISE)
     if params.low.enabled:
         low = low_outliers(points, cell_size=params.low.cell_size, elevation_threshold=params.low.elevation_threshold)
         out[low & (out == 0)] = glossary.LOW_NOISE
@@ -67,31 +110,114 @@ def noise_classes(points: np.ndarray, params: DenoiseParams) -> np.ndarray:
 
 class Denoise(Stage):
     name = "denoise"
-    version = "1"
+    version = "2"  # 2: distances counted up to a radius, exact statistics, tiles
     Params = DenoiseParams
     description = "isolated points and low outliers to noise classes 18/7"
     inputs = ("points_adjusted",)
     outputs: ClassVar = {"points_denoised": "points.las"}
     passthrough: ClassVar = {"points_denoised": "points_adjusted"}
+    config_keys = ("tiling.buffer",)
 
     def run(self, ctx) -> None:
-        las = read_cloud(ctx.inputs["points_adjusted"])
-        cls = np.asarray(las.classification).copy()
-        done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.asarray(las.withheld, dtype=bool)
-        found = np.zeros(len(cls), dtype=np.uint8)
-        found[~done] = noise_classes(xyz_metres(las)[0][~done], ctx.params)  # parameters are in metres
-        cls[found > 0] = found[found > 0]
-        las.classification = cls
+        from pipeline.tiling import run_tiled
+        from stages.tiles import cleanup, las_extent_metres, merge_classes, split_cloud, task_folder
+
+        src = ctx.inputs["points_adjusted"]
+        extent, _, total = las_extent_metres(src)
+        work = task_folder(ctx.workdir, self.name)
+        params = ctx.params.model_dump(mode="json")
+
+        def columns(chunk, xyz):
+            return {
+                "x": xyz[:, 0],
+                "y": xyz[:, 1],
+                "z": xyz[:, 2],
+                "classification": np.asarray(chunk.classification, dtype=np.uint8),
+                "withheld": np.asarray(chunk.withheld, dtype=bool),
+            }
+
+        def split(layout):
+            with ctx.progress(total, "tiling", unit="pt") as bar:
+                rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar)
+            return [
+                {
+                    "tile": t,
+                    "source": str(work / "in" / str(t)),
+                    "result": str(work / "out" / str(t)),
+                    "params": params,
+                    "threshold": None,
+                }
+                for t in sorted(rows)
+                if rows[t][1]
+            ]
+
+        def merge(layout, tasks, results):
+            threshold = np.inf
+            if ctx.params.isolated.enabled:
+                # the isolation threshold is a statistic of the whole survey: the
+                # tiles' distances (core points), summed exactly
+                def parts():
+                    for t in tasks:
+                        yield np.load(Path(t["result"]) / "distance.npy")
+
+                mean, std, n = exact_mean_std(parts)
+                if n > ctx.params.isolated.neighbors:
+                    threshold = mean + ctx.params.isolated.multiplier * std
+                ctx.metrics.update(isolation_threshold_m=round(float(threshold), 4) if n else None)
+            second = [{**t, "threshold": float(threshold)} for t in tasks]
+            counts = ctx.executor.map(denoise_tile, second, log=ctx.log, what="noise tiles")
+            with ctx.progress(total, "writing", unit="pt") as bar:
+                merge_classes(src, ctx.outputs["points_denoised"], [Path(t["result"]) for t in tasks], progress=bar)
+            return {k: sum(c[k] for c in counts) for k in ("points", "low", "high", "done")}
+
+        try:
+            counts = run_tiled(
+                ctx, extent=extent, buffer=reach(ctx.params), split=split, task=denoise_tile, merge=merge
+            )
+        finally:
+            cleanup(work)
         ctx.metrics.update(
-            points=int(len(cls)),
-            low_noise=int((found == glossary.LOW_NOISE).sum()),
-            high_noise=int((found == glossary.HIGH_NOISE).sum()),
-            already_noise_or_withheld=int(done.sum()),
+            points=int(counts["points"]),
+            low_noise=int(counts["low"]),
+            high_noise=int(counts["high"]),
+            already_noise_or_withheld=int(counts["done"]),
         )
-        ctx.log.info(
-            "%d low and %d high noise points of %d",
-            ctx.metrics["low_noise"],
-            ctx.metrics["high_noise"],
-            len(cls),
-        )
-        write_cloud(las, ctx.outputs["points_denoised"])
+        ctx.log.info("%d low and %d high noise points of %d", counts["low"], counts["high"], counts["points"])
+
+
+def denoise_tile(task: dict) -> dict:
+    """One tile of the noise tests (runs in a worker process).
+
+    Without ``task["threshold"]``: writes the neighbour distance of the core
+    points (``distance.npy``) for the survey-wide statistic.  With it: writes
+    ``idx`` and ``classification`` of the core points and returns counts.
+    """
+    from stages.tiles import read_tile, write_result
+
+    cols = read_tile(Path(task["source"]))
+    params = DenoiseParams.model_validate(task["params"])
+    points = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))
+    cls = cols["classification"].copy()
+    done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | cols["withheld"]
+    todo = points[~done]
+    core = cols["core"]
+    distance = None
+    if params.isolated.enabled:
+        p = params.isolated
+        distance = neighbour_distance(todo, neighbors=p.neighbors, radius=p.radius)
+    if task["threshold"] is None:
+        result = Path(task["result"])
+        result.mkdir(parents=True, exist_ok=True)
+        np.save(result / "distance.npy", distance[core[~done]] if distance is not None else np.zeros(0))
+        return {"tile": task["tile"]}
+    found = np.zeros(len(cls), dtype=np.uint8)
+    found[~done] = classes_given(todo, distance, task["threshold"], params)
+    cls[found > 0] = found[found > 0]
+    write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
+    return {
+        "tile": task["tile"],
+        "points": int(core.sum()),
+        "low": int((found[core] == glossary.LOW_NOISE).sum()),
+        "high": int((found[core] == glossary.HIGH_NOISE).sum()),
+        "done": int(done[core].sum()),
+    }

@@ -9,13 +9,61 @@ from __future__ import annotations
 import numpy as np
 
 
-def isolated_points(xyz: np.ndarray, *, neighbors: int = 8, multiplier: float = 3.0) -> np.ndarray:
+def neighbour_distance(xyz: np.ndarray, *, neighbors: int = 8, radius: float = 20.0) -> np.ndarray:
+    """Mean 3D distance of every point to its ``neighbors`` nearest neighbours.
+
+    Distances are counted up to *radius*: a neighbour farther away (or
+    missing) counts as *radius*.  The value of a point then depends only on
+    the points within *radius* of it, which is what lets a tile with a
+    buffer of *radius* compute it exactly.
+    """
+    from scipy.spatial import cKDTree
+
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if len(xyz) == 0:
+        return np.zeros(0)
+    # Coordinates relative to a whole-metre corner: exact differences, the
+    # same for any subset of the points.
+    centred = xyz - np.floor(xyz.min(axis=0))
+    k = min(neighbors + 1, len(xyz))
+    dist, _ = cKDTree(centred, balanced_tree=False, compact_nodes=False).query(
+        centred, k=k, distance_upper_bound=radius, workers=-1
+    )
+    dist = np.minimum(dist.reshape(len(xyz), k)[:, 1:], radius)
+    if k - 1 < neighbors:  # fewer points than neighbours: the missing ones are far
+        dist = np.hstack((dist, np.full((len(xyz), neighbors - k + 1), radius)))
+    return dist.mean(axis=1)
+
+
+def exact_mean_std(parts) -> tuple[float, float, int]:
+    """Mean and standard deviation of the values of the arrays *parts* yields (a callable).
+
+    Sums are exact (:func:`math.fsum`), so the result does not depend on how
+    the values are cut into parts or ordered: tiles give the untiled figure
+    bit for bit.  *parts* is called three times (count, mean, deviation).
+    """
+    import math
+
+    n = sum(len(part) for part in parts())
+    if n == 0:
+        return 0.0, 0.0, 0
+    mean = math.fsum(v for part in parts() for v in part.tolist()) / n
+    var = math.fsum(v for part in parts() for v in ((part - mean) ** 2).tolist()) / n
+    return mean, math.sqrt(var), n
+
+
+def isolated_points(
+    xyz: np.ndarray, *, neighbors: int = 8, multiplier: float = 3.0, radius: float = 20.0
+) -> np.ndarray:
     """Statistical outlier test: points far from their neighbours.
 
     For every point, the mean 3D distance to its ``neighbors`` nearest
     neighbours; a point is isolated when that distance exceeds the mean over
     all points by more than ``multiplier`` standard deviations (Rusu et al.
-    2008, the statistical outlier removal of PCL and PDAL).
+    2008, the statistical outlier removal of PCL and PDAL).  Departure:
+    distances are counted up to *radius* (:func:`neighbour_distance`), so
+    that a tile computes them exactly; the mean and deviation are exact sums
+    (:func:`exact_mean_std`).
 
     Rusu, R. B., Marton, Z. C., Blodow, N., Dolha, M., Beetz, M. (2008).
     Towards 3D point cloud based object maps for household environments.
@@ -29,21 +77,20 @@ def isolated_points(xyz: np.ndarray, *, neighbors: int = 8, multiplier: float = 
         ``k``, neighbours per point.
     multiplier : float
         Standard deviations above the mean distance.
+    radius : float
+        Distances are counted up to this (m).
 
     Returns
     -------
     ndarray of bool
         True for isolated points.
     """
-    from scipy.spatial import cKDTree
-
     xyz = np.asarray(xyz, dtype=np.float64)
     if len(xyz) <= neighbors:
         return np.zeros(len(xyz), dtype=bool)
-    centred = xyz - xyz.min(axis=0)
-    dist, _ = cKDTree(centred).query(centred, k=neighbors + 1, workers=-1)
-    mean = dist[:, 1:].mean(axis=1)
-    return mean > mean.mean() + multiplier * mean.std()
+    mean = neighbour_distance(xyz, neighbors=neighbors, radius=radius)
+    mu, sigma, _ = exact_mean_std(lambda: [mean])
+    return mean > mu + multiplier * sigma
 
 
 def low_outliers(xyz: np.ndarray, *, cell_size: float = 10.0, elevation_threshold: float = 1.0) -> np.ndarray:

@@ -196,41 +196,59 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
         first = last
 
 
-def _query_grid(points: np.ndarray, grid: Grid, k: int, nodata_distance: float, block_rows: int, progress):
-    """Yield (row slice, distances, indices) of the k nearest points of each cell centre.
+def canonical_neighbours(tree, queries: np.ndarray, k: int, upper: float) -> tuple[np.ndarray, np.ndarray]:
+    """The *k* nearest points of each query within *upper*, chosen canonically.
 
-    Neighbours are chosen canonically: by distance, ties by index.  (A
-    k-d tree breaks a tie at the k-th distance by its own traversal order,
-    which changes with the set of points; coordinates on a millimetre grid
-    tie often.)  Rows are sorted by distance, then index.
+    By distance, ties by index: a k-d tree breaks a tie at the k-th distance
+    by its own traversal order, which changes with the set of points it
+    holds (coordinates on a millimetre grid tie often), so a tile and the
+    whole survey could pick different neighbours.  Rows are sorted by
+    distance, then index; a missing neighbour has distance inf and index
+    ``tree.n``.
+
+    Returns
+    -------
+    dist, idx : ndarray, shape (len(queries), k)
     """
+    n = tree.n
+    m = len(queries)
+    kk = min(k + 1, n)
+    dist, idx = tree.query(queries, k=kk, distance_upper_bound=upper, workers=-1)
+    dist, idx = dist.reshape(m, kk), idx.reshape(m, kk)
+    if kk > k:
+        # rows whose k-th and (k+1)-th neighbours tie: ask for more until the tie is inside
+        tied = np.flatnonzero(np.isfinite(dist[:, k]) & (dist[:, k] == dist[:, k - 1]))
+        more = kk
+        while len(tied) and more < n:
+            more = min(2 * more + 8, n)
+            d2, i2 = tree.query(queries[tied], k=more, distance_upper_bound=upper, workers=-1)
+            d2, i2 = d2.reshape(len(tied), more), i2.reshape(len(tied), more)
+            order = np.lexsort((i2, d2), axis=1)[:, :kk]
+            dist[tied] = np.take_along_axis(d2, order, axis=1)
+            idx[tied] = np.take_along_axis(i2, order, axis=1)
+            still = np.isfinite(d2[:, -1]) & (d2[:, -1] == dist[tied, k - 1])
+            tied = tied[still]
+    order = np.lexsort((idx, dist), axis=1)[:, :k]
+    dist, idx = np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
+    if dist.shape[1] < k:  # fewer points than k
+        pad = k - dist.shape[1]
+        dist = np.hstack((dist, np.full((m, pad), np.inf)))
+        idx = np.hstack((idx, np.full((m, pad), n)))
+    return dist, idx
+
+
+def _query_grid(points: np.ndarray, grid: Grid, k: int, nodata_distance: float, block_rows: int, progress):
+    """Yield (row slice, distances, indices) of the k nearest points of each cell centre (canonical)."""
     from scipy.spatial import cKDTree
 
     origin = np.array([grid.xmin, grid.ymax])
-    n = len(points)
     tree = cKDTree(points[:, :2] - origin, balanced_tree=False, compact_nodes=False)  # 3x faster to build
     for start in range(0, grid.rows, block_rows):
         stop = min(grid.rows, start + block_rows)
         gx, gy = grid.centres(start, stop)
         q = np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1]))
-        kk = min(k + 1, n)
-        dist, idx = tree.query(q, k=kk, distance_upper_bound=nodata_distance, workers=-1)
-        dist, idx = dist.reshape(len(q), kk), idx.reshape(len(q), kk)
-        if kk > k:
-            # Rows whose k-th and (k+1)-th neighbours tie: ask for more until the tie is inside.
-            tied = np.flatnonzero(np.isfinite(dist[:, k]) & (dist[:, k] == dist[:, k - 1]))
-            more = kk
-            while len(tied) and more < n:
-                more = min(2 * more + 8, n)
-                d2, i2 = tree.query(q[tied], k=more, distance_upper_bound=nodata_distance, workers=-1)
-                d2, i2 = d2.reshape(len(tied), more), i2.reshape(len(tied), more)
-                order = np.lexsort((i2, d2), axis=1)[:, :kk]
-                dist[tied] = np.take_along_axis(d2, order, axis=1)
-                idx[tied] = np.take_along_axis(i2, order, axis=1)
-                still = np.isfinite(d2[:, -1]) & (d2[:, -1] == dist[tied, k - 1])
-                tied = tied[still]
-        order = np.lexsort((idx, dist), axis=1)[:, :k]
-        yield start, stop, np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
+        dist, idx = canonical_neighbours(tree, q, k, nodata_distance)
+        yield start, stop, dist, idx
         if progress is not None:
             progress.update(stop - start)
 
@@ -258,11 +276,6 @@ def idw(
     out = np.empty((grid.rows, grid.cols), dtype=np.float64)
     z = np.append(pts[:, 2], np.nan)  # index len(pts) = "no neighbour"
     for start, stop, dist, idx in _query_grid(pts, grid, k, nodata_distance, block_rows, progress):
-        # Sum the neighbours in index order, not in the tree's order: the
-        # same neighbours then give the same sum bit for bit whatever subset
-        # of the points (a tile) the tree was built on.
-        order = np.argsort(idx, axis=1, kind="stable")
-        idx, dist = np.take_along_axis(idx, order, axis=1), np.take_along_axis(dist, order, axis=1)
         valid = np.isfinite(dist)
         with np.errstate(divide="ignore"):
             w = np.where(valid, 1.0 / np.maximum(dist, 1e-12) ** power, 0.0)

@@ -22,6 +22,7 @@ import multiprocessing
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from importlib import import_module
 from typing import Any
 
 from pipeline.errors import ConfigError
@@ -36,6 +37,15 @@ class LocalExecutor:
 
     def describe(self) -> str:
         return f"local, {self.workers} worker{'s' if self.workers > 1 else ''}"
+
+    def prepare(self, fn: Callable[[Any], Any]) -> None:
+        """Start the workers and import *fn*'s module in each, while this process does other work."""
+        if self.workers == 1:
+            return
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        for _ in range(self.workers):
+            self._pool.submit(import_module, fn.__module__)
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task."""
@@ -69,6 +79,9 @@ class DaskExecutor:
 
     def describe(self) -> str:
         return f"dask {self.address}" if self.address else f"dask local cluster, {self.workers} workers"
+
+    def prepare(self, fn: Callable[[Any], Any]) -> None:
+        """Nothing to do ahead: a Dask cluster is connected to on first use."""
 
     def _connect(self):
         if self._client is not None:

@@ -192,6 +192,8 @@ def run_tiled(
         "buffer": layout.buffer,
         "executor": ctx.executor.describe(),
     }
+    if len(layout) > 1:
+        ctx.executor.prepare(task)  # workers start while the tasks are being made
     tasks = split(layout)
     ctx.metrics["tiling"]["tasks"] = len(tasks)
     if len(layout) > 1:

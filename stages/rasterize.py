@@ -163,6 +163,12 @@ class Rasterize(Stage):
             ]
 
         def merge(layout, tasks, results):
+            import rasterio
+
+            with rasterio.Env(GDAL_CACHEMAX=64):  # MB: GDAL's default, 5 % of the RAM, would grow with the grid
+                return _merge(layout, tasks, results)
+
+        def _merge(layout, tasks, results):
             transform = units.transform_from_metres(grid.transform)
             mosaics = {
                 n: RasterMosaic(
@@ -261,7 +267,8 @@ def rasterize_tile(task: dict) -> dict:
     wide = grid.window(br0, br1, bc0, bc1)
     crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
     cols = read_tile(Path(task["source"]))
-    pts = np.column_stack((cols["x"], cols["y"], cols["z"]))
+    cols.pop("idx")  # not needed: the results are cells
+    pts = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed: memory is per tile
     cls = cols["classification"]
     is_ground = cls == glossary.GROUND
     ground = pts[is_ground]

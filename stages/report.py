@@ -13,6 +13,7 @@ from __future__ import annotations
 import base64
 import html
 import time
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -20,7 +21,7 @@ from pydantic import Field
 
 from pipeline import __version__
 from pipeline.stage import Stage, StageParams
-from stages.io import png_bytes, read_cloud, xyz
+from stages.io import png_bytes
 
 ASPRS_NAMES = {
     0: "created, never classified",
@@ -118,8 +119,55 @@ def relief_image(dtm: np.ndarray, resolution: float, max_size: int) -> tuple[byt
     return png_bytes(rgb.round()), lo, hi
 
 
+@dataclass
+class CloudSummary:
+    """What the report shows of the classified points, gathered chunk by chunk."""
+
+    units: object
+    strip_grid: np.ndarray  # point_source_id of the last point seen in each DTM cell (-1: none)
+    strips: np.ndarray  # every point_source_id met, ascending
+    class_counts: np.ndarray  # points per ASPRS class (256 bins)
+    points: int
+
+
+def summarise_cloud(path, *, origin: tuple[float, float], resolution: float, shape: tuple[int, int]) -> CloudSummary:
+    """Strip coverage and class counts of a LAS file, read in chunks (memory does not grow with the survey)."""
+    import laspy
+
+    from stages.units import Units
+
+    rows, cols = shape
+    x0, y1 = origin
+    strip_grid = np.full((rows, cols), -1, dtype=np.int64)
+    seen: set[int] = set()
+    counts = np.zeros(256, dtype=np.int64)
+    n = 0
+    with laspy.open(str(path)) as reader:
+        try:
+            crs = reader.header.parse_crs()
+        except Exception:  # laspy raises various errors for malformed GeoTIFF keys
+            crs = None
+        for chunk in reader.chunk_iterator(1_000_000):
+            x, y = np.asarray(chunk.x), np.asarray(chunk.y)
+            c = np.clip(((x - x0) / resolution).astype(int), 0, cols - 1)
+            r = np.clip(((y1 - y) / resolution).astype(int), 0, rows - 1)
+            sid = np.asarray(chunk.point_source_id).astype(np.int64)
+            strip_grid[r, c] = sid  # in file order: the last point seen wins
+            seen.update(int(v) for v in np.unique(sid))
+            counts += np.bincount(np.asarray(chunk.classification), minlength=256)
+            n += len(chunk)
+    return CloudSummary(Units.of(crs), strip_grid, np.array(sorted(seen), dtype=np.int64), counts, n)
+
+
 def build_report(
-    *, name: str, metrics: dict, dtm: np.ndarray, density: np.ndarray, resolution: float, las, max_size: int
+    *,
+    name: str,
+    metrics: dict,
+    dtm: np.ndarray,
+    density: np.ndarray,
+    resolution: float,
+    cloud: CloudSummary,
+    max_size: int,
 ) -> str:
     """The report page as an HTML string."""
     parse = metrics.get("parse", {})
@@ -128,24 +176,17 @@ def build_report(
     grid = metrics.get("rasterize", {})
     accuracy = metrics.get("accuracy")
     adjust = metrics.get("strip_adjust")
-    from stages.io import cloud_units
-
-    units = cloud_units(las)
+    units = cloud.units
     relief, lo, hi = relief_image(dtm * units.vertical, resolution * units.horizontal, max_size)
     dens = _thin(density, max_size)
     dmax = float(np.nanpercentile(dens, 99)) if np.isfinite(dens).any() else 1.0
     density_png = png_bytes(colour_ramp(dens, VIRIDIS, 0.0, max(dmax, 1.0)).round())
     # Strip coverage: the strip of the last point seen in each cell.
-    pts = xyz(las)
-    strips = np.asarray(las.point_source_id)
     rows, cols = dtm.shape
-    x0, y1 = grid["origin"]  # the DTM's top-left corner
-    c = np.clip(((pts[:, 0] - x0) / resolution).astype(int), 0, cols - 1)
-    r = np.clip(((y1 - pts[:, 1]) / resolution).astype(int), 0, rows - 1)
-    unique = np.unique(strips)
-    code = np.searchsorted(unique, strips)
+    unique = cloud.strips
+    has = cloud.strip_grid >= 0
     strip_grid = np.full((rows, cols), -1)
-    strip_grid[r, c] = code
+    strip_grid[has] = np.searchsorted(unique, cloud.strip_grid[has])
     strip_rgb = np.full((rows, cols, 3), 255.0)
     has = strip_grid >= 0
     strip_rgb[has] = STRIP_COLOURS[strip_grid[has] % len(STRIP_COLOURS)]
@@ -154,10 +195,10 @@ def build_report(
         f'<span class="sw" style="background:rgb{tuple(int(v) for v in STRIP_COLOURS[i % len(STRIP_COLOURS)])}"></span>{int(s)} '
         for i, s in enumerate(unique)
     )
-    classes, counts = np.unique(np.asarray(las.classification), return_counts=True)
+    classes = np.flatnonzero(cloud.class_counts)
     class_rows = "".join(
-        f"<tr><td>{int(k)}</td><td>{html.escape(ASPRS_NAMES.get(int(k), 'other'))}</td><td>{int(n):,}</td><td>{100 * n / max(len(pts), 1):.2f} %</td></tr>"
-        for k, n in zip(classes, counts, strict=True)
+        f"<tr><td>{int(k)}</td><td>{html.escape(ASPRS_NAMES.get(int(k), 'other'))}</td><td>{int(n):,}</td><td>{100 * n / max(cloud.points, 1):.2f} %</td></tr>"
+        for k, n in zip(classes, cloud.class_counts[classes], strict=True)
     )
     geo = metrics.get("georeference")
     summary = [
@@ -260,7 +301,7 @@ img{{max-width:100%;border:1px solid #ccc;image-rendering:pixelated}} figcaption
 
 class Report(Stage):
     name = "report"
-    version = "2"  # 2: units of the products
+    version = "3"  # 3: points read in chunks; 2: units of the products
     Params = ReportParams
     description = "self-contained QC page (report.html)"
     inputs = ("dtm", "density", "points_classified")
@@ -273,14 +314,17 @@ class Report(Stage):
 
         dtm, _, _, resolution = read_raster(ctx.inputs["dtm"])
         density, _, _, _ = read_raster(ctx.inputs["density"])
-        las = read_cloud(ctx.inputs["points_classified"])
+        grid = ctx.upstream_metrics.get("rasterize", {})
+        cloud = summarise_cloud(
+            ctx.inputs["points_classified"], origin=tuple(grid["origin"]), resolution=resolution, shape=dtm.shape
+        )
         page = build_report(
             name=ctx.config.name or "survey",
             metrics=ctx.upstream_metrics,
             dtm=dtm,
             density=density,
             resolution=resolution,
-            las=las,
+            cloud=cloud,
             max_size=ctx.params.max_image_size,
         )
         ctx.outputs["report"].write_text(page, encoding="utf-8")

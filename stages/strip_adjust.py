@@ -57,6 +57,12 @@ class StripAdjustParams(StageParams):
         description="a strip whose correction is less certain than this (1-sigma, any axis) is left as it is",
     )
     max_sigma_rotation_deg: float = Field(0.01, gt=0, description="likewise for its roll and pitch (1-sigma, degrees)")
+    max_points: int = Field(
+        5_000_000,
+        ge=10_000,
+        description="single returns used for the estimation at most; beyond, only the cells of a regular lattice "
+        "(every k-th cell in x and y) are used, so memory does not grow with the survey",
+    )
 
 
 def _read_control(path) -> np.ndarray:
@@ -68,7 +74,7 @@ def _read_control(path) -> np.ndarray:
 
 class StripAdjust(Stage):
     name = "strip_adjust"
-    version = "6"
+    version = "7"  # 7: read and written in chunks; estimation on a lattice of cells above max_points
     Params = StripAdjustParams
     description = "joint point-to-plane ICP: one rigid correction per strip"
     inputs: ClassVar = ("points_georef",)
@@ -92,22 +98,27 @@ class StripAdjust(Stage):
 
     def run(self, ctx) -> None:
         from stages.adjust.icp import adjust, match, planar_patches
-        from stages.io import cloud_crs, read_cloud, write_cloud, xyz_metres
+        from stages.tiles import las_extent_metres
 
         p = ctx.params
-        las = read_cloud(ctx.inputs["points_georef"])
-        pts, units = xyz_metres(las)  # everything below in metres, like the parameters
-        sid = np.asarray(las.point_source_id).astype(np.int64)
-        single = np.asarray(las.number_of_returns) <= 1
-        strips = [int(s) for s in np.unique(sid) if s > 0 and np.sum(sid == s) >= p.min_points]
-        patches, centres, index = {}, {}, {}
+        src = ctx.inputs["points_georef"]
+        extent, units, total = las_extent_metres(src)
+        # One pass gathers what the estimation needs (everything in metres, like the
+        # parameters): each strip's point count and centroid, and its single returns,
+        # on every cell or, for a survey above max_points, on a regular lattice of cells.
+        step = max(1, int(np.ceil(np.sqrt(total / p.max_points))))
+        sample, count, sums = _gather(src, units, p.cell, step)
+        pts, sid = sample
+        strips = [int(s) for s in np.flatnonzero(count) if s > 0 and count[s] >= p.min_points]
+        patches, centres = {}, {}
         for s in strips:
-            idx = np.flatnonzero(sid == s)
-            index[s] = idx
-            centres[s] = pts[idx].mean(axis=0)
-            sel = idx[single[idx]]
+            sel = np.flatnonzero(sid == s)
+            centres[s] = sums[s] / count[s]
             patches[s] = planar_patches(pts[sel], cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
-            patches[s].order = sel[patches[s].order]  # indices into the whole cloud
+            patches[s].order = sel[patches[s].order]  # indices into the sample
+        ctx.metrics.update(estimation_points=int(len(pts)), lattice_step=step)
+        if step > 1:
+            ctx.log.info("estimation on every %d-th cell in x and y: %d single returns", step, len(pts))
         # smooth means smooth for this survey: at most 2.5 x the median patch RMS (the noise level);
         # well sampled means at least half the strip's median points per patch, which drops water
         # (specular: most pulses return nothing) and the thinly sampled swath edges
@@ -178,7 +189,7 @@ class StripAdjust(Stage):
                     "centre": [round(float(v), 3) for v in tf.centre],
                     "sigma_translation_m": [round(float(v), 5) for v in sol.std.get(s, np.zeros(6))[:3]],
                     "sigma_rotation_deg": [round(float(v), 6) for v in np.degrees(sol.std.get(s, np.zeros(6))[3:])],
-                    "points": int(len(index[s])),
+                    "points": int(count[s]),
                 }
             before, after = [], []
             for pair in sol.pairs:
@@ -186,16 +197,11 @@ class StripAdjust(Stage):
                 pair_rows.append(row)
                 before.append(b_vals)
                 after.append(a_vals)
-            new = pts.copy()
-            for s, tf in sol.transforms.items():
-                new[index[s]] = tf.apply(pts[index[s]])
-            new = units.from_metres(new)
-            las.x, las.y, las.z = new[:, 0], new[:, 1], new[:, 2]
             ctx.metrics.update(iterations=sol.iterations, correspondences=sol.correspondences,
                                residual_sigma_m=sol.sigma)  # fmt: skip
-        write_cloud(las, ctx.outputs["points_adjusted"])
-        crs = cloud_crs(las)
-        _difference_rasters(ctx, pts, before, after, p.difference_resolution, crs, units)
+        transforms = sol.transforms if skipped_note is None else {}
+        crs = _apply(src, ctx.outputs["points_adjusted"], transforms, units, ctx)
+        _difference_rasters(ctx, extent, before, after, p.difference_resolution, crs, units)
         datum = "control points" if reference is None and control is not None else f"strip {reference}"
         summary = {
             "datum": datum if skipped_note is None else None,
@@ -223,6 +229,59 @@ class StripAdjust(Stage):
                 len(corrections), len([s for s in corrections if int(s) != reference and int(s) not in weak]), datum,
                 rms_b or 0.0, rms_a or 0.0, largest_t, largest_r,
             )  # fmt: skip
+
+
+def _gather(path, units, cell: float, step: int):
+    """Read a LAS file in chunks: the single returns of strips (point_source_id > 0) in the cells
+    whose indices are multiples of *step* (every cell for 1), and each strip's count and sum of
+    coordinates (metres)."""
+    import laspy
+
+    count = np.zeros(65536, dtype=np.int64)
+    sums = np.zeros((65536, 3))
+    keep_pts, keep_sid = [], []
+    with laspy.open(str(path)) as reader:
+        for chunk in reader.chunk_iterator(1_000_000):
+            xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
+            sid = np.asarray(chunk.point_source_id).astype(np.int64)
+            count += np.bincount(sid, minlength=65536)
+            for k in range(3):
+                sums[:, k] += np.bincount(sid, xyz[:, k], minlength=65536)
+            sel = (np.asarray(chunk.number_of_returns) <= 1) & (sid > 0)
+            if step > 1:
+                ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
+                iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
+                sel &= (ix % step == 0) & (iy % step == 0)
+            keep_pts.append(xyz[sel])
+            keep_sid.append(sid[sel])
+    pts = np.concatenate(keep_pts) if keep_pts else np.zeros((0, 3))
+    sid = np.concatenate(keep_sid) if keep_sid else np.zeros(0, dtype=np.int64)
+    return (pts, sid), count, sums
+
+
+def _apply(src, dst, transforms: dict, units, ctx):
+    """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform; the CRS."""
+    import laspy
+
+    with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+        try:
+            crs = reader.header.parse_crs()
+        except Exception:  # laspy raises various errors for malformed GeoTIFF keys
+            crs = None
+        with ctx.progress(reader.header.point_count, "writing", unit="pt") as bar:
+            for chunk in reader.chunk_iterator(1_000_000):
+                if transforms:
+                    sid = np.asarray(chunk.point_source_id).astype(np.int64)
+                    x, y, z = np.array(chunk.x), np.array(chunk.y), np.array(chunk.z)
+                    for s, tf in transforms.items():
+                        m = sid == s
+                        if m.any():
+                            moved = units.from_metres(tf.apply(units.to_metres(np.column_stack((x[m], y[m], z[m])))))
+                            x[m], y[m], z[m] = moved[:, 0], moved[:, 1], moved[:, 2]
+                    chunk.x, chunk.y, chunk.z = x, y, z
+                writer.write_points(chunk)
+                bar.update(len(chunk))
+    return crs
 
 
 def _combined_rms(values: list[float], weights: list[int]) -> float | None:
@@ -257,7 +316,7 @@ def _pair_figures(pair, patches, pts, ident, final, cell):
     return row, (centre, mean_b), (centre, mean_a)
 
 
-def _difference_rasters(ctx, pts, before, after, resolution, crs, units) -> None:
+def _difference_rasters(ctx, extent, before, after, resolution, crs, units) -> None:
     """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after.
 
     Computed in metres; the rasters are written in the CRS's units (cells and values)."""
@@ -265,8 +324,7 @@ def _difference_rasters(ctx, pts, before, after, resolution, crs, units) -> None
     from stages.io import NODATA, png_bytes, write_cog
     from stages.report import colour_ramp
 
-    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3), np.ones(3))
-    grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], resolution)
+    grid = Grid.covering(*extent, resolution)
     images = []
     for name, parts in (("strip_difference_before", before), ("strip_difference_after", after)):
         centres = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, 3))

@@ -361,7 +361,7 @@ class RasterMosaic:
         if self.covered != self.rows * self.cols:  # pragma: no cover - a broken layout, never a user error
             raise RuntimeError(f"mosaic {self.path.name}: {self.covered} of {self.rows * self.cols} cells written")
         self.ds.close()
-        with rasterio.Env(GDAL_CACHEMAX=256), rasterio.open(self.tmp) as src:
+        with rasterio.Env(GDAL_CACHEMAX=64), rasterio.open(self.tmp) as src:
             rasterio.shutil.copy(
                 src,
                 str(self.path),

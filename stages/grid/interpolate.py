@@ -41,7 +41,7 @@ class Grid:
         top edges), so the grid has one more column and row than the box spans.
 
         >>> Grid.covering(10.2, 5.5, 12.9, 7.5, 1.0)
-        Grid(xmin=10.0, ymax=8.0, resolution=1.0, cols=3, rows=3)
+        Grid(xmin=10.0, ymax=8.0, resolution=1.0, cols=3, rows=3, row0=0, col0=0)
         """
         x0 = math.floor(xmin / resolution) * resolution
         y1 = math.ceil(ymax / resolution) * resolution

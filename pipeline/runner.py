@@ -365,6 +365,10 @@ def _run_step(
     slog = stage_logger(step.name)
     resolved = {name: plan.resolve(name) for name in step.io.inputs}
     record: dict[str, Any] = {"name": step.name, "version": step.stage.version}
+    buffer = step.stage.tile_buffer(step.params)
+    record["tiled"] = buffer is not None
+    if buffer is not None:
+        record["tile_buffer"] = buffer
     if any(r in unknown for r in resolved.values()):
         unknown.update(step.io.outputs)
         record["status"] = "run (upstream)"

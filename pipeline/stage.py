@@ -14,7 +14,9 @@ A stage declares, in one place:
 - ``config_keys``: other configuration values that change its result, so that
   they enter the cache key;
 - ``reads_metrics``: the stage reads the metrics of the stages before it
-  (``ctx.upstream_metrics``), which then enter its cache key.
+  (``ctx.upstream_metrics``), which then enter its cache key;
+- :meth:`Stage.tile_buffer`: whether the stage works tile by tile, and the
+  buffer its tiles need (``None``: a global stage).
 
 The engine knows nothing else about a stage: it orders stages by their
 declared inputs, checks the graph before running anything, and calls
@@ -82,6 +84,15 @@ class Stage:
     def declare(self, params: BaseModel, config: BaseModel) -> StageIO:
         """The stage's artifacts under this configuration (default: the class attributes)."""
         return StageIO(tuple(self.inputs), dict(self.outputs), dict(self.products))
+
+    def tile_buffer(self, params: BaseModel) -> float | None:
+        """The buffer a per-tile stage needs around each tile; None for a global stage.
+
+        A per-tile stage runs its work through :func:`pipeline.tiling.run_tiled`
+        with this buffer (in the unit of the extent it gives, the reach of its
+        algorithm); a global stage sees the whole input (and streams it).
+        """
+        return None
 
     def external_files(self, params: BaseModel, config: BaseModel) -> list[Path]:
         """Files outside the cache that the stage reads (their content enters the key)."""

@@ -126,6 +126,20 @@ class Layout:
         c_lo, c_hi = self._cells(x, self.c0, self.cols, -b), self._cells(x, self.c0, self.cols, b)
         r_lo, r_hi = self._cells(y, self.r0, self.rows, -b), self._cells(y, self.r0, self.rows, b)
         points, tiles = [], []
+        c_first, c_last = max(int(c_lo.min(initial=0)), 0), min(int(c_hi.max(initial=-1)), self.cols - 1)
+        r_first, r_last = max(int(r_lo.min(initial=0)), 0), min(int(r_hi.max(initial=-1)), self.rows - 1)
+        if (c_last - c_first + 1) * (r_last - r_first + 1) <= 16:
+            # Few tiles around these points (a chunk of a file in flight order): one
+            # mask per tile gives its points already in order, without a sort.
+            for r in range(r_first, r_last + 1):
+                rok = (r_lo <= r) & (r <= r_hi)
+                for c in range(c_first, c_last + 1):
+                    sel = np.flatnonzero(rok & (c_lo <= c) & (c <= c_hi))
+                    points.append(sel)
+                    tiles.append(np.full(len(sel), r * self.cols + c, dtype=np.int64))
+            if not points:
+                return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+            return np.concatenate(points), np.concatenate(tiles)
         for dc in range(int((c_hi - c_lo).max(initial=0)) + 1):
             c = c_lo + dc
             cok = (c <= c_hi) & (c >= 0) & (c < self.cols)
@@ -174,7 +188,8 @@ def run_tiled(
         algorithm), unless the configuration sets ``tiling.buffer``.
     split : callable
         ``split(layout) -> tasks``: one dict of small arguments per tile
-        that holds something (paths, not arrays).
+        that holds something (paths, not arrays); an optional ``weight``
+        (the tile's size) makes the largest run first.
     task : callable
         Module-level function run on each task (in another process or on a
         Dask worker); returns something small.
@@ -205,5 +220,19 @@ def run_tiled(
             len(tasks),
             ctx.executor.describe(),
         )
-    results = ctx.executor.map(task, tasks, log=ctx.log, what=what)
+    results = map_largest_first(ctx, task, tasks, what)
     return merge(layout, tasks, results)
+
+
+def map_largest_first(ctx: Any, task: Callable[[dict[str, Any]], Any], tasks: list[dict[str, Any]], what: str) -> list:
+    """Run *tasks* on the run's executor, the largest (``weight``) first; results in the tasks' order.
+
+    Largest first, the workers finish together instead of one waiting on
+    the last big tile.
+    """
+    order = sorted(range(len(tasks)), key=lambda i: -float(tasks[i].get("weight", 0)))
+    done = ctx.executor.map(task, [tasks[i] for i in order], log=ctx.log, what=what)
+    results: list[Any] = [None] * len(tasks)
+    for i, r in zip(order, done, strict=True):
+        results[i] = r
+    return results

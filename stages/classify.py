@@ -148,6 +148,9 @@ class ClassifyGround(Stage):
 
     config_keys = ("tiling.buffer",)
 
+    def tile_buffer(self, params) -> float:
+        return reach(params.algorithm)
+
     def run(self, ctx) -> None:
         from pipeline.tiling import run_tiled
         from stages.tiles import cleanup, las_extent_metres, merge_classes, split_cloud, task_folder
@@ -161,7 +164,13 @@ class ClassifyGround(Stage):
             with ctx.progress(total, "tiling", unit="pt") as bar:
                 rows, _ = split_cloud(src, layout, work / "in", _classify_columns, progress=bar)
             return [
-                {"tile": t, "source": str(work / "in" / str(t)), "result": str(work / "out" / str(t)), "params": params}
+                {
+                    "tile": t,
+                    "weight": rows[t][0],
+                    "source": str(work / "in" / str(t)),
+                    "result": str(work / "out" / str(t)),
+                    "params": params,
+                }
                 for t in sorted(rows)
                 if rows[t][1]  # a tile with no point of its own has nothing to classify
             ]
@@ -173,7 +182,7 @@ class ClassifyGround(Stage):
 
         try:
             counts = run_tiled(
-                ctx, extent=extent, buffer=reach(ctx.params.algorithm), split=split, task=classify_tile, merge=merge
+                ctx, extent=extent, buffer=self.tile_buffer(ctx.params), split=split, task=classify_tile, merge=merge
             )
         finally:
             cleanup(work)

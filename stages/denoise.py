@@ -118,8 +118,11 @@ class Denoise(Stage):
     passthrough: ClassVar = {"points_denoised": "points_adjusted"}
     config_keys = ("tiling.buffer",)
 
+    def tile_buffer(self, params) -> float:
+        return reach(params)
+
     def run(self, ctx) -> None:
-        from pipeline.tiling import run_tiled
+        from pipeline.tiling import map_largest_first, run_tiled
         from stages.tiles import cleanup, las_extent_metres, merge_classes, split_cloud, task_folder
 
         src = ctx.inputs["points_adjusted"]
@@ -142,6 +145,7 @@ class Denoise(Stage):
             return [
                 {
                     "tile": t,
+                    "weight": rows[t][0],
                     "source": str(work / "in" / str(t)),
                     "result": str(work / "out" / str(t)),
                     "params": params,
@@ -165,14 +169,14 @@ class Denoise(Stage):
                     threshold = mean + ctx.params.isolated.multiplier * std
                 ctx.metrics.update(isolation_threshold_m=round(float(threshold), 4) if n else None)
             second = [{**t, "threshold": float(threshold)} for t in tasks]
-            counts = ctx.executor.map(denoise_tile, second, log=ctx.log, what="noise tiles")
+            counts = map_largest_first(ctx, denoise_tile, second, "noise tiles")
             with ctx.progress(total, "writing", unit="pt") as bar:
                 merge_classes(src, ctx.outputs["points_denoised"], [Path(t["result"]) for t in tasks], progress=bar)
             return {k: sum(c[k] for c in counts) for k in ("points", "low", "high", "done")}
 
         try:
             counts = run_tiled(
-                ctx, extent=extent, buffer=reach(ctx.params), split=split, task=denoise_tile, merge=merge
+                ctx, extent=extent, buffer=self.tile_buffer(ctx.params), split=split, task=denoise_tile, merge=merge
             )
         finally:
             cleanup(work)

@@ -88,6 +88,9 @@ class Rasterize(Stage):
 
     config_keys = ("tiling.buffer",)
 
+    def tile_buffer(self, params) -> float:
+        return reach(params)
+
     def run(self, ctx) -> None:
         from pipeline.tiling import run_tiled
         from stages.tiles import RasterMosaic, cleanup, core_window, las_extent_metres, split_cloud, task_folder
@@ -134,7 +137,7 @@ class Rasterize(Stage):
 
         def split(layout):
             with ctx.progress(total, "tiling", unit="pt") as bar:
-                rows, sums = split_cloud(src, layout, work / "in", columns, progress=bar, count=count)
+                rows, sums = split_cloud(src, layout, work / "in", columns, progress=bar, count=count, index=False)
             totals.update(sums)
             ground = sums.get(f"class {glossary.GROUND}", 0)
             if ground < 3:
@@ -150,6 +153,7 @@ class Rasterize(Stage):
                 {
                     "tile": tile.index,
                     "window": core_window(grid, tile.as_dict(), layout),
+                    "weight": rows[tile.index][0],
                     "source": str(work / "in" / str(tile.index)),
                     "result": str(work / "out" / str(tile.index)),
                     "grid": grid_args,
@@ -202,7 +206,7 @@ class Rasterize(Stage):
 
         try:
             results, transform = run_tiled(
-                ctx, extent=extent, buffer=reach(p), split=split, task=rasterize_tile, merge=merge
+                ctx, extent=extent, buffer=self.tile_buffer(p), split=split, task=rasterize_tile, merge=merge
             )
         finally:
             cleanup(work)
@@ -267,7 +271,6 @@ def rasterize_tile(task: dict) -> dict:
     wide = grid.window(br0, br1, bc0, bc1)
     crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
     cols = read_tile(Path(task["source"]))
-    cols.pop("idx")  # not needed: the results are cells
     pts = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed: memory is per tile
     cls = cols["classification"]
     is_ground = cls == glossary.GROUND

@@ -68,7 +68,7 @@ class _Spill:
                         fh.write(b"\0" * 128)
                     for part in parts:
                         fh.write(np.ascontiguousarray(part[name]).tobytes())
-            self.rows[tile] = self.rows.get(tile, 0) + sum(len(p["idx"]) for p in parts)
+            self.rows[tile] = self.rows.get(tile, 0) + sum(len(p["core"]) for p in parts)
         self.pending.clear()
         self.pending_bytes = 0
 
@@ -108,6 +108,7 @@ def split_cloud(
     chunk_size: int = 1_000_000,
     progress=None,
     count: Callable[[dict[str, np.ndarray]], dict[str, int]] | None = None,
+    index: bool = True,
 ) -> tuple[dict[int, tuple[int, int]], dict[str, int]]:
     """Write each tile's points (core plus buffer) as ``.npy`` columns under ``folder/<tile>/``.
 
@@ -129,6 +130,9 @@ def split_cloud(
     count : callable, optional
         ``count(cols) -> {name: n}`` summed over the chunks (totals the
         caller checks before running the tasks).
+    index : bool
+        Write ``idx``, each point's index in the file (for results per
+        point; not needed for results per cell).
 
     Returns
     -------
@@ -156,7 +160,8 @@ def split_cloud(
             n = len(chunk)
             xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
             cols = columns(chunk, xyz)
-            cols["idx"] = np.arange(start, start + n, dtype=np.int64)
+            if index:
+                cols["idx"] = np.arange(start, start + n, dtype=np.int64)
             if count is not None:
                 for k, v in count(cols).items():
                     totals[k] = totals.get(k, 0) + int(v)

@@ -23,7 +23,7 @@ def _brute(layout: Layout, x, y):
     return sorted(pairs), home
 
 
-@pytest.mark.parametrize("size, buffer", [(100.0, 15.0), (40.0, 55.0), (250.0, 0.0)])
+@pytest.mark.parametrize("size, buffer", [(100.0, 15.0), (40.0, 55.0), (250.0, 0.0), (150.0, 30.0)])
 def test_layout_memberships_match_brute_force(size, buffer):
     rng = np.random.default_rng(3)
     x = rng.uniform(-130.0, 370.0, 4000)

@@ -136,7 +136,7 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "6"  # 6: LAS input converted chunk by chunk (offsets from the headers); 5: NMEA GST/VTG checks
+    version = "7"  # 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
     Params = InputConfig
     config_path = "input"
     can_disable = False

@@ -405,6 +405,9 @@ def convert_las_files(
 
     report = LasReadReport()
     strips: set[int] = set()
+    same = _copyable(paths, crs_setting, assign_crs)
+    if same is not None:
+        return _copy(paths[0], dst, same, assign_crs, report, strips, chunk_size, progress), report, strips
     writer = None
     target = None
     try:
@@ -444,6 +447,74 @@ def convert_las_files(
         if writer is not None:
             writer.close()
     return target, report, strips
+
+
+def _copyable(paths: list[Path], crs_setting: str, assign_crs):
+    """The output CRS when the input can be copied record for record, else None.
+
+    That is one LAS 1.4 file of point format 6 without extra bytes, already
+    in the output CRS: its points, scale and offsets are kept as delivered
+    (no re-quantisation, nothing recomputed), which is also the fastest.
+    """
+    if len(paths) != 1:
+        return None
+    with _open(paths[0]) as reader:
+        h = reader.header
+        if str(h.version) != "1.4" or h.point_format.id != 6 or list(h.point_format.extra_dimension_names):
+            return None
+        if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
+            return None
+        src_crs, _ = _file_crs(paths[0], h, assign_crs)
+        if not src_crs.is_projected:
+            return None
+        target = output_crs(crs_setting, src_crs, None)
+        return target if target.equals(src_crs) else None
+
+
+def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], chunk_size: int, progress):
+    """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`)."""
+    import laspy
+
+    from stages.io import point_header
+    from stages.units import Units
+
+    n_read = 0
+    with _open(path) as reader:
+        h = reader.header
+        _, report.crs_source[str(path)] = _file_crs(path, h, assign_crs)
+        header = point_header(target)
+        header.offsets, header.scales = h.offsets, h.scales
+        metres = Units.of(target).horizontal
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        seen = np.zeros(65536, dtype=bool)
+        with laspy.open(str(dst), mode="w", header=header) as writer:
+            try:
+                for chunk in reader.chunk_iterator(chunk_size):
+                    n = len(chunk)
+                    if n:
+                        raw = [np.asarray(chunk.array[k]) for k in ("X", "Y", "Z")]
+                        lo = np.minimum(
+                            lo, [r.min() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
+                        )
+                        hi = np.maximum(
+                            hi, [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
+                        )
+                        span = metres * float(np.max(hi - lo))
+                        if span > MAX_SPAN_M:
+                            raise InputDataError(
+                                f"{path}: the points span {span:.3g} m, more than any survey on Earth "
+                                "(damaged scale or offset in the header?)."
+                            )
+                        seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
+                    writer.write_points(chunk)
+                    n_read += n
+                    if progress is not None:
+                        progress.update(n)
+            except _parse_errors() as exc:
+                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+    report.points[str(path)] = n_read
+    strips.update(int(v) for v in np.flatnonzero(seen))
+    return target
 
 
 def _record(cols: dict[str, np.ndarray], header):

@@ -176,3 +176,34 @@ def test_laz_chunk_table_claiming_billions_of_chunks_is_refused_before_allocatin
         read_las_files([tmp_path / "offset.laz"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
     las, _ = read_las_files([tmp_path / "ok.laz"], crs_setting="auto-utm", assign_crs=None, chunk_size=1000)
     assert len(las.points) == 2000  # the check leaves a sound file alone
+
+
+def test_las14_format6_in_the_output_crs_is_copied_as_delivered(tmp_path):
+    """One LAS 1.4 format-6 file already in the output CRS: every record byte kept, scale and offsets too."""
+    from stages.readers.las import convert_las_files
+
+    rng = np.random.default_rng(1)
+    x, y = 440_000 + rng.uniform(0, 300, 5000), 4_474_000 + rng.uniform(0, 300, 5000)
+    src = _write(tmp_path / "in.las", x, y, rng.uniform(600, 700, 5000), "EPSG:25830", point_format=6, version="1.4")
+    las = laspy.read(src)
+    las.point_source_id = rng.integers(1, 4, 5000)
+    las.scan_angle = rng.integers(-3000, 3000, 5000)
+    las.gps_time = np.sort(rng.uniform(0, 100, 5000))
+    las.edge_of_flight_line = rng.integers(0, 2, 5000)  # not among the attributes a conversion keeps
+    las.write(str(src))
+    crs, report, strips = convert_las_files(
+        [src], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=777
+    )
+    out = laspy.read(tmp_path / "out.las")
+    assert crs.to_epsg() == 25830 and strips == {1, 2, 3} and report.points[str(src)] == 5000
+    assert np.array_equal(out.points.array, las.points.array)
+    assert np.array_equal(out.header.scales, las.header.scales) and np.array_equal(
+        out.header.offsets, las.header.offsets
+    )
+    # anything else (here another CRS) is converted: coordinates at 0.1 mm, the standard attributes kept
+    _, _, strips = convert_las_files(
+        [src], tmp_path / "utm31.las", crs_setting="EPSG:25831", assign_crs=None, chunk_size=777
+    )
+    other = laspy.read(tmp_path / "utm31.las")
+    assert np.allclose(other.header.scales, 1e-4) and strips == {1, 2, 3}
+    assert np.array_equal(other.gps_time, las.gps_time) and np.array_equal(other.scan_angle, las.scan_angle)

@@ -153,7 +153,7 @@ class ClassifyGround(Stage):
 
     def run(self, ctx) -> None:
         from pipeline.tiling import run_tiled
-        from stages.tiles import cleanup, las_extent_metres, merge_classes, split_cloud, task_folder
+        from stages.tiles import cleanup, las_extent_metres, merge_classes, point_tasks, split_cloud, task_folder
 
         src = ctx.inputs["points_denoised"]
         extent, _, total = las_extent_metres(src)
@@ -163,17 +163,7 @@ class ClassifyGround(Stage):
         def split(layout):
             with ctx.progress(total, "tiling", unit="pt") as bar:
                 rows, _ = split_cloud(src, layout, work / "in", _classify_columns, progress=bar)
-            return [
-                {
-                    "tile": t,
-                    "weight": rows[t][0],
-                    "source": str(work / "in" / str(t)),
-                    "result": str(work / "out" / str(t)),
-                    "params": params,
-                }
-                for t in sorted(rows)
-                if rows[t][1]  # a tile with no point of its own has nothing to classify
-            ]
+            return point_tasks(rows, work, params=params)
 
         def merge(layout, tasks, results):
             with ctx.progress(total, "writing", unit="pt") as bar:

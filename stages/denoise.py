@@ -123,7 +123,7 @@ class Denoise(Stage):
 
     def run(self, ctx) -> None:
         from pipeline.tiling import map_largest_first, run_tiled
-        from stages.tiles import cleanup, las_extent_metres, merge_classes, split_cloud, task_folder
+        from stages.tiles import cleanup, las_extent_metres, merge_classes, point_tasks, split_cloud, task_folder
 
         src = ctx.inputs["points_adjusted"]
         extent, _, total = las_extent_metres(src)
@@ -142,18 +142,7 @@ class Denoise(Stage):
         def split(layout):
             with ctx.progress(total, "tiling", unit="pt") as bar:
                 rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar)
-            return [
-                {
-                    "tile": t,
-                    "weight": rows[t][0],
-                    "source": str(work / "in" / str(t)),
-                    "result": str(work / "out" / str(t)),
-                    "params": params,
-                    "threshold": None,
-                }
-                for t in sorted(rows)
-                if rows[t][1]
-            ]
+            return point_tasks(rows, work, params=params, threshold=None)
 
         def merge(layout, tasks, results):
             threshold = np.inf

@@ -113,37 +113,49 @@ def write_cog(path: Path, array: np.ndarray, *, transform, crs, nodata: float = 
     nodata : float
         The nodata value recorded in the file.
     """
-    import rasterio
-    import rasterio.shutil
     from rasterio.io import MemoryFile
 
     data = np.asarray(array, dtype=np.float32)
     rows, cols = data.shape
-    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
     with MemoryFile() as mem:
-        with mem.open(
-            driver="GTiff",
-            width=cols,
-            height=rows,
-            count=1,
-            dtype="float32",
-            crs=rasterio.crs.CRS.from_wkt(wkt),
-            transform=transform,
-            nodata=nodata,
-        ) as ds:
+        with mem.open(**float_raster_profile(rows, cols, transform=transform, crs=crs, nodata=nodata)) as ds:
             ds.write(data, 1)
         with mem.open() as src:
-            rasterio.shutil.copy(
-                src,
-                str(path),
-                driver="COG",
-                COMPRESS="DEFLATE",
-                PREDICTOR="YES",
-                BLOCKSIZE=str(COG_BLOCKSIZE),
-                OVERVIEW_RESAMPLING="AVERAGE",
-                BIGTIFF="IF_SAFER",
-                NUM_THREADS="ALL_CPUS",
-            )
+            copy_to_cog(src, path)
+
+
+def float_raster_profile(rows: int, cols: int, *, transform, crs, nodata: float = NODATA) -> dict:
+    """The rasterio profile of a single-band float32 GeoTIFF (CRS written as WKT)."""
+    import rasterio
+
+    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
+    return {
+        "driver": "GTiff",
+        "width": cols,
+        "height": rows,
+        "count": 1,
+        "dtype": "float32",
+        "crs": rasterio.crs.CRS.from_wkt(wkt),
+        "transform": transform,
+        "nodata": nodata,
+    }
+
+
+def copy_to_cog(src, path: Path) -> None:
+    """Write the open dataset *src* to *path* as a Cloud Optimized GeoTIFF (GDAL's COG driver, streaming)."""
+    import rasterio.shutil
+
+    rasterio.shutil.copy(
+        src,
+        str(path),
+        driver="COG",
+        COMPRESS="DEFLATE",
+        PREDICTOR="YES",
+        BLOCKSIZE=str(COG_BLOCKSIZE),
+        OVERVIEW_RESAMPLING="AVERAGE",
+        BIGTIFF="IF_SAFER",
+        NUM_THREADS="ALL_CPUS",
+    )
 
 
 def png_bytes(image: np.ndarray) -> bytes:

@@ -185,6 +185,21 @@ def split_cloud(
     return {t: (n, core_rows[t]) for t, n in rows.items()}, totals
 
 
+def point_tasks(rows: dict[int, tuple[int, int]], work: Path, **extra) -> list[dict]:
+    """One task per tile holding points of its own (results per point): paths, weight, *extra*."""
+    return [
+        {
+            "tile": t,
+            "weight": rows[t][0],
+            "source": str(Path(work) / "in" / str(t)),
+            "result": str(Path(work) / "out" / str(t)),
+            **extra,
+        }
+        for t in sorted(rows)
+        if rows[t][1]  # a tile with no point of its own has nothing to classify
+    ]
+
+
 def read_tile(folder: Path) -> dict[str, np.ndarray]:
     """The columns :func:`split_cloud` wrote for one tile (read into memory)."""
     return {p.stem: np.load(p) for p in sorted(Path(folder).glob("*.npy"))}
@@ -320,23 +335,16 @@ class RasterMosaic:
     def __init__(self, path: Path, *, rows: int, cols: int, transform, crs, nodata: float, fill: float):
         import rasterio
 
-        from stages.io import COG_BLOCKSIZE
+        from stages.io import COG_BLOCKSIZE, float_raster_profile
 
         self.path = Path(path)
         self.tmp = self.path.with_name(f".{self.path.name}.mosaic.tif")
-        wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
         self.rows, self.cols, self.fill = rows, cols, fill
+        profile = float_raster_profile(rows, cols, transform=transform, crs=crs, nodata=nodata)
         self.ds = rasterio.open(
             self.tmp,
             "w",
-            driver="GTiff",
-            width=cols,
-            height=rows,
-            count=1,
-            dtype="float32",
-            crs=rasterio.crs.CRS.from_wkt(wkt),
-            transform=transform,
-            nodata=nodata,
+            **profile,
             tiled=True,
             blockxsize=COG_BLOCKSIZE,
             blockysize=COG_BLOCKSIZE,
@@ -359,25 +367,14 @@ class RasterMosaic:
 
     def finish(self) -> None:
         import rasterio
-        import rasterio.shutil
 
-        from stages.io import COG_BLOCKSIZE
+        from stages.io import copy_to_cog
 
         if self.covered != self.rows * self.cols:  # pragma: no cover - a broken layout, never a user error
             raise RuntimeError(f"mosaic {self.path.name}: {self.covered} of {self.rows * self.cols} cells written")
         self.ds.close()
         with rasterio.Env(GDAL_CACHEMAX=64), rasterio.open(self.tmp) as src:
-            rasterio.shutil.copy(
-                src,
-                str(self.path),
-                driver="COG",
-                COMPRESS="DEFLATE",
-                PREDICTOR="YES",
-                BLOCKSIZE=str(COG_BLOCKSIZE),
-                OVERVIEW_RESAMPLING="AVERAGE",
-                BIGTIFF="IF_SAFER",
-                NUM_THREADS="ALL_CPUS",
-            )
+            copy_to_cog(src, self.path)
         self.tmp.unlink()
 
     def abort(self) -> None:

@@ -71,6 +71,9 @@ class LocalExecutor:
 class DaskExecutor:
     """A Dask distributed cluster: the one at ``address``, or a local one started on first use."""
 
+    #: How long to try reaching a scheduler before giving up.
+    CONNECT_TIMEOUT = "20s"
+
     def __init__(self, address: str | None = None, workers: int = 1):
         self.address = address
         self.workers = max(1, int(workers))
@@ -96,7 +99,7 @@ class DaskExecutor:
             logging.getLogger(name).setLevel(logging.ERROR)
         try:
             if self.address:
-                self._client = Client(self.address, timeout="30s")
+                self._client = Client(self.address, timeout=self.CONNECT_TIMEOUT)
             else:
                 self._cluster = LocalCluster(
                     n_workers=self.workers,
@@ -106,8 +109,11 @@ class DaskExecutor:
                     silence_logs=logging.ERROR,
                 )
                 self._client = Client(self._cluster)
-        except OSError as exc:
-            raise ConfigError(f"executor.address: cannot reach the Dask scheduler at {self.address} ({exc}).") from None
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(
+                f"executor.address: cannot reach the Dask scheduler at {self.address} within "
+                f"{self.CONNECT_TIMEOUT} ({type(exc).__name__})."
+            ) from None
         return self._client
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:

@@ -81,3 +81,27 @@ def test_dask_local_cluster_matches_local_executor():
             ex.map(fail_on_three, tasks)
     finally:
         ex.close()
+
+
+def test_dask_executor_uses_the_scheduler_at_its_address():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        ex = DaskExecutor(cluster.scheduler_address, 1)
+        try:
+            assert ex.describe() == f"dask {cluster.scheduler_address}"
+            assert ex.map(square, [{"i": i} for i in range(5)]) == [{"i": i, "sq": i * i} for i in range(5)]
+            workers = ex._client.scheduler_info()["workers"]
+            assert len(workers) == 2
+        finally:
+            ex.close()
+
+
+def test_unreachable_scheduler_is_one_sentence(monkeypatch):
+    from pipeline.errors import ConfigError
+
+    monkeypatch.setattr(DaskExecutor, "CONNECT_TIMEOUT", "1s")
+    ex = DaskExecutor("tcp://127.0.0.1:9", 1)  # the discard port: nothing listens
+    with pytest.raises(ConfigError, match=r"cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1s"):
+        ex.map(square, [{"i": 1}])
+    ex.close()

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -43,7 +45,7 @@ class LocalExecutor:
         if self.workers == 1:
             return
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = _pool(self.workers)
         for _ in range(self.workers):
             self._pool.submit(import_module, fn.__module__)
 
@@ -56,9 +58,7 @@ class LocalExecutor:
                 _done(log, i + 1, len(tasks), what)
             return results
         if self._pool is None:
-            # spawn: a clean interpreter per worker (fork would copy the
-            # parent's threads and GDAL/PROJ state).
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = _pool(self.workers)
         futures = [self._pool.submit(fn, t) for t in tasks]
         return _collect(futures, log, what, cancel=lambda: [f.cancel() for f in futures])
 
@@ -130,6 +130,30 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    # spawn: a clean interpreter per worker (fork would copy the parent's
+    # threads and GDAL/PROJ state).
+    return ProcessPoolExecutor(
+        workers, mp_context=multiprocessing.get_context("spawn"), initializer=_exit_with_parent, initargs=(os.getpid(),)
+    )
+
+
+def _exit_with_parent(parent: int) -> None:
+    """In a worker: exit as soon as the run that started it is gone (even killed with SIGKILL).
+
+    A killed run cannot stop its workers; without this they would wait for
+    work forever.  Polls the parent's pid once a second (POSIX).
+    """
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent:
+                os._exit(1)
+            time.sleep(1.0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _done(log: Any, k: int, n: int, what: str) -> None:

@@ -269,3 +269,29 @@ def test_two_concurrent_runs_of_one_configuration_same_output(small_job):
 
         assert hashlib.sha256((root / "same" / "out" / name).read_bytes()).hexdigest() == digest
     assert not list((root / "same" / "out").glob(".*.tmp"))
+
+
+def test_a_killed_run_leaves_no_worker_behind(tmp_path):
+    """SIGKILL a tiled run while its worker processes work: they exit too (no orphans), and a re-run completes."""
+    import time
+
+    import psutil
+
+    out = tmp_path / "out"
+    cmd = [str(Path(sys.executable).with_name("pipeline")), "run", str(ROOT / "configs" / "las.yaml"), "-q"]
+    cmd += ["--set", f"output={out}", "--set", f"cache={tmp_path / 'cache'}"]
+    cmd += ["--set", "tiling.size=100", "--set", "executor.workers=2", "--set", "executor.kind=local"]
+    run = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parent = psutil.Process(run.pid)
+    workers: list = []
+    deadline = time.time() + 60
+    while not workers and time.time() < deadline and run.poll() is None:
+        workers = [c for c in parent.children(recursive=True) if "spawn_main" in " ".join(c.cmdline())]
+        time.sleep(0.05)
+    assert workers, "the run should have started worker processes"
+    run.send_signal(signal.SIGKILL)
+    run.wait()
+    gone, alive = psutil.wait_procs(workers, timeout=10)
+    assert not alive, f"{len(alive)} worker(s) outlived the killed run"
+    assert main(cmd[1:]) == 0
+    assert (out / "dtm.tif").exists()

@@ -17,13 +17,14 @@ dicts); nothing they serialise is ever stored.
 
 from __future__ import annotations
 
+import concurrent.futures
 import logging
 import multiprocessing
 import os
 import threading
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor
 from importlib import import_module
 from typing import Any
 
@@ -60,7 +61,7 @@ class LocalExecutor:
         if self._pool is None:
             self._pool = _pool(self.workers)
         futures = [self._pool.submit(fn, t) for t in tasks]
-        return _collect(futures, log, what, cancel=lambda: [f.cancel() for f in futures])
+        return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -119,9 +120,11 @@ class DaskExecutor:
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         if not tasks:
             return []
+        import distributed
+
         client = self._connect()
         futures = client.map(fn, list(tasks), pure=False)
-        return _collect(futures, log, what, cancel=lambda: client.cancel(futures))
+        return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
 
     def close(self) -> None:
         if self._client is not None:
@@ -161,25 +164,17 @@ def _done(log: Any, k: int, n: int, what: str) -> None:
         log.info("%s: %d of %d done", what, k, n)
 
 
-def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any]) -> list[Any]:
-    """Wait for every future (logging progress); the first failure cancels the rest and is raised."""
-    pending = set(range(len(futures)))
-    done_count = 0
-    while pending:
-        if isinstance(futures[0], Future):
-            done, _ = wait([futures[i] for i in pending], return_when=FIRST_COMPLETED)
-            finished = [i for i in pending if futures[i] in done]
-        else:  # dask futures
-            time.sleep(0.05)
-            finished = [i for i in pending if futures[i].done()]
-        for i in finished:
-            pending.discard(i)
-            exc = futures[i].exception()
-            if exc is not None:
-                cancel()
-                raise exc
-            done_count += 1
-            _done(log, done_count, len(futures), what)
+def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any], as_completed: Callable) -> list[Any]:
+    """Wait for every future (logging progress); the first failure cancels the rest and is raised.
+
+    *as_completed* is the futures' own (``concurrent.futures`` or ``distributed``).
+    """
+    for k, future in enumerate(as_completed(futures), 1):
+        exc = future.exception()
+        if exc is not None:
+            cancel()
+            raise exc
+        _done(log, k, len(futures), what)
     return [f.result() for f in futures]
 
 

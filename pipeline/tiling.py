@@ -34,18 +34,6 @@ class Tile:
     xmax: float
     ymax: float
 
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-able form, for task arguments."""
-        return {
-            "index": self.index,
-            "col": self.col,
-            "row": self.row,
-            "xmin": self.xmin,
-            "ymin": self.ymin,
-            "xmax": self.xmax,
-            "ymax": self.ymax,
-        }
-
 
 @dataclass(frozen=True)
 class Layout:

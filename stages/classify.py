@@ -152,30 +152,18 @@ class ClassifyGround(Stage):
         return reach(params.algorithm)
 
     def run(self, ctx) -> None:
-        from pipeline.tiling import run_tiled
-        from stages.tiles import cleanup, las_extent_metres, merge_classes, point_tasks, split_cloud, task_folder
+        from stages.tiles import classes_by_tile
 
-        src = ctx.inputs["points_denoised"]
-        extent, _, total = las_extent_metres(src)
-        work = task_folder(ctx.workdir, self.name)
-        params = ctx.params.model_dump(mode="json")
-
-        def split(layout):
-            with ctx.progress(total, "tiling", unit="pt") as bar:
-                rows, _ = split_cloud(src, layout, work / "in", _classify_columns, progress=bar)
-            return point_tasks(rows, work, params=params)
-
-        def merge(layout, tasks, results):
-            with ctx.progress(total, "writing", unit="pt") as bar:
-                merge_classes(src, ctx.outputs["points_classified"], [Path(t["result"]) for t in tasks], progress=bar)
-            return {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground")}
-
-        try:
-            counts = run_tiled(
-                ctx, extent=extent, buffer=self.tile_buffer(ctx.params), split=split, task=classify_tile, merge=merge
-            )
-        finally:
-            cleanup(work)
+        results = classes_by_tile(
+            ctx,
+            ctx.inputs["points_denoised"],
+            ctx.outputs["points_classified"],
+            buffer=self.tile_buffer(ctx.params),
+            columns=_classify_columns,
+            task=classify_tile,
+            extra={"params": ctx.params.model_dump(mode="json")},
+        )
+        counts = {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground")}
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]
         ctx.metrics.update(
             algorithm=ctx.params.algorithm.model_dump(),
@@ -188,11 +176,8 @@ class ClassifyGround(Stage):
         ctx.log.info("%d of %d points are ground (%.1f %%)", ground, n, 100.0 * ground / max(n, 1))
 
 
-def _classify_columns(chunk, xyz: np.ndarray) -> dict[str, np.ndarray]:
+def _classify_columns(chunk) -> dict[str, np.ndarray]:
     return {
-        "x": xyz[:, 0],
-        "y": xyz[:, 1],
-        "z": xyz[:, 2],
         "classification": np.asarray(chunk.classification, dtype=np.uint8),
         "return_number": np.asarray(chunk.return_number, dtype=np.uint8),
         "number_of_returns": np.asarray(chunk.number_of_returns, dtype=np.uint8),
@@ -211,9 +196,8 @@ def classify_tile(task: dict) -> dict:
 
     cols = read_tile(Path(task["source"]))
     params = ClassifyGroundParams.model_validate(task["params"])
-    points = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed: memory is per tile
     cls = classify(
-        points, cols["classification"], cols["return_number"], cols["number_of_returns"], cols["withheld"], params
+        cols["xyz"], cols["classification"], cols["return_number"], cols["number_of_returns"], cols["withheld"], params
     )
     core = cols["core"]
     write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])

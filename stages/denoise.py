@@ -122,33 +122,15 @@ class Denoise(Stage):
         return reach(params)
 
     def run(self, ctx) -> None:
-        from pipeline.tiling import map_largest_first, run_tiled
-        from stages.tiles import cleanup, las_extent_metres, merge_classes, point_tasks, split_cloud, task_folder
+        from pipeline.tiling import map_largest_first
+        from stages.tiles import classes_by_tile
 
-        src = ctx.inputs["points_adjusted"]
-        extent, _, total = las_extent_metres(src)
-        work = task_folder(ctx.workdir, self.name)
-        params = ctx.params.model_dump(mode="json")
-
-        def columns(chunk, xyz):
-            return {
-                "x": xyz[:, 0],
-                "y": xyz[:, 1],
-                "z": xyz[:, 2],
-                "classification": np.asarray(chunk.classification, dtype=np.uint8),
-                "withheld": np.asarray(chunk.withheld, dtype=bool),
-            }
-
-        def split(layout):
-            with ctx.progress(total, "tiling", unit="pt") as bar:
-                rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar)
-            return point_tasks(rows, work, params=params, threshold=None)
-
-        def merge(layout, tasks, results):
+        def between(tasks, results):
+            # The isolation threshold is a statistic of the whole survey: the tiles'
+            # distances (core points), summed exactly; then the tiles classify.
             threshold = np.inf
             if ctx.params.isolated.enabled:
-                # the isolation threshold is a statistic of the whole survey: the
-                # tiles' distances (core points), summed exactly
+
                 def parts():
                     for t in tasks:
                         yield np.load(Path(t["result"]) / "distance.npy")
@@ -158,17 +140,25 @@ class Denoise(Stage):
                     threshold = mean + ctx.params.isolated.multiplier * std
                 ctx.metrics.update(isolation_threshold_m=round(float(threshold), 4) if n else None)
             second = [{**t, "threshold": float(threshold)} for t in tasks]
-            counts = map_largest_first(ctx, denoise_tile, second, "noise tiles")
-            with ctx.progress(total, "writing", unit="pt") as bar:
-                merge_classes(src, ctx.outputs["points_denoised"], [Path(t["result"]) for t in tasks], progress=bar)
-            return {k: sum(c[k] for c in counts) for k in ("points", "low", "high", "done")}
+            return map_largest_first(ctx, denoise_tile, second, "noise tiles")
 
-        try:
-            counts = run_tiled(
-                ctx, extent=extent, buffer=self.tile_buffer(ctx.params), split=split, task=denoise_tile, merge=merge
-            )
-        finally:
-            cleanup(work)
+        def columns(chunk):
+            return {
+                "classification": np.asarray(chunk.classification, dtype=np.uint8),
+                "withheld": np.asarray(chunk.withheld, dtype=bool),
+            }
+
+        results = classes_by_tile(
+            ctx,
+            ctx.inputs["points_adjusted"],
+            ctx.outputs["points_denoised"],
+            buffer=self.tile_buffer(ctx.params),
+            columns=columns,
+            task=denoise_tile,
+            extra={"params": ctx.params.model_dump(mode="json"), "threshold": None},
+            between=between,
+        )
+        counts = {k: sum(r[k] for r in results) for k in ("points", "low", "high", "done")}
         ctx.metrics.update(
             points=int(counts["points"]),
             low_noise=int(counts["low"]),
@@ -189,7 +179,7 @@ def denoise_tile(task: dict) -> dict:
 
     cols = read_tile(Path(task["source"]))
     params = DenoiseParams.model_validate(task["params"])
-    points = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))
+    points = cols["xyz"]
     cls = cols["classification"].copy()
     done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | cols["withheld"]
     todo = points[~done]

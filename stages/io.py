@@ -79,7 +79,7 @@ def xyz_metres(las) -> tuple[np.ndarray, object]:
 
 
 def cloud_crs(las):
-    """The pyproj CRS of a LasData, or None when its header has none."""
+    """The pyproj CRS of a LasData (or an open laspy reader), or None when its header has none."""
     try:
         return las.header.parse_crs()
     except Exception:  # laspy raises various errors for malformed GeoTIFF keys

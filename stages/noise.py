@@ -40,14 +40,22 @@ def exact_mean_std(parts) -> tuple[float, float, int]:
 
     Sums are exact (:func:`math.fsum`), so the result does not depend on how
     the values are cut into parts or ordered: tiles give the untiled figure
-    bit for bit.  *parts* is called three times (count, mean, deviation).
+    bit for bit.  *parts* is called twice (mean, then deviation).
     """
     import math
 
-    n = sum(len(part) for part in parts())
+    n = 0
+
+    def values():
+        nonlocal n
+        for part in parts():
+            n += len(part)
+            yield from part.tolist()
+
+    total = math.fsum(values())
     if n == 0:
         return 0.0, 0.0, 0
-    mean = math.fsum(v for part in parts() for v in part.tolist()) / n
+    mean = total / n
     var = math.fsum(v for part in parts() for v in ((part - mean) ** 2).tolist()) / n
     return mean, math.sqrt(var), n
 

@@ -93,21 +93,17 @@ class Rasterize(Stage):
 
     def run(self, ctx) -> None:
         from pipeline.tiling import run_tiled
-        from stages.tiles import RasterMosaic, cleanup, core_window, las_extent_metres, split_cloud, task_folder
+        from stages.tiles import RasterMosaic, cleanup, cloud_info, core_window, split_cloud, task_folder
 
         p = ctx.params
         src = ctx.inputs["points_classified"]
-        extent, units, total = las_extent_metres(src)
-        if total == 0:
+        info = cloud_info(src)
+        units, crs = info.units, info.crs
+        if info.count == 0:
             raise InputDataError("the point cloud is empty: there is nothing to grid.")
-        import laspy
-
-        with laspy.open(str(src)) as reader:
-            crs = reader.header.parse_crs()
-            sigma = "sigma_vertical" in reader.header.point_format.dimension_names
-        if "dtm_uncertainty" in ctx.outputs and not sigma:
+        if "dtm_uncertainty" in ctx.outputs and "sigma_vertical" not in info.dimensions:
             raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
-        grid = Grid.covering(*extent, p.resolution)  # in metres, written in CRS units
+        grid = Grid.covering(*info.extent, p.resolution)  # in metres, written in CRS units
         names = [n for n in ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty") if n in ctx.outputs]
         work = task_folder(ctx.workdir, self.name)
         params = p.model_dump(mode="json")
@@ -118,13 +114,10 @@ class Rasterize(Stage):
             "cols": grid.cols,
             "rows": grid.rows,
         }
-        totals: dict[str, int] = {}
+        ground = 0
 
-        def columns(chunk, xyz):
+        def columns(chunk):
             cols = {
-                "x": xyz[:, 0],
-                "y": xyz[:, 1],
-                "z": xyz[:, 2],
                 "classification": np.asarray(chunk.classification, dtype=np.uint8),
                 "withheld": np.asarray(chunk.withheld, dtype=bool),
             }
@@ -132,27 +125,30 @@ class Rasterize(Stage):
                 cols["sigma_vertical"] = np.asarray(chunk["sigma_vertical"], dtype=np.float64)
             return cols
 
-        def count(cols):
-            return {f"class {c}": n for c, n in enumerate(np.bincount(cols["classification"], minlength=256)) if n}
-
         def split(layout):
-            with ctx.progress(total, "tiling", unit="pt") as bar:
-                rows, sums = split_cloud(src, layout, work / "in", columns, progress=bar, count=count, index=False)
-            totals.update(sums)
-            ground = sums.get(f"class {glossary.GROUND}", 0)
-            if ground < 3:
-                classes = ", ".join(
-                    f"{k}: {sums[k]:,}" for k in sorted((k for k in sums if k != "points"), key=lambda k: int(k[6:]))
+            nonlocal ground
+            with ctx.progress(info.count, "tiling", unit="pt") as bar:
+                rows, per_class = split_cloud(
+                    src,
+                    layout,
+                    work / "in",
+                    columns,
+                    progress=bar,
+                    count=lambda cols: np.bincount(cols["classification"], minlength=256),
+                    index=False,
                 )
+            ground = int(per_class[glossary.GROUND])
+            if ground < 3:
+                classes = ", ".join(f"class {c}: {per_class[c]:,}" for c in np.flatnonzero(per_class))
                 raise InputDataError(
-                    f"only {ground} ground points (class 2) among {sums['points']:,} points ({classes}): a DTM needs "
+                    f"only {ground} ground points (class 2) among {info.count:,} points ({classes}): a DTM needs "
                     "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
                 )
             ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, ground, grid.cols, grid.rows)
             return [
                 {
                     "tile": tile.index,
-                    "window": core_window(grid, tile.as_dict(), layout),
+                    "window": core_window(grid, tile, layout),
                     "weight": rows[tile.index][0],
                     "source": str(work / "in" / str(tile.index)),
                     "result": str(work / "out" / str(tile.index)),
@@ -195,7 +191,7 @@ class Rasterize(Stage):
                 for tile in layout.tiles:
                     if tile.index not in done:
                         for n in names:
-                            mosaics[n].write_fill(*core_window(grid, tile.as_dict(), layout))
+                            mosaics[n].write_fill(*core_window(grid, tile, layout))
                 for m in mosaics.values():
                     m.finish()
             except BaseException:
@@ -206,7 +202,7 @@ class Rasterize(Stage):
 
         try:
             results, transform = run_tiled(
-                ctx, extent=extent, buffer=self.tile_buffer(p), split=split, task=rasterize_tile, merge=merge
+                ctx, extent=info.extent, buffer=self.tile_buffer(p), split=split, task=rasterize_tile, merge=merge
             )
         finally:
             cleanup(work)
@@ -227,7 +223,7 @@ class Rasterize(Stage):
             rows=grid.rows,
             origin=[transform.c, transform.f],
             units=units.describe(),
-            ground_points=int(totals.get(f"class {glossary.GROUND}", 0)),
+            ground_points=ground,
             nodata_cells=int(empty),
             nodata_fraction=round(empty / cells, 4),
             dtm_min=float(min(mins)) if mins else None,
@@ -258,6 +254,8 @@ def rasterize_tile(task: dict) -> dict:
     """
     import math
 
+    from scipy.spatial import QhullError
+
     from stages.tiles import read_tile
 
     p = RasterizeParams.model_validate(task["params"])
@@ -271,7 +269,7 @@ def rasterize_tile(task: dict) -> dict:
     wide = grid.window(br0, br1, bc0, bc1)
     crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
     cols = read_tile(Path(task["source"]))
-    pts = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed: memory is per tile
+    pts = cols["xyz"]
     cls = cols["classification"]
     is_ground = cls == glossary.GROUND
     ground = pts[is_ground]
@@ -281,18 +279,15 @@ def rasterize_tile(task: dict) -> dict:
     if core.rows and core.cols and len(ground) >= (3 if p.method == "tin" else 1):
         try:
             dtm = interpolate_dtm(ground, core, p)
-        except Exception as exc:  # Qhull: collinear or coincident ground points in a corner tile
-            from scipy.spatial import QhullError
-
-            if not isinstance(exc, QhullError):
-                raise
-    dsm = _fill(cell_max(pts[usable], wide), max_cells)[crop]
+        except QhullError:  # collinear or coincident ground points in a corner tile: no TIN there
+            pass
+    dsm = fill_nearest(cell_max(pts[usable], wide), max_cells=max_cells)[crop]
     dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
     ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
     density = cell_count(pts[usable], core).astype(np.float64)
     out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
     if "dtm_uncertainty" in task["outputs"]:
-        unc = _fill(cell_mean(ground, cols["sigma_vertical"][is_ground], wide), max_cells)[crop]
+        unc = fill_nearest(cell_mean(ground, cols["sigma_vertical"][is_ground], wide), max_cells=max_cells)[crop]
         out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
     vertical = task["vertical"]
     folder = Path(task["result"])
@@ -310,8 +305,3 @@ def rasterize_tile(task: dict) -> dict:
         "density_sum": int(density.sum()),
         "ndsm_max": float(np.nanmax(ndsm)) / vertical if np.isfinite(ndsm).any() else None,
     }
-
-
-def _fill(grid: np.ndarray, max_cells: float) -> np.ndarray:
-    """:func:`fill_nearest` that leaves a grid without any value as it is."""
-    return grid if np.isnan(grid).all() else fill_nearest(grid, max_cells=max_cells)

@@ -134,6 +134,7 @@ def summarise_cloud(path, *, origin: tuple[float, float], resolution: float, sha
     """Strip coverage and class counts of a LAS file, read in chunks (memory does not grow with the survey)."""
     import laspy
 
+    from stages.io import cloud_crs
     from stages.units import Units
 
     rows, cols = shape
@@ -143,10 +144,7 @@ def summarise_cloud(path, *, origin: tuple[float, float], resolution: float, sha
     counts = np.zeros(256, dtype=np.int64)
     n = 0
     with laspy.open(str(path)) as reader:
-        try:
-            crs = reader.header.parse_crs()
-        except Exception:  # laspy raises various errors for malformed GeoTIFF keys
-            crs = None
+        crs = cloud_crs(reader)
         for chunk in reader.chunk_iterator(1_000_000):
             x, y = np.asarray(chunk.x), np.asarray(chunk.y)
             c = np.clip(((x - x0) / resolution).astype(int), 0, cols - 1)

@@ -98,11 +98,12 @@ class StripAdjust(Stage):
 
     def run(self, ctx) -> None:
         from stages.adjust.icp import adjust, match, planar_patches
-        from stages.tiles import las_extent_metres
+        from stages.tiles import cloud_info
 
         p = ctx.params
         src = ctx.inputs["points_georef"]
-        extent, units, total = las_extent_metres(src)
+        info = cloud_info(src)
+        extent, units, total, crs = info.extent, info.units, info.count, info.crs
         # One pass gathers what the estimation needs (everything in metres, like the
         # parameters): each strip's point count and centroid, and its single returns,
         # on every cell or, for a survey above max_points, on a regular lattice of cells.
@@ -200,7 +201,7 @@ class StripAdjust(Stage):
             ctx.metrics.update(iterations=sol.iterations, correspondences=sol.correspondences,
                                residual_sigma_m=sol.sigma)  # fmt: skip
         transforms = sol.transforms if skipped_note is None else {}
-        crs = _apply(src, ctx.outputs["points_adjusted"], transforms, units, ctx)
+        _apply(src, ctx.outputs["points_adjusted"], transforms, units, ctx)
         _difference_rasters(ctx, extent, before, after, p.difference_resolution, crs, units)
         datum = "control points" if reference is None and control is not None else f"strip {reference}"
         summary = {
@@ -259,15 +260,11 @@ def _gather(path, units, cell: float, step: int):
     return (pts, sid), count, sums
 
 
-def _apply(src, dst, transforms: dict, units, ctx):
-    """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform; the CRS."""
+def _apply(src, dst, transforms: dict, units, ctx) -> None:
+    """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform."""
     import laspy
 
     with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
-        try:
-            crs = reader.header.parse_crs()
-        except Exception:  # laspy raises various errors for malformed GeoTIFF keys
-            crs = None
         with ctx.progress(reader.header.point_count, "writing", unit="pt") as bar:
             for chunk in reader.chunk_iterator(1_000_000):
                 if transforms:
@@ -281,7 +278,6 @@ def _apply(src, dst, transforms: dict, units, ctx):
                     chunk.x, chunk.y, chunk.z = x, y, z
                 writer.write_points(chunk)
                 bar.update(len(chunk))
-    return crs
 
 
 def _combined_rms(values: list[float], weights: list[int]) -> float | None:

@@ -26,12 +26,13 @@ from __future__ import annotations
 
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stages.io import npy_header
+from stages.io import NpyColumns, npy_header
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -65,7 +66,7 @@ class _Spill:
                 self.dtypes.setdefault(name, parts[0][name].dtype)
                 with open(folder / f"{name}.npy", "wb" if new else "ab") as fh:
                     if new:
-                        fh.write(b"\0" * 128)
+                        fh.write(b"\0" * NpyColumns.HEADER_BYTES)
                     for part in parts:
                         fh.write(np.ascontiguousarray(part[name]).tobytes())
             self.rows[tile] = self.rows.get(tile, 0) + sum(len(p["core"]) for p in parts)
@@ -81,36 +82,54 @@ class _Spill:
         return dict(self.rows)
 
 
-def las_extent_metres(path: Path) -> tuple[tuple[float, float, float, float], Any, int]:
-    """The (xmin, ymin, xmax, ymax) of a LAS file's header in metres, its units and its point count."""
+@dataclass(frozen=True)
+class CloudInfo:
+    """What a LAS file's header says, for cutting it into tiles."""
+
+    extent: tuple[float, float, float, float]  # xmin, ymin, xmax, ymax in metres
+    units: Any  # stages.units.Units of its CRS
+    crs: Any  # pyproj CRS, or None
+    count: int
+    dimensions: frozenset[str]
+
+
+def cloud_info(path: Path) -> CloudInfo:
+    """The extent (metres), units, CRS, point count and dimensions a LAS file's header gives."""
     import laspy
 
+    from stages.io import cloud_crs
     from stages.units import Units
 
     with laspy.open(str(path)) as reader:
         header = reader.header
-        try:
-            crs = header.parse_crs()
-        except Exception:  # laspy raises various errors for malformed GeoTIFF keys
-            crs = None
+        crs = cloud_crs(reader)
         units = Units.of(crs)
         lo = units.to_metres(np.array([[header.mins[0], header.mins[1], header.mins[2]]]))[0]
         hi = units.to_metres(np.array([[header.maxs[0], header.maxs[1], header.maxs[2]]]))[0]
-        return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), units, int(header.point_count)
+        return CloudInfo(
+            (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])),
+            units,
+            crs,
+            int(header.point_count),
+            frozenset(header.point_format.dimension_names),
+        )
 
 
 def split_cloud(
     path: Path,
     layout,
     folder: Path,
-    columns: Callable[[Any, np.ndarray], dict[str, np.ndarray]],
+    columns: Callable[[Any], dict[str, np.ndarray]],
     *,
     chunk_size: int = 1_000_000,
     progress=None,
-    count: Callable[[dict[str, np.ndarray]], dict[str, int]] | None = None,
+    count: Callable[[dict[str, np.ndarray]], np.ndarray] | None = None,
     index: bool = True,
-) -> tuple[dict[int, tuple[int, int]], dict[str, int]]:
+) -> tuple[dict[int, tuple[int, int]], np.ndarray | None]:
     """Write each tile's points (core plus buffer) as ``.npy`` columns under ``folder/<tile>/``.
+
+    Every tile gets ``x``, ``y``, ``z`` in metres and ``core``; the rest is
+    the caller's.
 
     Parameters
     ----------
@@ -121,15 +140,15 @@ def split_cloud(
     folder : Path
         Where the tiles' folders go.
     columns : callable
-        ``columns(chunk, xyz_metres) -> {name: array}``: what the tasks need
-        of a chunk of points (laspy record), one value per point.
+        ``columns(chunk) -> {name: array}``: what else the tasks need of a
+        chunk of points (laspy record), one value per point.
     chunk_size : int
         Points read at a time.
     progress : Progress, optional
         Advanced by the points read.
     count : callable, optional
-        ``count(cols) -> {name: n}`` summed over the chunks (totals the
-        caller checks before running the tasks).
+        ``count(cols) -> array``, summed over the chunks (totals the caller
+        checks before running the tasks).
     index : bool
         Write ``idx``, each point's index in the file (for results per
         point; not needed for results per cell).
@@ -139,32 +158,28 @@ def split_cloud(
     rows : dict
         Tile index -> (points written, of which in the core); tiles with
         none are absent.
-    totals : dict
-        ``points`` read and the sums of *count*.
+    counted : ndarray or None
+        The sum of *count* over the chunks.
     """
     import laspy
 
+    from stages.io import cloud_crs
     from stages.units import Units
 
     spill = _Spill(folder)
     core_rows: dict[int, int] = {}
-    totals: dict[str, int] = {"points": 0}
+    counted = None
     with laspy.open(str(path)) as reader:
-        try:
-            crs = reader.header.parse_crs()
-        except Exception:
-            crs = None
-        units = Units.of(crs)
+        units = Units.of(cloud_crs(reader))
         start = 0
         for chunk in reader.chunk_iterator(chunk_size):
             n = len(chunk)
             xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
-            cols = columns(chunk, xyz)
+            cols = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], **columns(chunk)}
             if index:
                 cols["idx"] = np.arange(start, start + n, dtype=np.int64)
             if count is not None:
-                for k, v in count(cols).items():
-                    totals[k] = totals.get(k, 0) + int(v)
+                counted = count(cols) if counted is None else counted + count(cols)
             home = layout.locate(xyz[:, 0], xyz[:, 1])
             point, tile = layout.memberships(xyz[:, 0], xyz[:, 1])
             bounds = np.flatnonzero(np.diff(tile)) + 1
@@ -178,11 +193,53 @@ def split_cloud(
                 core_rows[t] = core_rows.get(t, 0) + int(part["core"].sum())
                 spill.add(t, part)
             start += n
-            totals["points"] += n
             if progress is not None:
                 progress.update(n)
     rows = spill.close()
-    return {t: (n, core_rows[t]) for t, n in rows.items()}, totals
+    return {t: (n, core_rows[t]) for t, n in rows.items()}, counted
+
+
+def classes_by_tile(
+    ctx,
+    src: Path,
+    dst: Path,
+    *,
+    buffer: float,
+    columns: Callable[[Any], dict[str, np.ndarray]],
+    task: Callable[[dict], dict],
+    extra: dict,
+    between: Callable[[list[dict], list[dict]], list[dict]] | None = None,
+) -> list[dict]:
+    """A stage that reclassifies points, tile by tile: *src* copied to *dst* with the tiles' classes.
+
+    Cuts *src* into the run's tiles (:func:`split_cloud`; *columns* adds
+    what the task needs), runs *task* on every tile holding points of its
+    own (it writes ``idx`` and ``classification`` of its core points with
+    :func:`write_result`), optionally *between* (a second round of tasks,
+    given the first round's), then :func:`merge_classes`.  Returns the
+    tasks' results.
+    """
+    from pipeline.tiling import run_tiled
+
+    info = cloud_info(src)
+    work = task_folder(ctx.workdir, ctx.name)
+
+    def split(layout):
+        with ctx.progress(info.count, "tiling", unit="pt") as bar:
+            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar)
+        return point_tasks(rows, work, **extra)
+
+    def merge(layout, tasks, results):
+        if between is not None:
+            results = between(tasks, results)
+        with ctx.progress(info.count, "writing", unit="pt") as bar:
+            merge_classes(src, dst, [Path(t["result"]) for t in tasks], progress=bar)
+        return results
+
+    try:
+        return run_tiled(ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge)
+    finally:
+        cleanup(work)
 
 
 def point_tasks(rows: dict[int, tuple[int, int]], work: Path, **extra) -> list[dict]:
@@ -201,8 +258,10 @@ def point_tasks(rows: dict[int, tuple[int, int]], work: Path, **extra) -> list[d
 
 
 def read_tile(folder: Path) -> dict[str, np.ndarray]:
-    """The columns :func:`split_cloud` wrote for one tile (read into memory)."""
-    return {p.stem: np.load(p) for p in sorted(Path(folder).glob("*.npy"))}
+    """The columns :func:`split_cloud` wrote for one tile, read into memory, ``x, y, z`` as one (n, 3) ``xyz``."""
+    cols = {p.stem: np.load(p) for p in sorted(Path(folder).glob("*.npy"))}
+    cols["xyz"] = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed
+    return cols
 
 
 def write_result(folder: Path, **columns: np.ndarray) -> None:
@@ -293,7 +352,7 @@ def merge_classes(
             run.close()
 
 
-def core_window(grid, tile: dict, layout) -> tuple[int, int, int, int]:
+def core_window(grid, tile, layout) -> tuple[int, int, int, int]:
     """Rows and columns ``(r0, r1, c0, c1)`` of *grid* whose cell centres lie in *tile*'s core.
 
     Cell centres on a core's low edge belong to it, on its high edge to the
@@ -304,17 +363,17 @@ def core_window(grid, tile: dict, layout) -> tuple[int, int, int, int]:
     import math
 
     res = grid.resolution
-    c0 = math.ceil((tile["xmin"] - grid.xmin) / res - 0.5)
-    c1 = math.ceil((tile["xmax"] - grid.xmin) / res - 0.5)
-    r0 = math.floor((grid.ymax - tile["ymax"]) / res - 0.5) + 1
-    r1 = math.floor((grid.ymax - tile["ymin"]) / res - 0.5) + 1
-    if tile["col"] == 0:
+    c0 = math.ceil((tile.xmin - grid.xmin) / res - 0.5)
+    c1 = math.ceil((tile.xmax - grid.xmin) / res - 0.5)
+    r0 = math.floor((grid.ymax - tile.ymax) / res - 0.5) + 1
+    r1 = math.floor((grid.ymax - tile.ymin) / res - 0.5) + 1
+    if tile.col == 0:
         c0 = 0
-    if tile["col"] == layout.cols - 1:
+    if tile.col == layout.cols - 1:
         c1 = grid.cols
-    if tile["row"] == layout.rows - 1:  # northernmost
+    if tile.row == layout.rows - 1:  # northernmost
         r0 = 0
-    if tile["row"] == 0:  # southernmost
+    if tile.row == 0:  # southernmost
         r1 = grid.rows
     return (
         min(max(r0, 0), grid.rows),

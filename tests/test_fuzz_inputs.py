@@ -256,28 +256,20 @@ def _check_binary_trajectory(path: Path) -> None:
 
 
 @RAW_FUZZ
+@pytest.mark.parametrize(
+    "name, check",
+    [
+        ("scan.lmsq", _check_lmsq),
+        ("nav.nmea", _check_text_navigation),
+        ("ins.csv", _check_text_navigation),
+        ("trajectory.sbet", _check_binary_trajectory),
+    ],
+)
 @given(data=st.data())
-def test_lmsq_stream_damage_is_counted_or_located(tmp_path, raw_flight, data):
-    path = tmp_path / "scan.lmsq"
-    path.write_bytes(_damage(data, (raw_flight / "scan.lmsq").read_bytes()))
-    _check_lmsq(path)
-
-
-@RAW_FUZZ
-@given(data=st.data())
-def test_nmea_and_ins_damage_is_counted_or_located(tmp_path, raw_flight, data):
-    which = data.draw(st.sampled_from(["nav.nmea", "ins.csv"]))
-    path = tmp_path / which
-    path.write_bytes(_damage(data, (raw_flight / which).read_bytes()))
-    _check_text_navigation(path)
-
-
-@RAW_FUZZ
-@given(data=st.data())
-def test_sbet_damage_is_counted(tmp_path, raw_flight, data):
-    path = tmp_path / "t.sbet"
-    path.write_bytes(_damage(data, (raw_flight / "trajectory.sbet").read_bytes()))
-    _check_binary_trajectory(path)
+def test_raw_stream_damage_is_counted_or_located(tmp_path, raw_flight, data, name, check):
+    path = tmp_path / name
+    path.write_bytes(_damage(data, (raw_flight / name).read_bytes()))
+    check(path)
 
 
 # Extreme values in otherwise well-formed records: a numeric field of a line

@@ -67,12 +67,16 @@ def min_grid(z: np.ndarray, idx: CellIndex) -> np.ndarray:
 def fill_nearest(grid: np.ndarray, max_cells: float | None = None) -> np.ndarray:
     """Replace NaN cells by the value of the nearest non-NaN cell.
 
-    With *max_cells*, cells farther than that (in cells) from any value stay NaN.
+    With *max_cells*, cells farther than that (in cells) from any value stay
+    NaN (so a grid without any value stays as it is); without, a grid
+    without any value is an error.
     """
     empty = np.isnan(grid)
     if not empty.any():
         return grid
     if empty.all():
+        if max_cells is not None:
+            return grid
         raise ValueError("the grid has no value to fill from")
     dist, (ri, ci) = ndimage.distance_transform_edt(empty, return_distances=True, return_indices=True)
     out = grid[ri, ci]

@@ -282,16 +282,7 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
                     }
                     if n:
                         xyz = (cols["x"], cols["y"], cols["z"])
-                        lo = np.minimum(lo, [v.min() for v in xyz])
-                        hi = np.maximum(hi, [v.max() for v in xyz])
-                        from stages.units import Units
-
-                        span = Units.of(target).horizontal * float(np.max(hi - lo))
-                        if span > MAX_SPAN_M:
-                            raise InputDataError(
-                                f"{path}: the points span {span:.3g} m, more than any survey on Earth "
-                                "(damaged scale or offset in the header?)."
-                            )
+                        lo, hi = _extend(path, lo, hi, [v.min() for v in xyz], [v.max() for v in xyz], target)
                     if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
                         cols["scan_angle"] = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
                     else:  # formats 0-5: scan angle rank, whole degrees
@@ -449,6 +440,28 @@ def convert_las_files(
     return target, report, strips
 
 
+def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray]:
+    """The running bounds *lo*, *hi* of a file's points grown by a chunk's extremes.
+
+    Extremes that are not finite (a huge scale overflows) or a span beyond
+    any survey are errors naming the file.
+    """
+    from stages.units import Units
+
+    if not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+        raise InputDataError(
+            f"{path}: points have coordinates that are not finite numbers (damaged scale or offset in the header?)."
+        )
+    lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
+    span = Units.of(crs).horizontal * float(np.max(hi - lo))
+    if span > MAX_SPAN_M:
+        raise InputDataError(
+            f"{path}: the points span {span:.3g} m, more than any survey on Earth "
+            "(damaged scale or offset in the header?)."
+        )
+    return lo, hi
+
+
 def _copyable(paths: list[Path], crs_setting: str, assign_crs):
     """The output CRS when the input can be copied record for record, else None.
 
@@ -476,7 +489,6 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
     import laspy
 
     from stages.io import point_header
-    from stages.units import Units
 
     n_read = 0
     with _open(path) as reader:
@@ -484,7 +496,6 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
         _, report.crs_source[str(path)] = _file_crs(path, h, assign_crs)
         header = point_header(target)
         header.offsets, header.scales = h.offsets, h.scales
-        metres = Units.of(target).horizontal
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
         with laspy.open(str(dst), mode="w", header=header) as writer:
@@ -492,19 +503,10 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
                 for chunk in reader.chunk_iterator(chunk_size):
                     n = len(chunk)
                     if n:
-                        raw = [np.asarray(chunk.array[k]) for k in ("X", "Y", "Z")]
-                        lo = np.minimum(
-                            lo, [r.min() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
-                        )
-                        hi = np.maximum(
-                            hi, [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
-                        )
-                        span = metres * float(np.max(hi - lo))
-                        if span > MAX_SPAN_M:
-                            raise InputDataError(
-                                f"{path}: the points span {span:.3g} m, more than any survey on Earth "
-                                "(damaged scale or offset in the header?)."
-                            )
+                        raw = [np.asarray(chunk.array[k]) for k in ("X", "Y", "Z")]  # scaled: only the extremes
+                        mins = [r.min() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
+                        maxs = [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
+                        lo, hi = _extend(path, lo, hi, mins, maxs, target)
                         seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
                     writer.write_points(chunk)
                     n_read += n

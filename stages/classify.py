@@ -28,6 +28,7 @@ import numpy as np
 from pydantic import Field
 
 from pipeline.config import StrictModel
+from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageParams
 from stages import glossary
 
@@ -96,6 +97,75 @@ def reach(algorithm: StrictModel) -> float:
     return 50.0
 
 
+#: A survey is sparse for a grid filter when its points are farther apart than this many cells.
+SPARSE_SPACINGS = 2.0
+#: Occupancy cells (in filter cells) over which the nominal point spacing is measured.
+OCCUPANCY_CELLS = 32
+
+
+def grid_cell(algorithm: StrictModel) -> float:
+    """The cell (metres) of the algorithm's grid: SMRF's and PMF's ``cell_size``, CSF's cloth spacing."""
+    return float(algorithm.cloth_resolution if algorithm.name == "csf" else algorithm.cell_size)
+
+
+def for_spacing(algorithm: StrictModel, spacing: float | None) -> StrictModel:
+    """The algorithm with its grid cell raised to the point spacing of a sparse survey.
+
+    A morphological filter's minimum surface (and a cloth) is meaningful only
+    when most of its cells hold points.  Where the points lie more than
+    ``SPARSE_SPACINGS`` cells apart on average (under 0.25 points/m² with
+    1 m cells), the grid would be almost all interpolated — a surface of
+    spikes through isolated points — and its cost would follow the area, not
+    the points.  The cell is then the nominal spacing, rounded up to a whole
+    multiple of the configured cell; windows, slopes and thresholds stay in
+    metres.  Surveys denser than that are filtered exactly as configured.
+
+    >>> from stages.classify import SmrfParams
+    >>> for_spacing(SmrfParams(name="smrf"), 19.4).cell_size
+    20.0
+    >>> for_spacing(SmrfParams(name="smrf"), 1.5).cell_size
+    1.0
+    """
+    cell = grid_cell(algorithm)
+    if spacing is None or not np.isfinite(spacing) or spacing <= SPARSE_SPACINGS * cell:
+        return algorithm
+    used = float(np.ceil(spacing / cell) * cell)
+    key = "cloth_resolution" if algorithm.name == "csf" else "cell_size"
+    return algorithm.model_copy(update={key: used})
+
+
+def nominal_spacing(path: Path, cell: float, info) -> float | None:
+    """Nominal point spacing (metres) of the usable points, over the area they cover; None when surely dense.
+
+    From the header first (count over the extent's area): a survey at least
+    as dense as ``1 / (SPARSE_SPACINGS cell)²`` needs no more (None).  Otherwise one
+    pass counts the points that are not noise or withheld and the cells of
+    ``OCCUPANCY_CELLS`` x *cell* they occupy, so that stray points and large
+    voids do not count as area: spacing = sqrt(occupied area / points).
+    """
+    import laspy
+
+    xmin, ymin, xmax, ymax = info.extent
+    area = max(xmax - xmin, cell) * max(ymax - ymin, cell)
+    if info.count and area / info.count <= (SPARSE_SPACINGS * cell) ** 2:
+        return None
+    big = OCCUPANCY_CELLS * cell
+    occupied: set[int] = set()
+    count = 0
+    with laspy.open(str(path)) as reader:
+        for chunk in reader.chunk_iterator(1_000_000):
+            cls = np.asarray(chunk.classification)
+            keep = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.asarray(chunk.withheld, dtype=bool)
+            xy = info.units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.zeros(len(cls)))))
+            col = np.floor(xy[keep, 0] / big).astype(np.int64)
+            row = np.floor(xy[keep, 1] / big).astype(np.int64)
+            occupied.update(np.unique(row * (1 << 31) + col).tolist())
+            count += int(keep.sum())
+    if count == 0:
+        return None
+    return float(np.sqrt(len(occupied) * big * big / count))
+
+
 def ground_mask(points: np.ndarray, algorithm: StrictModel) -> np.ndarray:
     """Run the configured algorithm on (n, 3) coordinates; True = ground."""
     params = algorithm.model_dump(exclude={"name"})
@@ -152,21 +222,44 @@ class ClassifyGround(Stage):
         return reach(params.algorithm)
 
     def run(self, ctx) -> None:
-        from stages.tiles import classes_by_tile
+        from stages.tiles import classes_by_tile, cloud_info
 
+        src = ctx.inputs["points_denoised"]
+        params = ctx.params
+        spacing = nominal_spacing(src, grid_cell(params.algorithm), cloud_info(src))
+        used = for_spacing(params.algorithm, spacing)
+        if used is not params.algorithm:
+            ctx.log.warning(
+                "sparse survey: the points lie %.1f m apart, more than %g cells of %g m; %s runs on cells of %g m "
+                "(windows and thresholds unchanged, in metres)",
+                spacing,
+                SPARSE_SPACINGS,
+                grid_cell(params.algorithm),
+                used.name,
+                grid_cell(used),
+            )
+            params = params.model_copy(update={"algorithm": used})
         results = classes_by_tile(
             ctx,
-            ctx.inputs["points_denoised"],
+            src,
             ctx.outputs["points_classified"],
-            buffer=self.tile_buffer(ctx.params),
+            buffer=self.tile_buffer(params),
             columns=_classify_columns,
             task=classify_tile,
-            extra={"params": ctx.params.model_dump(mode="json")},
+            extra={"params": params.model_dump(mode="json")},
         )
-        counts = {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground")}
+        counts = {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground", "last_returns")}
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]
+        if n and ground == 0 and params.last_returns and counts["last_returns"] == 0:
+            raise InputDataError(
+                f"{src.name}: none of its {n:,} points is a last or single return (return number = number of "
+                "returns), so none can be ground; if the file's return numbers are wrong, set "
+                "stages.classify_ground.last_returns: false."
+            )
         ctx.metrics.update(
-            algorithm=ctx.params.algorithm.model_dump(),
+            algorithm=params.algorithm.model_dump(),
+            nominal_spacing_m=round(spacing, 3) if spacing is not None else None,
+            grid_cell_m=grid_cell(params.algorithm),
             points=int(n),
             ground=ground,
             non_ground=other,
@@ -202,9 +295,11 @@ def classify_tile(task: dict) -> dict:
     core = cols["core"]
     write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
     kept = cls[core]
+    last = cols["return_number"][core] >= cols["number_of_returns"][core]
     return {
         "tile": task["tile"],
         "points": int(core.sum()),
+        "last_returns": int(last.sum()),
         "ground": int((kept == glossary.GROUND).sum()),
         "non_ground": int((kept == glossary.UNCLASSIFIED).sum()),
     }

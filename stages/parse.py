@@ -55,11 +55,16 @@ class LasInput(StrictModel):
     format: Literal["las"] = Field(description=FORMAT_HELP)
     paths: Annotated[list[InputFile], Field(min_length=1, description="LAS/LAZ files, relative to the config file")]
     crs: str | None = Field(
-        None, description="CRS of input files whose header has none (a header CRS always wins); e.g. EPSG:25830"
+        None,
+        description="CRS of input files whose header has none or an unreadable one (PDAL's default_srs); e.g. EPSG:25830",
+    )
+    override_crs: str | None = Field(
+        None,
+        description="CRS of every input file, replacing whatever its header says (PDAL's override_srs); e.g. EPSG:26912",
     )
     chunk_size: int = Field(1_000_000, ge=1000, description="points read at a time")
 
-    @field_validator("crs")
+    @field_validator("crs", "override_crs")
     @classmethod
     def _known_crs(cls, value: str | None) -> str | None:
         return _check_crs(value)
@@ -345,6 +350,7 @@ class Parse(Stage):
         params = ctx.params
         total = count_points(list(params.paths))
         assign = pyproj.CRS.from_user_input(params.crs) if params.crs else None
+        override = pyproj.CRS.from_user_input(params.override_crs) if params.override_crs else None
         with ctx.progress(total, "reading LAS/LAZ", unit="pt") as bar:
             crs, report, strips = convert_las_files(
                 list(params.paths),
@@ -353,9 +359,12 @@ class Parse(Stage):
                 assign_crs=assign,
                 chunk_size=params.chunk_size,
                 progress=bar,
+                override_crs=override,
             )
-        if report.gps_time_missing:
-            ctx.log.warning("no GPS time in %s: gps_time set to 0", ", ".join(report.gps_time_missing))
+        _log_las_report(ctx.log, report, override)
+        if not sum(report.points.values()):
+            files = ", ".join(str(x) for x in params.paths)
+            raise InputDataError(f"{files}: no point in the file (its header announces 0 and no record follows).")
         from stages.units import Units
 
         ctx.metrics.update(
@@ -366,8 +375,33 @@ class Parse(Stage):
             crs_source=report.crs_source,
             strips=sorted(strips),
             units=Units.of(crs).describe(),
+            return_number_zero=report.return_number_zero,
+            outside_header_bounds=report.outside_header_bounds,
+            header_count_short={k: list(v) for k, v in report.header_count_short.items()},
+            crs_notes=report.crs_notes,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
+
+
+def _log_las_report(log, report, override) -> None:
+    """Say what the LAS reader repaired or assumed: every count, never silently."""
+    if override is not None:
+        log.info("input.override_crs: %s replaces the header CRS of every input file", override.name)
+    for path, note in report.crs_notes.items():  # a unit the GeoKeys give is GDAL's reading, not a repair
+        (log.info if "as GDAL does" in note else log.warning)("%s: %s", path, note)
+    if report.gps_time_missing:
+        log.warning("no GPS time in %s: gps_time set to 0", ", ".join(report.gps_time_missing))
+    for path, n in report.return_number_zero.items():
+        log.warning("%s: %d points have return number 0 (invalid in LAS): read as 1", path, n)
+    for path, n in report.outside_header_bounds.items():
+        log.warning(
+            "%s: %d points lie outside the header's bounds: flagged withheld (kept in points.laz, "
+            "left out of every grid and filter)",
+            path,
+            n,
+        )
+    for path, (announced, held) in report.header_count_short.items():
+        log.warning("%s: the header announces %d points but the file holds %d records: all read", path, announced, held)
 
 
 def _guard_stream(iterator, path: Path, counters):

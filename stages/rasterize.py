@@ -25,6 +25,7 @@ cells of 3.2808 ftUS and heights in ftUS; :mod:`stages.units`).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -103,17 +104,11 @@ class Rasterize(Stage):
             raise InputDataError("the point cloud is empty: there is nothing to grid.")
         if "dtm_uncertainty" in ctx.outputs and "sigma_vertical" not in info.dimensions:
             raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
-        grid = Grid.covering(*info.extent, p.resolution)  # in metres, written in CRS units
         names = [n for n in ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty") if n in ctx.outputs]
         work = task_folder(ctx.workdir, self.name)
         params = p.model_dump(mode="json")
-        grid_args = {
-            "xmin": grid.xmin,
-            "ymax": grid.ymax,
-            "resolution": grid.resolution,
-            "cols": grid.cols,
-            "rows": grid.rows,
-        }
+        grid = None  # sized by the usable points once they are split (not by the header: stray points)
+        extent = UsableExtent()
         ground = 0
 
         def columns(chunk):
@@ -126,16 +121,10 @@ class Rasterize(Stage):
             return cols
 
         def split(layout):
-            nonlocal ground
+            nonlocal ground, grid
             with ctx.progress(info.count, "tiling", unit="pt") as bar:
                 rows, per_class = split_cloud(
-                    src,
-                    layout,
-                    work / "in",
-                    columns,
-                    progress=bar,
-                    count=lambda cols: np.bincount(cols["classification"], minlength=256),
-                    index=False,
+                    src, layout, work / "in", columns, progress=bar, count=extent.count, index=False
                 )
             ground = int(per_class[glossary.GROUND])
             if ground < 3:
@@ -144,6 +133,10 @@ class Rasterize(Stage):
                     f"only {ground} ground points (class 2) among {info.count:,} points ({classes}): a DTM needs "
                     "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
                 )
+            grid = Grid.covering(*extent.box(), p.resolution)  # in metres, written in CRS units
+            check_grid_size(grid, extent.box(), units)
+            grid_args = {"xmin": grid.xmin, "ymax": grid.ymax, "resolution": grid.resolution}
+            grid_args.update(cols=grid.cols, rows=grid.rows)
             ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, ground, grid.cols, grid.rows)
             return [
                 {
@@ -208,6 +201,12 @@ class Rasterize(Stage):
             cleanup(work)
         cells = grid.rows * grid.cols
         empty = sum(r["nodata_cells"] for r in results) + (cells - sum(r["cells"] for r in results))
+        if empty == cells:
+            raise InputDataError(
+                f"{src.name}: the DTM has no valid cell: its {ground} ground points make no surface "
+                f"on {grid.cols} x {grid.rows} cells of {p.resolution:g} m (collinear or too few points; "
+                "check the ground classification, or use stages.rasterize.method: nearest)."
+            )
         mins = [r["dtm_min"] for r in results if r["dtm_min"] is not None]
         maxs = [r["dtm_max"] for r in results if r["dtm_max"] is not None]
         ndsm = [r["ndsm_max"] for r in results if r["ndsm_max"] is not None]
@@ -232,6 +231,60 @@ class Rasterize(Stage):
             ndsm_max=float(max(ndsm)) if ndsm else None,
         )
         ctx.log.info("DTM %d x %d cells at %g m, %d nodata", grid.cols, grid.rows, p.resolution, empty)
+
+
+class UsableExtent:
+    """The extent (metres) of the points a grid is made of: all but noise (7, 18) and withheld.
+
+    Used as :func:`stages.tiles.split_cloud`'s ``count``: it returns the
+    class histogram of each chunk and keeps the box of its usable points.
+    """
+
+    def __init__(self) -> None:
+        self.lo = np.full(2, np.inf)
+        self.hi = np.full(2, -np.inf)
+
+    def count(self, cols: dict[str, np.ndarray]) -> np.ndarray:
+        usable = ~np.isin(cols["classification"], (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~cols["withheld"]
+        if usable.any():
+            xy = np.column_stack((cols["x"][usable], cols["y"][usable]))
+            self.lo = np.minimum(self.lo, xy.min(axis=0))
+            self.hi = np.maximum(self.hi, xy.max(axis=0))
+        return np.bincount(cols["classification"], minlength=256)
+
+    def box(self) -> tuple[float, float, float, float]:
+        if not np.isfinite(self.lo).all():
+            raise InputDataError("every point is noise or withheld: there is nothing to grid.")
+        return (float(self.lo[0]), float(self.lo[1]), float(self.hi[0]), float(self.hi[1]))
+
+
+#: Bytes per DTM cell that the whole run may hold at once: the raster products
+#: (hillshade, contours, accuracy, report) read the DTM whole, as float64 with
+#: a few temporaries of its size.
+BYTES_PER_CELL = 48
+
+
+def check_grid_size(grid: Grid, box: tuple[float, float, float, float], units, memory: int | None = None) -> None:
+    """Refuse a grid the machine cannot hold, before anything is allocated (one sentence, exit 3).
+
+    *memory* (bytes) defaults to the memory available now.
+    """
+    if memory is None:
+        import psutil
+
+        memory = int(psutil.virtual_memory().available)
+    cells = grid.cols * grid.rows
+    need = cells * BYTES_PER_CELL
+    if need <= memory:
+        return
+    width, height = (box[2] - box[0]) / units.horizontal, (box[3] - box[1]) / units.horizontal
+    suggest = grid.resolution * math.ceil(math.sqrt(need / memory) * 2)
+    raise InputDataError(
+        f"the DTM would have {grid.cols:,} x {grid.rows:,} cells of {grid.resolution:g} m over the points' "
+        f"{width:,.0f} x {height:,.0f} {units.horizontal_name} extent, about {need / 2**30:,.1f} GB for its products, "
+        f"more than the {memory / 2**30:,.1f} GB this machine has free: raise stages.rasterize.resolution "
+        f"(for example to {suggest:g}) or split the survey."
+    )
 
 
 def reach(params: RasterizeParams) -> float:

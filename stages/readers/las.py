@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputDataError
+from stages.crscheck import honour_linear_units
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
@@ -39,20 +40,75 @@ class LasReadReport:
     points: dict[str, int] = field(default_factory=dict)
     crs_source: dict[str, str] = field(default_factory=dict)
     gps_time_missing: list[str] = field(default_factory=list)
+    #: Per file: points whose return number was 0 (invalid in LAS), read as 1.
+    return_number_zero: dict[str, int] = field(default_factory=dict)
+    #: Per file: points outside the header's bounds, flagged withheld (they must not size a grid).
+    outside_header_bounds: dict[str, int] = field(default_factory=dict)
+    #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
+    header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: Per file: why its header CRS was not used as it stands (unreadable; GeoKey units honoured).
+    crs_notes: dict[str, str] = field(default_factory=dict)
 
 
-def _file_crs(path: Path, header, assign):
-    try:
-        crs = header.parse_crs()
-    except Exception as exc:
-        raise InputDataError(f"{path}: the CRS in the LAS header cannot be read ({exc}).") from None
-    if crs is not None:
-        return crs, "header"
-    if assign is not None:
-        return assign, "input.crs"
-    raise InputDataError(
-        f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
-    )
+def _file_crs(path: Path, header, assign, override=None, notes: dict | None = None):
+    """The CRS of one file's coordinates and where it came from, checked against them.
+
+    ``input.override_crs`` (*override*) replaces whatever the header says;
+    otherwise the header's CRS, and ``input.crs`` (*assign*) for a header
+    without one — or with one that cannot be read (an empty WKT), noted in
+    *notes*.  The coordinates the header's bounds announce must be possible
+    in that CRS (:func:`stages.crscheck.crs_problem`), or the file is refused
+    with the key that fixes it.
+    """
+    if override is not None:
+        crs, source = override, "input.override_crs"
+    else:
+        try:
+            crs, source = header.parse_crs(), "header"
+            crs, note = honour_linear_units(crs, _geo_keys(header))
+            if note is not None and notes is not None:
+                notes[str(path)] = note
+        except Exception as exc:
+            if assign is None:
+                raise InputDataError(
+                    f"{path}: the CRS in the LAS header cannot be read ({exc}); set input.override_crs "
+                    "to the CRS of its coordinates (for example EPSG:2180)."
+                ) from None
+            crs, source = None, "input.crs"
+            if notes is not None:
+                notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
+        if crs is None:
+            if assign is None:
+                raise InputDataError(
+                    f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
+                )
+            crs, source = assign, "input.crs"
+    _check_fits(path, header, crs, source)
+    return crs, source
+
+
+def _geo_keys(header) -> list:
+    """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
+    for vlr in header.vlrs:
+        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
+            return list(vlr.geo_keys)
+    return []
+
+
+def _check_fits(path: Path, header, crs, source: str) -> None:
+    """Refuse a file whose header bounds cannot be coordinates in *crs* (one sentence with the way out)."""
+    from stages.crscheck import crs_problem
+
+    if int(header.point_count) == 0:
+        return
+    problem = crs_problem(crs, header.mins, header.maxs)
+    if problem is None:
+        return
+    if source == "header":
+        way = "the header's CRS is wrong: set input.override_crs to the CRS the coordinates are in"
+    else:
+        way = f"the CRS given in {source} does not fit them: set {source} to the CRS the coordinates are in"
+    raise InputDataError(f"{path}: {problem}; {way}.")
 
 
 def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | None):
@@ -221,7 +277,9 @@ def count_points(paths: list[Path]) -> int:
     return total
 
 
-def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, report, progress=None):
+def las_chunks(
+    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, report, progress=None, override_crs=None
+):
     """Read LAS/LAZ files chunk by chunk, in the output CRS.
 
     Yields
@@ -233,6 +291,10 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
         ``gps_time`` and the copied attributes of one chunk of points.
 
     The *report* (:class:`LasReadReport`) is filled as files are read.
+    What is repaired, counted in it: return number 0 (invalid) is read as 1;
+    points outside the header's horizontal bounds are flagged withheld (a
+    stray point must not size the grids); records beyond the header's point
+    count (uncompressed LAS) are read too.
 
     Raises
     ------
@@ -245,8 +307,10 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
     for path in paths:
         with _open(path) as reader:
             header = reader.header
-            src_crs, source = _file_crs(path, header, assign_crs)
+            src_crs, source = _file_crs(path, header, assign_crs, override_crs, report.crs_notes)
             report.crs_source[str(path)] = source
+            _read_all_records(path, header, report)
+            bounds = _header_box(header)
             if target is None:
                 centre = None
                 if not src_crs.is_projected:
@@ -266,14 +330,19 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
             try:
                 for chunk in reader.chunk_iterator(chunk_size):
                     x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+                    stray = _outside(bounds, x, y)
+                    raw_ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
                     if transformer is not None:
                         x, y, z = transformer.transform(x, y, z)
                     bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
                     if bad.any():
-                        raise InputDataError(
-                            f"{path}: point {n_read + int(np.argmax(bad))} has coordinates that are not finite "
-                            "numbers (damaged scale or offset in the header?)."
+                        i = int(np.argmax(bad))
+                        why = (
+                            f"cannot be transformed from {src_crs.name} to {target.name} (outside the area of either?)"
+                            if raw_ok[i]
+                            else "are not finite numbers (damaged scale or offset in the header?)"
                         )
+                        raise InputDataError(f"{path}: the coordinates of point {n_read + i} {why}.")
                     n = len(chunk)
                     cols = {
                         "x": np.asarray(x, dtype=np.float64),
@@ -292,6 +361,7 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
                     )
                     for name in _COPIED:
                         cols[name] = np.asarray(chunk[name])
+                    _repair(path, cols, stray, report)
                     n_read += n
                     if progress is not None:
                         progress.update(n)
@@ -301,8 +371,76 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
             report.points[str(path)] = n_read
 
 
+#: Points farther outside their header's bounds than this share of its span (or
+#: 100 scale steps) are stray: flagged withheld so that they size no grid.
+HEADER_BOUNDS_TOLERANCE = 0.01
+
+
+def _header_box(header) -> np.ndarray | None:
+    """The horizontal box (xmin, ymin, xmax, ymax) a header announces, widened by the tolerance; None if unusable.
+
+    Bounds that are not finite, inverted, or all zero (never filled in) are
+    not a box to check points against.
+    """
+    mins, maxs = np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)
+    if int(header.point_count) == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+        return None
+    if (mins[:2] > maxs[:2]).any() or not (mins[:2].any() or maxs[:2].any()):
+        return None
+    tol = np.maximum(HEADER_BOUNDS_TOLERANCE * (maxs[:2] - mins[:2]), 100.0 * np.asarray(header.scales[:2]))
+    return np.concatenate((mins[:2] - tol, maxs[:2] + tol))
+
+
+def _outside(box: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Points outside *box* (see :func:`_header_box`), in the file's own CRS."""
+    if box is None:
+        return np.zeros(len(x), dtype=bool)
+    return (x < box[0]) | (y < box[1]) | (x > box[2]) | (y > box[3])
+
+
+def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: LasReadReport) -> None:
+    """Return number 0 read as 1; stray points flagged withheld; both counted in *report*."""
+    key = str(path)
+    zero = cols["return_number"] == 0
+    if zero.any():
+        cols["return_number"] = np.where(zero, 1, cols["return_number"]).astype(cols["return_number"].dtype)
+        cols["number_of_returns"] = np.maximum(cols["number_of_returns"], 1).astype(cols["number_of_returns"].dtype)
+        report.return_number_zero[key] = report.return_number_zero.get(key, 0) + int(zero.sum())
+    if stray.any():
+        cols["withheld"] = np.asarray(cols["withheld"], dtype=bool) | stray
+        report.outside_header_bounds[key] = report.outside_header_bounds.get(key, 0) + int(stray.sum())
+
+
+def _more_records(path: Path, header) -> bool:
+    """Whether an uncompressed LAS holds more records than its header announces."""
+    probe = LasReadReport()
+    count = int(header.point_count)
+    _read_all_records(path, header, probe)
+    header.point_count = count
+    return bool(probe.header_count_short)
+
+
+def _read_all_records(path: Path, header, report: LasReadReport) -> None:
+    """Read every record of an uncompressed LAS even when its header announces fewer (counted in *report*).
+
+    The records a file holds are the bytes between the point data's offset
+    and the end of the file (or the first extended VLR), over the record
+    length; a LAZ file's count cannot be checked without decompressing it.
+    """
+    if header.point_format.id > 10 or header.are_points_compressed:
+        return
+    size = path.stat().st_size
+    end = int(getattr(header, "start_of_first_evlr", 0) or 0) or size
+    record = int(header.point_format.size)
+    held = max(0, min(end, size) - int(header.offset_to_point_data)) // record if record else 0
+    announced = int(header.point_count)
+    if held > announced:
+        report.header_count_short[str(path)] = (announced, held)
+        header.point_count = held
+
+
 def read_las_files(
-    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None
+    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
 ) -> tuple[object, LasReadReport]:
     """Read LAS/LAZ files into one LasData (format 6, LAS 1.4) in the output CRS.
 
@@ -318,6 +456,8 @@ def read_las_files(
         Points per read.
     progress : Progress, optional
         Advanced by the number of points read.
+    override_crs : pyproj.CRS or None
+        CRS of every file, replacing whatever its header says.
 
     Raises
     ------
@@ -328,13 +468,19 @@ def read_las_files(
     parts: list[dict[str, np.ndarray]] = []
     target = None
     for crs, cols in las_chunks(
-        paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, report=report, progress=progress
+        paths,
+        crs_setting=crs_setting,
+        assign_crs=assign_crs,
+        chunk_size=chunk_size,
+        report=report,
+        progress=progress,
+        override_crs=override_crs,
     ):
         target = crs
         parts.append(cols)
     if target is None:  # no point at all: still resolve the CRS from the first header
         with _open(paths[0]) as reader:
-            src_crs, _ = _file_crs(paths[0], reader.header, assign_crs)
+            src_crs, _ = _file_crs(paths[0], reader.header, assign_crs, override_crs)
             centre = None
             if not src_crs.is_projected:
                 h = reader.header
@@ -345,7 +491,7 @@ def read_las_files(
     return _build(merged, target), report
 
 
-def header_bounds(paths: list[Path], target, assign_crs) -> tuple[np.ndarray, np.ndarray]:
+def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> tuple[np.ndarray, np.ndarray]:
     """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
 
     Horizontal bounds of a file in another CRS are transformed with the
@@ -362,7 +508,7 @@ def header_bounds(paths: list[Path], target, assign_crs) -> tuple[np.ndarray, np
             mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
             if h.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
                 continue
-            crs, _ = _file_crs(path, h, assign_crs)
+            crs, _ = _file_crs(path, h, assign_crs, override_crs)
             if not crs.equals(target):
                 t = pyproj.Transformer.from_crs(crs, target, always_xy=True)
                 x0, y0, x1, y1 = t.transform_bounds(mins[0], mins[1], maxs[0], maxs[1], densify_pts=21)
@@ -372,7 +518,7 @@ def header_bounds(paths: list[Path], target, assign_crs) -> tuple[np.ndarray, np
 
 
 def convert_las_files(
-    paths: list[Path], dst: Path, *, crs_setting: str, assign_crs, chunk_size: int, progress=None
+    paths: list[Path], dst: Path, *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
 ) -> tuple[object, LasReadReport, set[int]]:
     """Convert LAS/LAZ files to one LAS 1.4 format-6 file in the output CRS, chunk by chunk.
 
@@ -396,9 +542,9 @@ def convert_las_files(
 
     report = LasReadReport()
     strips: set[int] = set()
-    same = _copyable(paths, crs_setting, assign_crs)
+    same = _copyable(paths, crs_setting, assign_crs, override_crs)
     if same is not None:
-        return _copy(paths[0], dst, same, assign_crs, report, strips, chunk_size, progress), report, strips
+        return _copy(paths[0], dst, same, report, strips, chunk_size, progress), report, strips
     writer = None
     target = None
     try:
@@ -409,10 +555,11 @@ def convert_las_files(
             chunk_size=chunk_size,
             report=report,
             progress=progress,
+            override_crs=override_crs,
         ):
             n = len(cols["x"])
             if writer is None:
-                lo, hi = header_bounds(paths, target, assign_crs)
+                lo, hi = header_bounds(paths, target, assign_crs, override_crs)
                 if not np.isfinite(lo).all():
                     lo = np.array([cols[k].min() for k in "xyz"]) if n else None
                     hi = np.array([cols[k].max() for k in "xyz"]) if n else None
@@ -431,7 +578,9 @@ def convert_las_files(
             writer.write_points(_record(cols, header))
             strips.update(int(v) for v in np.unique(cols["point_source_id"]))
         if writer is None:  # no point at all: an empty file with the output CRS
-            las, _ = read_las_files(paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size)
+            las, _ = read_las_files(
+                paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, override_crs=override_crs
+            )
             target = las.header.parse_crs()
             writer = laspy.open(str(dst), mode="w", header=point_header(target))
     finally:
@@ -462,7 +611,7 @@ def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray
     return lo, hi
 
 
-def _copyable(paths: list[Path], crs_setting: str, assign_crs):
+def _copyable(paths: list[Path], crs_setting: str, assign_crs, override_crs=None):
     """The output CRS when the input can be copied record for record, else None.
 
     That is one LAS 1.4 file of point format 6 without extra bytes, already
@@ -477,14 +626,16 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs):
             return None
         if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
             return None
-        src_crs, _ = _file_crs(paths[0], h, assign_crs)
-        if not src_crs.is_projected:
+        if override_crs is not None or _more_records(paths[0], h):
+            return None  # the header's CRS or count is not the file's: convert, which handles both
+        src_crs, source = _file_crs(paths[0], h, assign_crs)
+        if source != "header" or not src_crs.is_projected:
             return None
         target = output_crs(crs_setting, src_crs, None)
         return target if target.equals(src_crs) else None
 
 
-def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], chunk_size: int, progress):
+def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress):
     """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`)."""
     import laspy
 
@@ -493,7 +644,8 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
     n_read = 0
     with _open(path) as reader:
         h = reader.header
-        _, report.crs_source[str(path)] = _file_crs(path, h, assign_crs)
+        report.crs_source[str(path)] = "header"
+        box = _header_box(h)
         header = point_header(target)
         header.offsets, header.scales = h.offsets, h.scales
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -508,6 +660,11 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
                         maxs = [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
                         lo, hi = _extend(path, lo, hi, mins, maxs, target)
                         seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
+                        cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns", "withheld")}
+                        stray = _outside(box, np.asarray(chunk.x), np.asarray(chunk.y))
+                        _repair(path, cols, stray, report)
+                        for k, v in cols.items():
+                            chunk[k] = v
                     writer.write_points(chunk)
                     n_read += n
                     if progress is not None:

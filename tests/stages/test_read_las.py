@@ -190,6 +190,8 @@ def test_las14_format6_in_the_output_crs_is_copied_as_delivered(tmp_path):
     las.scan_angle = rng.integers(-3000, 3000, 5000)
     las.gps_time = np.sort(rng.uniform(0, 100, 5000))
     las.edge_of_flight_line = rng.integers(0, 2, 5000)  # not among the attributes a conversion keeps
+    las.number_of_returns = rng.integers(1, 4, 5000)
+    las.return_number = np.minimum(rng.integers(1, 4, 5000), las.number_of_returns)  # valid: 0 would be repaired
     las.write(str(src))
     crs, report, strips = convert_las_files(
         [src], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=777

@@ -1,0 +1,174 @@
+"""Do a file's coordinates fit the CRS it claims?  Checked before anything is read.
+
+A LAS header's CRS is often wrong: a CRS written by software that defaulted
+to WGS 84 while the coordinates are UTM metres (PDAL's ``lone-star.laz``), a
+geographic CRS on a file in a local grid, a projected CRS on longitudes and
+latitudes.  Transforming such a file gives infinite or absurd coordinates
+and, later, a wrong error ("damaged scale or offset").  The test here is
+deliberately generous — it must never refuse a valid survey:
+
+- geographic CRS: |x| <= 360 (longitude; some software writes 0..360)
+  and |y| <= 90 degrees (latitude);
+- projected CRS with an area of use: the bounds lie within that area
+  transformed to the CRS and widened on every side by its own width and
+  height (a survey may run far past a UTM zone's edge, never by a zone's
+  whole width), and they do not look like degrees (within ±180/±90 and
+  under one unit across, when the area of use is far from the CRS's
+  origin);
+- a CRS without an area of use (a custom WKT) is not checked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Longitudes accepted by the geographic test (degrees): some software writes 0..360.
+MAX_LONGITUDE = 360.0
+MAX_LATITUDE = 90.0
+
+
+def _extent(lo, hi) -> str:
+    return f"x {lo[0]:,.6g} to {hi[0]:,.6g}, y {lo[1]:,.6g} to {hi[1]:,.6g}"
+
+
+def crs_problem(crs, mins, maxs) -> str | None:
+    """Why the horizontal bounds *mins*..*maxs* cannot be coordinates in *crs* (None when they can).
+
+    Parameters
+    ----------
+    crs : pyproj.CRS
+        The CRS the file claims (a compound CRS is checked by its horizontal part).
+    mins, maxs : sequence of float
+        The file's lowest and highest x, y (z ignored), in the CRS's own units.
+
+    Returns
+    -------
+    str or None
+        A phrase for a message ("its coordinates (x ... ) are not longitudes
+        and latitudes, which WGS 84 (EPSG:4326) needs"), or None.
+
+    Examples
+    --------
+    >>> import pyproj
+    >>> crs_problem(pyproj.CRS("EPSG:4326"), (515368.6, 4918340.4), (515401.0, 4918381.1)) is not None
+    True
+    >>> crs_problem(pyproj.CRS("EPSG:26912"), (515368.6, 4918340.4), (515401.0, 4918381.1)) is None
+    True
+    """
+    import pyproj
+
+    lo = np.asarray(mins, dtype=np.float64)[:2]
+    hi = np.asarray(maxs, dtype=np.float64)[:2]
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return None  # unusable bounds: the point checks report the file
+    horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
+    name = _name(horizontal)
+    if horizontal.is_geographic:
+        if max(abs(lo[0]), abs(hi[0])) > MAX_LONGITUDE or max(abs(lo[1]), abs(hi[1])) > MAX_LATITUDE:
+            return (
+                f"its coordinates ({_extent(lo, hi)}) are not longitudes and latitudes in degrees, "
+                f"which its CRS {name} needs"
+            )
+        return None
+    if not horizontal.is_projected:
+        return None
+    area = horizontal.area_of_use
+    if area is None:
+        return None
+    try:
+        to_crs = pyproj.Transformer.from_crs("EPSG:4326", horizontal, always_xy=True)
+        x0, y0, x1, y1 = to_crs.transform_bounds(*area.bounds, densify_pts=21)
+    except pyproj.exceptions.ProjError:
+        return None
+    if not np.isfinite([x0, y0, x1, y1]).all():
+        return None
+    w, h = x1 - x0, y1 - y0
+    inside = x0 - w <= lo[0] and hi[0] <= x1 + w and y0 - h <= lo[1] and hi[1] <= y1 + h
+    degrees_box = (-180.0, -90.0, 180.0, 90.0)
+    looks_like_degrees = (
+        lo[0] >= degrees_box[0]
+        and hi[0] <= degrees_box[2]
+        and lo[1] >= degrees_box[1]
+        and hi[1] <= degrees_box[3]
+        and (hi - lo < 1.0).all()  # a survey under one unit across, near the origin: degrees, not metres
+    )
+    area_near_origin = x0 <= degrees_box[2] and x1 >= degrees_box[0] and y0 <= degrees_box[3] and y1 >= degrees_box[1]
+    if looks_like_degrees and not area_near_origin:
+        return f"its coordinates ({_extent(lo, hi)}) look like degrees, not the {_unit(horizontal)} of its CRS {name}"
+    if not inside:
+        return (
+            f"its coordinates ({_extent(lo, hi)}) lie far outside the area where its CRS {name} is used "
+            f"({area.name}: x {x0:,.0f} to {x1:,.0f}, y {y0:,.0f} to {y1:,.0f})"
+        )
+    return None
+
+
+def _name(crs) -> str:
+    epsg = crs.to_epsg()
+    return f"{crs.name} (EPSG:{epsg})" if epsg else crs.name
+
+
+def _unit(crs) -> str:
+    try:
+        return f"{crs.axis_info[0].unit_name}s"
+    except (IndexError, AttributeError):  # pragma: no cover - every projected CRS has axes
+        return "units"
+
+
+#: GeoTIFF linear unit codes (EPSG) a LAS GeoKeyDirectory may give in ProjLinearUnitsGeoKey.
+_PROJ_LINEAR_UNITS_KEY = 3076
+
+
+def honour_linear_units(crs, geo_keys):
+    """The projected *crs* with its axes in the unit ``ProjLinearUnitsGeoKey`` names, when that differs.
+
+    A GeoKeyDirectory may give an EPSG projected CRS (``ProjectedCSTypeGeoKey``)
+    defined in metres and, beside it, ``ProjLinearUnitsGeoKey`` = 9003 (US
+    survey foot): the coordinates are then in that unit, and GDAL (so PDAL
+    and QGIS) reads the CRS with its axes in it; laspy keeps the EPSG code's
+    metres, which puts every point 3.28 times too far from the origin.  The
+    projection's parameters keep their own units.
+
+    Parameters
+    ----------
+    crs : pyproj.CRS or None
+        What laspy parsed.
+    geo_keys : iterable
+        The GeoKeyDirectory's keys (objects with ``id`` and ``value_offset``), or empty.
+
+    Returns
+    -------
+    crs : pyproj.CRS or None
+    note : str or None
+        What was changed, for the log.
+    """
+    import pyproj
+
+    if crs is None or not crs.is_projected or crs.is_compound:
+        return crs, None
+    code = next((int(k.value_offset) for k in geo_keys if int(k.id) == _PROJ_LINEAR_UNITS_KEY), None)
+    if code is None or code in (0, 32767):
+        return crs, None
+    have = crs.axis_info[0]
+    if have.unit_auth_code == "EPSG" and have.unit_code == str(code):
+        return crs, None
+    try:
+        unit = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
+        info = next(u for u in unit.values() if u.code == str(code))
+    except StopIteration:
+        return crs, None
+    data = crs.to_json_dict()
+    data.pop("id", None)
+    data["name"] = f"{crs.name} ({info.name})"
+    for axis in data["coordinate_system"]["axis"]:
+        axis["unit"] = {
+            "type": "LinearUnit",
+            "name": info.name,
+            "conversion_factor": info.conv_factor,
+            "id": {"authority": "EPSG", "code": code},
+        }
+    new = pyproj.CRS.from_json_dict(data)
+    return new, (
+        f"its GeoKeys give {crs.name} (EPSG:{crs.to_epsg()}) with ProjLinearUnitsGeoKey = {info.name}: "
+        f"read as {new.name}, as GDAL does"
+    )

@@ -252,7 +252,7 @@ class ClassifyGround(Stage):
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]
         if n and ground == 0 and params.last_returns and counts["last_returns"] == 0:
             raise InputDataError(
-                f"{src.name}: none of its {n:,} points is a last or single return (return number = number of "
+                f"{glossary.input_names(ctx.config)}: none of its {n:,} points is a last or single return (return number = number of "
                 "returns), so none can be ground; if the file's return numbers are wrong, set "
                 "stages.classify_ground.last_returns: false."
             )

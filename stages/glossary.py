@@ -44,3 +44,12 @@ def max_window_size(default: float) -> Any:
 def nodata_distance(default: float) -> Any:
     """Cells farther than this from every input point are nodata (m)."""
     return Field(default, gt=0, description="cells farther than this from any point are nodata, metres")
+
+
+def input_names(config: Any) -> str:
+    """The survey's input files as a user named them, for messages of stages that read only intermediates."""
+    paths = list(getattr(getattr(config, "input", None), "paths", []) or [])
+    if not paths:
+        return "the input"
+    names = ", ".join(str(p) for p in paths[:3])
+    return names + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")

@@ -367,6 +367,8 @@ class Parse(Stage):
             raise InputDataError(f"{files}: no point in the file (its header announces 0 and no record follows).")
         from stages.units import Units
 
+        _check_dtm_size(ctx.config, report.usable_box, Units.of(crs), ", ".join(str(x) for x in params.paths))
+
         ctx.metrics.update(
             points_read=int(sum(report.points.values())),
             points_per_file=report.points,
@@ -381,6 +383,20 @@ class Parse(Stage):
             crs_notes=report.crs_notes,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
+
+
+def _check_dtm_size(config, box, units, source: str) -> None:
+    """Refuse, right after reading, a survey whose DTM grid the machine cannot hold (not hours later)."""
+    raster = getattr(config.stages, "rasterize", None)
+    if box is None or raster is None or not raster.enabled:
+        return
+    from stages.grid.interpolate import Grid
+    from stages.rasterize import check_grid_size
+
+    lo = units.to_metres(np.array([[box[0], box[1], 0.0]]))[0]
+    hi = units.to_metres(np.array([[box[2], box[3], 0.0]]))[0]
+    metres = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    check_grid_size(Grid.covering(*metres, raster.resolution), metres, units, source=source)
 
 
 def _log_las_report(log, report, override) -> None:

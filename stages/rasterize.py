@@ -101,7 +101,9 @@ class Rasterize(Stage):
         info = cloud_info(src)
         units, crs = info.units, info.crs
         if info.count == 0:
-            raise InputDataError("the point cloud is empty: there is nothing to grid.")
+            raise InputDataError(
+                f"{glossary.input_names(ctx.config)}: the point cloud is empty: there is nothing to grid."
+            )
         if "dtm_uncertainty" in ctx.outputs and "sigma_vertical" not in info.dimensions:
             raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
         names = [n for n in ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty") if n in ctx.outputs]
@@ -130,11 +132,11 @@ class Rasterize(Stage):
             if ground < 3:
                 classes = ", ".join(f"class {c}: {per_class[c]:,}" for c in np.flatnonzero(per_class))
                 raise InputDataError(
-                    f"only {ground} ground points (class 2) among {info.count:,} points ({classes}): a DTM needs "
+                    f"{glossary.input_names(ctx.config)}: only {ground} ground points (class 2) among {info.count:,} points ({classes}): a DTM needs "
                     "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
                 )
             grid = Grid.covering(*extent.box(), p.resolution)  # in metres, written in CRS units
-            check_grid_size(grid, extent.box(), units)
+            check_grid_size(grid, extent.box(), units, source=glossary.input_names(ctx.config))
             grid_args = {"xmin": grid.xmin, "ymax": grid.ymax, "resolution": grid.resolution}
             grid_args.update(cols=grid.cols, rows=grid.rows)
             ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, ground, grid.cols, grid.rows)
@@ -203,7 +205,7 @@ class Rasterize(Stage):
         empty = sum(r["nodata_cells"] for r in results) + (cells - sum(r["cells"] for r in results))
         if empty == cells:
             raise InputDataError(
-                f"{src.name}: the DTM has no valid cell: its {ground} ground points make no surface "
+                f"{glossary.input_names(ctx.config)}: the DTM has no valid cell: its {ground} ground points make no surface "
                 f"on {grid.cols} x {grid.rows} cells of {p.resolution:g} m (collinear or too few points; "
                 "check the ground classification, or use stages.rasterize.method: nearest)."
             )
@@ -264,10 +266,12 @@ class UsableExtent:
 BYTES_PER_CELL = 48
 
 
-def check_grid_size(grid: Grid, box: tuple[float, float, float, float], units, memory: int | None = None) -> None:
+def check_grid_size(
+    grid: Grid, box: tuple[float, float, float, float], units, memory: int | None = None, source: str = "the points"
+) -> None:
     """Refuse a grid the machine cannot hold, before anything is allocated (one sentence, exit 3).
 
-    *memory* (bytes) defaults to the memory available now.
+    *memory* (bytes) defaults to the memory available now; *source* names the input in the message.
     """
     if memory is None:
         import psutil
@@ -280,7 +284,7 @@ def check_grid_size(grid: Grid, box: tuple[float, float, float, float], units, m
     width, height = (box[2] - box[0]) / units.horizontal, (box[3] - box[1]) / units.horizontal
     suggest = grid.resolution * math.ceil(math.sqrt(need / memory) * 2)
     raise InputDataError(
-        f"the DTM would have {grid.cols:,} x {grid.rows:,} cells of {grid.resolution:g} m over the points' "
+        f"{source}: the DTM would have {grid.cols:,} x {grid.rows:,} cells of {grid.resolution:g} m over the points' "
         f"{width:,.0f} x {height:,.0f} {units.horizontal_name} extent, about {need / 2**30:,.1f} GB for its products, "
         f"more than the {memory / 2**30:,.1f} GB this machine has free: raise stages.rasterize.resolution "
         f"(for example to {suggest:g}) or split the survey."

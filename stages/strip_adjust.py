@@ -315,12 +315,20 @@ def _pair_figures(pair, patches, pts, ident, final, cell):
 def _difference_rasters(ctx, extent, before, after, resolution, crs, units) -> None:
     """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after.
 
-    Computed in metres; the rasters are written in the CRS's units (cells and values)."""
+    The grid covers the overlap patches (one cell when there is none), so a sparse survey over a large
+    area costs nothing.  Computed in metres; the rasters are written in the CRS's units (cells and values)."""
     from stages.grid.interpolate import Grid, cell_mean
     from stages.io import NODATA, png_bytes, write_cog
     from stages.report import colour_ramp
 
-    grid = Grid.covering(*extent, resolution)
+    # the grid covers the overlaps measured, not the survey: its cost follows the patches, not the area
+    centres_all = [c for parts in (before or [], after or []) for c, _ in parts if len(c)]
+    if centres_all:
+        xy = np.concatenate(centres_all)[:, :2]
+        box = (*xy.min(axis=0), *xy.max(axis=0))
+    else:
+        box = (extent[0], extent[1], extent[0], extent[1])
+    grid = Grid.covering(*box, resolution)
     images = []
     for name, parts in (("strip_difference_before", before), ("strip_difference_after", after)):
         centres = np.concatenate([c for c, _ in parts]) if parts else np.zeros((0, 3))

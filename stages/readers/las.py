@@ -46,6 +46,8 @@ class LasReadReport:
     outside_header_bounds: dict[str, int] = field(default_factory=dict)
     #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
     header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: Horizontal box (xmin, ymin, xmax, ymax, output CRS units) of the points not withheld as stray.
+    usable_box: list[float] | None = None
     #: Per file: why its header CRS was not used as it stands (unreadable; GeoKey units honoured).
     crs_notes: dict[str, str] = field(default_factory=dict)
 
@@ -362,6 +364,7 @@ def las_chunks(
                     for name in _COPIED:
                         cols[name] = np.asarray(chunk[name])
                     _repair(path, cols, stray, report)
+                    _grow_box(report, cols["x"][~stray], cols["y"][~stray])
                     n_read += n
                     if progress is not None:
                         progress.update(n)
@@ -409,6 +412,15 @@ def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: 
     if stray.any():
         cols["withheld"] = np.asarray(cols["withheld"], dtype=bool) | stray
         report.outside_header_bounds[key] = report.outside_header_bounds.get(key, 0) + int(stray.sum())
+
+
+def _grow_box(report: LasReadReport, x: np.ndarray, y: np.ndarray) -> None:
+    """Grow the report's box of usable points by a chunk's."""
+    if len(x) == 0:
+        return
+    box = [float(x.min()), float(y.min()), float(x.max()), float(y.max())]
+    old = report.usable_box
+    report.usable_box = box if old is None else [*np.minimum(old[:2], box[:2]), *np.maximum(old[2:], box[2:])]
 
 
 def _more_records(path: Path, header) -> bool:
@@ -663,6 +675,7 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
                         cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns", "withheld")}
                         stray = _outside(box, np.asarray(chunk.x), np.asarray(chunk.y))
                         _repair(path, cols, stray, report)
+                        _grow_box(report, np.asarray(chunk.x)[~stray], np.asarray(chunk.y)[~stray])
                         for k, v in cols.items():
                             chunk[k] = v
                     writer.write_points(chunk)

@@ -120,7 +120,9 @@ def test_grid_size_is_checked_against_memory_before_allocating():
     from stages.units import METRE
 
     grid = Grid.covering(0.0, 0.0, 50_000.0, 50_000.0, 1.0)
-    with pytest.raises(InputDataError, match=r"50,001 x 50,001 cells of 1 m.*raise stages.rasterize.resolution"):
+    with pytest.raises(
+        InputDataError, match=r"the points: the DTM would have 50,001 x 50,001 cells of 1 m.*resolution"
+    ):
         check_grid_size(grid, (0.0, 0.0, 50_000.0, 50_000.0), METRE, memory=24 * 2**30)
     check_grid_size(Grid.covering(0.0, 0.0, 5_000.0, 5_000.0, 1.0), (0, 0, 5e3, 5e3), METRE, memory=24 * 2**30)
 
@@ -154,6 +156,25 @@ def _run_las(tmp_path: Path, path: Path, *sets: str) -> tuple[int, Path]:
     for s in (f"output={out}", f"cache={tmp_path / 'cache'}", "stages.accuracy.enabled=false", *sets):
         args += ["--set", s]
     return main(args), out
+
+
+def test_a_wide_sparse_survey_is_refused_at_once(tmp_path, capsys):
+    """100 points over 50 x 50 km: one sentence right after reading, not a MemoryError hours later."""
+    rng = np.random.default_rng(3)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets, header.scales = [400_000.0, 4_400_000.0, 0.0], [0.01, 0.01, 0.01]
+    header.add_crs(pyproj.CRS.from_epsg(25830))
+    las = laspy.LasData(header)
+    las.x, las.y = 400_000 + rng.uniform(0, 50_000, 100), 4_400_000 + rng.uniform(0, 50_000, 100)
+    las.z = rng.uniform(600, 700, 100)
+    las.return_number = las.number_of_returns = np.ones(100, dtype=np.uint8)
+    path = tmp_path / "wide.las"
+    las.write(str(path))
+    code, out = _run_las(tmp_path, path)
+    err = capsys.readouterr().err
+    assert code == 3 and "raise stages.rasterize.resolution" in err and str(path) in err
+    run = json.loads((out / "run.json").read_text())
+    assert [s["name"] for s in run["stages"] if s.get("status") == "ran"] == []  # refused in parse
 
 
 def test_an_empty_file_is_named(tmp_path, capsys):

@@ -238,7 +238,9 @@ def read_nmea(
                         counters.note(f"{where}: 2-D fix ({kind} without altitude); not a 3-D position")
                         continue
                     sep = math.nan if sep is None else sep
-                    rows[kind.lower()].append(((lat, lon, msl, sep, quality, sats, hdop), tod, len(anchors) - 1, lineno))
+                    rows[kind.lower()].append(
+                        ((lat, lon, msl, sep, quality, sats, hdop), tod, len(anchors) - 1, lineno)
+                    )
                     first_timed = first_timed or lineno
                 elif kind in ("HDT", "VTG"):
                     if kind == "HDT":

@@ -104,6 +104,11 @@ def test_midnight_with_zda_after_gga(tmp_path):
     ], leap_seconds=18)  # fmt: skip
     t = utc_to_gps("2026-06-30T23:59:59Z", 18)
     np.testing.assert_allclose(log.position["time"], t + np.array([0.0, 0.5, 1.0, 1.5]))
+    # ZDA first, then a fix after midnight before the next day's ZDA
+    log, _ = _read(tmp_path, [
+        with_checksum("INZDA,235959.00,30,06,2026,00,00"), gga("235959.50"), gga("000000.00"),
+    ], leap_seconds=18)  # fmt: skip
+    np.testing.assert_allclose(log.position["time"], t + np.array([0.5, 1.0]))
     # a ZDA that comes after the first fix of a new day, and a log whose first ZDA is late
     log, _ = _read(tmp_path, [
         gga("235959.50"), gga("000000.00"), with_checksum("INZDA,000000.00,01,07,2026,00,00"),

@@ -128,6 +128,32 @@ def test_missed_pps_echoes_are_dated_and_georeferenced_exactly(zero_noise, fmt):
     assert on_gap.sum() > 1000 and np.linalg.norm(d[on_gap], axis=1).max() < 0.005
 
 
+def test_attitude_from_pashr_when_there_is_no_ins_csv(zero_noise, tmp_path):
+    """The INS CSV's attitudes written as $PASHR sentences into the NMEA log (and no input.ins): the same
+    points as with the CSV."""
+    from stages.readers.nmea import with_checksum
+
+    _, sims, runs = zero_noise
+    sim = runs["lmsq_nmea"][1]
+    ins = np.loadtxt(sim / "lmsq" / "ins.csv", delimiter=",", skiprows=1)
+    week = runs["lmsq_nmea"][0]["parse"]["metrics"]["gps_week"]
+    tod = np.mod(week * 604800.0 + ins[:, 0] - 18.0, 86400.0)
+    lines = [(sim / "lmsq" / "nav.nmea").read_text().rstrip("\n")]
+    for t, (roll, pitch, heading) in zip(tod, ins[:, 1:], strict=True):
+        hh, mm, ss = int(t // 3600), int(t % 3600 // 60), t % 60
+        body = f"PASHR,{hh:02d}{mm:02d}{ss:09.6f},{heading:.9f},T,{roll:.9f},{pitch:.9f},0.00,0.01,0.01,0.02,1,0"
+        lines.append(with_checksum(body) + "\r")
+    (tmp_path / "nav.nmea").write_text("\n".join(lines) + "\n")
+    block = _input("lmsq_nmea", sim).replace(f"{sim}/lmsq/nav.nmea", str(tmp_path / "nav.nmea"))
+    block = "\n".join(line for line in block.splitlines() if "ins:" not in line)
+    stages = _run(tmp_path, "pashr", block)
+    assert stages["parse"]["metrics"]["nmea_attitude_epochs"] == len(ins)
+    a = laspy.read(stages["georeference"]["outputs"]["points_georef"]["file"])
+    b = laspy.read(runs["lmsq_nmea"][0]["georeference"]["outputs"]["points_georef"]["file"])
+    assert len(a) == len(b)
+    np.testing.assert_allclose(np.column_stack((a.x, a.y, a.z)), np.column_stack((b.x, b.y, b.z)), atol=2e-3)
+
+
 @pytest.mark.parametrize("unwrapped", [False, True])
 def test_headings_wrapped_or_unwrapped_give_the_same_points(tmp_path, unwrapped):
     """The SBET written as Applanix does ((-pi, pi]) and unwrapped (a first line at 750 deg: headings past

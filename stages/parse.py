@@ -151,7 +151,9 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "7"  # 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
+    # 8: .lmsq measurements after a missed PPS dated by the us counter; NMEA dated by ZDA/RMC anywhere; angles
+    # modulo 360; 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
+    version = "8"
     Params = InputConfig
     config_path = "input"
     can_disable = False
@@ -452,6 +454,9 @@ def _nmea_ins_trajectory(p, week: int, counters, log, geoid=None) -> tuple[dict[
     extra = {f"nmea_{k}": v for k, v in vars(nmea_counters).items() if k not in ("locations", "unread")}
     extra.update({f"nmea_unread_{kind}": n for kind, n in sorted(nmea_counters.unread.items())})
     extra["gnss_epochs"] = len(pos["time"])
+    if nmea_counters.fixes_2d:
+        log.warning("%d 2-D fixes (GGA/GNS without altitude) in %s: not used as positions",
+                    nmea_counters.fixes_2d, p.nmea.name)  # fmt: skip
     if len(pos["time"]) < 2:
         raise InputDataError(
             f"{p.nmea}: fewer than two usable GGA positions ({nmea_counters.sentences} sentences read)."

@@ -174,3 +174,46 @@ def test_2d_fix_and_any_finite_heading(tmp_path):
     ])  # fmt: skip
     assert c.fixes_2d == 1 and c.malformed == 0 and len(log.position["time"]) == 1
     np.testing.assert_allclose(log.heading["heading_deg"], [1.5, 270.0])
+
+
+def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
+    """The 3.B sample with every separation field emptied: exit 2 with one sentence; with
+    stages.georeference.geoid (N = 50 m here) or input.geoid_separation_m the trajectory is the original's."""
+    import json
+    from pathlib import Path
+
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from pipeline.cli import main
+    from stages.io import read_columns
+
+    root = Path(__file__).resolve().parents[2]
+    lines = (root / "data_samples" / "flight_lmsq" / "lmsq" / "nav.nmea").read_text().splitlines()
+    emptied = [with_checksum(s[1:].split("*")[0].replace(",M,50.0000,M,", ",M,,M,")) for s in lines[:400]]
+    (tmp_path / "nav.nmea").write_text("\r\n".join(emptied) + "\r\n")
+    grid = tmp_path / "geoid.tif"
+    with rasterio.open(grid, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=from_origin(-4.0, 41.0, 0.05, 0.05)) as ds:  # fmt: skip
+        ds.write(np.full((1, 20, 20), 50.0, np.float32))
+    base = ["run", str(root / "configs" / "flight_nmea.yaml"), "-q", "--until", "parse", "--set",
+            f"cache={tmp_path / 'cache'}"]  # fmt: skip
+    assert main([*base, "--set", f"output={tmp_path / 'a'}"]) == 0
+    capsys.readouterr()
+    nmea = f"input.nmea={tmp_path / 'nav.nmea'}"
+    assert main([*base, "--set", f"output={tmp_path / 'b'}", "--set", nmea]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nav.nmea, line 2: " in err[0] and "empty geoid-separation field" in err[0]
+    for name, extra in (("c", f"stages.georeference.geoid={grid}"), ("d", "input.geoid_separation_m=50")):
+        assert main([*base, "--set", f"output={tmp_path / name}", "--set", nmea, "--set", extra]) == 0
+
+    def heights(name):
+        run = json.loads((tmp_path / name / "run.json").read_text())
+        parse = next(s for s in run["stages"] if s["name"] == "parse")
+        return read_columns(parse["outputs"]["trajectory"]["file"])[0]["h"]
+
+    a = heights("a")
+    for name in ("c", "d"):
+        h = heights(name)
+        np.testing.assert_allclose(h, a[: len(h)], atol=1e-6)
+        assert len(h) > 100

@@ -35,8 +35,9 @@ Angles (heading, course, roll, pitch) are valid modulo 360 degrees; they
 come out in [0, 360) for headings and courses.
 
 Counted and skipped, never raised: bad or missing checksums, malformed
-sentences, fixes of quality 0, 2-D fixes; sentences of other types are
-counted by type (``unread``).
+sentences, fixes of quality 0 and ZDA/RMC without a time or date (written
+before a receiver's first fix: ``no_fix``), 2-D fixes; sentences of other
+types are counted by type (``unread``).
 """
 
 from __future__ import annotations
@@ -222,17 +223,20 @@ def read_nmea(
             f = fields[1:]
             try:
                 if kind in ("GGA", "GNS"):
-                    tod = _time_of_day(f[0])
                     if kind == "GGA":
-                        quality = int(f[5])
+                        quality = int(f[5] or 0)
                     else:
                         ranks = [_GNS_RANK.index(c) for c in f[5].strip().upper() if c in _GNS_RANK]
                         quality = GNS_QUALITY[_GNS_RANK[min(ranks)]] if ranks else 0
-                    if quality == 0:
+                    if quality == 0:  # receivers write it with empty fields before their first fix
                         counters.no_fix += 1
                         continue
+                    tod = _time_of_day(f[0])
                     lat, lon, msl, sep = _position(f, 1, 8, 10 if kind == "GGA" else 9)
-                    sats, hdop = int(f[6] or 0), float(f[7] or "nan")
+                    sats = int(f[6]) if f[6].strip() else 0
+                    hdop = float(f[7]) if f[7].strip() else math.nan  # empty: not given (NaN)
+                    if f[7].strip():
+                        _finite(hdop)
                     if msl is None:
                         counters.fixes_2d += 1
                         counters.note(f"{where}: 2-D fix ({kind} without altitude); not a 3-D position")
@@ -264,6 +268,8 @@ def read_nmea(
                     _finite(roll, pitch)
                     rows["attitude"].append(((roll, pitch, heading), tod, len(anchors) - 1, lineno))
                     first_timed = first_timed or lineno
+                elif kind in ("ZDA", "RMC") and not (f[0].strip() and f[8 if kind == "RMC" else 3].strip()):
+                    counters.no_fix += 1  # no time or date yet (receivers write it before their first fix)
                 elif kind in ("ZDA", "RMC"):
                     tod = _time_of_day(f[0])
                     if kind == "ZDA":

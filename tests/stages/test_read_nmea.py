@@ -167,12 +167,15 @@ def test_empty_geoid_separation_needs_a_geoid(tmp_path):
 
 
 def test_2d_fix_and_any_finite_heading(tmp_path):
-    """A GGA without altitude is a 2-D fix, counted; a heading of 361 or -90 degrees is a heading."""
+    """A GGA without altitude is a 2-D fix, counted; a heading of 361 or -90 degrees is a heading; the empty
+    sentences a receiver writes before its first fix are no fix, not malformed."""
     log, c = _read(tmp_path, [
+        "$GPRMC,,V,,,,,,,,,,N*53", "$GPGGA,,,,,,0,00,99.99,,,,,,*48", "$GPZDA,,,,,00,00*48",
         with_checksum("GPZDA,103215.00,21,06,2011,00,00"), gga("103215.00", msl="", sep=""),
         gga("103216.00"), with_checksum("GPHDT,361.5,T"), with_checksum("GPHDT,-90.0,T"),
     ])  # fmt: skip
-    assert c.fixes_2d == 1 and c.malformed == 0 and len(log.position["time"]) == 1
+    assert c.fixes_2d == 1 and c.malformed == 0 and c.bad_checksum == 0 and c.no_fix == 3
+    assert len(log.position["time"]) == 1
     np.testing.assert_allclose(log.heading["heading_deg"], [1.5, 270.0])
 
 

@@ -30,8 +30,8 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from pipeline.config import InputFile, StrictModel
-from pipeline.errors import InputDataError
-from pipeline.stage import Stage, StageIO
+from pipeline.errors import ConfigError, InputDataError
+from pipeline.stage import Stage, StageIO, get_dotted
 
 
 def _check_crs(value: str | None) -> str | None:
@@ -104,9 +104,22 @@ class LmsqNmeaInput(_LmsqCommon):
     """The seed-2 design: .lmsq scanner stream + NMEA GNSS log + INS attitude CSV (SPEC 3.B)."""
 
     format: Literal["lmsq_nmea"] = Field(description=FORMAT_HELP)
-    nmea: InputFile = Field(description="NMEA log ($xxGGA, HDT, VTG, GST, ZDA); .gz accepted")
-    ins: InputFile = Field(description="INS CSV gps_sow,roll_deg,pitch_deg,heading_deg (NED); .gz accepted")
-    nmea_date: date | None = Field(None, description="UTC date of the NMEA times when the log has no $xxZDA")
+    nmea: InputFile = Field(
+        description="NMEA log (any talker: $xxGGA or GNS, HDT, VTG, GST, ZDA, RMC; $PASHR); .gz accepted"
+    )
+    ins: InputFile | None = Field(
+        None,
+        description="INS CSV gps_sow,roll_deg,pitch_deg,heading_deg (NED); .gz accepted; "
+        "default: the NMEA log's $PASHR attitude (an error when it has none)",
+    )
+    nmea_date: date | None = Field(
+        None, description="UTC date of the first NMEA time when the log has no $xxZDA or $xxRMC (never guessed)"
+    )
+    geoid_separation_m: float | None = Field(
+        None,
+        description="geoid separation (m) of fixes whose GGA/GNS separation field is empty (default: from "
+        "stages.georeference.geoid; neither: an error, never 0)",
+    )
     leap_seconds: float = Field(18.0, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time")
     max_gap_s: float = Field(
         1.0, gt=0, description="INS epochs inside a gap of GNSS positions longer than this get no position, seconds"
@@ -130,6 +143,8 @@ LDMRS_TRAJECTORY_SCHEMA = {
     "time": "f8", "lat": "f8", "lon": "f8", "h": "f8", "roll": "f8", "pitch": "f8", "yaw": "f8",
     "scan": "u2", "vx": "f8", "vy": "f8", "vz": "f8", "status": "u1",
 }  # fmt: skip
+#: ``flags`` bit of an .lmsq measurement dated from the us counter after a missed PPS
+RECOVERED_FLAG = 0x80
 #: The pulses of every raw format.
 PULSES_SCHEMA = {
     "time": "f8", "x": "f8", "y": "f8", "z": "f8", "echo": "u1", "channel": "u1", "angle": "f8",
@@ -141,11 +156,13 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "7"  # 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
+    # 8: .lmsq measurements after a missed PPS dated by the us counter; NMEA dated by ZDA/RMC anywhere; angles
+    # modulo 360; 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
+    version = "8"
     Params = InputConfig
     config_path = "input"
     can_disable = False
-    config_keys = ("crs",)
+    config_keys = ("crs", "stages.georeference.geoid")  # the geoid: NMEA fixes without a geoid separation
     description = "read the input files (format from input.format)"
     outputs: ClassVar = {"points_georef": "points.las"}
 
@@ -163,6 +180,9 @@ class Parse(Stage):
             value = getattr(params, key, None)
             if value is not None:
                 files.append(value)
+        geoid = get_dotted(config, "stages.georeference.geoid")
+        if params.format == "lmsq_nmea" and geoid is not None:
+            files.append(geoid)
         return files
 
     def run(self, ctx) -> None:
@@ -271,12 +291,13 @@ class Parse(Stage):
             ctx.log.info("GPS week %d (from the first PPS record of %s)", week, p.paths[0].name)
         nav_counters = TrajectoryCounters()
         if p.format == "lmsq_nmea":
-            trajectory, extra = _nmea_ins_trajectory(p, week, nav_counters, ctx.log)
+            geoid = get_dotted(ctx.config, "stages.georeference.geoid")
+            trajectory, extra = _nmea_ins_trajectory(p, week, nav_counters, ctx.log, geoid)
         else:
             trajectory, extra = _sbet_trajectory(p, week, nav_counters)
         if len(trajectory["time"]) < 2:
             where = nav_counters.locations[0] if nav_counters.locations else "no epoch with position and attitude"
-            files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)))
+            files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)) if f)
             raise InputDataError(f"{files}: fewer than two usable navigation epochs (first problem: {where}).")
         conventions = {"format": p.format, "time": "GPS seconds since 1980-01-06", "gps_week": week}
         traj_meta = {
@@ -297,6 +318,8 @@ class Parse(Stage):
             "boresight_deg": list(p.boresight_deg),
             "lever_arm": list(p.lever_arm_m),
             "body_axes": "x forward, y right, z down",
+            "flags": "bits 0-5: the measurement's quality; bit 7 (0x80): time recovered from the us counter "
+            "after a missed PPS",
         }
         counters = LmsqCounters()
         total = sum(path.stat().st_size for path in p.paths)
@@ -313,7 +336,8 @@ class Parse(Stage):
                     pulses.append(
                         time=block["time"], x=np.zeros(n), y=r * np.sin(th), z=r * np.cos(th), echo=block["echo"],
                         channel=np.zeros(n), angle=block["angle_deg"], amplitude=block["amplitude"],
-                        flags=block["quality"], scan=np.zeros(n),
+                        flags=block["quality"] | np.where(block["recovered"], RECOVERED_FLAG, 0).astype(np.uint8),
+                        scan=np.zeros(n),
                     )  # fmt: skip
                     done = int(block["byte"][-1])
                     bar.update(done - last)
@@ -325,12 +349,12 @@ class Parse(Stage):
         figures["trajectory_epochs"] = len(trajectory["time"])
         _write_debug(qc, figures, nav_counters.locations, total)
         ctx.metrics.update(figures, problems=list(nav_counters.locations), gps_week=week)
-        skipped = counters.before_first_pps + counters.missed_pps + counters.invalid_quality
+        skipped = counters.before_first_pps + counters.pps_ambiguous + counters.invalid_quality
         ctx.log.info(
-            "%d measurements read: %d kept, %d after a missed PPS, %d invalid quality, %d before the first PPS; "
-            "%d trajectory epochs",
-            counters.measurements, pulses.rows, counters.missed_pps, counters.invalid_quality,
-            counters.before_first_pps, len(trajectory["time"]),
+            "%d measurements read: %d kept, %d after a missed PPS (%d dated from the us counter and kept, "
+            "%d ambiguous), %d invalid quality, %d before the first PPS; %d trajectory epochs",
+            counters.measurements, pulses.rows, counters.missed_pps, counters.pps_recovered,
+            counters.pps_ambiguous, counters.invalid_quality, counters.before_first_pps, len(trajectory["time"]),
         )  # fmt: skip
         if skipped or counters.truncated_bytes:
             ctx.log.warning("%d measurements skipped, %d bytes cut off; see qc/debug.txt", skipped,
@@ -338,7 +362,7 @@ class Parse(Stage):
         if pulses.rows == 0:
             raise InputDataError(
                 f"no usable measurement in {', '.join(str(x) for x in p.paths)} "
-                f"({counters.measurements} read, {counters.missed_pps} after a missed PPS, "
+                f"({counters.measurements} read, {counters.pps_ambiguous} after a missed PPS and ambiguous, "
                 f"{counters.invalid_quality} invalid, {counters.before_first_pps} before the first PPS)."
             )
 
@@ -448,26 +472,41 @@ def _write_trajectory_csv(path: Path, traj: dict[str, np.ndarray]) -> None:
         np.savetxt(fh, table, fmt=fmt, delimiter=",")
 
 
-def _nmea_ins_trajectory(p, week: int, counters, log) -> tuple[dict[str, np.ndarray], dict]:
+def _nmea_ins_trajectory(p, week: int, counters, log, geoid=None) -> tuple[dict[str, np.ndarray], dict]:
     """3.B: INS attitude epochs with positions from the GNSS log (cubic spline in time between GNSS epochs).
 
+    The attitude is the INS CSV's, or without one the NMEA log's ``$PASHR``.
     INS epochs outside the GNSS span, or inside a gap between GNSS epochs
     longer than ``max_gap_s``, are dropped and counted.
     """
     from scipy.interpolate import CubicSpline
 
-    from stages.readers.ins import increasing, read_ins_csv
+    from stages.readers.ins import canonical_attitude, increasing, read_ins_csv
     from stages.readers.nmea import NmeaCounters, read_nmea
 
     nmea_counters = NmeaCounters()
-    nav = read_nmea(p.nmea, nmea_counters, day=p.nmea_date, leap_seconds=p.leap_seconds)
+    nav = read_nmea(p.nmea, nmea_counters, day=p.nmea_date, leap_seconds=p.leap_seconds,
+                    separation_m=p.geoid_separation_m, geoid=geoid)  # fmt: skip
     counters.locations.extend(nmea_counters.locations[:10])
     pos = nav.position
     keep = increasing(pos["time"], counters, "GGA", lambda i: f"{p.nmea}, GGA epoch {i + 1}")
     pos = {k: v[keep] for k, v in pos.items()}
-    ins = read_ins_csv(p.ins, week, counters)
-    extra = {f"nmea_{k}": v for k, v in vars(nmea_counters).items() if k != "locations"}
+    if p.ins is not None:
+        ins = read_ins_csv(p.ins, week, counters)
+    else:
+        att = nav.attitude
+        if not len(att["time"]):
+            raise ConfigError(f"{p.nmea}: the log has no $PASHR attitude; set input.ins (the INS attitude CSV).")
+        keep = increasing(att["time"], counters, "PASHR", lambda i: f"{p.nmea}, PASHR epoch {i + 1}")
+        roll, pitch, heading = canonical_attitude(att["roll_deg"][keep], att["pitch_deg"][keep],
+                                                  att["heading_deg"][keep])  # fmt: skip
+        ins = {"time": att["time"][keep], "roll": roll, "pitch": pitch, "heading": heading}
+    extra = {f"nmea_{k}": v for k, v in vars(nmea_counters).items() if k not in ("locations", "unread")}
+    extra.update({f"nmea_unread_{kind}": n for kind, n in sorted(nmea_counters.unread.items())})
     extra["gnss_epochs"] = len(pos["time"])
+    if nmea_counters.fixes_2d:
+        log.warning("%d 2-D fixes (GGA/GNS without altitude) in %s: not used as positions",
+                    nmea_counters.fixes_2d, p.nmea.name)  # fmt: skip
     if len(pos["time"]) < 2:
         raise InputDataError(
             f"{p.nmea}: fewer than two usable GGA positions ({nmea_counters.sentences} sentences read)."

@@ -8,8 +8,14 @@ stream (its PPS records carry it) or from the configuration, never from a
 guess, and a week rollover inside the file (seconds of week falling by more
 than half a week) adds a week.
 
+Angles are valid modulo 360 degrees (2 pi): a heading of 14 rad, as an
+unwrapped solution writes it, is a heading (SPEC 3.C).  Only non-finite
+values, |latitude| > 90 degrees (pi/2) and times outside the week are
+impossible.  Attitudes come out canonical (:func:`canonical_attitude`): roll
+in (-180, 180], pitch in [-90, 90], heading in [0, 360), the same rotation.
+
 Counted and skipped, never guessed: lines or records that do not parse or
-hold non-finite values, and epochs whose time does not increase (duplicates
+hold impossible values, and epochs whose time does not increase (duplicates
 and time going backwards).  A cut-off last SBET record is counted in bytes.
 """
 
@@ -41,6 +47,32 @@ def absolute_time(sow: np.ndarray, week: int) -> np.ndarray:
     sow = np.asarray(sow, dtype=np.float64)
     rollover = np.concatenate(([0], np.cumsum(np.diff(sow) < -SECONDS_PER_WEEK / 2)))
     return (week + rollover) * SECONDS_PER_WEEK + sow
+
+
+def wrap_degrees(angle: np.ndarray, low: float = -180.0) -> np.ndarray:
+    """*angle* (degrees, any finite value) in [low, low + 360).
+
+    >>> wrap_degrees(np.array([540.0, -190.0, 720.0])).tolist()
+    [-180.0, 170.0, 0.0]
+    """
+    return np.mod(np.asarray(angle, dtype=np.float64) - low, 360.0) + low
+
+
+def canonical_attitude(roll, pitch, heading) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same rotation Rz(heading) Ry(pitch) Rx(roll) with roll in (-180, 180], pitch in [-90, 90],
+    heading in [0, 360) (degrees; any finite input).
+
+    A pitch beyond +-90 degrees is the identity Rz(h + 180) Ry(180 - p) Rx(r + 180) = Rz(h) Ry(p) Rx(r)
+    applied once.
+    """
+    roll = np.asarray(roll, dtype=np.float64)
+    pitch = -wrap_degrees(-np.asarray(pitch, dtype=np.float64))  # (-180, 180]
+    heading = np.asarray(heading, dtype=np.float64)
+    over = np.abs(pitch) > 90.0
+    pitch = np.where(over, np.copysign(180.0, pitch) - pitch, pitch)
+    roll = -wrap_degrees(-(roll + np.where(over, 180.0, 0.0)))
+    heading = wrap_degrees(heading + np.where(over, 180.0, 0.0), 0.0)
+    return roll, pitch, np.where(heading >= 360.0, 0.0, heading)
 
 
 def increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where) -> np.ndarray:
@@ -82,13 +114,11 @@ def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[st
                 values = [float(p) for p in parts]
                 if not all(math.isfinite(v) for v in values) or not 0 <= values[0] < SECONDS_PER_WEEK:
                     raise ValueError
-                if abs(values[1]) > 180 or abs(values[2]) > 90 or abs(values[3]) > 720:
-                    raise ValueError
             except ValueError:
                 counters.malformed += 1
                 counters.note(
-                    f"{path}, line {lineno}: not four numbers in range (gps_sow 0-604800, |roll| <= 180, "
-                    "|pitch| <= 90, |heading| <= 720); line skipped"
+                    f"{path}, line {lineno}: not four finite numbers with gps_sow in 0-604800 (angles may be "
+                    "any finite number of degrees); line skipped"
                 )
                 continue
             for col, value in zip(cols, values, strict=True):
@@ -98,7 +128,8 @@ def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[st
     t = absolute_time(table[0], week)
     keep = increasing(t, counters, "INS", lambda i: f"{path}, line {lines[i]}")
     counters.epochs += int(keep.sum())
-    return {"time": t[keep], "roll": table[1][keep], "pitch": table[2][keep], "heading": table[3][keep]}
+    roll, pitch, heading = canonical_attitude(table[1][keep], table[2][keep], table[3][keep])
+    return {"time": t[keep], "roll": roll, "pitch": pitch, "heading": heading}
 
 
 def _records(path: Path, width: int, counters: TrajectoryCounters) -> np.ndarray:
@@ -115,7 +146,9 @@ def _records(path: Path, width: int, counters: TrajectoryCounters) -> np.ndarray
 def read_sbet(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, np.ndarray]:
     """Time, lat, lon (degrees), h, roll, pitch, true heading (degrees, NED) of an SBET.
 
-    True heading = platform heading - wander angle (SPEC 3.C).
+    True heading = platform heading - wander angle (SPEC 3.C).  Every angle is valid modulo 2 pi;
+    a record is impossible only with a non-finite value, |latitude| > pi/2, |longitude| > 2 pi,
+    |height| >= 100 km or a time outside the week.
     """
     rec = _records(path, 17, counters)
     finite = np.all(np.isfinite(rec), axis=1) if len(rec) else np.zeros(0, bool)
@@ -123,8 +156,6 @@ def read_sbet(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, 
         # physically possible values only: a flipped byte can make any float64 finite but absurd
         sane = finite & (np.abs(rec[:, 1]) <= np.pi / 2) & (np.abs(rec[:, 2]) <= 2 * np.pi)
         sane &= (rec[:, 0] >= 0) & (rec[:, 0] < SECONDS_PER_WEEK) & (np.abs(rec[:, 3]) < 1e5)
-        sane &= (np.abs(rec[:, 7]) <= np.pi) & (np.abs(rec[:, 8]) <= np.pi / 2)
-        sane &= (np.abs(rec[:, 9]) <= 4 * np.pi) & (np.abs(rec[:, 10]) <= 4 * np.pi)
     else:
         sane = finite
     bad = np.flatnonzero(~sane)
@@ -137,14 +168,19 @@ def read_sbet(path: Path, week: int, counters: TrajectoryCounters) -> dict[str, 
     idx = idx[keep]
     counters.epochs += len(idx)
     r = np.asarray(rec[idx])
+
+    def deg(rad: np.ndarray) -> np.ndarray:  # wrapped first: np.degrees(1e308) would overflow
+        return np.degrees(np.mod(rad + np.pi, 2 * np.pi) - np.pi)
+
+    roll, pitch, heading = canonical_attitude(deg(r[:, 7]), deg(r[:, 8]), deg(r[:, 9]) - deg(r[:, 10]))
     return {
         "time": t[keep],
         "lat": np.degrees(r[:, 1]),
         "lon": np.degrees(r[:, 2]),
         "h": r[:, 3],
-        "roll": np.degrees(r[:, 7]),
-        "pitch": np.degrees(r[:, 8]),
-        "heading": np.degrees(r[:, 9] - r[:, 10]),
+        "roll": roll,
+        "pitch": pitch,
+        "heading": heading,
     }
 
 

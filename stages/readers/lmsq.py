@@ -11,11 +11,18 @@ with a uint8 type:
 - type 2, PPS, 11 bytes: float64 GPS seconds of week of the PPS edge, uint16
   GPS week.
 
-A measurement belongs to the last PPS before it.  Counted, never guessed:
-measurements before the first PPS (no time), measurements whose offset is 1 s
-or more (a PPS was missed), quality 0 (invalid), and a cut-off last record.
-An unknown record type means the stream is corrupt: reading stops with the
-byte offset.
+A measurement belongs to the last PPS before it.  After a missed PPS the
+microsecond counter keeps counting from the last PPS the scanner saw, so it
+still dates the measurement exactly up to 2^24 us (16.78 s): such
+measurements are kept, flagged (``recovered``) and counted
+(``pps_recovered``).  Dropped as ambiguous (``pps_ambiguous``) is only what
+the counter cannot date: a counter that wrapped (it falls back without a new
+PPS) or saturated (0xFFFFFF), and measurements that the next PPS contradicts
+(dated at or after it, or PPS records not a whole number of seconds apart).
+Counted, never guessed: measurements before the first PPS (no time), the
+missed-PPS measurements (``missed_pps`` = recovered + ambiguous), quality 0
+(invalid), and a cut-off last record.  An unknown record type means the
+stream is corrupt: reading stops with the byte offset.
 
 Records are located with NumPy: runs of 18-byte measurements are decoded
 as whole blocks; Python only steps from one PPS record to the next (one per
@@ -43,7 +50,9 @@ class LmsqCounters:
     measurements: int = 0
     pps: int = 0
     before_first_pps: int = 0
-    missed_pps: int = 0  # measurements 1 s or more after their PPS
+    missed_pps: int = 0  # measurements after a missed PPS: 1 s or more after their PPS, or after a counter wrap
+    pps_recovered: int = 0  # of those, dated exactly from the us counter and kept (flagged)
+    pps_ambiguous: int = 0  # of those, dropped: the counter wrapped or saturated, or the next PPS contradicts them
     invalid_quality: int = 0
     truncated_bytes: int = 0
 
@@ -94,11 +103,14 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
 
     Each block has the columns of :func:`decode_measurements` (less
     ``offset_us``) plus ``time`` (GPS seconds since the GPS epoch:
-    week * 604800 + seconds of week + offset) and ``byte`` (the record's
-    offset in the file, for error reports).
+    week * 604800 + seconds of week + offset), ``recovered`` (True: dated
+    from the counter after a missed PPS) and ``byte`` (the record's offset
+    in the file, for error reports).  Measurements after a missed PPS are
+    held until the next PPS record confirms them, so blocks stay in time
+    order.
     """
     read_header(path)
-    pps_time: float | None = None
+    timer = _Timer(counters)
     with open(path, "rb") as fh:
         fh.seek(HEADER)
         base = HEADER  # file offset of buf[0]
@@ -117,7 +129,7 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
             run = int(stop[0]) if len(stop) else k
             if run:
                 block = arr[pos : pos + run * MEASUREMENT].reshape(run, MEASUREMENT)
-                yield from _emit(block, base + pos, pps_time, counters)
+                yield from timer.measurements(block, base + pos)
                 pos += run * MEASUREMENT
                 continue
             if n_left > 0 and arr[pos] == 2 and n_left >= PPS:
@@ -125,8 +137,7 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
                 week = int(np.frombuffer(buf, "<u2", 1, pos + 9)[0])
                 if not (np.isfinite(sow) and 0.0 <= sow < SECONDS_PER_WEEK):
                     raise InputDataError(f"{path}, byte {base + pos}: PPS seconds of week {sow!r} out of 0-604800.")
-                pps_time = week * SECONDS_PER_WEEK + sow
-                counters.pps += 1
+                yield from timer.pps(week * SECONDS_PER_WEEK + sow)
                 pos += PPS
                 continue
             if n_left > 0 and arr[pos] not in (1, 2):
@@ -142,26 +153,75 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
             buf = buf[pos:] + more
             base += pos
             pos = 0
+    yield from timer.flush()
 
 
-def _emit(block: np.ndarray, offset: int, pps_time: float | None, counters: LmsqCounters):
-    cols = decode_measurements(block)
-    n = len(block)
-    counters.measurements += n
-    if pps_time is None:
-        counters.before_first_pps += n
-        return
-    late = cols["offset_us"] >= 1_000_000
-    bad = cols["quality"] == 0
-    counters.missed_pps += int(late.sum())
-    counters.invalid_quality += int((bad & ~late).sum())
-    keep = ~(late | bad)
-    if not keep.any():
-        return
-    out = {k: v[keep] for k, v in cols.items() if k != "offset_us"}
-    out["time"] = pps_time + cols["offset_us"][keep] * 1e-6
-    out["byte"] = offset + np.flatnonzero(keep) * MEASUREMENT
-    yield out
+class _Timer:
+    """Dates measurements from the last PPS; holds those after a missed PPS until the next PPS confirms them."""
+
+    def __init__(self, counters: LmsqCounters):
+        self.counters = counters
+        self.pps_time: float | None = None
+        self.top = -1  # largest counter value since the last PPS
+        self.wrapped = False  # the counter fell back since the last PPS: nothing more is datable
+        self.held: list[dict[str, np.ndarray]] = []  # recovered measurements awaiting the next PPS
+
+    def pps(self, t: float):
+        """A PPS record at GPS time *t*: release or drop the held measurements, restart the counter."""
+        if self.held:
+            step = t - self.pps_time
+            whole = step >= 1.0 - 1e-6 and abs(step - round(step)) <= 1e-6
+            for block in self.held:
+                ok = (block["time"] < t) if whole else np.zeros(len(block["time"]), bool)
+                yield from self._release(block, ok)
+            self.held = []
+        self.pps_time, self.top, self.wrapped = t, -1, False
+        self.counters.pps += 1
+
+    def flush(self):
+        """End of the stream: nothing contradicts the held measurements."""
+        for block in self.held:
+            yield from self._release(block, np.ones(len(block["time"]), bool))
+        self.held = []
+
+    def _release(self, block: dict[str, np.ndarray], ok: np.ndarray):
+        c = self.counters
+        c.pps_ambiguous += int((~ok).sum())
+        c.pps_recovered += int(ok.sum())
+        good = ok & (block["quality"] != 0)
+        c.invalid_quality += int((ok & ~good).sum())
+        if good.any():
+            yield {k: v[good] for k, v in block.items()}
+
+    def measurements(self, block: np.ndarray, offset: int):
+        cols = decode_measurements(block)
+        n = len(block)
+        c = self.counters
+        c.measurements += n
+        if self.pps_time is None:
+            c.before_first_pps += n
+            return
+        us = cols.pop("offset_us")
+        running = np.maximum.accumulate(np.concatenate(([self.top], us)))
+        fell = us < running[:-1]  # the counter wrapped (or the stream is disordered)
+        undatable = np.logical_or.accumulate(fell | (us >= 0xFFFFFF)) | self.wrapped
+        self.wrapped = bool(undatable[-1])
+        self.top = int(running[-1])
+        late = us >= 1_000_000
+        c.missed_pps += int((late | undatable).sum())
+        c.pps_ambiguous += int(undatable.sum())
+        cols["time"] = self.pps_time + us * 1e-6
+        cols["recovered"] = late
+        cols["byte"] = offset + np.arange(n) * MEASUREMENT
+        on_time = ~late & ~undatable
+        bad = on_time & (cols["quality"] == 0)
+        c.invalid_quality += int(bad.sum())
+        keep = on_time & ~bad
+        if keep.any():
+            yield {k: v[keep] for k, v in cols.items()}
+        held = late & ~undatable
+        if held.any():
+            self.held.append({k: v[held] for k, v in cols.items()})
 
 
 def write_lmsq(path: Path, model: int, records: list) -> None:

@@ -50,6 +50,11 @@ class NavigationConfig(StrictModel):
     error_period_s: float = Field(
         20.0, gt=0, description="shortest period of the position error, seconds (attitude: a quarter of it)"
     )
+    unwrapped_heading: bool = Field(
+        False,
+        description="INS CSV and SBET headings written unwrapped (continuous through north, beyond +-180 deg) "
+        "instead of as receivers write them (INS CSV [0, 360) deg; SBET heading and wander (-pi, pi])",
+    )
 
 
 class FlightConfig(StrictModel):
@@ -75,7 +80,9 @@ class Faults(StrictModel):
     clutter_points: int = Field(0, ge=0, description="3.A: dust/rain echoes flagged clutter by the scanner")
     dirt_points: int = Field(0, ge=0, description="3.A: points flagged dirt")
     dust_echoes: int = Field(0, ge=0, description="lmsq/LAS: pulses answered by dust close to the aircraft")
-    pps_gaps: int = Field(0, ge=0, description="lmsq: PPS records missing (their second of pulses is unusable)")
+    pps_gaps: int = Field(
+        0, ge=0, description="lmsq: PPS records missing (their second of pulses is dated by the us counter alone)"
+    )
     invalid_quality: int = Field(0, ge=0, description="lmsq: measurements with quality 0")
     nmea_bad_checksums: int = Field(0, ge=0, description="NMEA sentences with a corrupted checksum")
     strip_bias_m: float = Field(0.0, ge=0, description="per-line GNSS bias, largest component, metres")

@@ -437,7 +437,7 @@ class _Sinks:
         sel = {k: v[keep] for k, v in cols.items()}
         self.truth.add(e["hit"][keep], classification=e["cls"][keep], fault=fault[keep], **sel)
         if self.las is not None:
-            ok_for_las = keep & ~np.isin(fault, [FAULT_CODES["invalid_quality"], FAULT_CODES["pps_gap"]])
+            ok_for_las = keep & (fault != FAULT_CODES["invalid_quality"])  # after a missed PPS: dated by the counter
             xyz, ok = georeference(nav_traj, gps[ok_for_las], tuple(v_s[ok_for_las].T.copy()), mounting_nominal,
                                    self.to_map.columns, max_gap_s=1.0)  # fmt: skip
             s2 = {k: v[ok_for_las][ok] for k, v in cols.items()}
@@ -533,9 +533,9 @@ class _Sinks:
         second = gps_us // 1_000_000
         gap = np.isin(second - int(self.start), list(plan.pps_gaps)) if plan.pps_gaps else np.zeros(n, bool)
         fault[gap] = FAULT_CODES["pps_gap"]
-        # what a reader sees: a measurement after a missed PPS is unusable whatever its quality
-        self.lmsq_counts["invalid_quality"] += int((bad & ~gap).sum())
-        self.lmsq_counts["dust_echoes"] += int((e["dust"] & ~gap & ~bad).sum())
+        # what a reader sees: a measurement after a missed PPS is still dated by the us counter
+        self.lmsq_counts["invalid_quality"] += int(bad.sum())
+        self.lmsq_counts["dust_echoes"] += int((e["dust"] & ~bad).sum())
         amplitude = np.where(e["cls"] == sc.WATER, 20, np.where(e["cls"] == sc.VEGETATION, 90, 160))
         amplitude = (amplitude * (1 - 0.3 * e["echo"])).astype(np.uint8)
         self.lmsq.add(gps_us, e["range"], amplitude, pat["angle"][e["pulse"]], quality, e["echo"])
@@ -553,7 +553,8 @@ class _Sinks:
         if self.lmsq is not None:
             self.lmsq.close()
             result["lmsq"] = {**self.lmsq_counts, "pps_gaps": len(self.plan.pps_gaps),
-                              "missed_pps": self.lmsq.skipped_measurements}  # fmt: skip
+                              "missed_pps": self.lmsq.skipped_measurements,
+                              "pps_recovered": self.lmsq.recoverable}  # fmt: skip
         return result
 
 
@@ -605,7 +606,7 @@ class _LasSink:
 def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: float) -> dict[str, str]:
     """NMEA, INS CSV, SBET and smrmsg from the recorded navigation; ``nmea_bad_checksums`` corrupts
     GGA/HDT/VTG/GST sentences (never ZDA: without a date the log cannot be read at all)."""
-    from stages.sim.writers import SECONDS_PER_WEEK, write_ins_csv, write_nmea, write_sbet
+    from stages.sim.writers import SECONDS_PER_WEEK, wrap_pi, write_ins_csv, write_nmea, write_sbet
 
     files = {}
     if any(f in cfg.formats for f in ("lmsq_nmea", "lmsq_sbet")):
@@ -623,7 +624,9 @@ def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: fl
         write_nmea(out / "lmsq" / "nav.nmea", gps[sel], nav.lat[sel], nav.lon[sel], nav.h[sel], nav.heading[sel],
                    course[sel], speed[sel], sigma[sel], leap_seconds=cfg.leap_seconds, corrupt=corrupt)  # fmt: skip
         ins = slice(0, None, max(1, int(round(1.0 / (cfg.navigation.ins_rate_hz * DT)))))
-        write_ins_csv(out / "lmsq" / "ins.csv", sow[ins], nav.roll[ins], nav.pitch[ins], nav.heading[ins])
+        unwrapped = cfg.navigation.unwrapped_heading
+        write_ins_csv(out / "lmsq" / "ins.csv", sow[ins], nav.roll[ins], nav.pitch[ins], nav.heading[ins],
+                      unwrapped=unwrapped)  # fmt: skip
         files.update(nmea="lmsq/nav.nmea", ins="lmsq/ins.csv")
         gps, sow, vel = gps[ins], sow[ins], vel[ins]
         nav = Navigation(nav.t[ins], nav.lat[ins], nav.lon[ins], nav.h[ins], nav.roll[ins], nav.pitch[ins],
@@ -636,6 +639,8 @@ def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: fl
         sbet[:, 7], sbet[:, 8] = np.radians(nav.roll), np.radians(nav.pitch)
         sbet[:, 9] = np.radians(nav.heading) + wander  # platform heading = true heading + wander
         sbet[:, 10] = wander
+        if not unwrapped:  # as an SBET holds them: (-pi, pi]
+            sbet[:, 9:11] = wrap_pi(sbet[:, 9:11])
         write_sbet(out / "lmsq" / "trajectory.sbet", sbet)
         smr = np.zeros((len(gps), 10))
         smr[:, 0] = sow

@@ -33,8 +33,11 @@ class LmsqWriter:
     """Appends measurement blocks to an ``.lmsq`` stream, with a PPS record at each new second.
 
     ``skip_pps``: GPS seconds whose PPS record is left out (the PPS-gap
-    fault); their measurements then carry offsets of 1 s or more, as a
-    real stream does after a missed PPS.
+    fault); their measurements then carry offsets of 1 s or more from the
+    last PPS written, as a real stream does after a missed PPS (the uint24
+    counter saturates at 0xFFFFFF us, 16.78 s: beyond, a time is lost).
+    ``skipped_measurements`` counts the measurements written after a missed
+    PPS, ``recoverable`` those of them the counter still dates.
     """
 
     def __init__(self, path: Path, model: int, skip_pps: set[int] | None = None):
@@ -44,6 +47,7 @@ class LmsqWriter:
         self.last_pps: int | None = None
         self.current: int | None = None
         self.skipped_measurements = 0
+        self.recoverable = 0
 
     def add(self, gps_us: np.ndarray, range_m, amplitude, angle_deg, quality, echo) -> None:
         """Measurements in time order; ``gps_us``: integer microseconds since the GPS epoch."""
@@ -65,8 +69,9 @@ class LmsqWriter:
             if self.last_pps is None:
                 continue
             offset = np.minimum(gps_us[a:b] - self.last_pps * 1_000_000, 0xFFFFFF)
-            if s in self.skip:
+            if s in self.skip or int(offset[-1]) >= 1_000_000:
                 self.skipped_measurements += int(b - a)
+                self.recoverable += int(np.sum(offset < 0xFFFFFF))
             self.fh.write(
                 encode_measurements(
                     range_m[a:b], amplitude[a:b], angle_deg[a:b], quality[a:b], echo[a:b], offset
@@ -161,9 +166,17 @@ def write_nmea(
     return k
 
 
-def write_ins_csv(path: Path, sow: np.ndarray, roll: np.ndarray, pitch: np.ndarray, heading: np.ndarray) -> None:
-    """``gps_sow,roll_deg,pitch_deg,heading_deg`` (NED, heading clockwise from north, 0-360)."""
-    table = np.column_stack((sow, roll, pitch, np.mod(heading, 360.0)))
+def wrap_pi(angle: np.ndarray) -> np.ndarray:
+    """Radians in (-pi, pi], as an Applanix SBET writes its angles."""
+    return -(np.mod(-np.asarray(angle, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi)
+
+
+def write_ins_csv(
+    path: Path, sow: np.ndarray, roll: np.ndarray, pitch: np.ndarray, heading: np.ndarray, *, unwrapped: bool = False
+) -> None:
+    """``gps_sow,roll_deg,pitch_deg,heading_deg`` (NED, heading clockwise from north, in [0, 360); with
+    *unwrapped*, as given: continuous through north)."""
+    table = np.column_stack((sow, roll, pitch, heading if unwrapped else np.mod(heading, 360.0)))
     with create_text(path) as fh:
         fh.write("gps_sow,roll_deg,pitch_deg,heading_deg\n")
         np.savetxt(fh, table, fmt=["%.6f", "%.9f", "%.9f", "%.9f"], delimiter=",")

@@ -83,7 +83,7 @@ def _match(truth_path: Path, points_path: Path):
 def zero_noise(tmp_path_factory):
     root = tmp_path_factory.mktemp("zero")
     ld_dir, ld = _simulate(root / "ldmrs", LDMRS, noise=False)
-    rg_dir, rg = _simulate(root / "riegl", RIEGL, noise=False)
+    rg_dir, rg = _simulate(root / "riegl", RIEGL, noise=False, pps_gaps=1)  # a missed PPS: dated by the counter
     runs = {}
     for fmt, sim in (("ldmrs_mtig", ld_dir), ("lmsq_nmea", rg_dir), ("lmsq_sbet", rg_dir)):
         runs[fmt] = (_run(root, fmt, _input(fmt, sim)), sim)
@@ -105,6 +105,77 @@ def test_zero_noise_flight_georeferences_to_the_truth(zero_noise, fmt):
     assert m["rejected_no_trajectory"] == 0
     # and every point keeps its return number and count
     np.testing.assert_array_equal(np.asarray(points.number_of_returns)[ib], np.asarray(truth.number_of_returns)[ia])
+
+
+@pytest.mark.parametrize("fmt", ["lmsq_nmea", "lmsq_sbet"])
+def test_missed_pps_echoes_are_dated_and_georeferenced_exactly(zero_noise, fmt):
+    """The second after the missed PPS: every echo comes out, flagged, at its true time and position."""
+    _, sims, runs = zero_noise
+    stages, sim = runs[fmt]
+    injected = sims["riegl"].faults["lmsq"]
+    m = stages["parse"]["metrics"]
+    assert m["scanner_missed_pps"] == m["scanner_pps_recovered"] == injected["pps_recovered"] > 1000
+    assert m["scanner_pps_ambiguous"] == 0
+    pulses, _ = read_columns(stages["parse"]["outputs"]["pulses"]["file"])
+    flagged = (pulses["flags"] & 0x80) > 0
+    truth, points, ia, ib, d = _match(
+        sim / "truth" / "points.laz", Path(stages["georeference"]["outputs"]["points_georef"]["file"])
+    )
+    gap = np.asarray(truth.fault) == FAULT_CODES["pps_gap"]
+    gap_times = np.unique(np.round((np.asarray(truth.gps_time)[gap] + 1e9) * 1e6).astype(np.int64))
+    np.testing.assert_array_equal(np.unique(np.round(pulses["time"][flagged] * 1e6).astype(np.int64)), gap_times)
+    on_gap = gap[ia]
+    assert on_gap.sum() > 1000 and np.linalg.norm(d[on_gap], axis=1).max() < 0.005
+
+
+def test_attitude_from_pashr_when_there_is_no_ins_csv(zero_noise, tmp_path):
+    """The INS CSV's attitudes written as $PASHR sentences into the NMEA log (and no input.ins): the same
+    points as with the CSV."""
+    from stages.readers.nmea import with_checksum
+
+    _, sims, runs = zero_noise
+    sim = runs["lmsq_nmea"][1]
+    ins = np.loadtxt(sim / "lmsq" / "ins.csv", delimiter=",", skiprows=1)
+    week = runs["lmsq_nmea"][0]["parse"]["metrics"]["gps_week"]
+    tod = np.mod(week * 604800.0 + ins[:, 0] - 18.0, 86400.0)
+    lines = [(sim / "lmsq" / "nav.nmea").read_text().rstrip("\n")]
+    for t, (roll, pitch, heading) in zip(tod, ins[:, 1:], strict=True):
+        hh, mm, ss = int(t // 3600), int(t % 3600 // 60), t % 60
+        body = f"PASHR,{hh:02d}{mm:02d}{ss:09.6f},{heading:.9f},T,{roll:.9f},{pitch:.9f},0.00,0.01,0.01,0.02,1,0"
+        lines.append(with_checksum(body) + "\r")
+    (tmp_path / "nav.nmea").write_text("\n".join(lines) + "\n")
+    block = _input("lmsq_nmea", sim).replace(f"{sim}/lmsq/nav.nmea", str(tmp_path / "nav.nmea"))
+    block = "\n".join(line for line in block.splitlines() if "ins:" not in line)
+    stages = _run(tmp_path, "pashr", block)
+    assert stages["parse"]["metrics"]["nmea_attitude_epochs"] == len(ins)
+    a = laspy.read(stages["georeference"]["outputs"]["points_georef"]["file"])
+    b = laspy.read(runs["lmsq_nmea"][0]["georeference"]["outputs"]["points_georef"]["file"])
+    assert len(a) == len(b)
+    np.testing.assert_allclose(np.column_stack((a.x, a.y, a.z)), np.column_stack((b.x, b.y, b.z)), atol=2e-3)
+
+
+@pytest.mark.parametrize("unwrapped", [False, True])
+def test_headings_wrapped_or_unwrapped_give_the_same_points(tmp_path, unwrapped):
+    """The SBET written as Applanix does ((-pi, pi]) and unwrapped (a first line at 750 deg: headings past
+    4 pi): every pulse is georeferenced to the truth, from the SBET and from the INS CSV alike."""
+    spec = {**RIEGL, "formats": ["lmsq_nmea", "lmsq_sbet"], "flight": {**RIEGL["flight"], "heading_deg": 750.0},
+            "navigation": {**RIEGL["navigation"], "ins_rate_hz": 50, "unwrapped_heading": unwrapped}}  # fmt: skip
+    sim, res = _simulate(tmp_path / "sim", spec, noise=False)
+    sbet = np.fromfile(sim / "lmsq" / "trajectory.sbet", "<f8").reshape(-1, 17)
+    ins = np.loadtxt(sim / "lmsq" / "ins.csv", delimiter=",", skiprows=1)
+    if unwrapped:
+        assert sbet[:, 9].min() > 4 * np.pi and ins[:, 3].max() > 720
+    else:
+        assert np.all(np.abs(sbet[:, 9:11]) <= np.pi) and np.all((ins[:, 3] >= 0) & (ins[:, 3] < 360))
+    counts = {}
+    for fmt in ("lmsq_nmea", "lmsq_sbet"):
+        stages = _run(tmp_path, fmt, _input(fmt, sim))
+        geo = stages["georeference"]
+        _, points, _, ib, d = _match(sim / "truth" / "points.laz", Path(geo["outputs"]["points_georef"]["file"]))
+        assert len(ib) == len(points) and np.linalg.norm(d, axis=1).max() < 0.005
+        assert stages["parse"]["metrics"]["navigation_malformed"] == 0
+        counts[fmt] = (geo["metrics"]["points"], geo["metrics"]["rejected_no_trajectory"], geo["metrics"]["strips"])
+    assert counts["lmsq_nmea"] == counts["lmsq_sbet"] and counts["lmsq_sbet"][1] == 0
 
 
 def test_zero_noise_3d_las_matches_truth(zero_noise):
@@ -190,11 +261,16 @@ def test_counters_equal_injected_faults(tmp_path):
     injected = res_rg.faults["lmsq"]
     parse = _run(tmp_path, "rg", _input("lmsq_nmea", rg), until="parse")["parse"]["metrics"]
     assert parse["scanner_missed_pps"] == injected["missed_pps"] > 0
+    assert parse["scanner_pps_recovered"] == injected["pps_recovered"] == injected["missed_pps"]
     assert parse["scanner_invalid_quality"] == injected["invalid_quality"] > 0
     assert parse["nmea_bad_checksum"] == injected["nmea_bad_checksums"] == 7
     # and the georeferenced output holds exactly the echoes without a fault the reader drops
     truth = laspy.read(rg / "truth" / "points.laz")
-    usable = np.isin(np.asarray(truth.fault), [FAULT_CODES["none"], FAULT_CODES["dust"]]).sum()
+    kept = [FAULT_CODES["none"], FAULT_CODES["dust"], FAULT_CODES["pps_gap"]]  # pps_gap: dated by the counter
+    invalid_in_gap = injected["invalid_quality"] - int(
+        np.sum(np.asarray(truth.fault) == FAULT_CODES["invalid_quality"])
+    )
+    usable = np.isin(np.asarray(truth.fault), kept).sum() - invalid_in_gap
     assert parse["pulses_read"] == usable
 
 

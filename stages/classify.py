@@ -98,7 +98,7 @@ def reach(algorithm: StrictModel) -> float:
 
 
 #: A survey is sparse for a grid filter when its points are farther apart than this many cells.
-SPARSE_SPACINGS = 2.0
+SPARSE_SPACINGS = 3.0
 #: Occupancy cells (in filter cells) over which the nominal point spacing is measured.
 OCCUPANCY_CELLS = 32
 
@@ -113,7 +113,7 @@ def for_spacing(algorithm: StrictModel, spacing: float | None) -> StrictModel:
 
     A morphological filter's minimum surface (and a cloth) is meaningful only
     when most of its cells hold points.  Where the points lie more than
-    ``SPARSE_SPACINGS`` cells apart on average (under 0.25 points/m² with
+    ``SPARSE_SPACINGS`` cells apart on average (under 0.11 points/m² with
     1 m cells), the grid would be almost all interpolated — a surface of
     spikes through isolated points — and its cost would follow the area, not
     the points.  The cell is then the nominal spacing, rounded up to a whole

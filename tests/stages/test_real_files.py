@@ -177,6 +177,15 @@ def test_a_wide_sparse_survey_is_refused_at_once(tmp_path, capsys):
     assert [s["name"] for s in run["stages"] if s.get("status") == "ran"] == []  # refused in parse
 
 
+def test_a_dtm_without_a_valid_cell_is_an_error(tmp_path, capsys):
+    """utm17.las with last_returns off: 10 collinear ground points make no surface — exit 3, not an "ok" run."""
+    path = real("pdal/utm17.las")
+    code, out = _run_las(tmp_path, path, "stages.classify_ground.last_returns=false", "executor.workers=1")
+    err = capsys.readouterr().err
+    assert code == 3 and "the DTM has no valid cell" in err and str(path) in err
+    assert json.loads((out / "run.json").read_text())["status"] == "failed" and not (out / "dtm.tif").exists()
+
+
 def test_an_empty_file_is_named(tmp_path, capsys):
     path = real("pdal/no-points.las")
     code, out = _run_las(tmp_path, path)

@@ -91,7 +91,7 @@ def _killed_child(args: list[str], stage: str, point: str) -> None:
             shutil.copyfile(src, Path(dst).parent / f".{Path(dst).name}.half.tmp")
             _die()
 
-        runnermod.atomic_copy = copy_then_die
+        runnermod._stage_copy = copy_then_die
     else:
         cls = next(c for c in plugin.stages if c.name == stage)
         original = cls.run

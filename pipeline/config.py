@@ -390,7 +390,7 @@ def describe_validation_error(
     """
     sentences: list[str] = []
     for err in exc.errors(include_url=False):
-        sentence = _describe_one(err, data, source, lines, overrides, model)
+        sentence = _describe_one(err, data, source, lines, overrides, model).replace("\n", "\\n")  # one line each
         if sentence not in sentences:
             sentences.append(sentence)
     if len(sentences) == 1:

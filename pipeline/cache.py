@@ -154,6 +154,10 @@ def open_lock_file(path: Path) -> int:
     for _ in range(3):
         try:
             return os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~_UMASK)
+        except PermissionError as exc:
+            raise ConfigError(
+                f"cannot create the lock file {path} ({exc.strerror}); make {path.parent} writable."
+            ) from None
         except OSError as exc:
             if exc.errno != errno.ELOOP:
                 raise

@@ -626,51 +626,36 @@ def _execute(
     executor: Any = None,
 ) -> Entry:
     workspace = cache.new_workspace(step.name, key)
-    try:
-        return _execute_in(step, config, cache, key, inputs, input_hashes, slog, upstream, executor, workspace)
+    try:  # from here on, any failure or interruption removes the workspace
+        ctx = StageContext(
+            name=step.name,
+            params=step.params,
+            config=config,
+            inputs=inputs,
+            outputs={a: workspace / f for a, f in step.io.outputs.items()},
+            workdir=workspace,
+            workers=getattr(getattr(config, "executor", None), "workers", 1),
+            log=slog,
+            executor=executor if executor is not None else LocalExecutor(1),
+            upstream_metrics=upstream or {},
+        )
+        slog.info("running")
+        t0 = time.perf_counter()
+        step.stage.run(ctx)
+        seconds = round(time.perf_counter() - t0, 3)
+        meta = {
+            "stage": step.name,
+            "version": step.stage.version,
+            "params": step.params.model_dump(mode="json") if step.params is not None else None,
+            "inputs": input_hashes,
+            "outputs": dict(step.io.outputs),
+            "metrics": ctx.metrics,
+            "seconds": seconds,
+        }
+        entry = cache.commit(step.name, key, workspace, meta)
     except BaseException:
         Cache.discard(workspace)
         raise
-
-
-def _execute_in(
-    step: Step,
-    config: BaseModel,
-    cache: Cache,
-    key: str,
-    inputs: dict[str, Path],
-    input_hashes: dict[str, str],
-    slog: logging.LoggerAdapter,
-    upstream: dict[str, dict[str, Any]] | None,
-    executor: Any,
-    workspace: Path,
-) -> Entry:
-    ctx = StageContext(
-        name=step.name,
-        params=step.params,
-        config=config,
-        inputs=inputs,
-        outputs={a: workspace / f for a, f in step.io.outputs.items()},
-        workdir=workspace,
-        workers=getattr(getattr(config, "executor", None), "workers", 1),
-        log=slog,
-        executor=executor if executor is not None else LocalExecutor(1),
-        upstream_metrics=upstream or {},
-    )
-    slog.info("running")
-    t0 = time.perf_counter()
-    step.stage.run(ctx)
-    seconds = round(time.perf_counter() - t0, 3)
-    meta = {
-        "stage": step.name,
-        "version": step.stage.version,
-        "params": step.params.model_dump(mode="json") if step.params is not None else None,
-        "inputs": input_hashes,
-        "outputs": dict(step.io.outputs),
-        "metrics": ctx.metrics,
-        "seconds": seconds,
-    }
-    entry = cache.commit(step.name, key, workspace, meta)
     slog.info("done in %.2f s", seconds)
     return entry
 

@@ -25,6 +25,7 @@ and JSON.
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
@@ -37,6 +38,8 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from pipeline.errors import ConfigError
 
 ENTRY_FILE = "entry.json"
 META_SUM = "entry_sha256"  # checksum of entry.json's other fields
@@ -127,7 +130,7 @@ def exclusive_lock(path: Path, on_wait: Any = None):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
+    fd = open_lock_file(path)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -140,10 +143,34 @@ def exclusive_lock(path: Path, on_wait: Any = None):
         os.close(fd)  # releases the lock
 
 
+def open_lock_file(path: Path) -> int:
+    """Open (creating it if needed) the lock file *path*, never through a symbolic link.
+
+    The pipeline never makes a lock file a link: one found in its place was
+    planted, and following it would create or open a file outside the
+    output and cache folders.  It is removed (the link, not what it points
+    to) with a warning, and a plain lock file is made.
+    """
+    for _ in range(3):
+        try:
+            return os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~_UMASK)
+        except PermissionError as exc:
+            raise ConfigError(
+                f"cannot create the lock file {path} ({exc.strerror}); make {path.parent} writable."
+            ) from None
+        except OSError as exc:
+            if exc.errno != errno.ELOOP:
+                raise
+            logging.getLogger("pipeline").warning("%s is a symbolic link, not a lock file; removing the link", path)
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(path)
+    raise OSError(errno.ELOOP, "a symbolic link keeps reappearing in place of a lock file", str(path))
+
+
 def _is_locked(path: Path) -> bool:
     """Whether a live process holds the lock file *path*."""
     try:
-        fd = os.open(path, os.O_RDWR)
+        fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW)
     except OSError:
         return False
     try:
@@ -193,6 +220,9 @@ class Cache:
         checksum is recomputed with a note, not a warning.
         """
         folder = self.entry_folder(stage, key)
+        if folder.is_symlink() or (os.path.lexists(folder) and not folder.is_dir()):
+            kind = "a symbolic link" if folder.is_symlink() else "a file"
+            return self._damaged(stage, key, f"the entry is {kind}, not a folder", warn)
         if not (folder / ENTRY_FILE).exists():
             return None
         try:
@@ -204,13 +234,15 @@ class Cache:
             expected = meta.pop(META_SUM)
             outputs = meta["outputs"]
             files = [(out["file"], out["bytes"], out["sha256"]) for out in outputs.values()]
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
             return self._damaged(stage, key, f"{ENTRY_FILE} is unreadable", warn)
         if hash_value(meta) != expected:
             return self._damaged(stage, key, f"{ENTRY_FILE} fails its checksum", warn)
+        if meta.get("key", key) != key:
+            return self._damaged(stage, key, f"{ENTRY_FILE} belongs to another key", warn)
         for name, size, digest in files:
             target = folder / name
-            if not target.exists():
+            if not target.is_relative_to(folder) or ".." in Path(name).parts or not target.exists():
                 return self._damaged(stage, key, f"{name} is missing", warn)
             if path_size(target) != size:
                 return self._damaged(stage, key, f"{name} has {path_size(target)} bytes, not {size}", warn)
@@ -229,9 +261,15 @@ class Cache:
         Workspaces of killed runs (their key's lock is free) are removed.
         """
         parent = self.root / stage
-        parent.mkdir(parents=True, exist_ok=True)
-        self.sweep(stage, key)
-        return Path(tempfile.mkdtemp(prefix=f".tmp-{key}-", dir=parent))
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+            self.sweep(stage, key)
+            return Path(tempfile.mkdtemp(prefix=f".tmp-{key}-", dir=parent))
+        except PermissionError as exc:
+            raise ConfigError(
+                f"the cache folder {parent} is not writable ({exc.strerror}); make it writable or remove it "
+                "(it is recomputed)."
+            ) from None
 
     def sweep(self, stage: str, held: str) -> int:
         """Remove the workspaces killed runs left in *stage*'s folder.
@@ -265,16 +303,30 @@ class Cache:
         text = json.dumps({**meta, META_SUM: hash_value(meta)}, indent=2, sort_keys=True)
         atomic_write_text(workspace / ENTRY_FILE, text)
         final = self.entry_folder(stage, key)
-        existing = self.lookup(stage, key, verify=False, warn=False)
+        # Fully verified: an entry that fails its checksums is replaced, never kept.
+        existing = self.lookup(stage, key, verify=True, warn=False)
         if existing is not None:
             # Same key, same content: a concurrent run finished first; keep its entry.
             self.discard(workspace)
             return existing
-        if final.exists():  # an incomplete leftover of a killed run
-            shutil.rmtree(final)
+        if os.path.lexists(final):  # damaged, or an incomplete leftover of a killed run
+            _remove(final, workspace.parent / f".tmp-{key}-old-{uuid.uuid4().hex[:8]}")
         os.replace(workspace, final)
         return Entry(final, meta)
 
     @staticmethod
     def discard(workspace: Path) -> None:
         shutil.rmtree(workspace, ignore_errors=True)
+
+
+def _remove(path: Path, aside: Path) -> None:
+    """Remove a file, a symbolic link (not its target) or a folder.
+
+    A folder is first renamed to *aside* (a workspace name the next sweep
+    removes if this run is killed), so the entry's name is free at once.
+    """
+    if path.is_symlink() or not path.is_dir():
+        path.unlink()
+        return
+    os.replace(path, aside)
+    shutil.rmtree(aside, ignore_errors=True)

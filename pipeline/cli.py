@@ -1,7 +1,8 @@
 """The ``pipeline`` command line.
 
 Exit codes: 0 success; 2 bad configuration or usage; 3 bad or unusable input
-data; 1 internal error.  Errors a user can cause print one sentence and no
+data; 1 internal error; 130 interrupted by SIGINT (Ctrl-C), 143 by SIGTERM
+(:mod:`pipeline.interrupt`).  Errors a user can cause print one sentence and no
 traceback; an internal error prints its traceback only with ``-v``.
 """
 
@@ -16,9 +17,10 @@ import sys
 import traceback
 from pathlib import Path
 
-from pipeline import __version__
+from pipeline import __version__, interrupt
 from pipeline.config import load_config
 from pipeline.errors import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
+from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, setup_logging
 from pipeline.plugin import load_plugin
 from pipeline.runner import build_plan, run
@@ -86,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
         setup_logging(args.log_format, -1 if args.quiet else args.verbose)
         if args.command == "run":
-            return _cmd_run(args, plugin)
+            with interrupt.handling():
+                return _cmd_run(args, plugin)
         if args.command == "validate":
             return _cmd_validate(args, plugin)
         if args.command == "schema":
@@ -96,6 +99,12 @@ def main(argv: list[str] | None = None) -> int:
         return command.run(args)
     except PipelineError as exc:
         print(f"pipeline: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except Interrupted as exc:
+        print(
+            f"pipeline: interrupted by {exc.name}; run it again to resume (complete stages are reused).",
+            file=sys.stderr,
+        )
         return exc.exit_code
     except KeyboardInterrupt:
         print("pipeline: interrupted", file=sys.stderr)

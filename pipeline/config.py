@@ -79,6 +79,12 @@ class ExecutorConfig(StrictModel):
     )
 
 
+#: Smallest tile side (metres): smaller tiles cost more in buffers than they save.
+MIN_TILE_SIZE = 10.0
+#: Largest tile buffer (metres).
+MAX_TILE_BUFFER = 10_000.0
+
+
 class TilingConfig(StrictModel):
     """How stages that work tile by tile cut the survey.
 
@@ -90,12 +96,19 @@ class TilingConfig(StrictModel):
 
     enabled: bool = Field(True, description="cut large surveys into tiles; false: every stage sees the whole survey")
     size: float = Field(
-        500.0, gt=0, description="tile side (metres); memory per worker grows with size**2 x point density"
+        500.0,
+        ge=MIN_TILE_SIZE,
+        allow_inf_nan=False,
+        description=f"tile side (metres, at least {MIN_TILE_SIZE:g}); memory per worker grows with size**2 x "
+        "point density",
     )
     buffer: float | None = Field(
         None,
         ge=0,
-        description="buffer around each tile (metres); none = each stage's own, the reach of its algorithm, "
+        le=MAX_TILE_BUFFER,
+        allow_inf_nan=False,
+        description="buffer around each tile (metres, at most "
+        f"{MAX_TILE_BUFFER:g}); none = each stage's own, the reach of its algorithm, "
         "which makes tiled results identical to untiled ones",
     )
 
@@ -104,8 +117,22 @@ class TilingConfig(StrictModel):
 # YAML with line numbers
 
 
+#: Largest configuration file read (bytes): a configuration is a page of text.
+MAX_CONFIG_BYTES = 1 << 20
+#: Deepest nesting of mappings and lists in a configuration.
+MAX_DEPTH = 64
+#: Most values a configuration may hold once its aliases are expanded.
+MAX_VALUES = 100_000
+
+
 def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
     """Read a YAML file safely and record the line of every key.
+
+    The file is refused, in one sentence, when it is larger than
+    :data:`MAX_CONFIG_BYTES`, nests deeper than :data:`MAX_DEPTH` levels,
+    has an alias that refers to itself, or expands (through aliases) to more
+    than :data:`MAX_VALUES` values: a "billion laughs" file is refused after
+    reading a few hundred bytes, not expanded.
 
     Parameters
     ----------
@@ -123,18 +150,22 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
     Raises
     ------
     ConfigError
-        When the file cannot be read, is not valid YAML, or repeats a key.
+        When the file cannot be read, is not valid YAML, repeats a key, or
+        exceeds one of the limits above.
     """
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: configuration file not found.") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read the configuration file ({exc}).") from None
+    text = _read_config_text(Path(path))
     loader = None
     try:
         loader = yaml.SafeLoader(text)  # the reader checks every character here
-        node = loader.get_single_node()
+        try:
+            node = loader.get_single_node()
+        except RecursionError:
+            line = loader.get_mark().line + 1
+            raise ConfigError(
+                f"{path}, line {line}: the configuration nests mappings or lists more than {MAX_DEPTH} levels deep."
+            ) from None
+        if node is not None:
+            _check_graph(node, path)
         data = loader.construct_document(node) if node is not None else {}
     except yaml.reader.ReaderError as exc:
         line = text.count("\n", 0, max(exc.position, 0)) + 1
@@ -154,6 +185,77 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
     if node is not None:
         _record_lines(node, (), lines, path)
     return data, lines
+
+
+def _read_config_text(path: Path) -> str:
+    """The text of a configuration file, read up to :data:`MAX_CONFIG_BYTES` (``/dev/zero`` is refused)."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_CONFIG_BYTES + 1)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found.") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the configuration file ({exc.strerror or exc}).") from None
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{path}: not a configuration file (more than {MAX_CONFIG_BYTES // 1024} KiB); "
+            "a configuration is a short YAML text."
+        )
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{path}, line {line}: not UTF-8 text (byte {exc.start}).") from None
+
+
+def _check_graph(root: yaml.Node, path: Path) -> None:
+    """Refuse recursive aliases, deep nesting and alias expansion beyond :data:`MAX_VALUES`.
+
+    Each distinct node is visited once (an alias is the same node object
+    again), so the check costs the size of the file, not of its expansion.
+    """
+    sizes: dict[int, int] = {}  # id(node) -> values it expands to
+    open_nodes: set[int] = set()  # on the current path: meeting one again is a recursion
+    # An explicit stack of (node, depth, children-done?) instead of recursion.
+    stack: list[tuple[yaml.Node, int, bool]] = [(root, 1, False)]
+    while stack:
+        node, depth, done = stack.pop()
+        children = _children(node)
+        if done:
+            open_nodes.discard(id(node))
+            total = 1 + sum(sizes[id(c)] for c in children)
+            sizes[id(node)] = total
+            if total > MAX_VALUES:
+                raise ConfigError(
+                    f"{path}, line {node.start_mark.line + 1}: the aliases here expand to more than "
+                    f"{MAX_VALUES:,} values; a configuration this large is refused (write the values out)."
+                )
+            continue
+        if id(node) in sizes:
+            continue
+        if depth > MAX_DEPTH:
+            raise ConfigError(
+                f"{path}, line {node.start_mark.line + 1}: the configuration nests mappings or lists more than "
+                f"{MAX_DEPTH} levels deep."
+            )
+        open_nodes.add(id(node))
+        stack.append((node, depth, True))
+        for child in children:
+            if id(child) in open_nodes:
+                raise ConfigError(
+                    f"{path}, line {child.start_mark.line + 1}: an alias refers to a value that contains it "
+                    "(a recursive alias); a configuration must be a finite tree."
+                )
+            if id(child) not in sizes:
+                stack.append((child, depth + 1, False))
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
 
 
 def _record_lines(node: yaml.Node, loc: Location, lines: dict[Location, int], path: Path) -> None:
@@ -201,6 +303,8 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict[Location, str]:
             child = node.get(part)
             if child is None:
                 child = node[part] = {}
+                # A mapping this override created: an error in it is the override's.
+                sources.setdefault(parts[: i + 1], f"--set {text}")
             elif not isinstance(child, dict):
                 where = ".".join(parts[: i + 1])
                 raise ConfigError(f"--set {text}: '{where}' is not a mapping, so it has no key '{parts[i + 1]}'.")
@@ -266,6 +370,10 @@ def _allowed_keys(model: type[BaseModel], loc: Location) -> set[str]:
     return {name for m in models for name in m.model_fields}
 
 
+#: Most problems listed in one error message.
+MAX_LISTED = 20
+
+
 def describe_validation_error(
     exc: ValidationError,
     data: Any,
@@ -274,9 +382,33 @@ def describe_validation_error(
     overrides: dict[Location, str],
     model: type[BaseModel],
 ) -> str:
-    """Turn the first pydantic error into one sentence with file, line and key."""
-    errors = exc.errors(include_url=False)
-    err = errors[0]
+    """Turn pydantic's errors into sentences with file, line and key.
+
+    One problem is one sentence; several are one sentence each, on their own
+    lines (at most :data:`MAX_LISTED`, then how
+    many more there are).
+    """
+    sentences: list[str] = []
+    for err in exc.errors(include_url=False):
+        sentence = _describe_one(err, data, source, lines, overrides, model).replace("\n", "\\n")  # one line each
+        if sentence not in sentences:
+            sentences.append(sentence)
+    if len(sentences) == 1:
+        return sentences[0]
+    shown = sentences[:MAX_LISTED]
+    more = len(sentences) - len(shown)
+    tail = f"\n  ... and {more} more." if more else ""
+    return f"{len(sentences)} problems in the configuration:\n  " + "\n  ".join(shown) + tail
+
+
+def _describe_one(
+    err: Any,
+    data: Any,
+    source: Path,
+    lines: dict[Location, int],
+    overrides: dict[Location, str],
+    model: type[BaseModel],
+) -> str:
     loc, missing = _real_location(data, tuple(err["loc"]))
     key = ".".join(str(p) for p in loc + ((missing,) if missing else ()))
     # The most specific place: the override that set it, else the line of
@@ -305,10 +437,7 @@ def describe_validation_error(
         msg = "required key is missing"
     elif "input" in err and etype != "value_error" and not isinstance(err["input"], (dict, list)):
         msg = f"{msg} (got {err['input']!r})"
-    more = (
-        f" ({len(errors) - 1} more problem{'s' if len(errors) > 2 else ''} after this one)" if len(errors) > 1 else ""
-    )
-    return f"{where}: {key or '<top level>'}: {msg}{more}."
+    return f"{where}: {key or '<top level>'}: {msg}."
 
 
 def load_config(path: Path, model: type[BaseModel], overrides: list[str] | None = None) -> BaseModel:
@@ -331,7 +460,7 @@ def load_config(path: Path, model: type[BaseModel], overrides: list[str] | None 
     Raises
     ------
     ConfigError
-        With one sentence naming the file, line and key of the first problem.
+        With one sentence naming the file, line and key of each problem.
     """
     path = Path(path)
     data, lines = load_yaml(path)

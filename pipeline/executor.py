@@ -18,9 +18,11 @@ dicts); nothing they serialise is ever stored.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import logging
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -29,6 +31,7 @@ from importlib import import_module
 from typing import Any
 
 from pipeline.errors import ConfigError
+from pipeline.interrupt import sigint_ignored
 
 
 class LocalExecutor:
@@ -45,10 +48,11 @@ class LocalExecutor:
         """Start the workers and import *fn*'s module in each, while this process does other work."""
         if self.workers == 1:
             return
-        if self._pool is None:
-            self._pool = _pool(self.workers)
-        for _ in range(self.workers):
-            self._pool.submit(import_module, fn.__module__)
+        with sigint_ignored():  # the workers start here and inherit it
+            if self._pool is None:
+                self._pool = _pool(self.workers)
+            for _ in range(self.workers):
+                self._pool.submit(import_module, fn.__module__)
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task."""
@@ -58,15 +62,33 @@ class LocalExecutor:
                 results.append(fn(t))
                 _done(log, i + 1, len(tasks), what)
             return results
-        if self._pool is None:
-            self._pool = _pool(self.workers)
-        futures = [self._pool.submit(fn, t) for t in tasks]
+        with sigint_ignored():  # workers may start here and inherit it
+            if self._pool is None:
+                self._pool = _pool(self.workers)
+            futures = [self._pool.submit(fn, t) for t in tasks]
         return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
 
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+    def close(self, abort: bool = False) -> None:
+        """Stop the workers: after their tasks, or at once (``abort``: a failed or interrupted run).
+
+        Aborting kills the workers (SIGKILL: they ignore SIGINT and SIGTERM,
+        which only the run acts on) and waits for them to be gone, so no
+        worker outlives the run and waiting never hangs on a busy one.
+        """
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        if not abort:
+            pool.shutdown(wait=True, cancel_futures=True)
+            return
+        workers = list(getattr(pool, "_processes", {}).values())  # the pool's own record of its processes
+        for proc in workers:
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                proc.kill()
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in workers:
+            with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+                proc.join(5.0)
 
 
 class DaskExecutor:
@@ -126,7 +148,8 @@ class DaskExecutor:
         futures = client.map(fn, list(tasks), pure=False)
         return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
 
-    def close(self) -> None:
+    def close(self, abort: bool = False) -> None:
+        """Disconnect (and stop a local cluster); ``abort`` is the same here: the scheduler cancels the tasks."""
         if self._client is not None:
             self._client.close()
             self._client = None
@@ -144,11 +167,16 @@ def _pool(workers: int) -> ProcessPoolExecutor:
 
 
 def _exit_with_parent(parent: int) -> None:
-    """In a worker: exit as soon as the run that started it is gone (even killed with SIGKILL).
+    """In a worker: leave signals to the run, and exit as soon as the run is gone (even killed with SIGKILL).
 
-    A killed run cannot stop its workers; without this they would wait for
-    work forever.  Polls the parent's pid once a second (POSIX).
+    SIGINT (Ctrl-C reaches the whole process group) and SIGTERM (systemd
+    signals the whole group) are ignored: the run that owns the workers
+    stops them, so they never print a traceback or break the pool under it.
+    A killed run cannot stop its workers; without the watch they would wait
+    for work forever.  Polls the parent's pid once a second (POSIX).
     """
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
 
     def watch() -> None:
         while True:

@@ -16,7 +16,9 @@ import logging
 import os
 import platform
 import shutil
+import signal
 import time
+import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,11 +26,11 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline import __version__
+from pipeline import __version__, interrupt
 from pipeline.cache import (
+    _UMASK,
     Cache,
     Entry,
-    atomic_copy,
     atomic_write_text,
     exclusive_lock,
     hash_path,
@@ -37,6 +39,7 @@ from pipeline.cache import (
 )
 from pipeline.errors import ConfigError, PipelineError, PlanError
 from pipeline.executor import LocalExecutor, make_executor
+from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, Progress, stage_logger
 from pipeline.stage import Plugin, Stage, StageIO, get_dotted
 
@@ -52,16 +55,17 @@ def _inside(folder: Path, name: str) -> Path:
     return path
 
 
-def _remove_leftovers(folder: Path) -> None:
-    """Remove temporary copies (``.NAME.*.tmp``) left in *folder* by killed runs.
+def _remove_leftovers(folders: Iterable[Path]) -> None:
+    """Remove temporary copies (``.NAME.*.tmp``) left in *folders* by killed runs.
 
     Called with the products lock held, so no live run is writing them.
     """
-    for tmp in folder.glob(".*.tmp"):
-        if tmp.is_dir():
-            shutil.rmtree(tmp, ignore_errors=True)
-        else:
-            tmp.unlink(missing_ok=True)
+    for folder in folders:
+        for tmp in folder.glob(".*.tmp") if folder.is_dir() else ():
+            if tmp.is_dir() and not tmp.is_symlink():
+                shutil.rmtree(tmp, ignore_errors=True)
+            else:
+                tmp.unlink(missing_ok=True)
 
 
 @dataclass
@@ -219,11 +223,18 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
 
 
 def check_writable(folder: Path, what: str) -> None:
-    """Create *folder* if needed and prove it takes a file, or raise ConfigError."""
+    """Create *folder* if needed and prove it takes a file, or raise ConfigError.
+
+    The probe is created with ``O_EXCL | O_NOFOLLOW``: a symbolic link
+    planted under its name is removed (the link only), never written through.
+    """
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".write-test-{os.getpid()}"
-        probe.write_bytes(b"")
+        if probe.is_symlink() or probe.exists():
+            probe.unlink()  # ours by name (a killed run of this pid, or a planted link)
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+        os.close(fd)
         probe.unlink()
     except OSError as exc:
         raise ConfigError(f"the {what} folder {folder} is not writable ({exc.strerror or exc}).") from None
@@ -281,6 +292,7 @@ def run(
     for step in plan.steps:  # before anything runs: every product lands inside the output folder
         for file_name in step.io.products.values():
             _inside(output, file_name)
+    _check_inputs_are_not_products(plan, config, output, config_path)
     if not dry_run:
         check_writable(output, "output")
         check_writable(cache.root, "cache")
@@ -306,6 +318,7 @@ def run(
     unknown: set[str] = set()  # dry run: artifacts whose content is not known yet
     records: dict[str, dict[str, Any]] = {}
     executor = make_executor(config)
+    published = False
     try:
         for step in plan.steps:
             record = _run_step(
@@ -317,36 +330,212 @@ def run(
         manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]
         if dry_run:
             return manifest
-        with exclusive_lock(output / PRODUCTS_LOCK, lambda: log.info("waiting for another run to copy its products")):
-            _remove_leftovers(output)
-            for step in plan.steps:
-                for artifact, file_name in step.io.products.items():
-                    src, digest = artifacts[artifact]
-                    dst = output / file_name  # inside the output folder: checked at planning
-                    if not (dst.exists() and path_size(dst) == path_size(src) and hash_path(dst) == digest):
-                        atomic_copy(src, dst)
-                    manifest["products"][file_name] = {"sha256": digest, "bytes": path_size(dst)}
-        manifest["status"] = "ok"
+        products = {
+            file_name: artifacts[artifact] for step in plan.steps for artifact, file_name in step.io.products.items()
+        }
+        executor.close()
+        _finish(manifest, started)
+        publish(output, products, manifest, log)
+        published = True
         return manifest
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", None) or interrupt.received()
+        manifest["status"] = "interrupted"
+        manifest["error"] = f"interrupted by {_signal_name(signum)}"
+        raise
     except PipelineError as exc:
         manifest["status"] = "failed"
         manifest["error"] = str(exc)
         raise
     except Exception as exc:
+        if interrupt.received() is not None:  # a worker's death caused by the same signal, seen first
+            manifest["status"] = "interrupted"
+            manifest["error"] = f"interrupted by {_signal_name(interrupt.received())}"
+            raise Interrupted(interrupt.received()) from None
         manifest["status"] = "failed"
         manifest["error"] = f"internal error: {type(exc).__name__}: {exc}"
         raise
     finally:
-        executor.close()
-        if not dry_run:
-            finished = time.time()
-            manifest["finished"] = _utc(finished)
-            manifest["seconds"] = round(finished - started, 3)
+        executor.close(abort=True)  # a no-op when closed above; else stops the workers at once
+        if not dry_run and not published:
             if not manifest["stages"]:
                 manifest["stages"] = list(records.values())
-            with exclusive_lock(output / PRODUCTS_LOCK):
-                atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
-            log.info("run %s in %.2f s; manifest %s", manifest["status"], finished - started, output / MANIFEST)
+            _finish(manifest, started)
+            _record_failure(output, manifest, log)
+
+
+def _signal_name(signum: int | None) -> str:
+    return signal.Signals(signum).name if signum else "SIGINT"
+
+
+def _finish(manifest: dict[str, Any], started: float) -> None:
+    finished = time.time()
+    manifest["finished"] = _utc(finished)
+    manifest["seconds"] = round(finished - started, 3)
+
+
+def _check_inputs_are_not_products(plan: Plan, config: BaseModel, output: Path, config_path: Path | None) -> None:
+    """Refuse, before anything runs, an input file that publishing would overwrite."""
+    products = {(output / name).resolve(): name for step in plan.steps for name in step.io.products.values()}
+    products[(output / MANIFEST).resolve()] = MANIFEST
+    inputs = [Path(config_path)] if config_path else []
+    for step in plan.steps:
+        inputs += [Path(p) for p in step.stage.external_files(step.params, config)]
+    for path in inputs:
+        real = path.resolve()
+        name = products.get(real) or next(
+            (n for p, n in products.items() if real.is_relative_to(p) and p != real), None
+        )
+        if name is not None:
+            raise ConfigError(
+                f"the input {path} is in the output folder under the product name '{name}', which a run "
+                "replaces: move the input out of the output folder or choose another output."
+            )
+
+
+def _read_manifest(output: Path) -> dict[str, Any]:
+    """The output folder's ``run.json`` as it is (an empty dict when absent or unreadable)."""
+    path = output / MANIFEST
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+        with os.fdopen(fd, "rb") as fh:
+            raw = fh.read(64 << 20)
+        value = json.loads(raw)
+    except (OSError, ValueError, RecursionError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _write_manifest(output: Path, manifest: dict[str, Any]) -> None:
+    atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
+
+
+def _carry_products(manifest: dict[str, Any], old: dict[str, Any]) -> None:
+    """Describe in *manifest* the products already in the folder (those *old* lists)."""
+    manifest["products"] = old.get("products", {}) if isinstance(old.get("products"), dict) else {}
+    manifest["products_run"] = old.get("products_run", old.get("started"))
+    if old.get("status") == "publishing" or old.get("products_incomplete"):
+        manifest["products_incomplete"] = True  # a publication was cut short (SIGKILL, power loss)
+
+
+def _record_failure(output: Path, manifest: dict[str, Any], log: logging.Logger) -> None:
+    """Write a failed or interrupted run's manifest, still describing the products that are there.
+
+    Under the folder's lock, as publication is: ``run.json`` never describes
+    products another run is replacing.  When even this cannot be written
+    (a full disk), the previous ``run.json`` stays: it is still true.
+    """
+    try:
+        with interrupt.deferred(), exclusive_lock(output / PRODUCTS_LOCK):
+            _carry_products(manifest, _read_manifest(output))
+            _write_manifest(output, manifest)
+    except OSError as exc:
+        log.error("cannot write %s (%s); the previous one is kept", output / MANIFEST, exc.strerror or exc)
+        return
+    log.info("run %s in %.2f s; manifest %s", manifest["status"], manifest["seconds"], output / MANIFEST)
+
+
+def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[str, Any], log: logging.Logger) -> None:
+    """Publish *products* (name -> cached file and its SHA-256) and ``run.json`` as one step.
+
+    Under the output folder's lock:
+
+    1. every product that differs from the one in place is copied under a
+       temporary name (``.NAME.*.tmp``) beside it; if that fails (a full
+       disk) the copies are removed and the folder is as it was;
+    2. ``run.json`` is written with ``"status": "publishing"`` and the new
+       product list;
+    3. the copies are renamed into place, the products of the previous
+       publication that this run does not make (a stage now disabled) are
+       removed, and ``run.json`` is written with ``"status": "ok"``.
+
+    Step 3 holds SIGINT and SIGTERM back.  A run killed during it (SIGKILL,
+    power loss) leaves ``run.json`` at ``"publishing"``: the folder is then
+    a mix, and the next run completes it.
+    """
+    folders = {output} | {(output / name).parent for name in products}
+    with exclusive_lock(output / PRODUCTS_LOCK, lambda: log.info("waiting for another run to publish its products")):
+        _remove_leftovers(folders)
+        old = _read_manifest(output)
+        staged: list[tuple[Path, Path]] = []  # (temporary copy, final name)
+        try:
+            for name, (src, digest) in products.items():
+                dst = output / name  # inside the output folder: checked at planning
+                if not (_is_real(dst) and path_size(dst) == path_size(src) and hash_path(dst) == digest):
+                    staged.append((_stage_copy(src, dst), dst))
+            stale = [
+                name
+                for name in (old.get("products") or {})
+                if isinstance(name, str) and name not in products and name != MANIFEST
+            ]
+            manifest.update(
+                status="publishing",
+                products={
+                    name: {"sha256": digest, "bytes": path_size(src)} for name, (src, digest) in products.items()
+                },
+                products_run=manifest["started"],
+            )
+            if stale:
+                manifest["removed_products"] = sorted(stale)
+            _write_manifest(output, manifest)
+        except BaseException:
+            for tmp, _ in staged:
+                _remove_path(tmp)
+            raise
+        with interrupt.deferred():
+            for tmp, dst in staged:
+                _rename_into_place(tmp, dst)
+            for name in stale:
+                path = output / name
+                if path.resolve().is_relative_to(output.resolve()) and (path.is_symlink() or path.exists()):
+                    _remove_path(path)
+            manifest["status"] = "ok"
+            _write_manifest(output, manifest)
+    log.info("run ok in %.2f s; manifest %s", manifest["seconds"], output / MANIFEST)
+
+
+def _is_real(path: Path) -> bool:
+    return path.exists() and not path.is_symlink()
+
+
+def _stage_copy(src: Path, dst: Path) -> Path:
+    """Copy *src* beside *dst* under a temporary name; an error names *dst*, the product."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.parent / f".{dst.name}.{uuid.uuid4().hex[:8]}.tmp"
+    try:
+        if Path(src).is_dir():
+            shutil.copytree(src, tmp)
+        else:
+            with open(src, "rb") as fin:
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666 & ~_UMASK)
+                with os.fdopen(fd, "wb") as fout:
+                    shutil.copyfileobj(fin, fout, 1 << 20)
+                    fout.flush()
+                    os.fsync(fout.fileno())
+    except OSError as exc:
+        _remove_path(tmp)
+        raise OSError(exc.errno, exc.strerror, str(dst)) from None
+    except BaseException:
+        _remove_path(tmp)
+        raise
+    return tmp
+
+
+def _rename_into_place(tmp: Path, dst: Path) -> None:
+    if dst.is_dir() and not dst.is_symlink():
+        aside = dst.parent / f".{dst.name}.{uuid.uuid4().hex[:8]}.old.tmp"
+        os.replace(dst, aside)
+        os.replace(tmp, dst)
+        shutil.rmtree(aside, ignore_errors=True)
+    else:
+        os.replace(tmp, dst)  # replaces a file or a link (never what a link points to)
+
+
+def _remove_path(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
 
 
 def _run_step(
@@ -437,21 +626,21 @@ def _execute(
     executor: Any = None,
 ) -> Entry:
     workspace = cache.new_workspace(step.name, key)
-    ctx = StageContext(
-        name=step.name,
-        params=step.params,
-        config=config,
-        inputs=inputs,
-        outputs={a: workspace / f for a, f in step.io.outputs.items()},
-        workdir=workspace,
-        workers=getattr(getattr(config, "executor", None), "workers", 1),
-        log=slog,
-        executor=executor if executor is not None else LocalExecutor(1),
-        upstream_metrics=upstream or {},
-    )
-    slog.info("running")
-    t0 = time.perf_counter()
-    try:
+    try:  # from here on, any failure or interruption removes the workspace
+        ctx = StageContext(
+            name=step.name,
+            params=step.params,
+            config=config,
+            inputs=inputs,
+            outputs={a: workspace / f for a, f in step.io.outputs.items()},
+            workdir=workspace,
+            workers=getattr(getattr(config, "executor", None), "workers", 1),
+            log=slog,
+            executor=executor if executor is not None else LocalExecutor(1),
+            upstream_metrics=upstream or {},
+        )
+        slog.info("running")
+        t0 = time.perf_counter()
         step.stage.run(ctx)
         seconds = round(time.perf_counter() - t0, 3)
         meta = {

@@ -21,6 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.errors import ConfigError
+
+#: Most tiles one layout may have: the tile list and the tasks are made in memory.
+MAX_TILES = 100_000
+#: Most tiles a point may fall in (core plus buffers): ``((size + 2 buffer) / size)**2``.
+MAX_COPIES = 100.0
+
 
 @dataclass(frozen=True)
 class Tile:
@@ -53,13 +60,39 @@ class Layout:
 
     @classmethod
     def of(cls, extent: Sequence[float], size: float | None, buffer: float) -> Layout:
-        """The layout covering *extent* (xmin, ymin, xmax, ymax)."""
+        """The layout covering *extent* (xmin, ymin, xmax, ymax).
+
+        Raises
+        ------
+        ConfigError
+            Before any tile is made, when the layout would have more than
+            :data:`MAX_TILES` tiles or put a point in more than
+            :data:`MAX_COPIES` tiles (a buffer wide for its tile size), or
+            when the size or buffer is not a finite positive length.
+        """
         xmin, ymin, xmax, ymax = (float(v) for v in extent)
-        if size is None or not math.isfinite(size):
+        if not math.isfinite(buffer) or buffer < 0:
+            raise ConfigError(f"tiling.buffer: {buffer!r} is not a finite length >= 0.")
+        if size is None:
             return cls((xmin, ymin, xmax, ymax), None, float(buffer))
-        c0, r0 = math.floor(xmin / size), math.floor(ymin / size)
-        cols = math.floor(xmax / size) - c0 + 1
-        rows = math.floor(ymax / size) - r0 + 1
+        if not (math.isfinite(size) and size > 0):
+            raise ConfigError(f"tiling.size: {size!r} is not a finite length > 0.")
+        copies = ((size + 2 * buffer) / size) ** 2
+        if copies > MAX_COPIES:
+            least = 2 * buffer / (math.sqrt(MAX_COPIES) - 1)
+            raise ConfigError(
+                f"tiling.size: tiles of {size:g} with a buffer of {buffer:g} put every point in {copies:.0f} tiles, "
+                f"more than {MAX_COPIES:g}; use tiles of at least {math.ceil(least):g} (or a smaller tiling.buffer)."
+            )
+        c0, r0, cols, rows = _grid(xmin, ymin, xmax, ymax, size)
+        if cols * rows > MAX_TILES:
+            least = max(size, math.sqrt((xmax - xmin) * (ymax - ymin) / MAX_TILES))
+            while math.prod(_grid(xmin, ymin, xmax, ymax, least)[2:]) > MAX_TILES:
+                least *= 1.002
+            raise ConfigError(
+                f"tiling.size: tiles of {size:g} cut the extent of {xmax - xmin:.0f} x {ymax - ymin:.0f} into "
+                f"{cols * rows:,} tiles, more than {MAX_TILES:,}; use tiles of at least {math.ceil(least):g}."
+            )
         return cls((xmin, ymin, xmax, ymax), float(size), float(buffer), c0, r0, cols, rows)
 
     def __len__(self) -> int:
@@ -141,6 +174,12 @@ class Layout:
         tile = np.concatenate(tiles) if tiles else np.zeros(0, dtype=np.int64)
         key = np.sort(tile * max(n, 1) + point)  # one integer sort: by tile, then by point
         return key % max(n, 1), key // max(n, 1)
+
+
+def _grid(xmin: float, ymin: float, xmax: float, ymax: float, size: float) -> tuple[int, int, int, int]:
+    """First column and row, and how many, of the tiles of side *size* that cover the extent."""
+    c0, r0 = math.floor(xmin / size), math.floor(ymin / size)
+    return c0, r0, math.floor(xmax / size) - c0 + 1, math.floor(ymax / size) - r0 + 1
 
 
 def layout_for(config: Any, extent: Sequence[float], buffer: float) -> Layout:

@@ -26,9 +26,18 @@ def cell_size(default: float) -> Any:
     return Field(default, gt=0, description="side of the algorithm's internal grid cells, metres")
 
 
+#: Finest product raster cell (m): below any airborne survey's point spacing.
+MIN_RESOLUTION = 0.01
+
+
 def resolution(default: float) -> Any:
-    """Side of the square cells of a product raster (m)."""
-    return Field(default, gt=0, description="side of the product raster's cells, metres")
+    """Side of the square cells of a product raster (m): finite, at least :data:`MIN_RESOLUTION`."""
+    return Field(
+        default,
+        ge=MIN_RESOLUTION,
+        allow_inf_nan=False,
+        description=f"side of the product raster's cells, metres (at least {MIN_RESOLUTION:g})",
+    )
 
 
 def slope(default: float) -> Any:

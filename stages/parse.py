@@ -156,9 +156,10 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
+    # 9: LD-MRS scans in time order; LAS: override_crs, header checks, stray points withheld, return 0 read as 1;
     # 8: .lmsq measurements after a missed PPS dated by the us counter; NMEA dated by ZDA/RMC anywhere; angles
     # modulo 360; 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
-    version = "8"
+    version = "9"
     Params = InputConfig
     config_path = "input"
     can_disable = False
@@ -195,7 +196,7 @@ class Parse(Stage):
     def _run_ldmrs(self, ctx) -> None:
         from stages.georef.rotation import rot_y
         from stages.io import NpyColumns
-        from stages.readers.ldmrs import MOUNTINGS, Counters, read_ldmrs_mtig
+        from stages.readers.ldmrs import MOUNTINGS, Counters, TimeOrder, TimeOrderError, read_ldmrs_mtig
 
         p = ctx.params
         counters = Counters()
@@ -231,8 +232,9 @@ class Parse(Stage):
             ctx.progress(len(p.paths), "reading acquisition logs", unit="file") as bar,
         ):
             lla_csv.write("scan,time_gps,lat_deg,lon_deg,h_m,roll_deg,pitch_deg,yaw_deg,vx_ms,vy_ms,vz_ms\n")
-            for path in p.paths:
-                for scan in _guard_stream(read_ldmrs_mtig(path, counters, leap_seconds=p.leap_seconds), path, counters):
+
+            def write(scans: list) -> None:
+                for scan in scans:
                     lat, lon, h = scan.lla
                     roll, pitch, yaw = scan.euler
                     vx, vy, vz = scan.vel
@@ -253,15 +255,29 @@ class Parse(Stage):
                             channel=pts[:, 0], angle=np.degrees(np.arctan2(pts[:, 4], pts[:, 3])),
                             amplitude=np.zeros(n), flags=pts[:, 2], scan=np.full(n, scan.number),
                         )  # fmt: skip
-                bar.update(1)
+
+            order = TimeOrder(counters)  # across files: a survey's logs in time order
+            try:
+                for path in p.paths:
+                    for scan in _guard_stream(
+                        read_ldmrs_mtig(path, counters, leap_seconds=p.leap_seconds), path, counters
+                    ):
+                        write(order.feed(scan))
+                    bar.update(1)
+                write(order.flush())
+            except TimeOrderError as exc:
+                raise InputDataError(f"{exc}.") from None
         figures = {k: v for k, v in vars(counters).items() if k != "locations"}
         _write_debug(qc, figures, counters.locations, sum(path.stat().st_size for path in p.paths))
         ctx.metrics.update(figures, problems=list(counters.locations))
         skipped = counters.invalid_scans + counters.bad_gps + counters.malformed_scans
+        skipped += counters.duplicate_scans + counters.out_of_order_scans
         ctx.log.info(
-            "%d of %d scans accepted (%d invalid UTC, %d bad GPS, %d malformed; %d lost, %d empty); %d valid points",
+            "%d of %d scans accepted (%d invalid UTC, %d bad GPS, %d malformed, %d repeated, %d out of time order; "
+            "%d lost, %d empty); %d valid points",
             counters.scans_accepted, counters.scans_total, counters.invalid_scans, counters.bad_gps,
-            counters.malformed_scans, counters.lost_scans, counters.empty_scans, counters.points_valid,
+            counters.malformed_scans, counters.duplicate_scans, counters.out_of_order_scans, counters.lost_scans,
+            counters.empty_scans, counters.points_valid,
         )  # fmt: skip
         if skipped:
             ctx.log.warning("%d scans skipped; see qc/debug.txt", skipped)

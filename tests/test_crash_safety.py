@@ -91,7 +91,18 @@ def _killed_child(args: list[str], stage: str, point: str) -> None:
             shutil.copyfile(src, Path(dst).parent / f".{Path(dst).name}.half.tmp")
             _die()
 
-        runnermod.atomic_copy = copy_then_die
+        runnermod._stage_copy = copy_then_die
+    elif point == "rename":
+        rename = runnermod._rename_into_place
+        done = []
+
+        def rename_then_die(tmp, dst):
+            if done:
+                _die()
+            rename(tmp, dst)
+            done.append(dst)
+
+        runnermod._rename_into_place = rename_then_die
     else:
         cls = next(c for c in plugin.stages if c.name == stage)
         original = cls.run
@@ -295,3 +306,90 @@ def test_a_killed_run_leaves_no_worker_behind(tmp_path):
     assert not alive, f"{len(alive)} worker(s) outlived the killed run"
     assert main(cmd[1:]) == 0
     assert (out / "dtm.tif").exists()
+
+
+def _run_until(cmd: list[str], trigger: str, signum: int, group: bool):
+    """Start a run, send *signum* when its log shows *trigger*; return (exit code, log, processes it had)."""
+    import psutil
+
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    lines = []
+    for line in proc.stderr:
+        lines.append(line)
+        if trigger in line:
+            break
+    else:
+        proc.wait()
+        raise AssertionError(f"the run ended before '{trigger}':\n{''.join(lines)}")
+    children = psutil.Process(proc.pid).children(recursive=True)
+    if group:  # Ctrl-C on a terminal, systemd: every process of the group gets it
+        os.killpg(proc.pid, signum)
+    else:  # kill PID, a batch scheduler
+        proc.send_signal(signum)
+    rest = proc.stderr.read()
+    code = proc.wait(timeout=60)  # a hang (as in ProcessPoolExecutor.shutdown) fails here
+    return code, "".join(lines) + rest, children
+
+
+@pytest.mark.parametrize(
+    ("trigger", "signum", "group"),
+    [
+        ("[denoise] tiles: 1 of", signal.SIGINT, True),
+        ("[denoise] tiles: 1 of", signal.SIGTERM, False),
+        ("[classify_ground] running", signal.SIGTERM, True),
+        ("[classify_ground] tiles: 1 of", signal.SIGINT, False),
+        ("[rasterize] tiles: 1 of", signal.SIGINT, True),
+        ("[rasterize] tiles: 1 of", signal.SIGTERM, True),
+    ],
+)
+def test_sigint_and_sigterm_stop_a_tiled_run_cleanly(small_job, trigger, signum, group):
+    """Interrupted while its workers hold tiles: exit 128+signal, no traceback, run.json 'interrupted', no process left.
+
+    The products of the last complete run stay, and run.json still describes them.
+    """
+    import psutil
+
+    root = small_job
+    base = root / "signals"
+    tiled = ["--set", "tiling.size=50", "--set", "executor.workers=2", "--set", "executor.kind=local"]
+    pipeline = str(Path(sys.executable).with_name("pipeline"))
+    if not (base / "out" / "run.json").exists():
+        args = _args(root, "signals")
+        assert main([*args, *tiled]) == 0
+    before = json.loads((base / "out" / "run.json").read_text())
+    trial = base / f"cache-{signum}-{trigger.split(']')[0][1:]}-{group}"
+    cmd = [pipeline, "run", str(root / "job.yaml"), "--set", f"output={base / 'out'}", "--set", f"cache={trial}"]
+    code, log, children = _run_until([*cmd, *tiled], trigger, signum, group)
+    assert code == 128 + signum, log
+    assert "Traceback" not in log and "leaked" not in log, log
+    assert f"pipeline: interrupted by {signal.Signals(signum).name}" in log
+    manifest = json.loads((base / "out" / "run.json").read_text())
+    assert manifest["status"] == "interrupted"
+    assert manifest["error"] == f"interrupted by {signal.Signals(signum).name}"
+    assert manifest["products"] == before["products"]
+    for name, product in manifest["products"].items():
+        import hashlib
+
+        assert hashlib.sha256((base / "out" / name).read_bytes()).hexdigest() == product["sha256"], name
+    gone, alive = psutil.wait_procs(children, timeout=5)
+    assert not alive, f"{len(alive)} process(es) outlived the interrupted run"
+    assert not [p for p in trial.rglob(".tmp-*")], "the interrupted run left a workspace"
+    # Run again: it resumes (complete stages reused) and finishes.
+    assert main([*cmd[1:], "-q", *tiled]) == 0
+    assert json.loads((base / "out" / "run.json").read_text())["status"] == "ok"
+
+
+def test_sigkill_while_renaming_products_leaves_run_json_publishing(small_job):
+    """A kill between two renames of publication shows in run.json (the first publication too); a re-run completes it."""
+    root = small_job
+    for tag in ("pubkill-first", "pubkill-again"):
+        args = _args(root, tag)
+        if tag == "pubkill-again":
+            assert main(args) == 0
+            args = [*args, "--set", "stages.rasterize.resolution=2.0"]  # new products to rename into place
+        assert _kill(args, "", "rename") == -signal.SIGKILL
+        manifest = json.loads((root / tag / "out" / "run.json").read_text())
+        assert manifest["status"] == "publishing", tag
+        assert main(args) == 0
+        assert json.loads((root / tag / "out" / "run.json").read_text())["status"] == "ok"
+        assert not list((root / tag / "out").glob(".*.tmp"))

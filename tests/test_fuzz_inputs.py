@@ -52,7 +52,10 @@ def test_config_mutations_fail_cleanly(tmp_path, data):
     try:
         load_config(path, config_model(plugin))
     except ConfigError as exc:
-        assert str(exc) and "\n" not in str(exc)
+        # One sentence, or (several problems) a heading and one sentence per line.
+        lines = str(exc).split("\n")
+        assert lines[0] and (len(lines) == 1 or lines[0].endswith("problems in the configuration:")), str(exc)
+        assert all(line.startswith("  ") and line.endswith(".") for line in lines[1:]), str(exc)
 
 
 @FUZZ

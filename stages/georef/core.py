@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.errors import InputDataError
 from stages.georef.geodesy import LocalFrame, local_level_to_ecef
 from stages.georef.rotation import euler_quat, matrix_quat, quat_mul, slerp_weights, unwrap_signs
 
@@ -80,7 +81,11 @@ def prepare_trajectory(
     """
     time = np.asarray(time, dtype=np.float64)
     if len(time) > 1 and not np.all(np.diff(time) > 0):
-        raise ValueError("trajectory times must increase strictly")
+        i = int(np.flatnonzero(~(np.diff(time) > 0))[0]) + 1
+        raise InputDataError(
+            f"the trajectory's times must increase strictly: epoch {i} (t = {time[i]:.6f} s) is not after "
+            f"epoch {i - 1} (t = {time[i - 1]:.6f} s); the navigation input's clock or record order is wrong."
+        )
     if frame is None:
         frame = LocalFrame(float(lat[0]), float(lon[0]), float(h[0]))
     position = frame.from_geodetic(lat, lon, h)

@@ -29,6 +29,14 @@ Validity rules (SPEC 3.A and seed 0, Table 16), each with its counter:
 - ``empty_scans``: no valid point left.  Their pose is kept in the
   trajectory (it is valid navigation), they give no pulses.
 
+Time must go forward from scan to scan (:class:`TimeOrder`, across the files
+of a survey).  Where the fault is unambiguous the scans are skipped and
+counted: ``duplicate_scans``, a scan identical to one already read (a log,
+or a block of it, written twice); ``out_of_order_scans``, a single scan
+whose time does not fit between its neighbours (one stamp far in the
+future, or one from the past).  Any other backward step (a run of scans
+moved earlier, files given out of order) is exit 3 naming the file and line.
+
 The file is read line by line: memory does not grow with its length.
 """
 
@@ -69,6 +77,8 @@ class Scan:
     vel: tuple[float, float, float]  # m/s, body frame
     points: np.ndarray  # (n, 6): layer, echo, flags, x, y, z (LD-MRS frame, m)
     line: int
+    lost: int = 0  # scan numbers missing just before this one (counted in lost_scans)
+    where: str = ""  # "file, line N"
 
 
 @dataclass
@@ -87,10 +97,16 @@ class Counters(SkipLog):
     rejected_clutter: int = 0
     rejected_dirt: int = 0
     rejected_zero: int = 0
+    duplicate_scans: int = 0
+    out_of_order_scans: int = 0
 
 
 class _Bad(Exception):
     """A malformed scan: the message names the line and the field."""
+
+
+class TimeOrderError(ValueError):
+    """The scans' times go backwards in a way that cannot be repaired: the message names the line."""
 
 
 def utc_to_gps(text: str, leap_seconds: float) -> float:
@@ -155,10 +171,12 @@ def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = 18.
                     scan["error"] = f"{where}: SCAN needs a counter from 0 to 65535"
                     continue
                 scan["number"] = number
+                scan["lost"] = 0
                 if previous is not None:
                     jump = (number - previous) % 65536
                     if jump > 1:
                         counters.lost_scans += jump - 1
+                        scan["lost"] = jump - 1
                 previous = number
                 continue
             if scan is None:
@@ -266,4 +284,82 @@ def _finish(scan: dict, counters: Counters, leap_seconds: float, where: str) -> 
         vel=scan["vel"],
         points=pts[keep],
         line=scan["line"],
+        lost=scan.get("lost", 0),
+        where=scan["where"],
     )
+
+
+class TimeOrder:
+    """Pass on scans whose times increase strictly; skip and count the unambiguous faults.
+
+    Holds back at most two scans (streaming).  ``feed(scan)`` returns the
+    scans now known to be in order; ``flush()`` the last ones.  A scan equal
+    in every field to one already passed (or held) is a duplicate; a single
+    scan out of line with the scans on both sides of it is out of order.  Two
+    scans in a row going back in time are a fault that cannot be told apart
+    from a clock error, and raise :class:`TimeOrderError` naming the line.
+    """
+
+    def __init__(self, counters: Counters):
+        self.counters = counters
+        self.last: float | None = None  # time of the last scan passed on
+        self.held: Scan | None = None  # the newest scan in order, not yet passed on
+        self.suspect: Scan | None = None  # a scan earlier than ``held`` and than ``last``
+        self.seen: set[tuple[float, bytes]] = set()
+
+    @staticmethod
+    def _digest(scan: Scan) -> bytes:
+        import hashlib
+
+        head = np.array([scan.number, scan.time_gps, scan.status, *scan.lla, *scan.euler, *scan.vel])
+        return hashlib.sha1(head.tobytes() + scan.points.tobytes()).digest()
+
+    def _skip(self, scan: Scan, why: str) -> None:
+        self.counters.out_of_order_scans += 1
+        self.counters.scans_accepted -= 1
+        self.counters.points_valid -= len(scan.points)
+        self.counters.note(f"{scan.where}: scan {scan.number} skipped: {why}")
+
+    def feed(self, scan: Scan) -> list[Scan]:
+        key = (scan.time_gps, self._digest(scan))
+        if key in self.seen:
+            self.counters.duplicate_scans += 1
+            self.counters.scans_accepted -= 1
+            self.counters.points_valid -= len(scan.points)
+            self.counters.lost_scans -= scan.lost  # the jump back to the repeated block loses nothing
+            if self.counters.duplicate_scans == 1:
+                self.counters.note(f"{scan.where}: scan {scan.number} repeats a scan already read; skipped")
+            return []
+        self.seen.add(key)
+        out: list[Scan] = []
+        if self.suspect is not None:
+            suspect, self.suspect = self.suspect, None
+            if scan.time_gps > self.held.time_gps:  # the suspect alone was out of line
+                self._skip(suspect, "its time is earlier than the scans before and after it")
+            else:
+                raise TimeOrderError(
+                    f"{suspect.where}: the time goes backwards (scan {suspect.number} is earlier than scan "
+                    f"{self.held.number} at {self.held.where}, and the scans after it too); the log's clock or "
+                    "order is wrong: give the files in time order or remove the scans that go back"
+                )
+        if self.held is None:
+            self.held = scan
+        elif scan.time_gps > self.held.time_gps:
+            out.append(self.held)
+            self.last, self.held = self.held.time_gps, scan
+        elif self.last is None or scan.time_gps > self.last:
+            # ``held`` jumped ahead of both neighbours (one far-future stamp): it is the odd one.
+            self._skip(self.held, "its time is later than the scans after it")
+            self.held = scan
+        else:
+            self.suspect = scan  # earlier than the two before it: the next scan tells
+        return out
+
+    def flush(self) -> list[Scan]:
+        """The scans still held, once the survey's last file is read."""
+        if self.suspect is not None:
+            self._skip(self.suspect, "its time is earlier than the scans before it")
+            self.suspect = None
+        out = [self.held] if self.held is not None else []
+        self.held = None
+        return out

@@ -104,3 +104,108 @@ def test_paths_are_relative_to_the_config_file(toy, tmp_path, monkeypatch):
     assert toy.run() == 0
     assert (toy.root / "out" / "total.json").exists()
     assert not (other / "out").exists()
+
+
+# --------------------------------------------------------------------------
+# Hostile configurations (issue 18): refused in one sentence, never expanded
+
+
+def _bomb(levels: int = 9) -> str:
+    """The 'billion laughs' file: each level is nine aliases of the one before (9**levels values)."""
+    text = "a: &a [" + ",".join(['"lol"'] * 9) + "]\n"
+    names = "abcdefghijklmnop"
+    for prev, name in zip(names[: levels - 1], names[1:levels], strict=True):
+        text += f"{name}: &{name} [" + ",".join([f"*{prev}"] * 9) + "]\n"
+    return text
+
+
+def test_alias_bomb_is_refused_under_a_memory_limit(tmp_path):
+    """9**9 values in 342 bytes: refused from the node graph, within 1 GB and 5 s of CPU.
+
+    Before the fix the line recorder followed every alias: MemoryError after
+    9 s at this limit.
+    """
+    import subprocess
+    import sys
+
+    path = tmp_path / "bomb.yaml"
+    path.write_text(_bomb())
+    assert len(path.read_bytes()) == 342
+    script = (
+        "import resource, sys\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
+        "resource.setrlimit(resource.RLIMIT_CPU, (5, 5))\n"
+        "from pipeline.config import load_yaml\n"
+        "from pipeline.errors import ConfigError\n"
+        "try:\n"
+        "    load_yaml(sys.argv[1])\n"
+        "except ConfigError as exc:\n"
+        "    print(exc)\n"
+        "    sys.exit(2)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script, str(path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr[-500:]
+    assert "bomb.yaml, line 6: the aliases here expand to more than 100,000 values" in done.stdout
+
+
+def test_aliases_of_a_reasonable_size_still_work(toy, capsys):
+    toy.path.write_text(
+        "name: toy\nsource: &s {path: numbers.txt}\noutput: out\n"
+        "stages:\n  histogram: &h {bins: 3}\n  scale: {factor: 2}\n"
+    )
+    assert main(["validate", str(toy.path)]) == 0
+    toy.path.write_text(toy.path.read_text() + "x: *h\n")  # an alias used where no key is allowed
+    code, err = _validate(toy, capsys)
+    assert code == 2 and "line 7: x: unknown key" in err
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "words"),
+    [
+        ("x: " + "[" * 5000 + "]" * 5000 + "\n", 1, "more than 64 levels deep"),
+        ("x:\n" + "".join(" " * i + "- \n" for i in range(0, 200, 2)), 65, "more than 64 levels deep"),
+        ("x: " + "{a: " * 5000 + "1" + "}" * 5000 + "\n", 1, "more than 64 levels deep"),
+        ("name: toy\nx: &x [1, *x]\n", 2, "a recursive alias"),
+        ("name: toy\nx: &x {a: 1, b: *x}\n", 2, "a recursive alias"),
+    ],
+)
+def test_deep_nesting_and_recursive_aliases_are_one_sentence(toy, capsys, text, line, words):
+    toy.path.write_text(text)
+    code, err = _validate(toy, capsys)
+    assert code == 2
+    assert f"toy.yaml, line {line}:" in err and words in err
+    assert "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_an_endless_file_is_not_read_forever(toy, capsys):
+    code = main(["validate", "/dev/zero"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "/dev/zero: not a configuration file (more than 1024 KiB)" in err
+
+
+def test_set_into_an_unknown_block_is_blamed_on_the_override(toy, capsys):
+    code, err = _validate(toy, capsys, "--set", "stages.__init__.x=1")
+    assert code == 2
+    assert err == (
+        "pipeline: error: --set stages.__init__.x=1: stages.__init__: unknown key; "
+        "allowed here: histogram, scale, summary, total."
+    )
+
+
+def test_validate_lists_every_problem(toy, capsys):
+    toy.path.write_text(
+        "name: toy\nsource: {path: numbers.txt, comment: 3}\noutput: out\n"
+        "stages:\n  scale: {factor: x}\n  histogram: {bins: 0}\nbogus: 1\n"
+    )
+    code, err = _validate(toy, capsys)
+    assert code == 2
+    lines = err.splitlines()
+    assert lines[0] == "pipeline: error: 4 problems in the configuration:"
+    assert [ln.split(": ")[0:2] for ln in lines[1:]] == [
+        ["  " + str(toy.path) + ", line 2", "source.comment"],
+        ["  " + str(toy.path) + ", line 5", "stages.scale.factor"],
+        ["  " + str(toy.path) + ", line 6", "stages.histogram.bins"],
+        ["  " + str(toy.path) + ", line 7", "bogus"],
+    ]
+    assert "more problem" not in err

@@ -356,6 +356,8 @@ class Parse(Stage):
             )
         if report.gps_time_missing:
             ctx.log.warning("no GPS time in %s: gps_time set to 0", ", ".join(report.gps_time_missing))
+        for note in report.dropped:
+            ctx.log.warning("%s", note)
         from stages.units import Units
 
         ctx.metrics.update(
@@ -366,6 +368,7 @@ class Parse(Stage):
             crs_source=report.crs_source,
             strips=sorted(strips),
             units=Units.of(crs).describe(),
+            fields_dropped=report.dropped,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
 

@@ -1,9 +1,14 @@
 """Format 3.D: already georeferenced LAS/LAZ (LAS 1.2 to 1.4, any point format).
 
-Files are read in chunks and normalised to LAS 1.4 point format 6 in the
-output CRS.  Attributes kept: coordinates, intensity, return number and count,
-classification, scan angle, user data, point source id (the flight strip),
-GPS time, and the synthetic/key-point/withheld flags.
+Files are read in chunks and normalised to LAS 1.4 in the output CRS, point
+format 6, or 7 when every input has RGB, 8 when every input also has NIR
+(:func:`point_layout`).  Every attribute the output format shares with the
+input is kept (intensity, returns, classification and its flags, scan
+angle, user data, point source id = the flight strip, GPS time, scanner
+channel, scan direction, edge of flight line, RGB, NIR), and so are the
+extra-byte dimensions every input has, and the GPS time type (global
+encoding bit 0).  What cannot be kept (waveform packets, colour or extra
+bytes only some inputs have) is named in :attr:`LasReadReport.dropped`.
 """
 
 from __future__ import annotations
@@ -14,22 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputDataError
+from stages.io import PointLayout
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
 SCAN_ANGLE_UNIT_DEG = 0.006
-_COPIED = (
-    "intensity",
-    "return_number",
-    "number_of_returns",
-    "classification",
-    "user_data",
-    "point_source_id",
-    "synthetic",
-    "key_point",
-    "withheld",
-)
+#: Dimensions read apart: coordinates (scaled, transformed), the scan angle (two encodings), the GPS time.
+_APART = frozenset({"X", "Y", "Z", "scan_angle", "scan_angle_rank", "gps_time"})
 
 
 @dataclass
@@ -39,6 +36,106 @@ class LasReadReport:
     points: dict[str, int] = field(default_factory=dict)
     crs_source: dict[str, str] = field(default_factory=dict)
     gps_time_missing: list[str] = field(default_factory=list)
+    dropped: list[str] = field(default_factory=list)
+
+
+def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
+    """The output point records that keep what every input holds, and a note per thing dropped.
+
+    RGB is kept (format 7) when every input has it, NIR too (format 8) when
+    every input has it; an extra-byte dimension when every input has one of
+    that name, type, scale and offset.  Waveform packets are never kept (the
+    waveform data is not carried).  The GPS time type is the inputs'
+    (files without GPS time do not count); inputs that disagree are an
+    error, since week seconds cannot be turned into standard time without
+    the week.
+
+    Raises
+    ------
+    InputDataError
+        When inputs with GPS time disagree on its type.
+    """
+    from stages.io import PointLayout
+
+    headers = []
+    for path in paths:
+        with _open(path) as reader:
+            headers.append((path, reader.header))
+    dims = [set(h.point_format.standard_dimension_names) for _, h in headers]
+    rgb = all("red" in d for d in dims)
+    nir = rgb and all("nir" in d for d in dims)
+    point_format = 8 if nir else 7 if rgb else 6
+    import laspy
+
+    out_dims = set(laspy.PointFormat(point_format).standard_dimension_names)
+    notes = []
+    for (path, _), d in zip(headers, dims, strict=True):
+        lost = sorted(d - out_dims - _APART)
+        if lost:
+            why = "waveform data is not carried" if lost[0].startswith(("wave", "return_point", "x_t")) else ""
+            why = why or "not in every input file"
+            notes.append(f"{path}: {', '.join(lost)} dropped ({why})")
+    first = {dim.name: dim for dim in headers[0][1].point_format.extra_dimensions}
+    extra = []
+    for name, dim in first.items():
+        same = all(
+            any(_same_dimension(dim, other) for other in h.point_format.extra_dimensions) for _, h in headers[1:]
+        )
+        params = _extra_bytes_params(dim) if same else None
+        if params is not None:
+            extra.append(params)
+    kept = {p.name for p in extra}
+    for path, h in headers:
+        lost = [dim.name for dim in h.point_format.extra_dimensions if dim.name not in kept]
+        if lost:
+            notes.append(f"{path}: extra bytes {', '.join(lost)} dropped (not in every input file with one type)")
+    with_time = [(path, h) for path, h in headers if "gps_time" in h.point_format.dimension_names]
+    adjusted = {int(h.global_encoding.gps_time_type) for _, h in with_time}
+    if len(adjusted) > 1:
+        week = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 0)
+        standard = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 1)
+        raise InputDataError(
+            f"{standard} has adjusted standard GPS time but {week} GPS week seconds (global encoding bit 0); "
+            "process them in separate runs or convert one of them."
+        )
+    layout = PointLayout(
+        point_format=point_format,
+        extra=tuple(extra),
+        gps_adjusted=adjusted == {1},
+        synthetic_returns=any(h.global_encoding.synthetic_return_numbers for _, h in headers),
+    )
+    return layout, notes
+
+
+def _same_dimension(a, b) -> bool:
+    """Whether two extra-byte dimensions have the same name, type, scale and offset."""
+
+    def arr(v):
+        return None if v is None else np.asarray(v).tolist()
+
+    return (a.name, a.type_str(), arr(a.scales), arr(a.offsets)) == (
+        b.name,
+        b.type_str(),
+        arr(b.scales),
+        arr(b.offsets),
+    )
+
+
+def _extra_bytes_params(dim):
+    """laspy's description of an extra-byte dimension to write, or None when it has no usable type."""
+    import laspy
+
+    try:
+        return laspy.ExtraBytesParams(
+            name=dim.name,
+            type=dim.type_str(),
+            description=dim.description or "",
+            offsets=dim.offsets,
+            scales=dim.scales,
+            no_data=dim.no_data,
+        )
+    except (TypeError, ValueError, laspy.LaspyException):
+        return None
 
 
 def _file_crs(path: Path, header, assign):
@@ -221,7 +318,16 @@ def count_points(paths: list[Path]) -> int:
     return total
 
 
-def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, report, progress=None):
+def las_chunks(
+    paths: list[Path],
+    *,
+    crs_setting: str,
+    assign_crs,
+    chunk_size: int,
+    report,
+    progress=None,
+    layout: PointLayout | None = None,
+):
     """Read LAS/LAZ files chunk by chunk, in the output CRS.
 
     Yields
@@ -230,7 +336,9 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
         The output CRS (the same for every chunk).
     columns : dict
         ``x``, ``y``, ``z`` (float64, output CRS), ``scan_angle`` (degrees),
-        ``gps_time`` and the copied attributes of one chunk of points.
+        ``gps_time`` and the attributes of one chunk of points that the
+        output's *layout* (default: :func:`point_layout`) holds; extra
+        bytes as stored (unscaled).
 
     The *report* (:class:`LasReadReport`) is filled as files are read.
 
@@ -241,6 +349,9 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
     """
     import pyproj
 
+    if layout is None:
+        layout, report.dropped = point_layout(paths)
+    copied = _copied(layout)
     target = None
     for path in paths:
         with _open(path) as reader:
@@ -290,8 +401,10 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
                     cols["gps_time"] = (
                         np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
                     )
-                    for name in _COPIED:
-                        cols[name] = np.asarray(chunk[name])
+                    for name in copied:
+                        cols[name] = np.asarray(chunk[name]) if name in dims else np.zeros(n, np.uint8)
+                    for extra in layout.extra:
+                        cols[extra.name] = np.asarray(chunk.array[extra.name])
                     n_read += n
                     if progress is not None:
                         progress.update(n)
@@ -299,6 +412,13 @@ def las_chunks(paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: i
             except _parse_errors() as exc:
                 raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
             report.points[str(path)] = n_read
+
+
+def _copied(layout: PointLayout) -> list[str]:
+    """The standard dimensions of *layout*'s point format copied as they are."""
+    import laspy
+
+    return [n for n in laspy.PointFormat(layout.point_format).standard_dimension_names if n not in _APART]
 
 
 def read_las_files(
@@ -325,10 +445,17 @@ def read_las_files(
         When a file is not LAS/LAZ, is truncated, or has no usable CRS.
     """
     report = LasReadReport()
+    layout, report.dropped = point_layout(paths)
     parts: list[dict[str, np.ndarray]] = []
     target = None
     for crs, cols in las_chunks(
-        paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, report=report, progress=progress
+        paths,
+        crs_setting=crs_setting,
+        assign_crs=assign_crs,
+        chunk_size=chunk_size,
+        report=report,
+        progress=progress,
+        layout=layout,
     ):
         target = crs
         parts.append(cols)
@@ -340,9 +467,9 @@ def read_las_files(
                 h = reader.header
                 centre = (float((h.mins[0] + h.maxs[0]) / 2), float((h.mins[1] + h.maxs[1]) / 2))
             target = output_crs(crs_setting, src_crs, centre)
-    names = ("x", "y", "z", "scan_angle", "gps_time", *_COPIED)
+    names = ("x", "y", "z", "scan_angle", "gps_time", *_copied(layout), *(e.name for e in layout.extra))
     merged = {k: (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)) for k in names}
-    return _build(merged, target), report
+    return _build(merged, target, layout), report
 
 
 def header_bounds(paths: list[Path], target, assign_crs) -> tuple[np.ndarray, np.ndarray]:
@@ -395,10 +522,11 @@ def convert_las_files(
     from stages.io import point_header
 
     report = LasReadReport()
+    layout, report.dropped = point_layout(paths)
     strips: set[int] = set()
-    same = _copyable(paths, crs_setting, assign_crs)
+    same = _copyable(paths, crs_setting, assign_crs, layout)
     if same is not None:
-        return _copy(paths[0], dst, same, assign_crs, report, strips, chunk_size, progress), report, strips
+        return _copy(paths[0], dst, same, assign_crs, report, strips, chunk_size, progress, layout), report, strips
     writer = None
     target = None
     try:
@@ -409,6 +537,7 @@ def convert_las_files(
             chunk_size=chunk_size,
             report=report,
             progress=progress,
+            layout=layout,
         ):
             n = len(cols["x"])
             if writer is None:
@@ -416,7 +545,7 @@ def convert_las_files(
                 if not np.isfinite(lo).all():
                     lo = np.array([cols[k].min() for k in "xyz"]) if n else None
                     hi = np.array([cols[k].max() for k in "xyz"]) if n else None
-                header = point_header(target, lo, hi)
+                header = point_header(target, lo, hi, layout=layout)
                 writer = laspy.open(str(dst), mode="w", header=header)
             if not n:
                 continue
@@ -433,7 +562,7 @@ def convert_las_files(
         if writer is None:  # no point at all: an empty file with the output CRS
             las, _ = read_las_files(paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size)
             target = las.header.parse_crs()
-            writer = laspy.open(str(dst), mode="w", header=point_header(target))
+            writer = laspy.open(str(dst), mode="w", header=point_header(target, layout=layout))
     finally:
         if writer is not None:
             writer.close()
@@ -462,18 +591,20 @@ def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray
     return lo, hi
 
 
-def _copyable(paths: list[Path], crs_setting: str, assign_crs):
+def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayout):
     """The output CRS when the input can be copied record for record, else None.
 
-    That is one LAS 1.4 file of point format 6 without extra bytes, already
-    in the output CRS: its points, scale and offsets are kept as delivered
+    That is one LAS 1.4 file whose records are those of *layout* (point
+    format 6, 7 or 8 with its extra bytes), already in the output CRS: its points, scale and offsets are kept as delivered
     (no re-quantisation, nothing recomputed), which is also the fastest.
     """
     if len(paths) != 1:
         return None
     with _open(paths[0]) as reader:
         h = reader.header
-        if str(h.version) != "1.4" or h.point_format.id != 6 or list(h.point_format.extra_dimension_names):
+        if str(h.version) != "1.4" or h.point_format.id != layout.point_format:
+            return None
+        if [e.name for e in layout.extra] != list(h.point_format.extra_dimension_names):
             return None
         if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
             return None
@@ -484,7 +615,7 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs):
         return target if target.equals(src_crs) else None
 
 
-def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], chunk_size: int, progress):
+def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], chunk_size: int, progress, layout):
     """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`)."""
     import laspy
 
@@ -494,7 +625,7 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
     with _open(path) as reader:
         h = reader.header
         _, report.crs_source[str(path)] = _file_crs(path, h, assign_crs)
-        header = point_header(target)
+        header = point_header(target, layout=layout)
         header.offsets, header.scales = h.offsets, h.scales
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
@@ -520,7 +651,7 @@ def _copy(path: Path, dst: Path, target, assign_crs, report, strips: set[int], c
 
 
 def _record(cols: dict[str, np.ndarray], header):
-    """A chunk of columns as a format-6 point record for *header*."""
+    """A chunk of columns as a point record for *header* (format 6-8, extra bytes as stored)."""
     import laspy
 
     n = len(cols["x"])
@@ -528,12 +659,16 @@ def _record(cols: dict[str, np.ndarray], header):
     rec.x, rec.y, rec.z = cols["x"], cols["y"], cols["z"]
     rec.scan_angle = np.clip(np.round(cols["scan_angle"] / SCAN_ANGLE_UNIT_DEG), -30000, 30000).astype(np.int16)
     rec.gps_time = cols["gps_time"]
-    for name in _COPIED:
-        rec[name] = cols[name]
+    standard = set(header.point_format.standard_dimension_names)
+    for name, values in cols.items():
+        if name in standard and name not in _APART:
+            rec[name] = values
+        elif name not in standard and name not in ("x", "y", "z", "scan_angle", "gps_time"):
+            rec.array[name] = values  # an extra-byte dimension, unscaled
     return rec
 
 
-def _build(cols: dict[str, np.ndarray], crs):
+def _build(cols: dict[str, np.ndarray], crs, layout: PointLayout):
     import laspy
 
     from stages.io import point_header
@@ -541,9 +676,9 @@ def _build(cols: dict[str, np.ndarray], crs):
     n = len(cols["x"])
     if n:
         xyz = np.column_stack((cols["x"], cols["y"], cols["z"]))
-        header = point_header(crs, xyz.min(axis=0), xyz.max(axis=0))
+        header = point_header(crs, xyz.min(axis=0), xyz.max(axis=0), layout=layout)
     else:
-        header = point_header(crs)
+        header = point_header(crs, layout=layout)
     las = laspy.LasData(header)
     las.points = _record(cols, header)
     return las

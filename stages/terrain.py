@@ -19,10 +19,10 @@ from pydantic import Field
 
 from pipeline.stage import Stage, StageParams
 from stages.io import png_bytes, read_raster, write_cog, write_lines_gpkg
+from stages.units import raster_units
 
 #: Nodata of the Byte hillshade (shades are 1-255, as gdaldem writes them).
 HILLSHADE_NODATA = 0
-from stages.units import raster_units
 
 
 class HillshadeParams(StageParams):

@@ -75,9 +75,8 @@ def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
             why = "waveform data is not carried" if lost[0].startswith(("wave", "return_point", "x_t")) else ""
             why = why or "not in every input file"
             notes.append(f"{path}: {', '.join(lost)} dropped ({why})")
-    first = {dim.name: dim for dim in headers[0][1].point_format.extra_dimensions}
     extra = []
-    for name, dim in first.items():
+    for dim in headers[0][1].point_format.extra_dimensions:
         same = all(
             any(_same_dimension(dim, other) for other in h.point_format.extra_dimensions) for _, h in headers[1:]
         )

@@ -136,7 +136,7 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    version = "7"  # 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
+    version = "8"  # 8: the input's GPS time type, RGB, NIR, extra bytes kept; 7: LAS 1.4 format 6 copied as delivered
     Params = InputConfig
     config_path = "input"
     can_disable = False

@@ -62,12 +62,18 @@ class PointLayout:
         (GPS seconds - 1e9), not seconds of the GPS week.
     synthetic_returns : bool
         Global encoding bit 3: the return numbers were synthesised.
+    vlrs, evlrs : tuple of laspy VLR
+        The input's own (extended) variable length records carried through
+        (not the CRS, extra-byte, LASzip or waveform records, which the
+        writer makes itself or which no longer apply).
     """
 
     point_format: int = POINT_FORMAT
     extra: tuple = ()
     gps_adjusted: bool = False
     synthetic_returns: bool = False
+    vlrs: tuple = ()
+    evlrs: tuple = ()
 
 
 def point_header(crs, lo=None, hi=None, *, layout: PointLayout | None = None):
@@ -93,6 +99,9 @@ def point_header(crs, lo=None, hi=None, *, layout: PointLayout | None = None):
     header.global_encoding.synthetic_return_numbers = layout.synthetic_returns
     header.system_identifier = SYSTEM_IDENTIFIER
     header.generating_software = generating_software()
+    header.vlrs.extend(layout.vlrs)
+    if layout.evlrs:
+        header.evlrs = [*(header.evlrs or []), *layout.evlrs]
     scale = 1e-4
     if lo is not None:
         header.offsets = np.floor(np.asarray(lo, dtype=np.float64) / 1000.0) * 1000.0

@@ -97,13 +97,44 @@ def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
             f"{standard} has adjusted standard GPS time but {week} GPS week seconds (global encoding bit 0); "
             "process them in separate runs or convert one of them."
         )
+    records = {}
+    for kind in ("vlrs", "evlrs"):
+        own = [[v for v in (getattr(h, kind) or []) if _carried(v)] for _, h in headers]
+        shared = set.intersection(*({_vlr_key(v) for v in vs} for vs in own))
+        records[kind] = [v for v in own[0] if _vlr_key(v) in shared]
+        for (path, _), vs in zip(headers, own, strict=True):
+            lost = [f"{v.user_id} {v.record_id}" for v in vs if _vlr_key(v) not in shared]
+            if lost:
+                notes.append(
+                    f"{path}: {kind[:-1].upper()} {', '.join(lost)} dropped (not the same in every input file)"
+                )
     layout = PointLayout(
         point_format=point_format,
         extra=tuple(extra),
         gps_adjusted=adjusted == {1},
         synthetic_returns=any(h.global_encoding.synthetic_return_numbers for _, h in headers),
+        vlrs=tuple(records["vlrs"]),
+        evlrs=tuple(records["evlrs"]),
     )
     return layout, notes
+
+
+def _carried(vlr) -> bool:
+    """Whether a (E)VLR of the input is carried to the output as it is.
+
+    Not: the CRS (``LASF_Projection``, liblas' WKT; the writer adds the output
+    CRS), extra-byte descriptions (``LASF_Spec`` 4; made from the layout),
+    LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354).
+    """
+    user = vlr.user_id.strip("\0 ")
+    if user in ("LASF_Projection", "laszip encoded") or (user == "liblas" and vlr.record_id == 2112):
+        return False
+    return not (user == "LASF_Spec" and (vlr.record_id == 4 or 100 <= vlr.record_id <= 354))
+
+
+def _vlr_key(vlr) -> tuple:
+    data = vlr.record_data_bytes() if hasattr(vlr, "record_data_bytes") else bytes(vlr.record_data)
+    return vlr.user_id, vlr.record_id, data
 
 
 def _same_dimension(a, b) -> bool:

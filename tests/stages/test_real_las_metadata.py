@@ -77,6 +77,26 @@ def test_nir_is_kept_and_the_dropped_waveform_is_named(tmp_path):
     assert not out.header.global_encoding.waveform_data_packets_external  # no waveform claimed
 
 
+def test_real_extra_bytes_and_user_vlrs_are_kept(tmp_path):
+    """MixedConifer.laz has an extra-byte treeID (f8); mvk-thin.las two NIIRS10 VLRs (timestamp, tile index)."""
+    src_path = REAL / "lidR" / "MixedConifer.laz"
+    _convert(src_path, tmp_path / "trees.las")
+    src, out = laspy.read(src_path), laspy.read(tmp_path / "trees.las")
+    assert list(out.point_format.extra_dimension_names) == ["treeID"]
+    np.testing.assert_array_equal(np.asarray(out.treeID), np.asarray(src.treeID))
+    src_path = REAL / "pdal" / "mvk-thin.las"
+    _convert(src_path, tmp_path / "mvk.las")
+    theirs = {
+        (v.user_id, v.record_id): v.record_data for v in laspy.read(src_path).header.vlrs if v.user_id == "NIIRS10"
+    }
+    ours = {
+        (v.user_id, v.record_id): v.record_data
+        for v in laspy.read(tmp_path / "mvk.las").header.vlrs
+        if v.user_id == "NIIRS10"
+    }
+    assert len(theirs) == 2 and all(ours.get(k) == data for k, data in theirs.items())
+
+
 def _with_extra_bytes(path: Path, *, version: str, point_format: int, crs: str) -> laspy.LasData:
     rng = np.random.default_rng(3)
     header = laspy.LasHeader(point_format=point_format, version=version)

@@ -186,7 +186,12 @@ def evaluate_ground(
             except ValidationError as exc:
                 where = config or Path(path)
                 raise ConfigError(describe_validation_error(exc, values, where, lines, {}, model)) from None
-            manifest = run(settings, plugin, until="export_las" if saving else "classify_ground")
+            try:
+                manifest = run(settings, plugin, until="export_las" if saving else "classify_ground")
+            except InputDataError as exc:
+                if config is None and crs is None and "input.crs" in str(exc):
+                    raise InputDataError(f"{str(exc).rstrip('.')} (for evaluate ground: --crs).") from None
+                raise
             records = {r["name"]: r for r in manifest["stages"]}
             classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
             cls = np.asarray(laspy.read(str(classified)).classification, dtype=np.uint8)

@@ -260,6 +260,13 @@ def test_info_unreadable_file_is_one_sentence_exit_3(tmp_path, capsys):
     assert main(["info", str(tmp_path / "missing.las")]) == 2
 
 
+def test_evaluate_names_its_own_way_out_for_a_file_without_crs(capsys):
+    """sample_c.las has no CRS: the run's sentence, and the option of this command (not a config key) to fix it."""
+    assert main(["evaluate", "ground", str(REAL / "pdal" / "sample_c.las")]) == 3
+    err = capsys.readouterr().err.strip()
+    assert "sample_c.las" in err and "--crs" in err and "\n" not in err
+
+
 # --------------------------------------------------------------------------
 # The run and `evaluate ground` on real files (end to end)
 

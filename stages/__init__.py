@@ -17,6 +17,7 @@ from stages.denoise import Denoise
 from stages.evaluate import EVALUATE
 from stages.export import ExportLas
 from stages.georeference import Georeference
+from stages.info import INFO
 from stages.parse import Parse, _check_crs
 from stages.rasterize import Rasterize
 from stages.report import Report
@@ -70,6 +71,6 @@ plugin = Plugin(
         Report,
     ],
     global_fields={"crs": _crs_field()},
-    commands=[EVALUATE, BUDGET, SIMULATE],
+    commands=[EVALUATE, INFO, BUDGET, SIMULATE],
     versions=_versions,
 )

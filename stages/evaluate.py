@@ -7,14 +7,21 @@ prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy).
 
 ``pipeline evaluate ground``: score a ground classification against reference labels.
 
-    pipeline evaluate ground REF.laz [--algorithm NAME] [--param k=v ...]
+    pipeline evaluate ground REF.laz [--config RUN.yaml] [--crs EPSG:nnnn]
+                                     [--algorithm NAME] [--param k=v ...]
                                      [--no-denoise] [--compare csf] [--write OUT.laz]
 
 The reference file's class 2 is reference ground; every other class is an
-object.  The file is classified exactly as the pipeline does it (``denoise``
-with its defaults, then ``classify_ground``); noise counts as non-ground.
-Prints Type I, Type II, total error and Cohen's kappa (per cent) for each
-algorithm run.
+object.  The file is classified by the run itself: the engine runs
+``parse``, ``strip_adjust``, ``denoise`` and ``classify_ground`` on it (in a
+temporary output and cache folder), so the unit conversion (a feet CRS),
+the class rules (noise, withheld and, with ``keep_water``, water keep their
+class) and the tiling are those of ``pipeline run``.  The settings are the
+defaults of every stage, or those of ``--config`` (its ``input.paths``
+replaced by REF); ``--algorithm``/``--param`` replace its ground algorithm.
+Noise and water count as non-ground.  Prints Type I, Type II, total error
+and Cohen's kappa (per cent) for each algorithm run; ``--write`` saves the
+``export_las`` product of the first one.
 """
 
 from __future__ import annotations
@@ -22,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -32,8 +38,7 @@ from pydantic import ValidationError
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.stage import Command
 from stages import glossary
-from stages.classify import ALGORITHMS, ClassifyGroundParams, classify
-from stages.denoise import DenoiseParams, noise_classes
+from stages.classify import ALGORITHMS
 
 
 def _algorithm(name: str, params: list[str]):
@@ -51,43 +56,180 @@ def _algorithm(name: str, params: list[str]):
         raise ConfigError(f"--param {where}: {err['msg']}.") from None
 
 
-def evaluate_ground(
-    path: Path, algorithms: list, *, denoise: bool = True
-) -> tuple[list[dict], dict[str, np.ndarray], object]:
-    """Classify a labelled file with each algorithm; return scores and classes."""
-    import laspy
+def reference_ground(path: Path) -> np.ndarray:
+    """Whether each point of a labelled LAS/LAZ is reference ground (class 2), read in chunks.
 
-    from stages.ground.metrics import score
-    from stages.io import xyz
+    Raises
+    ------
+    InputDataError
+        When the file cannot be read, or no point has class 2.
+    """
+    from stages.readers.las import _open, _parse_errors
 
-    try:
-        las = laspy.read(str(path))
-    except (laspy.LaspyException, OSError, ValueError) as exc:
-        raise InputDataError(f"{path}: not a readable LAS/LAZ file ({exc}).") from None
-    reference = np.asarray(las.classification) == glossary.GROUND
+    parts = []
+    with _open(Path(path)) as reader:
+        try:
+            for chunk in reader.chunk_iterator(1_000_000):
+                parts.append(np.asarray(chunk.classification) == glossary.GROUND)
+        except _parse_errors() as exc:
+            raise InputDataError(f"{path}: unreadable after point {sum(map(len, parts))} ({exc}).") from None
+    reference = np.concatenate(parts) if parts else np.zeros(0, dtype=bool)
     if not reference.any():
         raise InputDataError(f"{path}: no point has class 2, so there is no reference ground to compare with.")
-    points = xyz(las)
-    start = np.zeros(len(points), dtype=np.uint8)  # labels are hidden from the filters
-    if denoise:
-        start = noise_classes(points, DenoiseParams())
+    return reference
+
+
+def run_settings(path: Path, *, config: Path | None = None, crs: str | None = None) -> tuple[dict, Path, dict]:
+    """The configuration (plain values) that runs *path* as ``pipeline run`` would, its base folder, its key lines.
+
+    Without *config*: every stage's defaults.  With it: that file's settings,
+    its input replaced by *path* (which must then be a ``las`` input).
+    *crs* sets ``input.crs`` (the CRS of a file whose header has none).
+    """
+    from pipeline.config import load_yaml
+    from stages.parse import _check_crs
+
+    path = Path(path).resolve()
+    data: dict = {}
+    base = Path.cwd()
+    lines: dict = {}
+    if crs is not None:
+        try:
+            _check_crs(crs)
+        except ValueError as exc:
+            raise ConfigError(f"--crs {crs}: {exc}.") from None
+    if config is not None:
+        loaded, lines = load_yaml(config)
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{config}, line 1: the configuration must be a mapping of keys to values.")
+        data, base = loaded, Path(config).resolve().parent
+        if (data.get("input") or {}).get("format", "las") != "las":
+            raise ConfigError(f"{config}: input.format must be las to evaluate a labelled LAS/LAZ file.")
+    data = dict(data)
+    data["input"] = {**(data.get("input") or {}), "format": "las", "paths": [str(path)]}
+    if crs is not None:
+        data["input"]["crs"] = crs
+    data.setdefault("stages", {})
+    return data, base, lines
+
+
+def evaluate_ground(
+    path: Path,
+    algorithms: list | None = None,
+    *,
+    denoise: bool = True,
+    config: Path | None = None,
+    crs: str | None = None,
+    write: Path | None = None,
+) -> tuple[list[dict], dict[str, np.ndarray]]:
+    """Classify a labelled file with the run's stages, once per algorithm; return scores and classes.
+
+    Parameters
+    ----------
+    path : Path
+        Labelled LAS/LAZ (class 2 = reference ground).
+    algorithms : list of ground-algorithm models, optional
+        Default: the configuration's algorithm (SMRF without *config*).
+    denoise : bool
+        Run the ``denoise`` stage (as configured) before classifying.
+    config : Path, optional
+        A run's configuration whose settings to use (see :func:`run_settings`).
+    crs : str, optional
+        ``input.crs``: the CRS of a file whose header has none.
+    write : Path, optional
+        Where to save the first algorithm's classified cloud (the
+        ``export_las`` product; LAZ when the name ends in ``.laz``).
+
+    Returns
+    -------
+    rows : list of dict
+        Per algorithm: name, parameters, seconds (``denoise`` and
+        ``classify_ground``), and the :class:`stages.ground.metrics.GroundScore`.
+    classes : dict
+        Algorithm name -> the classes the run gave every point, in file order.
+    """
+    import logging
+    import shutil
+    import tempfile
+
+    import laspy
+
+    from pipeline.config import describe_validation_error
+    from pipeline.log import LOGGER_NAME
+    from pipeline.runner import run
+    from pipeline.stage import config_model
+    from stages import plugin
+    from stages.ground.metrics import score
+
+    reference = reference_ground(path)
+    data, base, lines = run_settings(path, config=config, crs=crs)
+    model = config_model(plugin)
     rows, classes = [], {}
-    for algorithm in algorithms:
-        params = ClassifyGroundParams(algorithm=algorithm)
-        t0 = time.perf_counter()
-        cls = classify(points, start, las.return_number, las.number_of_returns, las.withheld, params)
-        seconds = time.perf_counter() - t0
-        s = score(reference, cls == glossary.GROUND)
-        rows.append({"algorithm": algorithm.name, "params": algorithm.model_dump(), "seconds": seconds, **s.as_dict()})
-        classes[algorithm.name] = cls
-    return rows, classes, las
+    work = Path(tempfile.mkdtemp(prefix="pipeline-evaluate-"))
+    log = logging.getLogger(LOGGER_NAME)
+    level = log.level
+    if log.level <= logging.INFO:
+        log.setLevel(logging.WARNING)  # the inner runs' progress is not this command's output
+    try:
+        for i, algorithm in enumerate(algorithms or [None]):
+            stages = {key: dict(value or {}) for key, value in data["stages"].items()}
+            stages.setdefault("denoise", {})["enabled"] = denoise
+            if algorithm is not None:
+                stages.setdefault("classify_ground", {})["algorithm"] = algorithm.model_dump(mode="json")
+            saving = write is not None and i == 0
+            if saving:
+                stages["export_las"] = {**stages.get("export_las", {}), "enabled": True}
+                stages["export_las"]["compress"] = Path(write).suffix.lower() == ".laz"
+            values = {**data, "stages": stages, "output": str(work / "out"), "cache": str(work / "cache")}
+            try:
+                settings = model.model_validate(values, context={"base_dir": base})
+            except ValidationError as exc:
+                where = config or Path(path)
+                raise ConfigError(describe_validation_error(exc, values, where, lines, {}, model)) from None
+            try:
+                manifest = run(settings, plugin, until="export_las" if saving else "classify_ground")
+            except InputDataError as exc:
+                if config is None and crs is None and "input.crs" in str(exc):
+                    raise InputDataError(f"{str(exc).rstrip('.')} (for evaluate ground: --crs).") from None
+                raise
+            records = {r["name"]: r for r in manifest["stages"]}
+            classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
+            cls = np.asarray(laspy.read(str(classified)).classification, dtype=np.uint8)
+            if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
+                raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
+            used = settings.stages.classify_ground.algorithm
+            seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
+            s = score(reference, cls == glossary.GROUND)
+            rows.append({"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()})
+            classes[used.name] = cls
+            if saving:
+                name = "points.laz" if stages["export_las"]["compress"] else "points.las"
+                tmp = Path(write).with_name(f".{Path(write).name}.tmp")
+                shutil.copyfile(work / "out" / name, tmp)
+                tmp.replace(write)
+    finally:
+        log.setLevel(level)
+        shutil.rmtree(work, ignore_errors=True)
+    return rows, classes
 
 
 def _add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="what", required=True)
     p = sub.add_parser("ground", help="ground classification against a labelled LAS/LAZ (class 2 = ground)")
     p.add_argument("reference", type=Path, help="labelled LAS/LAZ file")
-    p.add_argument("--algorithm", choices=sorted(ALGORITHMS), default="smrf", help="ground algorithm (default smrf)")
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="RUN.yaml",
+        help="use this run configuration's settings (its input replaced by the reference file); default: "
+        "every stage's defaults",
+    )
+    p.add_argument("--crs", metavar="CRS", help="input.crs: the CRS of a file whose header has none, e.g. EPSG:2992")
+    p.add_argument(
+        "--algorithm",
+        choices=sorted(ALGORITHMS),
+        help="ground algorithm (default: the configuration's, smrf without --config)",
+    )
     p.add_argument(
         "--param", action="append", default=[], metavar="NAME=VALUE", help="algorithm parameter (repeatable)"
     )
@@ -99,7 +241,12 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also run this algorithm with its defaults",
     )
     p.add_argument("--no-denoise", action="store_true", help="skip the noise step")
-    p.add_argument("--write", type=Path, metavar="OUT.laz", help="save the cloud classified by --algorithm")
+    p.add_argument(
+        "--write",
+        type=Path,
+        metavar="OUT.laz",
+        help="save the cloud classified by --algorithm (as export_las writes it)",
+    )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)
     p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
@@ -158,9 +305,23 @@ def _run(args: argparse.Namespace) -> int:
         return _run_dtm(args)
     if not args.reference.is_file():
         raise ConfigError(f"{args.reference}: file not found.")
-    algorithms = [_algorithm(args.algorithm, args.param)]
-    algorithms += [_algorithm(name, []) for name in args.compare if name != args.algorithm or args.param]
-    rows, classes, las = evaluate_ground(args.reference, algorithms, denoise=not args.no_denoise)
+    if args.config is not None and not args.config.is_file():
+        raise ConfigError(f"{args.config}: configuration file not found.")
+    if args.param and args.algorithm is None and args.config is not None:
+        raise ConfigError("--param needs --algorithm with --config (which algorithm the parameters are for).")
+    first = None  # None: the configuration's algorithm
+    if args.algorithm is not None or (args.param and args.config is None):
+        first = _algorithm(args.algorithm or "smrf", args.param)
+    algorithms = [first]
+    algorithms += [_algorithm(n, []) for n in args.compare if first is None or n != first.name or args.param]
+    rows, _ = evaluate_ground(
+        args.reference,
+        algorithms,
+        denoise=not args.no_denoise,
+        config=args.config,
+        crs=args.crs,
+        write=args.write,
+    )
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
@@ -174,12 +335,6 @@ def _run(args: argparse.Namespace) -> int:
                 f"{100 * r['total']:8.2f} {100 * r['kappa']:8.2f} {r['seconds']:8.2f}"
             )
     if args.write:
-        from stages.io import write_cloud
-
-        las.classification = classes[algorithms[0].name]
-        tmp = args.write.with_name(f".{args.write.name}.tmp{args.write.suffix}")
-        write_cloud(las, tmp, compress=args.write.suffix.lower() == ".laz")
-        tmp.replace(args.write)
         print(f"classified cloud written to {args.write}", file=sys.stderr)
     return 0
 

@@ -1,15 +1,23 @@
 """Reading and writing the artifacts that travel between stages.
 
-- Point clouds between stages are uncompressed LAS 1.4, point format 6, with
-  the CRS as a WKT VLR: an open format any LiDAR viewer opens, so every cached
+- Point clouds between stages are uncompressed LAS 1.4, point format 6 (7
+  with the input's RGB, 8 with RGB and NIR, plus the input's extra bytes;
+  the input's GPS time type kept), with the CRS as a WKT VLR: an open format any LiDAR viewer opens, so every cached
   intermediate can be inspected; uncompressed because it is read and written
   several times per run and LAZ costs about ten times more CPU.
 - Rasters are Cloud Optimized GeoTIFF (float32, internal 256-pixel tiles,
-  DEFLATE with the floating-point predictor, overviews, explicit nodata).
+  DEFLATE with the floating-point predictor, overviews, explicit nodata);
+  elevation rasters name their unit (the band's unit type: the unit of the
+  CRS's vertical axis, else of its horizontal axes, :mod:`stages.units`), and
+  a compound CRS is written whole (GDAL writes its vertical part as the
+  GeoTIFF's vertical CRS).  Images meant for the eye (the hillshade) are
+  Byte with nodata 0.
+- Vector products are GeoPackage 1.2 (:data:`GPKG_VERSION`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,19 +28,80 @@ POINT_FORMAT = 6
 NODATA = -9999.0
 #: Internal tile size of the Cloud Optimized GeoTIFFs.
 COG_BLOCKSIZE = 256
+#: ``unit`` value meaning "heights in the CRS's vertical unit" (an elevation raster).
+HEIGHT = "height"
+#: GeoPackage version written (GDAL's ``VERSION`` creation option).  GDAL 3.6
+#: and QGIS 3.22 read 1.2 without warnings; GDAL 3.8's default, 1.4, makes them
+#: warn that the file "may only be partially supported".
+GPKG_VERSION = "1.2"
+#: ``system_identifier`` of every point cloud the pipeline writes (LAS 1.4 allows
+#: "a string up to 32 characters identifying the operation"; PDAL and LAStools
+#: name themselves there too).
+SYSTEM_IDENTIFIER = "dtm-pipeline"
 
 
-def point_header(crs, lo=None, hi=None):
-    """The header of every point cloud the pipeline writes: LAS 1.4, point format 6, the CRS as WKT.
+def generating_software() -> str:
+    """``generating_software`` of every point cloud the pipeline writes: this tool and its version."""
+    from pipeline import __version__
+
+    return f"dtm-pipeline {__version__}"[:32]
+
+
+@dataclass(frozen=True)
+class PointLayout:
+    """What the point records of a written cloud hold, taken from the input files.
+
+    Attributes
+    ----------
+    point_format : int
+        6 (no colour), 7 (RGB) or 8 (RGB and near infrared).
+    extra : tuple of laspy.ExtraBytesParams
+        Extra-byte dimensions carried through, in the input's order.
+    gps_adjusted : bool
+        Global encoding bit 0: GPS times are adjusted standard GPS time
+        (GPS seconds - 1e9), not seconds of the GPS week.
+    synthetic_returns : bool
+        Global encoding bit 3: the return numbers were synthesised.
+    vlrs, evlrs : tuple of laspy VLR
+        The input's own (extended) variable length records carried through
+        (not the CRS, extra-byte, LASzip or waveform records, which the
+        writer makes itself or which no longer apply).
+    """
+
+    point_format: int = POINT_FORMAT
+    extra: tuple = ()
+    gps_adjusted: bool = False
+    synthetic_returns: bool = False
+    vlrs: tuple = ()
+    evlrs: tuple = ()
+
+
+def point_header(crs, lo=None, hi=None, *, layout: PointLayout | None = None):
+    """The header of every point cloud the pipeline writes: LAS 1.4, point format 6-8, the CRS as WKT.
 
     Offsets are *lo* rounded down to whole kilometres; the scale is 0.1 mm —
     finer than any airborne LiDAR's precision, and int32 holds +-214 km
     around the offset — and 1 mm, 1 cm, ... for a survey reaching farther
-    (*hi*).  Without bounds (an empty cloud) offsets are 0.
+    (*hi*).  Without bounds (an empty cloud) offsets are 0.  The point
+    format, extra bytes and the GPS time type follow *layout* (default:
+    format 6, GPS week time); ``system_identifier`` and
+    ``generating_software`` name this tool and its version.
     """
     import laspy
 
-    header = laspy.LasHeader(point_format=POINT_FORMAT, version="1.4")
+    layout = layout or PointLayout()
+    header = laspy.LasHeader(point_format=layout.point_format, version="1.4")
+    if layout.extra:
+        header.add_extra_dims(list(layout.extra))
+    header.global_encoding.gps_time_type = (
+        laspy.header.GpsTimeType.STANDARD if layout.gps_adjusted else laspy.header.GpsTimeType.WEEK_TIME
+    )
+    header.global_encoding.synthetic_return_numbers = layout.synthetic_returns
+    header.system_identifier = SYSTEM_IDENTIFIER
+    header.generating_software = generating_software()
+    header.vlrs.extend(layout.vlrs)
+    if layout.evlrs:
+        header.evlrs = [*(header.evlrs or []), *layout.evlrs]
     scale = 1e-4
     if lo is not None:
         header.offsets = np.floor(np.asarray(lo, dtype=np.float64) / 1000.0) * 1000.0
@@ -97,8 +166,17 @@ def read_raster(path: Path):
         return band, ds.transform, ds.crs, ds.res[0]
 
 
-def write_cog(path: Path, array: np.ndarray, *, transform, crs, nodata: float = NODATA) -> None:
-    """Write a single-band float32 Cloud Optimized GeoTIFF.
+def write_cog(
+    path: Path,
+    array: np.ndarray,
+    *,
+    transform,
+    crs,
+    nodata: float = NODATA,
+    dtype: str = "float32",
+    unit: str | None = HEIGHT,
+) -> None:
+    """Write a single-band Cloud Optimized GeoTIFF (float32 unless *dtype* says otherwise).
 
     Parameters
     ----------
@@ -112,20 +190,44 @@ def write_cog(path: Path, array: np.ndarray, *, transform, crs, nodata: float = 
         Coordinate reference system, written as WKT.
     nodata : float
         The nodata value recorded in the file.
+    dtype : str
+        ``float32`` or ``uint8`` (an image).
+    unit : str or None
+        The band's unit type: :data:`HEIGHT` (default) for the unit of the
+        CRS's heights (:func:`height_unit`), a name, or None for values that
+        are not lengths (counts, shades).
     """
     from rasterio.io import MemoryFile
 
-    data = np.asarray(array, dtype=np.float32)
+    data = np.asarray(array, dtype=dtype)
     rows, cols = data.shape
+    profile = float_raster_profile(rows, cols, transform=transform, crs=crs, nodata=nodata, dtype=dtype)
     with MemoryFile() as mem:
-        with mem.open(**float_raster_profile(rows, cols, transform=transform, crs=crs, nodata=nodata)) as ds:
+        with mem.open(**profile) as ds:
             ds.write(data, 1)
+            set_unit(ds, crs, unit)
         with mem.open() as src:
             copy_to_cog(src, path)
 
 
-def float_raster_profile(rows: int, cols: int, *, transform, crs, nodata: float = NODATA) -> dict:
-    """The rasterio profile of a single-band float32 GeoTIFF (CRS written as WKT)."""
+def height_unit(crs) -> str:
+    """The name of the unit heights are in, in *crs* (a pyproj, rasterio or WKT CRS): 'metre', 'foot', ..."""
+    from stages.units import raster_units
+
+    return raster_units(crs).vertical_name
+
+
+def set_unit(ds, crs, unit: str | None) -> None:
+    """Set band 1's unit type of the open, writable dataset *ds* (see :func:`write_cog`)."""
+    if unit is None:
+        return
+    ds.units = (height_unit(crs) if unit == HEIGHT else unit,)
+
+
+def float_raster_profile(
+    rows: int, cols: int, *, transform, crs, nodata: float = NODATA, dtype: str = "float32"
+) -> dict:
+    """The rasterio profile of a single-band GeoTIFF, float32 by default (CRS written as WKT)."""
     import rasterio
 
     wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
@@ -134,7 +236,7 @@ def float_raster_profile(rows: int, cols: int, *, transform, crs, nodata: float 
         "width": cols,
         "height": rows,
         "count": 1,
-        "dtype": "float32",
+        "dtype": dtype,
         "crs": rasterio.crs.CRS.from_wkt(wkt),
         "transform": transform,
         "nodata": nodata,
@@ -183,7 +285,8 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
     type 2, a point count and the coordinates) and written by pyogrio.  The
     GeoPackage's ``last_change`` timestamps are fixed (GDAL's
     ``OGR_CURRENT_DATE``) so the same lines give the same bytes on every run:
-    products are compared and cached by checksum.
+    products are compared and cached by checksum.  The file is a GeoPackage
+    :data:`GPKG_VERSION` (GDAL's ``VERSION`` dataset creation option).
     """
     import struct
 
@@ -207,6 +310,7 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
         driver="GPKG",
         geometry_type="LineString",
         crs=wkt,
+        dataset_options={"VERSION": GPKG_VERSION},
     )
 
 

@@ -156,9 +156,9 @@ class Parse(Stage):
     """Read the configured input into the pipeline's intermediates."""
 
     name = "parse"
-    # 9: LD-MRS scans in time order; LAS: override_crs, header checks, stray points withheld, return 0 read as 1;
-    # 8: .lmsq measurements after a missed PPS dated by the us counter; NMEA dated by ZDA/RMC anywhere; angles
-    # modulo 360; 7: LAS 1.4 format 6 in the output CRS copied as delivered; 6: LAS converted in chunks
+    # 9: LD-MRS scans in time order; LAS: override_crs, header checks, stray points withheld, return 0 read as 1,
+    # the input's GPS time type, RGB, NIR, extra bytes kept; 8: .lmsq measurements after a missed PPS dated by the
+    # us counter; NMEA dated by ZDA/RMC anywhere; angles modulo 360; 7: LAS 1.4 format 6 copied as delivered
     version = "9"
     Params = InputConfig
     config_path = "input"
@@ -405,6 +405,8 @@ class Parse(Stage):
         if not sum(report.points.values()):
             files = ", ".join(str(x) for x in params.paths)
             raise InputDataError(f"{files}: no point in the file (its header announces 0 and no record follows).")
+        for note in report.dropped:
+            ctx.log.warning("%s", note)
         from stages.units import Units
 
         _check_dtm_size(ctx.config, report.usable_box, Units.of(crs), ", ".join(str(x) for x in params.paths))
@@ -421,6 +423,7 @@ class Parse(Stage):
             outside_header_bounds=report.outside_header_bounds,
             header_count_short={k: list(v) for k, v in report.header_count_short.items()},
             crs_notes=report.crs_notes,
+            fields_dropped=report.dropped,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
 

@@ -38,7 +38,7 @@ from pipeline.stage import Stage, StageParams
 from stages import glossary
 from stages.grid.interpolate import Grid, cell_count, cell_max, cell_mean, idw, nearest, tin
 from stages.ground.surface import fill_nearest
-from stages.io import NODATA
+from stages.io import HEIGHT, NODATA
 
 
 class IdwParams(StrictModel):
@@ -174,6 +174,7 @@ class Rasterize(Stage):
                     crs=crs,
                     nodata=NODATA,
                     fill=0.0 if n == "density" else NODATA,
+                    unit=None if n == "density" else HEIGHT,
                 )
                 for n in names
             }

@@ -1,7 +1,8 @@
 """Stages ``hillshade`` and ``contours``: map products derived from the DTM.
 
-- ``hillshade``: ``hillshade.tif`` (COG, float32 0-255, nodata -9999) and
-  ``hillshade.png`` (8-bit grey, nodata black), Horn's method.
+- ``hillshade``: ``hillshade.tif`` (COG, Byte: shades 1-255, nodata 0, as
+  ``gdaldem hillshade`` writes it) and ``hillshade.png`` (the same bytes,
+  nodata black), Horn's method.
 - ``contours``: ``contours.gpkg``, a GeoPackage layer ``contours`` of line
   strings with an ``elevation`` attribute, every ``interval`` metres; lines
   and elevations in the CRS's units (:mod:`stages.units`).
@@ -17,8 +18,11 @@ import numpy as np
 from pydantic import Field
 
 from pipeline.stage import Stage, StageParams
-from stages.io import NODATA, png_bytes, read_raster, write_cog, write_lines_gpkg
+from stages.io import png_bytes, read_raster, write_cog, write_lines_gpkg
 from stages.units import raster_units
+
+#: Nodata of the Byte hillshade (shades are 1-255, as gdaldem writes them).
+HILLSHADE_NODATA = 0
 
 
 class HillshadeParams(StageParams):
@@ -31,7 +35,7 @@ class HillshadeParams(StageParams):
 
 class Hillshade(Stage):
     name = "hillshade"
-    version = "1"
+    version = "2"  # 2: Byte, shades 1-255, nodata 0
     Params = HillshadeParams
     description = "shaded relief of the DTM (GeoTIFF and PNG)"
     inputs = ("dtm",)
@@ -47,8 +51,18 @@ class Hillshade(Stage):
         shade = hillshade(
             dem * units.vertical, res * units.horizontal, azimuth=p.azimuth, altitude=p.altitude, z_factor=p.z_factor
         )
-        write_cog(ctx.outputs["hillshade"], np.where(np.isnan(shade), NODATA, shade), transform=transform, crs=crs)
-        ctx.outputs["hillshade_png"].write_bytes(png_bytes(np.nan_to_num(shade, nan=0.0).round()))
+        image = np.where(np.isnan(shade), HILLSHADE_NODATA, np.clip(np.nan_to_num(shade).round(), 1, 255))
+        image = image.astype(np.uint8)
+        write_cog(
+            ctx.outputs["hillshade"],
+            image,
+            transform=transform,
+            crs=crs,
+            nodata=HILLSHADE_NODATA,
+            dtype="uint8",
+            unit=None,
+        )
+        ctx.outputs["hillshade_png"].write_bytes(png_bytes(image))
         ctx.metrics.update(azimuth=p.azimuth, altitude=p.altitude)
 
 

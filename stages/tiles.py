@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from stages.io import NpyColumns, npy_header
+from stages.io import HEIGHT, NpyColumns, npy_header
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -388,13 +388,25 @@ class RasterMosaic:
 
     Windows go into a tiled, uncompressed GeoTIFF beside the destination;
     :meth:`finish` converts it with GDAL's COG driver (which streams) and
-    removes it.  Windows nobody writes hold *fill*.
+    removes it.  Windows nobody writes hold *fill*.  *unit* is the band's
+    unit type (:func:`stages.io.write_cog`; None for counts).
     """
 
-    def __init__(self, path: Path, *, rows: int, cols: int, transform, crs, nodata: float, fill: float):
+    def __init__(
+        self,
+        path: Path,
+        *,
+        rows: int,
+        cols: int,
+        transform,
+        crs,
+        nodata: float,
+        fill: float,
+        unit: str | None = HEIGHT,
+    ):
         import rasterio
 
-        from stages.io import COG_BLOCKSIZE, float_raster_profile
+        from stages.io import COG_BLOCKSIZE, float_raster_profile, set_unit
 
         self.path = Path(path)
         self.tmp = self.path.with_name(f".{self.path.name}.mosaic.tif")
@@ -409,6 +421,7 @@ class RasterMosaic:
             blockysize=COG_BLOCKSIZE,
             BIGTIFF="IF_SAFER",
         )
+        set_unit(self.ds, crs, unit)
         self.covered = 0
 
     def write(self, r0: int, c0: int, array: np.ndarray) -> None:

@@ -5,12 +5,51 @@ easy-to-use airborne LiDAR data filtering method based on cloth simulation.
 Remote Sensing 8(6), 501.  doi:10.3390/rs8060501
 
 The package (the authors' C++ code) does the work; this wrapper only maps
-parameter names and returns a mask.
+parameter names and returns a mask.  The C++ code prints its progress
+("[0] Configuring terrain...") on the process's standard output, which is the
+user's (``pipeline info --json | jq``, batch logs): :func:`captured_stdout`
+takes it at the file-descriptor level and hands it to the debug log.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+
 import numpy as np
+
+_log = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def captured_stdout() -> Iterator[None]:
+    """Send what compiled code writes to file descriptor 1 to the debug log instead.
+
+    Python's ``print`` goes through :data:`sys.stdout` and is flushed first;
+    C and C++ output (``printf``, ``std::cout``, synchronised with C stdio)
+    is flushed with ``fflush(NULL)`` before the descriptor is given back.
+    """
+    import ctypes
+
+    sys.stdout.flush()
+    libc = ctypes.CDLL(None)
+    saved = os.dup(1)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        try:
+            yield
+        finally:
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", "replace").strip()
+            if text:
+                _log.debug("CSF library output: %s", " | ".join(text.splitlines()))
 
 
 def csf(
@@ -67,9 +106,11 @@ def csf(
     cloth.params.class_threshold = float(class_threshold)
     cloth.params.time_step = float(time_step)
     cloth.params.interations = int(iterations)  # sic: the package's spelling
-    cloth.setPointCloud(xyz)
+    with captured_stdout():
+        cloth.setPointCloud(xyz)
     ground, other = CSF.VecInt(), CSF.VecInt()
-    cloth.do_filtering(ground, other, False)
+    with captured_stdout():
+        cloth.do_filtering(ground, other, False)
     mask = np.zeros(len(xyz), dtype=bool)
     mask[np.asarray(ground, dtype=np.int64)] = True
     return mask

@@ -1,9 +1,14 @@
 """Format 3.D: already georeferenced LAS/LAZ (LAS 1.2 to 1.4, any point format).
 
-Files are read in chunks and normalised to LAS 1.4 point format 6 in the
-output CRS.  Attributes kept: coordinates, intensity, return number and count,
-classification, scan angle, user data, point source id (the flight strip),
-GPS time, and the synthetic/key-point/withheld flags.
+Files are read in chunks and normalised to LAS 1.4 in the output CRS, point
+format 6, or 7 when every input has RGB, 8 when every input also has NIR
+(:func:`point_layout`).  Every attribute the output format shares with the
+input is kept (intensity, returns, classification and its flags, scan
+angle, user data, point source id = the flight strip, GPS time, scanner
+channel, scan direction, edge of flight line, RGB, NIR), and so are the
+extra-byte dimensions every input has, and the GPS time type (global
+encoding bit 0).  What cannot be kept (waveform packets, colour or extra
+bytes only some inputs have) is named in :attr:`LasReadReport.dropped`.
 """
 
 from __future__ import annotations
@@ -15,22 +20,14 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from stages.crscheck import honour_linear_units
+from stages.io import PointLayout
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
 SCAN_ANGLE_UNIT_DEG = 0.006
-_COPIED = (
-    "intensity",
-    "return_number",
-    "number_of_returns",
-    "classification",
-    "user_data",
-    "point_source_id",
-    "synthetic",
-    "key_point",
-    "withheld",
-)
+#: Dimensions read apart: coordinates (scaled, transformed), the scan angle (two encodings), the GPS time.
+_APART = frozenset({"X", "Y", "Z", "scan_angle", "scan_angle_rank", "gps_time"})
 
 
 @dataclass
@@ -50,6 +47,136 @@ class LasReadReport:
     usable_box: list[float] | None = None
     #: Per file: why its header CRS was not used as it stands (unreadable; GeoKey units honoured).
     crs_notes: dict[str, str] = field(default_factory=dict)
+    dropped: list[str] = field(default_factory=list)
+
+
+def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
+    """The output point records that keep what every input holds, and a note per thing dropped.
+
+    RGB is kept (format 7) when every input has it, NIR too (format 8) when
+    every input has it; an extra-byte dimension when every input has one of
+    that name, type, scale and offset.  Waveform packets are never kept (the
+    waveform data is not carried).  The GPS time type is the inputs'
+    (files without GPS time do not count); inputs that disagree are an
+    error, since week seconds cannot be turned into standard time without
+    the week.
+
+    Raises
+    ------
+    InputDataError
+        When inputs with GPS time disagree on its type.
+    """
+    from stages.io import PointLayout
+
+    headers = []
+    for path in paths:
+        with _open(path) as reader:
+            headers.append((path, reader.header))
+    dims = [set(h.point_format.standard_dimension_names) for _, h in headers]
+    rgb = all("red" in d for d in dims)
+    nir = rgb and all("nir" in d for d in dims)
+    point_format = 8 if nir else 7 if rgb else 6
+    import laspy
+
+    out_dims = set(laspy.PointFormat(point_format).standard_dimension_names)
+    notes = []
+    for (path, _), d in zip(headers, dims, strict=True):
+        lost = sorted(d - out_dims - _APART)
+        if lost:
+            why = "waveform data is not carried" if lost[0].startswith(("wave", "return_point", "x_t")) else ""
+            why = why or "not in every input file"
+            notes.append(f"{path}: {', '.join(lost)} dropped ({why})")
+    extra = []
+    for dim in headers[0][1].point_format.extra_dimensions:
+        same = all(
+            any(_same_dimension(dim, other) for other in h.point_format.extra_dimensions) for _, h in headers[1:]
+        )
+        params = _extra_bytes_params(dim) if same else None
+        if params is not None:
+            extra.append(params)
+    kept = {p.name for p in extra}
+    for path, h in headers:
+        lost = [dim.name for dim in h.point_format.extra_dimensions if dim.name not in kept]
+        if lost:
+            notes.append(f"{path}: extra bytes {', '.join(lost)} dropped (not in every input file with one type)")
+    with_time = [(path, h) for path, h in headers if "gps_time" in h.point_format.dimension_names]
+    adjusted = {int(h.global_encoding.gps_time_type) for _, h in with_time}
+    if len(adjusted) > 1:
+        week = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 0)
+        standard = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 1)
+        raise InputDataError(
+            f"{standard} has adjusted standard GPS time but {week} GPS week seconds (global encoding bit 0); "
+            "process them in separate runs or convert one of them."
+        )
+    records = {}
+    for kind in ("vlrs", "evlrs"):
+        own = [[v for v in (getattr(h, kind) or []) if _carried(v)] for _, h in headers]
+        shared = set.intersection(*({_vlr_key(v) for v in vs} for vs in own))
+        records[kind] = [v for v in own[0] if _vlr_key(v) in shared]
+        for (path, _), vs in zip(headers, own, strict=True):
+            lost = [f"{v.user_id} {v.record_id}" for v in vs if _vlr_key(v) not in shared]
+            if lost:
+                notes.append(
+                    f"{path}: {kind[:-1].upper()} {', '.join(lost)} dropped (not the same in every input file)"
+                )
+    layout = PointLayout(
+        point_format=point_format,
+        extra=tuple(extra),
+        gps_adjusted=adjusted == {1},
+        synthetic_returns=any(h.global_encoding.synthetic_return_numbers for _, h in headers),
+        vlrs=tuple(records["vlrs"]),
+        evlrs=tuple(records["evlrs"]),
+    )
+    return layout, notes
+
+
+def _carried(vlr) -> bool:
+    """Whether a (E)VLR of the input is carried to the output as it is.
+
+    Not: the CRS (``LASF_Projection``, liblas' WKT; the writer adds the output
+    CRS), extra-byte descriptions (``LASF_Spec`` 4; made from the layout),
+    LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354).
+    """
+    user = vlr.user_id.strip("\0 ")
+    if user in ("LASF_Projection", "laszip encoded") or (user == "liblas" and vlr.record_id == 2112):
+        return False
+    return not (user == "LASF_Spec" and (vlr.record_id == 4 or 100 <= vlr.record_id <= 354))
+
+
+def _vlr_key(vlr) -> tuple:
+    data = vlr.record_data_bytes() if hasattr(vlr, "record_data_bytes") else bytes(vlr.record_data)
+    return vlr.user_id, vlr.record_id, data
+
+
+def _same_dimension(a, b) -> bool:
+    """Whether two extra-byte dimensions have the same name, type, scale and offset."""
+
+    def arr(v):
+        return None if v is None else np.asarray(v).tolist()
+
+    return (a.name, a.type_str(), arr(a.scales), arr(a.offsets)) == (
+        b.name,
+        b.type_str(),
+        arr(b.scales),
+        arr(b.offsets),
+    )
+
+
+def _extra_bytes_params(dim):
+    """laspy's description of an extra-byte dimension to write, or None when it has no usable type."""
+    import laspy
+
+    try:
+        return laspy.ExtraBytesParams(
+            name=dim.name,
+            type=dim.type_str(),
+            description=dim.description or "",
+            offsets=dim.offsets,
+            scales=dim.scales,
+            no_data=dim.no_data,
+        )
+    except (TypeError, ValueError, laspy.LaspyException):
+        return None
 
 
 def _file_crs(path: Path, header, assign, override=None, notes: dict | None = None):
@@ -280,7 +407,15 @@ def count_points(paths: list[Path]) -> int:
 
 
 def las_chunks(
-    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, report, progress=None, override_crs=None
+    paths: list[Path],
+    *,
+    crs_setting: str,
+    assign_crs,
+    chunk_size: int,
+    report,
+    progress=None,
+    layout: PointLayout | None = None,
+    override_crs=None,
 ):
     """Read LAS/LAZ files chunk by chunk, in the output CRS.
 
@@ -290,7 +425,9 @@ def las_chunks(
         The output CRS (the same for every chunk).
     columns : dict
         ``x``, ``y``, ``z`` (float64, output CRS), ``scan_angle`` (degrees),
-        ``gps_time`` and the copied attributes of one chunk of points.
+        ``gps_time`` and the attributes of one chunk of points that the
+        output's *layout* (default: :func:`point_layout`) holds; extra
+        bytes as stored (unscaled).
 
     The *report* (:class:`LasReadReport`) is filled as files are read.
     What is repaired, counted in it: return number 0 (invalid) is read as 1;
@@ -305,6 +442,9 @@ def las_chunks(
     """
     import pyproj
 
+    if layout is None:
+        layout, report.dropped = point_layout(paths)
+    copied = _copied(layout)
     target = None
     for path in paths:
         with _open(path) as reader:
@@ -361,8 +501,10 @@ def las_chunks(
                     cols["gps_time"] = (
                         np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
                     )
-                    for name in _COPIED:
-                        cols[name] = np.asarray(chunk[name])
+                    for name in copied:
+                        cols[name] = np.asarray(chunk[name]) if name in dims else np.zeros(n, np.uint8)
+                    for extra in layout.extra:
+                        cols[extra.name] = np.asarray(chunk.array[extra.name])
                     _repair(path, cols, stray, report)
                     _grow_box(report, cols["x"][~stray], cols["y"][~stray])
                     n_read += n
@@ -451,6 +593,13 @@ def _read_all_records(path: Path, header, report: LasReadReport) -> None:
         header.point_count = held
 
 
+def _copied(layout: PointLayout) -> list[str]:
+    """The standard dimensions of *layout*'s point format copied as they are."""
+    import laspy
+
+    return [n for n in laspy.PointFormat(layout.point_format).standard_dimension_names if n not in _APART]
+
+
 def read_las_files(
     paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
 ) -> tuple[object, LasReadReport]:
@@ -477,6 +626,7 @@ def read_las_files(
         When a file is not LAS/LAZ, is truncated, or has no usable CRS.
     """
     report = LasReadReport()
+    layout, report.dropped = point_layout(paths)
     parts: list[dict[str, np.ndarray]] = []
     target = None
     for crs, cols in las_chunks(
@@ -486,6 +636,7 @@ def read_las_files(
         chunk_size=chunk_size,
         report=report,
         progress=progress,
+        layout=layout,
         override_crs=override_crs,
     ):
         target = crs
@@ -498,9 +649,9 @@ def read_las_files(
                 h = reader.header
                 centre = (float((h.mins[0] + h.maxs[0]) / 2), float((h.mins[1] + h.maxs[1]) / 2))
             target = output_crs(crs_setting, src_crs, centre)
-    names = ("x", "y", "z", "scan_angle", "gps_time", *_COPIED)
+    names = ("x", "y", "z", "scan_angle", "gps_time", *_copied(layout), *(e.name for e in layout.extra))
     merged = {k: (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)) for k in names}
-    return _build(merged, target), report
+    return _build(merged, target, layout), report
 
 
 def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> tuple[np.ndarray, np.ndarray]:
@@ -553,10 +704,11 @@ def convert_las_files(
     from stages.io import point_header
 
     report = LasReadReport()
+    layout, report.dropped = point_layout(paths)
     strips: set[int] = set()
-    same = _copyable(paths, crs_setting, assign_crs, override_crs)
+    same = _copyable(paths, crs_setting, assign_crs, layout, override_crs)
     if same is not None:
-        return _copy(paths[0], dst, same, report, strips, chunk_size, progress), report, strips
+        return _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout), report, strips
     writer = None
     target = None
     try:
@@ -567,6 +719,7 @@ def convert_las_files(
             chunk_size=chunk_size,
             report=report,
             progress=progress,
+            layout=layout,
             override_crs=override_crs,
         ):
             n = len(cols["x"])
@@ -575,7 +728,7 @@ def convert_las_files(
                 if not np.isfinite(lo).all():
                     lo = np.array([cols[k].min() for k in "xyz"]) if n else None
                     hi = np.array([cols[k].max() for k in "xyz"]) if n else None
-                header = point_header(target, lo, hi)
+                header = point_header(target, lo, hi, layout=layout)
                 writer = laspy.open(str(dst), mode="w", header=header)
             if not n:
                 continue
@@ -594,7 +747,7 @@ def convert_las_files(
                 paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, override_crs=override_crs
             )
             target = las.header.parse_crs()
-            writer = laspy.open(str(dst), mode="w", header=point_header(target))
+            writer = laspy.open(str(dst), mode="w", header=point_header(target, layout=layout))
     finally:
         if writer is not None:
             writer.close()
@@ -623,18 +776,20 @@ def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray
     return lo, hi
 
 
-def _copyable(paths: list[Path], crs_setting: str, assign_crs, override_crs=None):
+def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayout, override_crs=None):
     """The output CRS when the input can be copied record for record, else None.
 
-    That is one LAS 1.4 file of point format 6 without extra bytes, already
-    in the output CRS: its points, scale and offsets are kept as delivered
+    That is one LAS 1.4 file whose records are those of *layout* (point
+    format 6, 7 or 8 with its extra bytes), already in the output CRS: its points, scale and offsets are kept as delivered
     (no re-quantisation, nothing recomputed), which is also the fastest.
     """
     if len(paths) != 1:
         return None
     with _open(paths[0]) as reader:
         h = reader.header
-        if str(h.version) != "1.4" or h.point_format.id != 6 or list(h.point_format.extra_dimension_names):
+        if str(h.version) != "1.4" or h.point_format.id != layout.point_format:
+            return None
+        if [e.name for e in layout.extra] != list(h.point_format.extra_dimension_names):
             return None
         if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
             return None
@@ -647,7 +802,7 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, override_crs=None
         return target if target.equals(src_crs) else None
 
 
-def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress):
+def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress, layout):
     """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`)."""
     import laspy
 
@@ -658,7 +813,7 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
         h = reader.header
         report.crs_source[str(path)] = "header"
         box = _header_box(h)
-        header = point_header(target)
+        header = point_header(target, layout=layout)
         header.offsets, header.scales = h.offsets, h.scales
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
@@ -690,7 +845,7 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
 
 
 def _record(cols: dict[str, np.ndarray], header):
-    """A chunk of columns as a format-6 point record for *header*."""
+    """A chunk of columns as a point record for *header* (format 6-8, extra bytes as stored)."""
     import laspy
 
     n = len(cols["x"])
@@ -698,12 +853,16 @@ def _record(cols: dict[str, np.ndarray], header):
     rec.x, rec.y, rec.z = cols["x"], cols["y"], cols["z"]
     rec.scan_angle = np.clip(np.round(cols["scan_angle"] / SCAN_ANGLE_UNIT_DEG), -30000, 30000).astype(np.int16)
     rec.gps_time = cols["gps_time"]
-    for name in _COPIED:
-        rec[name] = cols[name]
+    standard = set(header.point_format.standard_dimension_names)
+    for name, values in cols.items():
+        if name in standard and name not in _APART:
+            rec[name] = values
+        elif name not in standard and name not in ("x", "y", "z", "scan_angle", "gps_time"):
+            rec.array[name] = values  # an extra-byte dimension, unscaled
     return rec
 
 
-def _build(cols: dict[str, np.ndarray], crs):
+def _build(cols: dict[str, np.ndarray], crs, layout: PointLayout):
     import laspy
 
     from stages.io import point_header
@@ -711,9 +870,9 @@ def _build(cols: dict[str, np.ndarray], crs):
     n = len(cols["x"])
     if n:
         xyz = np.column_stack((cols["x"], cols["y"], cols["z"]))
-        header = point_header(crs, xyz.min(axis=0), xyz.max(axis=0))
+        header = point_header(crs, xyz.min(axis=0), xyz.max(axis=0), layout=layout)
     else:
-        header = point_header(crs)
+        header = point_header(crs, layout=layout)
     las = laspy.LasData(header)
     las.points = _record(cols, header)
     return las

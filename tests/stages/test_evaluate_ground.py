@@ -86,7 +86,7 @@ def test_default_beats_csf_on_the_isprs_samples():
     """Issue 7's acceptance: default mean total error <= 5 % and below CSF's."""
     default, cloth = [], []
     for name in SAMPLES:
-        rows, _, _ = evaluate_ground(ISPRS / f"{name}.laz", [SmrfParams(name="smrf"), CsfParams(name="csf")])
+        rows, _ = evaluate_ground(ISPRS / f"{name}.laz", [SmrfParams(name="smrf"), CsfParams(name="csf")])
         default.append(rows[0]["total"])
         cloth.append(rows[1]["total"])
     assert np.mean(default) <= 0.05, default

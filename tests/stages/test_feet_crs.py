@@ -124,7 +124,8 @@ def test_same_contours_and_hillshade(twin_runs):
         rasterio.open(twin_runs / "out_m" / "hillshade.tif") as a,
         rasterio.open(twin_runs / "out_ft" / "hillshade.tif") as b,
     ):
-        np.testing.assert_allclose(b.read(1), a.read(1), atol=0.05)
+        # Byte shades: the same to one grey level (a value on the .5 rounding edge may tip either way)
+        np.testing.assert_allclose(b.read(1).astype(int), a.read(1).astype(int), atol=1)
 
 
 def test_same_errors_at_check_points_reported_in_metres(twin_runs, capsys):

@@ -156,7 +156,13 @@ def test_every_raster_product_is_a_cog_with_crs_and_nodata(run_dir, name):
     out, _ = run_dir
     with rasterio.open(out / "out" / name) as ds:
         assert ds.crs.to_epsg() == 25830
-        assert ds.dtypes[0] == "float32" and ds.nodata == -9999.0
+        if name == "hillshade.tif":  # an image, as gdaldem writes it: Byte, shades 1-255, nodata 0
+            assert ds.dtypes[0] == "uint8" and ds.nodata == 0 and ds.units == (None,)
+            assert ds.read(1).max() > 1  # lit cells
+        else:
+            assert ds.dtypes[0] == "float32" and ds.nodata == -9999.0
+            # heights name their unit (EPSG:25830: metres); a point count has none
+            assert ds.units == ((None,) if name == "density.tif" else ("metre",))
         assert ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
         assert ds.block_shapes[0] == (256, 256) and ds.overviews(1)
         assert ds.transform.c % 1.0 == 0 and ds.transform.f % 1.0 == 0

@@ -1,0 +1,253 @@
+"""``pipeline info FILE... [--json]``: what a LAS/LAZ file holds, before running anything.
+
+Like ``pdal info --summary`` or LAStools' ``lasinfo``: the header (LAS
+version, point format, point count, bounds, scale and offset, system and
+software, GPS time type), the CRS and its units, the VLRs and EVLRs, and,
+from one pass over the points (in chunks), the bounds of the points
+themselves, the return numbers, the classes and the GPS time range.
+
+A file that cannot be read is one sentence on stderr, exit 3; the other
+files are still summarised.  A file that does not exist is a usage error
+(exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import EXIT_INPUT, ConfigError, InputDataError
+from pipeline.stage import Command
+
+#: ASPRS class names (LAS 1.4 R15, table 17), for the summary.
+CLASS_NAMES = {
+    0: "never classified",
+    1: "unclassified",
+    2: "ground",
+    3: "low vegetation",
+    4: "medium vegetation",
+    5: "high vegetation",
+    6: "building",
+    7: "low noise",
+    8: "model key point / reserved",
+    9: "water",
+    10: "rail",
+    11: "road surface",
+    12: "overlap / reserved",
+    13: "wire guard",
+    14: "wire conductor",
+    15: "transmission tower",
+    16: "wire connector",
+    17: "bridge deck",
+    18: "high noise",
+}
+#: Points read at a time.
+CHUNK = 1_000_000
+
+
+def gps_time_type(header) -> str | None:
+    """The GPS time type global encoding bit 0 states, or None when the point format has no GPS time."""
+    if "gps_time" not in header.point_format.dimension_names:
+        return None
+    return "adjusted standard GPS time" if int(header.global_encoding.gps_time_type) else "GPS week seconds"
+
+
+def _crs(header) -> tuple[dict, object]:
+    """The CRS of a header as a dict (name, EPSG code, units; or why there is none) and as a pyproj CRS."""
+    try:
+        crs = header.parse_crs()
+    except Exception as exc:  # laspy raises various errors for malformed GeoTIFF keys or WKT
+        return {"name": None, "error": f"unreadable ({exc})"}, None
+    if crs is None:
+        return {"name": None, "error": "none in the header"}, None
+    from stages.units import Units
+
+    try:
+        units = Units.of(crs).describe()
+    except ValueError:
+        units = "degrees (geographic)"
+    return {"name": crs.name, "epsg": crs.to_epsg(), "units": units, "compound": bool(crs.is_compound)}, crs
+
+
+def crs_fit(crs, mins, maxs) -> tuple[bool | None, str | None]:
+    """Whether the points' horizontal bounds *mins*..*maxs* are plausible coordinates in *crs*, and why not.
+
+    The check is the run's (``stages.crscheck.crs_problem``); where that
+    module is missing this returns ``(None, None)``: not checked.
+    """
+    try:
+        from stages.crscheck import crs_problem  # type: ignore[import-not-found]
+    except ImportError:
+        return None, None
+    problem = crs_problem(crs, mins, maxs)
+    return problem is None, problem
+
+
+def summary(path: Path) -> dict:
+    """Everything ``pipeline info`` says about one LAS/LAZ file, as plain values (JSON-ready).
+
+    Raises
+    ------
+    InputDataError
+        When the file is not a readable LAS/LAZ file.
+    """
+    from stages.readers.las import _open, _parse_errors
+
+    path = Path(path)
+    with _open(path) as reader:
+        h = reader.header
+        crs_info, crs = _crs(h)
+        dims = list(h.point_format.dimension_names)
+        out: dict = {
+            "file": str(path),
+            "bytes": path.stat().st_size,
+            "version": str(h.version),
+            "point_format": h.point_format.id,
+            "compressed": bool(path.suffix.lower() == ".laz" or getattr(reader, "laszip_vlr", None)),
+            "points": int(h.point_count),
+            "points_by_return_header": [int(v) for v in h.number_of_points_by_return],
+            "system_identifier": h.system_identifier,
+            "generating_software": h.generating_software,
+            "creation_date": h.creation_date.isoformat() if h.creation_date else None,
+            "global_encoding": int(h.global_encoding.value),
+            "gps_time_type": gps_time_type(h),
+            "scale": [float(v) for v in h.scales],
+            "offset": [float(v) for v in h.offsets],
+            "bounds_header": {"min": [float(v) for v in h.mins], "max": [float(v) for v in h.maxs]},
+            "crs": crs_info,
+            "crs_fits": None,  # True / False from the run's CRS check (crs_fit); None: not checked
+            "crs_problem": None,
+            "dimensions": dims,
+            "extra_bytes": [
+                {"name": d.name, "type": d.type_str(), "description": d.description}
+                for d in h.point_format.extra_dimensions
+            ],
+            "vlrs": [_vlr(v) for v in h.vlrs],
+            "evlrs": [_vlr(v) for v in (h.evlrs or [])],
+        }
+        n = 0
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        classes = np.zeros(256, dtype=np.int64)
+        returns = np.zeros((16, 16), dtype=np.int64)  # return number x number of returns
+        t_lo, t_hi, t_bad = np.inf, -np.inf, 0
+        try:
+            for chunk in reader.chunk_iterator(CHUNK):
+                if not len(chunk):
+                    continue
+                n += len(chunk)
+                for axis, values in enumerate((chunk.x, chunk.y, chunk.z)):
+                    v = np.asarray(values)
+                    lo[axis], hi[axis] = min(lo[axis], float(v.min())), max(hi[axis], float(v.max()))
+                classes += np.bincount(np.asarray(chunk.classification, dtype=np.int64), minlength=256)[:256]
+                r = np.clip(np.asarray(chunk.return_number, dtype=np.int64), 0, 15)
+                k = np.clip(np.asarray(chunk.number_of_returns, dtype=np.int64), 0, 15)
+                returns += np.bincount(r * 16 + k, minlength=256).reshape(16, 16)
+                if "gps_time" in dims:
+                    t = np.asarray(chunk.gps_time, dtype=np.float64)
+                    ok = np.isfinite(t)
+                    t_bad += int((~ok).sum())
+                    if ok.any():
+                        t_lo, t_hi = min(t_lo, float(t[ok].min())), max(t_hi, float(t[ok].max()))
+        except _parse_errors() as exc:
+            raise InputDataError(f"{path}: unreadable after point {n:,} ({exc}).") from None
+    out["points_read"] = n
+    out["bounds"] = {"min": lo.tolist(), "max": hi.tolist()} if n else None
+    out["returns"] = {
+        "return_number": {str(i): int(c) for i, c in enumerate(returns.sum(axis=1)) if c},
+        "number_of_returns": {str(i): int(c) for i, c in enumerate(returns.sum(axis=0)) if c},
+    }
+    out["classes"] = {
+        str(c): {"name": CLASS_NAMES.get(int(c), "user defined" if c >= 64 else "reserved"), "points": int(classes[c])}
+        for c in np.flatnonzero(classes)
+    }
+    if "gps_time" in dims:
+        out["gps_time"] = {"min": t_lo if n > t_bad else None, "max": t_hi if n > t_bad else None, "not_finite": t_bad}
+    else:
+        out["gps_time"] = None
+    if crs is not None and n:
+        out["crs_fits"], out["crs_problem"] = crs_fit(crs, lo[:2], hi[:2])
+    return out
+
+
+def _vlr(v) -> dict:
+    data = getattr(v, "record_data", None)
+    size = len(data) if isinstance(data, bytes | bytearray) else None
+    return {"user_id": v.user_id, "record_id": int(v.record_id), "description": v.description, "bytes": size}
+
+
+def _fmt(values) -> str:
+    return ", ".join(f"{v:.10g}" for v in values)
+
+
+def text(s: dict) -> str:
+    """The summary of one file as lines for a person."""
+    crs = s["crs"]
+    if crs["name"] is None:
+        crs_line = crs["error"]
+    else:
+        crs_line = f"{crs['name']}" + (f" (EPSG:{crs['epsg']})" if crs.get("epsg") else "") + f"; {crs['units']}"
+    if s["crs_fits"] is False:
+        crs_line += f"; does not fit the coordinates: {s['crs_problem']}"
+    elif s["crs_fits"] is True:
+        crs_line += "; fits the coordinates"
+    lines = [
+        f"{s['file']}",
+        f"  LAS {s['version']}, point format {s['point_format']}, {s['points']:,} points "
+        f"({s['points_read']:,} read), {s['bytes']:,} bytes",
+        f"  system {s['system_identifier'] or '-'}; software {s['generating_software'] or '-'}; "
+        f"created {s['creation_date'] or '-'}",
+        f"  CRS: {crs_line}",
+    ]
+    if s["bounds"]:
+        lines.append(f"  bounds (points): min {_fmt(s['bounds']['min'])}; max {_fmt(s['bounds']['max'])}")
+    lines.append(f"  bounds (header): min {_fmt(s['bounds_header']['min'])}; max {_fmt(s['bounds_header']['max'])}")
+    lines.append(f"  scale {_fmt(s['scale'])}; offset {_fmt(s['offset'])}")
+    if s["gps_time"] is None:
+        lines.append("  GPS time: none in this point format")
+    else:
+        g = s["gps_time"]
+        span = f"{g['min']:.6f} to {g['max']:.6f}" if g["min"] is not None else "no finite value"
+        bad = f"; {g['not_finite']:,} not finite" if g["not_finite"] else ""
+        lines.append(f"  GPS time: {s['gps_time_type']}, {span}{bad}")
+    rn = ", ".join(f"{k}: {v:,}" for k, v in s["returns"]["return_number"].items()) or "-"
+    nr = ", ".join(f"{k}: {v:,}" for k, v in s["returns"]["number_of_returns"].items()) or "-"
+    lines.append(f"  return number {rn}; number of returns {nr}")
+    cls = ", ".join(f"{k} {v['name']}: {v['points']:,}" for k, v in s["classes"].items()) or "-"
+    lines.append(f"  classes: {cls}")
+    lines.append(f"  dimensions: {', '.join(s['dimensions'])}")
+    for kind in ("vlrs", "evlrs"):
+        for v in s[kind]:
+            lines.append(f"  {kind[:-1].upper()} {v['user_id']} {v['record_id']}: {v['description']}")
+    return "\n".join(lines)
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("files", type=Path, nargs="+", metavar="FILE", help="LAS/LAZ files")
+    parser.add_argument("--json", action="store_true", help="print a JSON list, one object per file")
+
+
+def _run(args: argparse.Namespace) -> int:
+    for path in args.files:
+        if not path.is_file():
+            raise ConfigError(f"{path}: file not found.")
+    found, failed = [], 0
+    for path in args.files:
+        try:
+            found.append(summary(path))
+        except InputDataError as exc:
+            print(f"pipeline: error: {exc}", file=sys.stderr)
+            failed += 1
+    if args.json:
+        print(json.dumps(found, indent=2))
+    else:
+        print("\n\n".join(text(s) for s in found))
+    return EXIT_INPUT if failed else 0
+
+
+INFO = Command(
+    name="info", help="summarise LAS/LAZ files (header, CRS, points)", add_arguments=_add_arguments, run=_run
+)

@@ -55,7 +55,12 @@ def run_file(path: Path, work: Path, timeout: float, extra: list[str] | None = N
     except subprocess.TimeoutExpired:
         code, err = None, [f"stopped after {timeout:.0f} s"]
     seconds = time.perf_counter() - t0
-    row = {"file": f"{path.parent.name}/{path.name}", "exit": code, "seconds": round(seconds, 1), "message": err[-1][:160]}
+    row = {
+        "file": f"{path.parent.name}/{path.name}",
+        "exit": code,
+        "seconds": round(seconds, 1),
+        "message": err[-1][:160],
+    }
     try:
         row["points"] = int(laspy.open(path).header.point_count)
     except Exception as exc:  # the file's own problem is what the run's message reports

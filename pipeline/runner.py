@@ -45,6 +45,10 @@ from pipeline.stage import Plugin, Stage, StageIO, get_dotted
 
 MANIFEST = "run.json"
 PRODUCTS_LOCK = ".products.lock"
+#: Metrics key in which a stage lists the artifacts it made but that hold nothing worth publishing
+#: (an empty map): they stay in the cache entry, are not copied to the output folder, and an older
+#: copy there is removed like any product no longer made (listed in ``run.json``'s ``removed_products``).
+UNPUBLISHED = "unpublished"
 
 
 def _inside(folder: Path, name: str) -> Path:
@@ -331,7 +335,10 @@ def run(
         if dry_run:
             return manifest
         products = {
-            file_name: artifacts[artifact] for step in plan.steps for artifact, file_name in step.io.products.items()
+            file_name: artifacts[artifact]
+            for step in plan.steps
+            for artifact, file_name in step.io.products.items()
+            if artifact not in _unpublished(records.get(step.name))
         }
         executor.close()
         _finish(manifest, started)
@@ -408,6 +415,12 @@ def _read_manifest(output: Path) -> dict[str, Any]:
 
 def _write_manifest(output: Path, manifest: dict[str, Any]) -> None:
     atomic_write_text(output / MANIFEST, json.dumps(manifest, indent=2, default=str))
+
+
+def _unpublished(record: dict[str, Any] | None) -> set[str]:
+    """Outputs a stage said hold nothing to publish (``ctx.metrics[UNPUBLISHED]``): kept in the cache only."""
+    names = ((record or {}).get("metrics") or {}).get(UNPUBLISHED) or []
+    return {n for n in names if isinstance(n, str)}
 
 
 def _carry_products(manifest: dict[str, Any], old: dict[str, Any]) -> None:

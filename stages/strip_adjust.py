@@ -74,7 +74,7 @@ def _read_control(path) -> np.ndarray:
 
 class StripAdjust(Stage):
     name = "strip_adjust"
-    version = "7"  # 7: read and written in chunks; estimation on a lattice of cells above max_points
+    version = "8"  # 8: difference maps over the overlap patches, not published when there is no overlap
     Params = StripAdjustParams
     description = "joint point-to-plane ICP: one rigid correction per strip"
     inputs: ClassVar = ("points_georef",)
@@ -201,6 +201,10 @@ class StripAdjust(Stage):
             ctx.metrics.update(iterations=sol.iterations, correspondences=sol.correspondences,
                                residual_sigma_m=sol.sigma)  # fmt: skip
         transforms = sol.transforms if skipped_note is None else {}
+        if not pair_rows:  # no overlap measured: the difference maps would be empty, so they are not published
+            from pipeline.runner import UNPUBLISHED
+
+            ctx.metrics[UNPUBLISHED] = ["strip_difference_before", "strip_difference_after", "strip_difference_png"]
         _apply(src, ctx.outputs["points_adjusted"], transforms, units, ctx)
         _difference_rasters(ctx, extent, before, after, p.difference_resolution, crs, units)
         datum = "control points" if reference is None and control is not None else f"strip {reference}"

@@ -186,6 +186,27 @@ def test_a_dtm_without_a_valid_cell_is_an_error(tmp_path, capsys):
     assert json.loads((out / "run.json").read_text())["status"] == "failed" and not (out / "dtm.tif").exists()
 
 
+def test_empty_strip_difference_maps_are_not_published(tmp_path):
+    """One strip, no overlap: no all-nodata strip_difference_*.tif in the output folder, and run.json says so."""
+    rng = np.random.default_rng(5)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.offsets, header.scales = [440_000.0, 4_474_000.0, 0.0], [0.001, 0.001, 0.001]
+    header.add_crs(pyproj.CRS.from_epsg(25830))
+    las = laspy.LasData(header)
+    n = 20_000
+    las.x, las.y = 440_000 + rng.uniform(0, 100, n), 4_474_000 + rng.uniform(0, 100, n)
+    las.z = 600 + 0.05 * (las.x - 440_000) + rng.normal(0, 0.02, n)
+    las.return_number = las.number_of_returns = np.ones(n, dtype=np.uint8)
+    las.point_source_id = np.full(n, 7, dtype=np.uint16)
+    path = tmp_path / "one_strip.las"
+    las.write(str(path))
+    code, out = _run_las(tmp_path, path, "executor.workers=1", "stages.report.enabled=false")
+    assert code == 0
+    products = json.loads((out / "run.json").read_text())["products"]
+    assert "dtm.tif" in products and not any(name.startswith("strip_difference") for name in products)
+    assert not list(out.glob("strip_difference*"))
+
+
 def test_an_empty_file_is_named(tmp_path, capsys):
     path = real("pdal/no-points.las")
     code, out = _run_las(tmp_path, path)

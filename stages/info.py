@@ -58,8 +58,11 @@ def gps_time_type(header) -> str | None:
 
 def _crs(header) -> tuple[dict, object]:
     """The CRS of a header as a dict (name, EPSG code, units; or why there is none) and as a pyproj CRS."""
+    from stages.crscheck import honour_linear_units
+    from stages.readers.las import _geo_keys
+
     try:
-        crs = header.parse_crs()
+        crs, note = honour_linear_units(header.parse_crs(), _geo_keys(header))  # as the run reads it
     except Exception as exc:  # laspy raises various errors for malformed GeoTIFF keys or WKT
         return {"name": None, "error": f"unreadable ({exc})"}, None
     if crs is None:
@@ -76,13 +79,10 @@ def _crs(header) -> tuple[dict, object]:
 def crs_fit(crs, mins, maxs) -> tuple[bool | None, str | None]:
     """Whether the points' horizontal bounds *mins*..*maxs* are plausible coordinates in *crs*, and why not.
 
-    The check is the run's (``stages.crscheck.crs_problem``); where that
-    module is missing this returns ``(None, None)``: not checked.
+    The check is the run's (:func:`stages.crscheck.crs_problem`).
     """
-    try:
-        from stages.crscheck import crs_problem  # type: ignore[import-not-found]
-    except ImportError:
-        return None, None
+    from stages.crscheck import crs_problem
+
     problem = crs_problem(crs, mins, maxs)
     return problem is None, problem
 

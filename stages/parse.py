@@ -421,6 +421,7 @@ class Parse(Stage):
             units=Units.of(crs).describe(),
             return_number_zero=report.return_number_zero,
             outside_header_bounds=report.outside_header_bounds,
+            far_from_survey=report.far_from_survey,
             header_count_short={k: list(v) for k, v in report.header_count_short.items()},
             crs_notes=report.crs_notes,
             fields_dropped=report.dropped,
@@ -458,6 +459,12 @@ def _log_las_report(log, report, override) -> None:
             "left out of every grid and filter)",
             path,
             n,
+        )
+    if report.far_from_survey:
+        log.warning(
+            "%d points lie far from the survey's dense core: flagged withheld (kept in points.laz, left out of every "
+            "grid and filter)",
+            report.far_from_survey,
         )
     for path, (announced, held) in report.header_count_short.items():
         log.warning("%s: the header announces %d points but the file holds %d records: all read", path, announced, held)

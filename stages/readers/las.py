@@ -43,6 +43,8 @@ class LasReadReport:
     outside_header_bounds: dict[str, int] = field(default_factory=dict)
     #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
     header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: Points far from the survey's dense core (inside the header's bounds), flagged withheld.
+    far_from_survey: int = 0
     #: Horizontal box (xmin, ymin, xmax, ymax, output CRS units) of the points not withheld as stray.
     usable_box: list[float] | None = None
     #: Per file: why its header CRS was not used as it stands (unreadable; GeoKey units honoured).
@@ -708,7 +710,9 @@ def convert_las_files(
     strips: set[int] = set()
     same = _copyable(paths, crs_setting, assign_crs, layout, override_crs)
     if same is not None:
-        return _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout), report, strips
+        target = _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout)
+        withhold_isolated(dst, report)
+        return target, report, strips
     writer = None
     target = None
     try:
@@ -751,7 +755,101 @@ def convert_las_files(
     finally:
         if writer is not None:
             writer.close()
+    withhold_isolated(dst, report)
     return target, report, strips
+
+
+#: Cells per side of the occupancy grid that finds points far from the survey.
+ISOLATION_GRID = 256
+#: A group of points is isolated when it holds at most this share of the survey (and at most
+#: ISOLATED_MAX_POINTS) and lies farther than ISOLATED_GAP of the survey's extent, and at least
+#: ISOLATED_MIN_GAP_UNITS (in the CRS's units), from the rest.
+ISOLATED_MAX_SHARE = 1e-4
+ISOLATED_MAX_POINTS = 100
+ISOLATED_GAP = 0.1
+ISOLATED_MIN_GAP_UNITS = 500.0
+
+
+def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -> int:
+    """Flag withheld, in place, the few points of an intermediate LAS that lie far from the survey's dense core.
+
+    A stray point inside its header's bounds (the bounds were computed with
+    it) would still size every grid.  The file's points are counted on a
+    ``ISOLATION_GRID``-cell grid over its bounds; groups of occupied cells
+    (8-connected, one empty cell bridged) that hold at most
+    ``ISOLATED_MAX_SHARE`` of the points (and at most ``ISOLATED_MAX_POINTS``)
+    and lie farther from the largest group than ``ISOLATED_GAP`` of its
+    extent (and ``ISOLATED_MIN_GAP_UNITS``) are withheld and counted in the
+    report's ``outside_header_bounds`` (as "far from the survey"); the
+    report's box of usable points is then recomputed.  Only uncompressed LAS
+    1.4 formats 6-8 (what the pipeline writes) are changed, through a memory
+    map of the records' X, Y and flag bytes.
+
+    Returns
+    -------
+    int
+        The number of points withheld.
+    """
+    import laspy
+    from scipy import ndimage
+
+    with laspy.open(str(path)) as reader:
+        h = reader.header
+        count, offset, size = int(h.point_count), int(h.offset_to_point_data), int(h.point_format.size)
+        scales, offsets = np.asarray(h.scales), np.asarray(h.offsets)
+        mins, maxs = np.asarray(h.mins), np.asarray(h.maxs)
+    if count == 0 or h.point_format.id not in (6, 7, 8) or not np.isfinite(mins).all():
+        return 0
+    span = float(max(maxs[0] - mins[0], maxs[1] - mins[1]))
+    if span <= 0:
+        return 0
+    cell = span / ISOLATION_GRID * (1 + 1e-9)
+    records = np.memmap(path, dtype=np.uint8, mode="r+", offset=offset, shape=(count, size))
+
+    def cells(a: int, b: int):
+        xy = np.ascontiguousarray(records[a:b, 0:8]).view("<i4").reshape(-1, 2) * scales[:2] + offsets[:2]
+        c = np.minimum(((xy - mins[:2]) / cell).astype(np.int64), ISOLATION_GRID - 1)
+        return c[:, 1] * ISOLATION_GRID + c[:, 0], xy
+
+    hist = np.zeros(ISOLATION_GRID * ISOLATION_GRID, dtype=np.int64)
+    for a in range(0, count, block):
+        hist += np.bincount(cells(a, min(a + block, count))[0], minlength=hist.size)
+    occupied = (hist > 0).reshape(ISOLATION_GRID, ISOLATION_GRID)
+    labels, n_groups = ndimage.label(ndimage.binary_dilation(occupied, np.ones((3, 3))), np.ones((3, 3)))
+    labels = np.where(occupied, labels, 0)
+    if n_groups < 2:
+        return 0
+    points = np.bincount(labels.ravel(), weights=hist, minlength=n_groups + 1)
+    points[0] = 0
+    main = int(np.argmax(points))
+    rows, cols = np.nonzero(labels == main)
+    extent = max(int(np.ptp(rows)), int(np.ptp(cols)), 1) * cell
+    gap = max(ISOLATED_GAP * extent, ISOLATED_MIN_GAP_UNITS)
+    distance = ndimage.distance_transform_edt(labels != main) * cell
+    small = (points <= min(ISOLATED_MAX_POINTS, ISOLATED_MAX_SHARE * count)) & (points > 0)
+    far = np.zeros(n_groups + 1, dtype=bool)
+    for g in np.flatnonzero(small):
+        far[g] = distance[labels == g].min() > gap
+    flagged_cells = far[labels.ravel()]
+    if not flagged_cells.any():
+        return 0
+    withheld = 0
+    box = None
+    for a in range(0, count, block):
+        b = min(a + block, count)
+        flat, xy = cells(a, b)
+        hit = flagged_cells[flat]
+        if hit.any():
+            records[a:b, 15][hit] |= 0x04  # classification flags, bit 2: withheld (LAS 1.4, formats 6-10)
+            withheld += int(hit.sum())
+        keep = ~hit & (records[a:b, 15] & 0x04 == 0)
+        if keep.any():
+            lo, hi = xy[keep].min(axis=0), xy[keep].max(axis=0)
+            box = [*lo, *hi] if box is None else [*np.minimum(box[:2], lo), *np.maximum(box[2:], hi)]
+    records.flush()
+    report.far_from_survey = report.far_from_survey + withheld
+    report.usable_box = None if box is None else [float(v) for v in box]
+    return withheld
 
 
 def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray]:

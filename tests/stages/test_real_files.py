@@ -97,6 +97,30 @@ def test_a_stray_point_outside_the_header_bounds_is_withheld():
     assert far > 50_000 and np.ptp(x[rest]) < 2_000 and np.ptp(y[rest]) < 2_000
 
 
+def test_a_stray_point_inside_the_header_bounds_is_withheld(tmp_path):
+    """Header bounds computed with the stray point: it is found far from the survey's dense core instead."""
+    from stages.readers.las import convert_las_files
+
+    rng = np.random.default_rng(1)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets, header.scales = [440_000.0, 4_474_000.0, 0.0], [0.01, 0.01, 0.01]
+    header.add_crs(pyproj.CRS.from_epsg(25830))
+    las = laspy.LasData(header)
+    n = 50_000
+    x, y = 440_000 + rng.uniform(0, 300, n), 4_474_000 + rng.uniform(0, 300, n)
+    x[7], y[7] = 520_000.0, 4_474_100.0  # 80 km east
+    las.x, las.y, las.z = x, y, rng.uniform(600, 610, n)
+    las.return_number = las.number_of_returns = np.ones(n, dtype=np.uint8)
+    src = tmp_path / "in.las"
+    las.write(str(src))
+    _, report, _ = convert_las_files(
+        [src], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=10_000
+    )
+    out = laspy.read(tmp_path / "out.las")
+    assert report.far_from_survey == 1 and np.flatnonzero(np.asarray(out.withheld)).tolist() == [7]
+    assert report.usable_box[2] < 440_301 and report.outside_header_bounds == {}
+
+
 def test_return_number_zero_is_read_as_one():
     path = real("pdal/utm17.las")
     las, report = _read(path)

@@ -20,6 +20,34 @@ LOW_NOISE = 7
 WATER = 9
 HIGH_NOISE = 18
 
+#: ASPRS class names (LAS 1.4 R15, Table 17)
+CLASS_NAMES = {
+    0: "never classified",
+    1: "unclassified",
+    2: "ground",
+    3: "low vegetation",
+    4: "medium vegetation",
+    5: "high vegetation",
+    6: "building",
+    7: "low noise",
+    8: "model key point / reserved",
+    9: "water",
+    10: "rail",
+    11: "road surface",
+    12: "overlap / reserved",
+    13: "wire guard",
+    14: "wire conductor",
+    15: "transmission tower",
+    16: "wire connector",
+    17: "bridge deck",
+    18: "high noise",
+}
+
+
+def class_name(code: int) -> str:
+    """The ASPRS name of a classification code ("reserved" 19-63, "user defined" 64-255)."""
+    return CLASS_NAMES.get(code, "user defined" if code >= 64 else "reserved")
+
 
 def cell_size(default: float) -> Any:
     """Side of the square cells of an algorithm's internal grid (m)."""

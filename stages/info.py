@@ -22,29 +22,8 @@ import numpy as np
 
 from pipeline.errors import EXIT_INPUT, ConfigError, InputDataError
 from pipeline.stage import Command
+from stages import glossary
 
-#: ASPRS class names (LAS 1.4 R15, table 17), for the summary.
-CLASS_NAMES = {
-    0: "never classified",
-    1: "unclassified",
-    2: "ground",
-    3: "low vegetation",
-    4: "medium vegetation",
-    5: "high vegetation",
-    6: "building",
-    7: "low noise",
-    8: "model key point / reserved",
-    9: "water",
-    10: "rail",
-    11: "road surface",
-    12: "overlap / reserved",
-    13: "wire guard",
-    14: "wire conductor",
-    15: "transmission tower",
-    16: "wire connector",
-    17: "bridge deck",
-    18: "high noise",
-}
 #: Points read at a time.
 CHUNK = 1_000_000
 
@@ -161,8 +140,7 @@ def summary(path: Path) -> dict:
         "number_of_returns": {str(i): int(c) for i, c in enumerate(returns.sum(axis=0)) if c},
     }
     out["classes"] = {
-        str(c): {"name": CLASS_NAMES.get(int(c), "user defined" if c >= 64 else "reserved"), "points": int(classes[c])}
-        for c in np.flatnonzero(classes)
+        str(c): {"name": glossary.class_name(int(c)), "points": int(classes[c])} for c in np.flatnonzero(classes)
     }
     if "gps_time" in dims:
         out["gps_time"] = {"min": t_lo if n > t_bad else None, "max": t_hi if n > t_bad else None, "not_finite": t_bad}

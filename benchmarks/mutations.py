@@ -10,6 +10,7 @@ separately, restores the file, and prints a table::
     python benchmarks/mutations.py                       # this checkout's code and tests
     python benchmarks/mutations.py --tests-from OLD      # this code, the tests of another checkout
     python benchmarks/mutations.py --only buffer --fast-only
+    python benchmarks/mutations.py --slow-if-missed      # slow tests only for what the fast ones miss
 
 A mutation whose text is not found exactly once is reported as ``does not
 apply`` (the code was rewritten: re-target the entry).  Test files that do
@@ -212,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workdir", type=Path, default=Path("/tmp") / f"mutations-{os.getpid()}")
     ap.add_argument("--only", default=None, help="only mutations whose name contains this text")
     ap.add_argument("--fast-only", action="store_true", help="skip the slow tests")
+    ap.add_argument("--slow-if-missed", action="store_true", help="run the slow tests only when the fast ones miss")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per pytest run")
     args = ap.parse_args(argv)
     tree = args.workdir / "tree"
@@ -229,7 +231,10 @@ def main(argv: list[str] | None = None) -> int:
         path.write_text(text.replace(m.old, m.new))
         try:
             fast = _pytest(tree, tests, "not slow", args.timeout)
-            slow = "(not run)" if args.fast_only else _pytest(tree, tests, "slow", args.timeout)
+            if args.fast_only or (args.slow_if_missed and fast == "yes"):
+                slow = "(not run)"
+            else:
+                slow = _pytest(tree, tests, "slow", args.timeout)
         finally:
             path.write_text(text)
         rows.append((m.name, m.file, fast, slow, time.monotonic() - start))

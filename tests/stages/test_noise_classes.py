@@ -24,15 +24,16 @@ from stages.io import read_raster
 X0, Y0 = 440_000.0, 4_474_000.0
 
 
-def _write(path: Path, xyz: np.ndarray, cls: np.ndarray | None = None) -> Path:
+def write_las(path: Path, xyz: np.ndarray, cls=None, returns=None) -> Path:
+    """A LAS 1.4 in EPSG:25830 of local coordinates (origin X0, Y0); *returns*: (return number, count)."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001] * 3)
     header.offsets = np.array([X0, Y0, 0.0])
     header.add_crs(pyproj.CRS.from_epsg(25830))
     las = laspy.LasData(header)
     las.x, las.y, las.z = xyz[:, 0] + X0, xyz[:, 1] + Y0, xyz[:, 2]
-    las.return_number = np.ones(len(xyz), np.uint8)
-    las.number_of_returns = np.ones(len(xyz), np.uint8)
+    ones = np.ones(len(xyz), np.uint8)
+    las.return_number, las.number_of_returns = returns if returns is not None else (ones, ones)
     las.classification = np.zeros(len(xyz), np.uint8) if cls is None else cls
     las.write(str(path))
     return path
@@ -67,7 +68,7 @@ def test_every_point_of_a_low_cluster_is_low_noise(tmp_path):
     pts = _ground()
     low = np.array([[15.2, 15.3, 600.3 - 9.0], [15.6, 15.1, 600.3 - 7.5], [15.9, 15.8, 600.3 - 6.0]])
     cloud = np.vstack((pts, low))
-    stages = _run(tmp_path, _write(tmp_path / "in.las", cloud), "denoise",
+    stages = _run(tmp_path, write_las(tmp_path / "in.las", cloud), "denoise",
                   "  denoise: {isolated: {enabled: false}, low: {cell_size: 10.0, elevation_threshold: 1.0}}\n")  # fmt: skip
     cls = _classes(stages["denoise"])
     assert cls[-3:].tolist() == [7, 7, 7]
@@ -89,7 +90,7 @@ def test_isolated_points_are_those_beyond_mean_plus_k_std(tmp_path):
     expect = mean > threshold
     # the survey must tell 5 sigma from less: points between 2.5 and 5 sigma, and beyond 5
     assert ((mean > mean.mean() + 2.5 * mean.std()) & ~expect).sum() >= 3 and expect.sum() >= 3
-    stages = _run(tmp_path, _write(tmp_path / "in.las", cloud), "denoise",
+    stages = _run(tmp_path, write_las(tmp_path / "in.las", cloud), "denoise",
                   "  denoise: {low: {enabled: false}, isolated: {neighbors: 8, multiplier: 5.0, radius: 20.0}}\n")  # fmt: skip
     cls = _classes(stages["denoise"])
     np.testing.assert_array_equal(np.isin(cls, (7, 18)), expect)
@@ -101,7 +102,7 @@ def test_dsm_and_density_ignore_noise_classes(tmp_path):
     pts = _ground(40)
     noise = np.array([[20.3, 20.2, 680.0], [10.6, 30.4, 570.0]])
     cls = np.r_[np.zeros(len(pts), np.uint8), np.array([18, 7], np.uint8)]
-    stages = _run(tmp_path, _write(tmp_path / "in.las", np.vstack((pts, noise)), cls), "rasterize",
+    stages = _run(tmp_path, write_las(tmp_path / "in.las", np.vstack((pts, noise)), cls), "rasterize",
                   "  denoise: {enabled: false}\n  rasterize: {resolution: 1.0, method: tin}\n")  # fmt: skip
     out = tmp_path / "out"
     dsm, *_ = read_raster(out / "dsm.tif")

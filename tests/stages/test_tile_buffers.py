@@ -27,14 +27,14 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-import pyproj
 import pytest
 
 from pipeline.cli import main
 from stages.io import read_raster
 from stages.synthetic import make_scene
+from tests.stages.test_noise_classes import X0, Y0, write_las
 
-X0, Y0 = 440_000.0, 4_474_000.0  # whole multiples of the tile size: edges at local x = 100, 200; y = 100
+assert X0 % 100 == 0 and Y0 % 100 == 0  # the origin on whole tiles: tile edges at local x, y = 100, 200
 #: centre x, y, width, depth, height: buildings near the edges
 BUILDINGS = [(80, 180, 34, 30, 8), (185, 95, 30, 34, 12), (200, 190, 33, 33, 7)]
 LAKE = (170.0, 232.0, 20.0, 80.0)  # x0, x1, y0, y1: no returns
@@ -53,16 +53,8 @@ def _survey(path: Path) -> None:
     near = np.hypot(xyz[:, 0] - 210, xyz[:, 1] - 150) < 5
     low = np.array([[*LOW_ECHO, float(np.median(xyz[near, 2])) - 12.0]])
     xyz = np.vstack((xyz[keep], low))
-    rn = np.r_[s.return_number[keep], 1]
-    nr = np.r_[s.number_of_returns[keep], 1]
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.array([0.001] * 3)
-    header.offsets = np.array([X0, Y0, 0.0])
-    header.add_crs(pyproj.CRS.from_epsg(25830))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0] + X0, xyz[:, 1] + Y0, xyz[:, 2]
-    las.return_number, las.number_of_returns = rn, nr
-    las.write(str(path))
+    returns = (np.r_[s.return_number[keep], 1], np.r_[s.number_of_returns[keep], 1])
+    write_las(path, xyz, returns=returns)
 
 
 def _run(root: Path, name: str, *sets: str, cache: str | None = None, until: str = "rasterize") -> dict:

@@ -126,3 +126,27 @@ def test_a_new_tiling_buffer_reruns_the_ground_stage(survey):
     second = _run(root, "key-b", *sets, "tiling.buffer=1", cache="key", until="classify_ground")
     a, b = (_classes(s["classify_ground"], "points_classified") for s in (first, second))
     assert (a != b).any()  # a 1 m buffer shows at the seams: the second run classified anew
+
+
+@pytest.mark.xfail(strict=True, reason="stages/ground/surface.py pad_linear fits one plane to the whole grid, "
+                   "so the padding at the survey's boundary depends on the tile's extent (left to the lead)")  # fmt: skip
+def test_smrf_near_the_survey_boundary_does_not_depend_on_the_tile():
+    """Buildings 5-10 m from the survey's north edge: SMRF on each 100 m tile plus the declared buffer
+    (74 m) must classify its core points as SMRF on the whole survey does."""
+    from stages.classify import SmrfParams, reach
+    from stages.ground.smrf import smrf
+
+    s = make_scene(width=300, height=200, seed=2, density=1.0)
+    xyz = np.column_stack((s.x, s.y, s.z))[s.return_number >= s.number_of_returns]
+    for cx, cy, w, d, h in BUILDINGS:
+        xyz[(np.abs(xyz[:, 0] - cx) < w / 2) & (np.abs(xyz[:, 1] - cy) < d / 2), 2] += h
+    full = smrf(xyz)
+    b = reach(SmrfParams(name="smrf"))
+    differ = 0
+    for x0 in (0.0, 100.0, 200.0):
+        for y0 in (0.0, 100.0):
+            x, y = xyz[:, 0], xyz[:, 1]
+            core = (x >= x0) & (x < x0 + 100) & (y >= y0) & (y < y0 + 100)
+            sub = (x >= x0 - b) & (x < x0 + 100 + b) & (y >= y0 - b) & (y < y0 + 100 + b)
+            differ += int((smrf(xyz[sub])[core[sub]] != full[core]).sum())
+    assert differ == 0, f"{differ} of {len(xyz)} points classified otherwise in tiles"

@@ -8,9 +8,9 @@ and the output CRS are PROJ (pyproj: ``EPSG:4979`` <-> ``EPSG:4978``, the
 ``topocentric`` conversion for the local frame).  Only the local-level axes at
 a point (north, east, down) are written out, as the two rotations
 ``Rz(lon + 90 deg) Rx(90 deg - lat)`` of the textbook ENU frame (e.g.
-Hofmann-Wellenhof, Lichtenegger and Wasle 2008, *GNSS*, section 10.2.2,
-doi:10.1007/978-3-211-73017-1), and a test checks them against PROJ's own
-topocentric frame.
+Hofmann-Wellenhof, Lichtenegger and Wasle 2008, *GNSS*, Springer,
+doi:10.1007/978-3-211-73017-1); a test checks them against PROJ (the
+derivatives of the geodetic-to-ECEF transform).
 
 Conventions (those of the files the simulator writes): body axes
 forward-right-down, attitude ``R_ned<-body = Rz(heading) Ry(pitch) Rx(roll)``

@@ -177,6 +177,17 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/test_evaluate_ground.py",
         ),
     ),  # fmt: skip
+    Mutation(
+        "inpainting: edge cells divided by four neighbours (zero outside the grid)",
+        "stages/ground/surface.py",
+        "diag[me] += 1.0",
+        "diag[me] = 4.0",
+        (
+            "tests/stages/test_ground_known_answers.py",
+            "tests/stages/test_ground.py",
+            "tests/stages/test_evaluate_ground.py",
+        ),
+    ),  # fmt: skip
 ]
 
 

@@ -72,6 +72,18 @@ def test_inpainting_reproduces_harmonic_surfaces():
         np.testing.assert_allclose(inpaint(grid), surface, atol=1e-9)
 
 
+def test_inpainting_at_the_grid_edge_has_no_flux_across_it():
+    """A hole on the grid's edge: the edge cells have three neighbours (a zero normal derivative), so a
+    surface that does not vary across the edge is filled exactly; counting a fourth, missing neighbour
+    (zero outside the grid) pulls the fill towards zero."""
+    r, c = np.mgrid[0:40, 0:50].astype(float)
+    surface = 650.0 + 0.2 * c  # varies along the top and bottom edges only
+    grid = surface.copy()
+    grid[0:6, 10:30] = np.nan  # touching row 0
+    grid[34:40, 35:45] = np.nan  # touching the last row
+    np.testing.assert_allclose(inpaint(grid), surface, atol=1e-9)
+
+
 def test_pmf_keeps_a_plain_slope_gentler_than_s():
     """A plain 10 % slope, 2 points/m2 at random, 2 cm noise, PMF s = 0.15: every point is ground.
 

@@ -1,8 +1,8 @@
 """The simulator's world: a 2.5-D scene on a fine grid in a local ENU frame, and ray casting into it.
 
 The scene is defined by rasters (cell ``cell`` metres, bilinear between
-cell centres) in the local east-north-up frame of :class:`~stages.georef.
-geodesy.LocalFrame`, which is an exact rigid transform of ECEF: rays are
+cell centres) in the local east-north-up frame of :class:`~stages.sim.forward.Earth`
+(PROJ's topocentric frame), an exact rigid transform of ECEF: rays are
 straight lines there, so casting them is exact geometry.
 
 - ``ground``: the bare earth (the water surface over water bodies: the

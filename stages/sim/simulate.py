@@ -24,12 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.georef.core import Mounting, georeference, prepare_trajectory
-from stages.georef.geodesy import LocalFrame, MapTransform, ecef_to_geodetic, local_level_to_ecef
-from stages.georef.rotation import euler_matrix, quat_matrix
 from stages.readers.ldmrs import MOUNTINGS
 from stages.sim import scene as sc
 from stages.sim.flight import DT, Flight, fly, plan_lines
+from stages.sim.forward import Earth, RecordedPose, attitude, mounting_matrix
 from stages.sim.sensors import Scanner, make_scanner, navigation_sigmas
 
 D_FLIP = np.diag([1.0, -1.0, -1.0])  # NED <-> NWU and forward-right-down <-> forward-left-up
@@ -99,17 +97,13 @@ def _line_biases(flight: Flight, size: float, rng: np.random.Generator, spare: l
     return np.column_stack([np.interp(flight.t, knots_t, knots_v[:, j]) for j in range(3)])
 
 
-def _poses(frame: LocalFrame, flight: Flight, lat_s, lon_s, t: np.ndarray):
+def _poses(frame: Earth, flight: Flight, lat_s, lon_s, t: np.ndarray):
     """True position (n, 3) and rotation local ENU <- body (forward-right-down) (n, 3, 3) at times t."""
     pos = flight.position(t)
     att = flight.attitude(t)
     lat = np.interp(t, flight.t, lat_s)
     lon = np.interp(t, flight.t, lon_s)
-    r_l_n = frame.r_enu_to_ecef.T @ local_level_to_ecef(lat, lon, "NED")
-    from stages.georef.rotation import euler_quat
-
-    r_n_b = quat_matrix(euler_quat(att[:, 0], att[:, 1], att[:, 2]))
-    return pos, r_l_n @ r_n_b
+    return pos, frame.local_from_body(lat, lon, att[:, 0], att[:, 1], att[:, 2]).as_matrix()
 
 
 def simulate(cfg, log=None) -> SimResult:
@@ -131,7 +125,7 @@ def simulate(cfg, log=None) -> SimResult:
     if not noise:
         sigma_pos = sigma_att = 0.0
     range_noise = scanner.range_noise_m if noise else 0.0
-    frame = LocalFrame(cfg.origin.lat, cfg.origin.lon, cfg.origin.h)
+    frame = Earth(cfg.origin.lat, cfg.origin.lon, cfg.origin.h)  # the simulator's own geometry (forward.py)
     crs = output_crs(cfg.crs, None, (cfg.origin.lon, cfg.origin.lat))
 
     # --- flight and scene
@@ -150,18 +144,16 @@ def simulate(cfg, log=None) -> SimResult:
     extent = (on_lines[:, 0].min() - margin, on_lines[:, 0].max() + margin,
               on_lines[:, 1].min() - margin, on_lines[:, 1].max() + margin)  # fmt: skip
     world = sc.make_scene(extent, seed=cfg.seed)
-    lat_s, lon_s, h_s = ecef_to_geodetic(frame.to_ecef(flight.pos))
+    lat_s, lon_s, h_s = frame.geodetic(flight.pos)
 
     # --- mounting: configured (what the files' users are told) and true (what flew)
-    err_rot = euler_matrix(*np.radians(cfg.faults.boresight_error_deg))
+    err_rot = mounting_matrix(*np.radians(cfg.faults.boresight_error_deg))
     if scanner.kind == "ldmrs":
         # LD-MRS -> MTi-G body (forward-left-up): Ry(+90 deg), then MPOS; in forward-right-down axes:
-        from stages.georef.rotation import rot_y
-
-        r_nominal = D_FLIP @ rot_y(np.pi / 2)
+        r_nominal = D_FLIP @ mounting_matrix(0.0, np.pi / 2, 0.0)
         a_nominal = D_FLIP @ np.asarray(MOUNTINGS[cfg.mounting])
     else:
-        r_nominal = euler_matrix(*np.radians(cfg.boresight_deg))
+        r_nominal = mounting_matrix(*np.radians(cfg.boresight_deg))
         a_nominal = np.asarray(cfg.lever_arm_m, dtype=float)
     r_true = err_rot @ r_nominal
     a_true = a_nominal + np.asarray(cfg.faults.lever_arm_error_m)
@@ -170,7 +162,7 @@ def simulate(cfg, log=None) -> SimResult:
     bias = _line_biases(flight, cfg.faults.strip_bias_m, rng, cfg.faults.error_free_lines)
     tau = cfg.navigation.error_period_s
     pos_err = smooth_noise(flight.t, sigma_pos, tau, noise_rng) + bias
-    lat_r, lon_r, h_r = ecef_to_geodetic(frame.to_ecef(flight.pos + pos_err))
+    lat_r, lon_r, h_r = frame.geodetic(flight.pos + pos_err)
     # roll and pitch only: over a straight line they tilt and shift the strip rigidly; a heading bias
     # shears it (along-track shift growing across track), which no rigid strip correction can undo
     att_bias = _line_biases(flight, cfg.faults.strip_rotation_deg, rng, cfg.faults.error_free_lines)
@@ -197,12 +189,10 @@ def simulate(cfg, log=None) -> SimResult:
 
     # --- pulses, chunk by chunk
     plan = _fault_plan(cfg, scanner, flight, rec_mask, rng)
-    to_map_exact = MapTransform(frame, crs, np.array([extent[0], extent[2], -200.0]),
-                                np.array([extent[1], extent[3], f.altitude_m + 200.0]))  # fmt: skip
+    to_map_exact = frame.to_crs(crs)
     out.mkdir(parents=True, exist_ok=True)
     sinks = _Sinks(cfg, out, crs, scanner, plan, start, to_map_exact, nav, flight)
-    nav_traj = prepare_trajectory(start + nav.t, nav.lat, nav.lon, nav.h, nav.roll, nav.pitch, nav.heading, "NED",
-                                  frame)  # fmt: skip
+    nav_traj = RecordedPose(frame, start + nav.t, nav.lat, nav.lon, nav.h, nav.roll, nav.pitch, nav.heading)
     t_end = flight.duration
     t0 = 0.0
     pulse_base = 0
@@ -215,7 +205,7 @@ def simulate(cfg, log=None) -> SimResult:
         if n:
             echoes = _echoes(world, frame, flight, lat_s, lon_s, pat, r_true, a_true, scanner, range_noise,
                              rng, plan, pulse_base, noise_rng)  # fmt: skip
-            sinks.add(pat, echoes, flight, nav_traj, Mounting(r_nominal, a_nominal))
+            sinks.add(pat, echoes, flight, nav_traj, (r_nominal, a_nominal))
         pulse_base += n
         t0 = t1
     faults.update(sinks.close())
@@ -413,7 +403,7 @@ class _Sinks:
             self.files["lmsq"] = "lmsq/scan.lmsq"
             self.lmsq_counts = {"invalid_quality": 0, "dust_echoes": 0}
 
-    def add(self, pat, e, flight: Flight, nav_traj, mounting_nominal: Mounting) -> None:
+    def add(self, pat, e, flight: Flight, nav_traj: RecordedPose, mounting_nominal: tuple) -> None:
         n = len(e["pulse"])
         self.counts["pulses"] += len(pat["t"])
         self.counts["echoes"] += n
@@ -438,10 +428,10 @@ class _Sinks:
         self.truth.add(e["hit"][keep], classification=e["cls"][keep], fault=fault[keep], **sel)
         if self.las is not None:
             ok_for_las = keep & (fault != FAULT_CODES["invalid_quality"])  # after a missed PPS: dated by the counter
-            xyz, ok = georeference(nav_traj, gps[ok_for_las], tuple(v_s[ok_for_las].T.copy()), mounting_nominal,
-                                   self.to_map.columns, max_gap_s=1.0)  # fmt: skip
-            s2 = {k: v[ok_for_las][ok] for k, v in cols.items()}
-            self.las.add(xyz[ok], classification=np.zeros(int(ok.sum()), np.uint8), local=False, **s2)
+            # what the vendor's software wrote: the echoes georeferenced from the recorded navigation
+            xyz = nav_traj.points(gps[ok_for_las], v_s[ok_for_las], *mounting_nominal)
+            s2 = {k: v[ok_for_las] for k, v in cols.items()}
+            self.las.add(xyz, classification=np.zeros(len(xyz), np.uint8), **s2)
 
     def _write_ldmrs(self, pat, e, v_s, gps, flight: Flight, fault):
         from stages.sim.writers import utc_iso
@@ -519,7 +509,7 @@ class _Sinks:
         yaw = -((heading + 180.0) % 360.0 - 180.0)  # counter-clockwise from north
         v_enu = self.flight._pos(t_rel, 1)
         v_ned = np.array([v_enu[1], v_enu[0], -v_enu[2]])
-        v_frd = euler_matrix(*np.radians([roll, pitch, heading])).T @ v_ned
+        v_frd = attitude(*np.radians([roll, pitch, heading])).inv().apply(v_ned)[0]
         return nav.lat[i], nav.lon[i], nav.h[i], roll, -pitch, yaw, D_FLIP @ v_frd
 
     def _write_lmsq(self, pat, e, gps, fault):
@@ -565,12 +555,12 @@ class _LasSink:
         self.path, self.crs, self.to_map, self.extra_fault = path, crs, to_map, extra_fault
         self.writer = None
 
-    def add(self, xyz: np.ndarray, *, local: bool = True, classification, fault=None, **cols) -> None:
+    def add(self, xyz: np.ndarray, *, classification, fault=None, **cols) -> None:
         import laspy
 
         if len(xyz) == 0:
             return
-        pts = self.to_map.exact(xyz) if local else xyz
+        pts = self.to_map(xyz)  # local ENU -> output CRS
         if self.writer is None:
             from stages.io import point_header
 
@@ -652,7 +642,7 @@ def _write_navigation(cfg, out: Path, nav: Navigation, flight: Flight, start: fl
     return files
 
 
-def _ground_height(world, frame: LocalFrame, crs, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _ground_height(world, frame: Earth, crs, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Height in the output CRS where the vertical through (x, y) meets the bare earth, and the local (e, n)."""
     import pyproj
 
@@ -666,7 +656,7 @@ def _ground_height(world, frame: LocalFrame, crs, x: np.ndarray, y: np.ndarray) 
     return np.where(np.isfinite(g), h, np.nan), local
 
 
-def _write_checkpoints(path: Path, world, frame: LocalFrame, crs, on_lines: np.ndarray, n: int, rng) -> None:
+def _write_checkpoints(path: Path, world, frame: Earth, crs, on_lines: np.ndarray, n: int, rng) -> None:
     """GNSS-style check points on the true terrain: two thirds in the open, one third under trees.
 
     Drawn under the flown lines (so the DTM covers them), at least 5 m from
@@ -707,7 +697,7 @@ def _write_checkpoints(path: Path, world, frame: LocalFrame, crs, on_lines: np.n
             fh.write(f"CP{i:03d},{xi:.3f},{yi:.3f},{zi:.3f},{r[2]}\n")
 
 
-def _write_truth_terrain(path: Path, world, frame: LocalFrame, crs, extent, resolution: float) -> None:
+def _write_truth_terrain(path: Path, world, frame: Earth, crs, extent, resolution: float) -> None:
     """The bare earth on a grid of the output CRS: for each cell centre, the height where it meets the ground."""
     import pyproj
 

@@ -1,0 +1,266 @@
+"""Mutation score: do the tests fail when the behaviour they claim breaks? (issue 19)
+
+Each entry of :data:`MUTATIONS` is a small, realistic bug written as data: a
+source file, the exact text it replaces, the text that replaces it, and the
+tests that should catch it.  The script copies the tree to a scratch folder
+(never touching the checkout it runs from), applies one mutation at a time,
+runs those tests, fast ones (``-m "not slow"``) and slow ones (``-m slow``)
+separately, restores the file, and prints a table::
+
+    python benchmarks/mutations.py                       # this checkout's code and tests
+    python benchmarks/mutations.py --tests-from OLD      # this code, the tests of another checkout
+    python benchmarks/mutations.py --only buffer --fast-only
+    python benchmarks/mutations.py --slow-if-missed      # slow tests only for what the fast ones miss
+
+A mutation whose text is not found exactly once is reported as ``does not
+apply`` (the code was rewritten: re-target the entry).  Test files that do
+not exist in the tree are left out (so older checkouts can be scored too).
+The tree's parent gets a ``shared`` link to this checkout's ``../shared``,
+so the data-dependent tests find their data as they do here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    file: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+
+
+TILED = "tests/stages/test_tiled_runs.py"
+BUFFERS = "tests/stages/test_tile_buffers.py"
+
+MUTATIONS: list[Mutation] = [
+    Mutation(
+        "euler_quat multiplies in the order roll, pitch, yaw",
+        "stages/georef/rotation.py",
+        "return quat_mul(quat_mul(_axis_quat(2, yaw), _axis_quat(1, pitch)), _axis_quat(0, roll))",
+        "return quat_mul(quat_mul(_axis_quat(0, roll), _axis_quat(1, pitch)), _axis_quat(2, yaw))",
+        ("tests/stages/test_simulate_georef.py",),
+    ),
+    Mutation(
+        "SMRF tile buffer 38 m instead of 74 m",
+        "stages/classify.py",
+        "return 4.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
+        "return 2.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
+        (BUFFERS, TILED),
+    ),
+    Mutation(
+        "SMRF tile buffer 20 m instead of 74 m",
+        "stages/classify.py",
+        "return 4.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
+        "return 1.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
+        (BUFFERS, TILED),
+    ),
+    Mutation(
+        "raster tile buffer 12 m instead of 102 m",
+        "stages/rasterize.py",
+        "return far * params.nodata_distance + 2.0 * params.resolution",
+        "return 10.0 + 2.0 * params.resolution",
+        (BUFFERS, TILED),
+    ),
+    Mutation(
+        "denoise tile buffer 6 m instead of 41 m",
+        "stages/denoise.py",
+        "return max(2.0 * params.isolated.radius, params.low.cell_size) + 1.0",
+        "return 0.25 * params.isolated.radius + 1.0",
+        (BUFFERS, TILED),
+    ),
+    Mutation(
+        "ClassifyGround.config_keys = () (the tiling buffer leaves the cache key)",
+        "stages/classify.py",
+        'config_keys = ("tiling.buffer",)',
+        "config_keys = ()",
+        (BUFFERS,),
+    ),
+    Mutation(
+        "max_gap_s ignored: pulses interpolated across trajectory gaps",
+        "stages/georef/core.py",
+        "ok = (t >= tt[0]) & (t <= tt[-1]) & ((dt <= max_gap_s) | (f == 0.0) | (f == 1.0))",
+        "ok = (t >= tt[0]) & (t <= tt[-1])",
+        ("tests/stages/test_trajectory_gaps.py", "tests/stages/test_georef_math.py"),
+    ),
+    Mutation(
+        "DSM from noise-class points too",
+        "stages/rasterize.py",
+        'usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~cols["withheld"]',
+        'usable = ~cols["withheld"]',
+        ("tests/stages/test_noise_classes.py", "tests/stages/test_products_units.py"),
+    ),
+    Mutation(
+        "low-outlier test flags only the lowest point of a cell",
+        "stages/noise.py",
+        "outlier_sorted = (small_so_far - before) == 0",
+        "outlier_sorted = ((small_so_far - before) == 0) & start",
+        ("tests/stages/test_noise_classes.py", "tests/stages/test_ground.py"),
+    ),
+    Mutation(
+        "isolated-point threshold halved (mean + k std / 2)",
+        "stages/denoise.py",
+        "threshold = mean + ctx.params.isolated.multiplier * std",
+        "threshold = mean + ctx.params.isolated.multiplier * std / 2",
+        ("tests/stages/test_noise_classes.py", "tests/stages/test_ground.py"),
+    ),
+    Mutation(
+        "PMF within-cell slope allowance 0",
+        "stages/ground/pmf.py",
+        "within_cell = slope * cell_size",
+        "within_cell = 0.0",
+        ("tests/stages/test_pmf.py", "tests/stages/test_ground_known_answers.py"),
+    ),
+    Mutation(
+        "strip datum most_overlap takes the least-overlapping strip",
+        "stages/strip_adjust.py",
+        "reference = max(linked, key=lambda s: overlap[s]) if linked else None",
+        "reference = min(linked, key=lambda s: overlap[s]) if linked else None",
+        ("tests/stages/test_strip_datum.py", "tests/stages/test_strip_adjust.py"),
+    ),
+    Mutation(
+        "uncertainty: attitude Jacobian ignores the lever arm",
+        "stages/georef/uncertainty.py",
+        "add(sig.attitude_rad[j], _rot(body, _cross(unit[j], v_b)))",
+        "add(sig.attitude_rad[j], _rot(body, _cross(unit[j], vb_s)))",
+        ("tests/stages/test_uncertainty_monte_carlo.py", "tests/stages/test_uncertainty.py"),
+    ),
+    Mutation(
+        "uncertainty: position sigmas E/N/U taken as U/N/E",
+        "stages/georef/uncertainty.py",
+        "var[j] += np.square(sig.position_enu_m[j])",
+        "var[j] += np.square(sig.position_enu_m[2 - j])",
+        ("tests/stages/test_uncertainty_monte_carlo.py", "tests/stages/test_uncertainty.py"),
+    ),
+    Mutation(
+        "SMRF threshold does not grow with the window (s c instead of s r c)",
+        "stages/ground/smrf.py",
+        "objects |= (previous - opened) > slope * radius * cell_size",
+        "objects |= (previous - opened) > slope * cell_size",
+        (
+            "tests/stages/test_ground_known_answers.py",
+            "tests/stages/test_ground.py",
+            "tests/stages/test_evaluate_ground.py",
+        ),
+    ),  # fmt: skip
+    Mutation(
+        "SMRF window radius halved (w_max read as a diameter)",
+        "stages/ground/smrf.py",
+        "max_radius = max(1, int(math.ceil(max_window_size / cell_size)))",
+        "max_radius = max(1, int(math.ceil(max_window_size / (2 * cell_size))))",
+        (
+            "tests/stages/test_ground_known_answers.py",
+            "tests/stages/test_ground.py",
+            "tests/stages/test_evaluate_ground.py",
+        ),
+    ),  # fmt: skip
+    Mutation(
+        "inpainting: an unknown cell averages three of its four neighbours",
+        "stages/ground/surface.py",
+        "for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):",
+        "for dr, dc in ((0, 1), (0, -1), (1, 0)):",
+        (
+            "tests/stages/test_ground_known_answers.py",
+            "tests/stages/test_ground.py",
+            "tests/stages/test_evaluate_ground.py",
+        ),
+    ),  # fmt: skip
+    Mutation(
+        "inpainting: edge cells divided by four neighbours (zero outside the grid)",
+        "stages/ground/surface.py",
+        "diag[me] += 1.0",
+        "diag[me] = 4.0",
+        (
+            "tests/stages/test_ground_known_answers.py",
+            "tests/stages/test_ground.py",
+            "tests/stages/test_evaluate_ground.py",
+        ),
+    ),  # fmt: skip
+]
+
+
+def _copy_tree(code: Path, tests: Path, dest: Path) -> None:
+    ignore = shutil.ignore_patterns(".git", ".venv", "out", ".cache", "__pycache__", "*.pyc", ".pytest_cache")
+    if dest.exists():
+        shutil.rmtree(dest)
+    shutil.copytree(code, dest, ignore=ignore, symlinks=True)
+    if tests != code:
+        shutil.rmtree(dest / "tests")
+        shutil.copytree(tests / "tests", dest / "tests", ignore=ignore)
+    link = dest.parent / "shared"
+    if not link.exists() and (ROOT.parent / "shared").exists():
+        link.symlink_to(ROOT.parent / "shared")
+
+
+def _pytest(tree: Path, tests: list[str], marker: str, timeout: float) -> str:
+    """'yes' (a test failed: caught), 'no' (all passed), '-' (no such test), 'error ...' otherwise."""
+    if not tests:
+        return "-"
+    env = {**os.environ, "PYTHONPATH": str(tree), "PYTHONDONTWRITEBYTECODE": "1"}
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", marker, *tests]
+    try:
+        run = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return "timeout"
+    return {0: "no", 1: "yes", 5: "-"}.get(run.returncode, f"error {run.returncode}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tree", type=Path, default=ROOT, help="checkout whose code is mutated (default: this one)")
+    ap.add_argument("--tests-from", type=Path, default=None, help="checkout whose tests/ are run (default: --tree)")
+    ap.add_argument("--workdir", type=Path, default=Path("/tmp") / f"mutations-{os.getpid()}")
+    ap.add_argument("--only", default=None, help="only mutations whose name contains this text")
+    ap.add_argument("--fast-only", action="store_true", help="skip the slow tests")
+    ap.add_argument("--slow-if-missed", action="store_true", help="run the slow tests only when the fast ones miss")
+    ap.add_argument("--timeout", type=float, default=900.0, help="seconds per pytest run")
+    args = ap.parse_args(argv)
+    tree = args.workdir / "tree"
+    _copy_tree(args.tree.resolve(), (args.tests_from or args.tree).resolve(), tree)
+    chosen = [m for m in MUTATIONS if args.only is None or args.only.lower() in m.name.lower()]
+    rows = []
+    for m in chosen:
+        path = tree / m.file
+        text = path.read_text()
+        tests = [t for t in m.tests if (tree / t).exists()]
+        if text.count(m.old) != 1:
+            rows.append((m.name, m.file, "does not apply", "", 0.0))
+            continue
+        start = time.monotonic()
+        path.write_text(text.replace(m.old, m.new))
+        try:
+            fast = _pytest(tree, tests, "not slow", args.timeout)
+            if args.fast_only or (args.slow_if_missed and fast == "yes"):
+                slow = "(not run)"
+            else:
+                slow = _pytest(tree, tests, "slow", args.timeout)
+        finally:
+            path.write_text(text)
+        rows.append((m.name, m.file, fast, slow, time.monotonic() - start))
+        print(f"  {m.name}: fast {fast}, slow {slow} ({rows[-1][4]:.0f} s)", file=sys.stderr, flush=True)
+    width = max(len(r[0]) for r in rows) if rows else 10
+    print(f"{'mutation':<{width}}  {'file':<30} {'caught by fast tests?':<22} caught by slow tests?")
+    for name, file, fast, slow, _ in rows:
+        print(f"{name:<{width}}  {file:<30} {fast:<22} {slow}")
+    applied = [r for r in rows if r[2] != "does not apply"]
+    fast_n = sum(r[2] == "yes" for r in applied)
+    any_n = sum(r[2] == "yes" or r[3] == "yes" for r in applied)
+    print(f"\n{len(applied)} mutations applied: {any_n} caught ({fast_n} by the fast tests alone)")
+    shutil.rmtree(args.workdir, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

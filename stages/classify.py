@@ -209,7 +209,7 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "4"  # 4: grids anchored on whole cells; tiles
+    version = "5"  # 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from stages.ground.surface import as_xyz, fill_nearest, index_points, min_grid, pad_linear
+from stages.ground.surface import as_xyz, fill_nearest, index_points, min_grid, pad_plane
 
 
 def window_sizes(cell_size: float, max_window_size: float, *, base: float = 2.0) -> list[int]:
@@ -131,7 +131,7 @@ def pmf(
     # that allowance on top (see Notes).
     within_cell = slope * cell_size
     pad = sizes[-1] // 2 + 1
-    surface = pad_linear(surface, pad)
+    surface = pad_plane(surface, pad)  # the local padding of SMRF scores worse here (samp11 13.4 -> 14.9 %)
     row, col = row + pad, col + pad
     for w, dh in zip(sizes, thresholds, strict=True):
         # size=(w, w) without a footprint is a flat square element; scipy

@@ -152,7 +152,55 @@ def slope_grid(grid: np.ndarray, cell_size: float) -> np.ndarray:
 
 
 def pad_linear(grid: np.ndarray, width: int) -> np.ndarray:
-    """Pad a grid by *width* cells, continuing its overall slope across the edges.
+    """Pad a grid by *width* cells, continuing its slope across each edge from the cells near that edge.
+
+    Along every row (then every column of the result), the last *width*
+    cells before an edge get a least-squares line; the padding continues
+    that line, lowered to the lowest residual of those cells.  A planar
+    slope thus continues exactly, and an object cut by the survey's boundary
+    is bordered by ground-level padding, so an opening can still remove it.
+    Flat ("nearest") padding instead makes every uphill edge look like the
+    foot of an object, which an opening then lowers.
+
+    Each padded value depends only on the cells within *width* of its edge,
+    so a tile whose grid shares an edge with the survey pads it exactly as
+    the whole survey does (a plane fitted to the whole grid would depend on
+    the tile's extent).
+    """
+    if width <= 0:
+        return grid
+    return _pad_rows(_pad_rows(np.asarray(grid, dtype=np.float64), width).T, width).T
+
+
+def _pad_rows(grid: np.ndarray, width: int) -> np.ndarray:
+    """Pad the columns' ends of every row (see :func:`pad_linear`)."""
+    rows, cols = grid.shape
+    band = min(width, cols)
+    k = np.arange(band, dtype=np.float64)
+    out = np.empty((rows, cols + 2 * width))
+    out[:, width : width + cols] = grid
+    ahead = np.arange(1, width + 1, dtype=np.float64)
+    for side in ("low", "high"):
+        cells = grid[:, :band][:, ::-1] if side == "low" else grid[:, cols - band :]
+        # cells ordered towards the edge: position k = 0 .. band-1, the edge cell last
+        if band > 1:
+            kc = k - k.mean()
+            slope = (cells - cells.mean(axis=1, keepdims=True)) @ kc / float(kc @ kc)
+        else:
+            slope = np.zeros(rows)
+        line = cells.mean(axis=1, keepdims=True) + slope[:, None] * (k - k.mean())
+        base = (cells - line).min(axis=1)
+        edge = line[:, -1] + base
+        values = edge[:, None] + slope[:, None] * ahead
+        if side == "low":
+            out[:, :width] = values[:, ::-1]
+        else:
+            out[:, width + cols :] = values
+    return out
+
+
+def pad_plane(grid: np.ndarray, width: int) -> np.ndarray:
+    """Pad a grid by *width* cells, continuing the slope of one plane fitted to the whole grid (PMF's padding).
 
     A least-squares plane is fitted to the whole grid; the residual from it
     is padded with its lowest value within *width* cells of each edge, and

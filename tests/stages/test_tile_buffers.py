@@ -128,8 +128,6 @@ def test_a_new_tiling_buffer_reruns_the_ground_stage(survey):
     assert (a != b).any()  # a 1 m buffer shows at the seams: the second run classified anew
 
 
-@pytest.mark.xfail(strict=True, reason="stages/ground/surface.py pad_linear fits one plane to the whole grid, "
-                   "so the padding at the survey's boundary depends on the tile's extent (left to the lead)")  # fmt: skip
 def test_smrf_near_the_survey_boundary_does_not_depend_on_the_tile():
     """Buildings 5-10 m from the survey's north edge: SMRF on each 100 m tile plus the declared buffer
     (74 m) must classify its core points as SMRF on the whole survey does."""

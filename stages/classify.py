@@ -109,16 +109,19 @@ def grid_cell(algorithm: StrictModel) -> float:
 
 
 def for_spacing(algorithm: StrictModel, spacing: float | None) -> StrictModel:
-    """The algorithm with its grid cell raised to the point spacing of a sparse survey.
+    """The algorithm with its grid cell raised to the point spacing of a sparse survey (SMRF, PMF).
 
-    A morphological filter's minimum surface (and a cloth) is meaningful only
-    when most of its cells hold points.  Where the points lie more than
+    A morphological filter's minimum surface is meaningful only when most of
+    its cells hold points.  Where the points lie more than
     ``SPARSE_SPACINGS`` cells apart on average (under 0.11 points/m² with
     1 m cells), the grid would be almost all interpolated — a surface of
     spikes through isolated points — and its cost would follow the area, not
     the points.  The cell is then the nominal spacing, rounded up to a whole
     multiple of the configured cell; windows, slopes and thresholds stay in
-    metres.  Surveys denser than that are filtered exactly as configured.
+    metres.  Surveys denser than that are filtered exactly as configured, and
+    CSF always is (its cloth particles need no point in their cell; measured:
+    samp51, points 2.5 m apart, went from 12.2 to 50.3 % total error on a
+    cloth of 2.5 m instead of 0.5 m).
 
     >>> from stages.classify import SmrfParams
     >>> for_spacing(SmrfParams(name="smrf"), 19.4).cell_size
@@ -126,12 +129,13 @@ def for_spacing(algorithm: StrictModel, spacing: float | None) -> StrictModel:
     >>> for_spacing(SmrfParams(name="smrf"), 1.5).cell_size
     1.0
     """
+    if algorithm.name == "csf":  # a cloth particle needs no point in its cell: CSF is run as configured
+        return algorithm
     cell = grid_cell(algorithm)
     if spacing is None or not np.isfinite(spacing) or spacing <= SPARSE_SPACINGS * cell:
         return algorithm
     used = float(np.ceil(spacing / cell) * cell)
-    key = "cloth_resolution" if algorithm.name == "csf" else "cell_size"
-    return algorithm.model_copy(update={key: used})
+    return algorithm.model_copy(update={"cell_size": used})
 
 
 def nominal_spacing(path: Path, cell: float, info) -> float | None:

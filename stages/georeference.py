@@ -177,11 +177,12 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "5"  # 5: heights in the units of a 2-D CRS; units in the metrics
+    version = "6"  # 6: qc/trajectory.gpkg (flight lines); 5: heights in the units of a 2-D CRS
     Params = GeoreferenceParams
     can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
-    outputs: ClassVar = {"points_georef": "points.las"}
+    outputs: ClassVar = {"points_georef": "points.las", "trajectory_lines": "trajectory.gpkg"}
+    products: ClassVar = {"trajectory_lines": "qc/trajectory.gpkg"}
     config_keys = ("crs",)
     description = "pulses + trajectory -> points in the output CRS (raw formats only)"
 
@@ -256,6 +257,8 @@ class Georeference(Stage):
             crs = ltp_crs(lat0, lon0, p.ltp_radius_m)
             traj_used, map_columns = ltp, (lambda e, n, u: (e, n, u))
             bounds = np.array([ltp.position.min(axis=0) - reach, ltp.position.max(axis=0) + reach])
+        platform_map = to_map(exact.position) if p.frame == "exact" else ltp.position
+        write_flight_lines(ctx.outputs["trajectory_lines"], traj["time"], platform_map, renumber[strips_epoch], crs)
         from stages.units import Units
 
         ctx.metrics.update(frame=p.frame, crs=crs.name, crs_epsg=crs.to_epsg(), attitude_convention=convention,
@@ -370,3 +373,29 @@ class Georeference(Stage):
                 f"no pulse could be georeferenced ({no_traj} without trajectory, {in_turns} in turns): "
                 "check that the scanner and navigation files are of the same flight."
             )
+
+
+def write_flight_lines(path, time: np.ndarray, xyz: np.ndarray, strip: np.ndarray, crs) -> None:
+    """``qc/trajectory.gpkg``: one LineString a flight line (strip id, first and last GPS time, height of the
+    platform in the output CRS: mean, lowest, highest), in the output CRS; epochs in turns (strip 0) left out."""
+    import pyogrio
+
+    ids = [int(s) for s in np.unique(strip) if s > 0]
+    wkb, cols = (
+        [],
+        {k: [] for k in ("strip", "time_start", "time_end", "altitude_mean", "altitude_min", "altitude_max")},
+    )
+    for s in ids:
+        m = strip == s
+        pts = xyz[m]
+        wkb.append(b"\x01" + (2).to_bytes(4, "little") + len(pts).to_bytes(4, "little")
+                   + np.ascontiguousarray(pts[:, :2], dtype="<f8").tobytes())  # fmt: skip
+        for key, value in (("strip", s), ("time_start", time[m].min()), ("time_end", time[m].max()),
+                           ("altitude_mean", pts[:, 2].mean()), ("altitude_min", pts[:, 2].min()),
+                           ("altitude_max", pts[:, 2].max())):  # fmt: skip
+            cols[key].append(value)
+    arrays = [np.asarray(cols["strip"], dtype=np.int32)] + [
+        np.asarray(cols[k], dtype=np.float64) for k in list(cols)[1:]
+    ]
+    pyogrio.raw.write(str(path), np.array(wkb, dtype=object), arrays, list(cols), driver="GPKG",
+                      geometry_type="LineString", crs=crs.to_wkt(), layer="flight_lines")  # fmt: skip

@@ -213,10 +213,11 @@ def test_report_is_self_contained(run_dir):
 
     out, _ = run_dir
     page = (out / "out" / "report.html").read_text()
-    for section in ("summary", "maps", "classes", "strips", "accuracy"):
+    for section in ("acceptance", "summary", "inputs", "maps", "classes", "strips", "accuracy"):
         assert f'<section id="{section}">' in page
     images = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
-    assert len(images) == 3
+    # relief, density, strips, 2 strip differences, voids, check-point residuals, error histogram
+    assert len(images) == 8
     for img in images:
         assert base64.b64decode(img)[:8] == b"\x89PNG\r\n\x1a\n"
     assert "http://" not in page and "https://" not in page  # opens offline

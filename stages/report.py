@@ -622,6 +622,19 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         figures.append(_figure(png, "pulse density",
                                f"First returns (noise and withheld excluded) per m², in squares of {k * cell_m:.1f} m"
                                f"{limit_txt}. All points: {mean_pts:.2f} per m² on average over the DTM grid."))  # fmt: skip
+    # all points per m² (density.tif: points per cell, noise and withheld excluded), in the same squares
+    k = max(1, int(round(5.0 / cell_m)))
+    from stages.acceptance import _block_sum
+
+    pts_m2 = _block_sum(np.nan_to_num(data.density), k) / (k * cell_m) ** 2
+    pts_m2[pts_m2 == 0] = np.nan
+    if np.isfinite(pts_m2).any():
+        png = raster_map(pts_m2, MapFrame(frame.x0, frame.y1, frame.cell * k, hu), cmap="viridis",
+                         label="points per m²", title="point density (all returns)", max_size=max_size, vmin=0.0,
+                         vmax=max(float(np.nanpercentile(pts_m2, 99)), 1.0))  # fmt: skip
+        figures.append(_figure(png, "point density",
+                               f"Points of every return (density.tif; noise and withheld excluded) per m², in "
+                               f"squares of {k * cell_m:.1f} m."))  # fmt: skip
     # strip coverage
     unique = [int(s) for s in cloud.strips]
     if unique:
@@ -636,6 +649,8 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         before, after, dframe = data.differences
         scale = 0.16 / units.vertical
         for label, arr in (("before", before), ("after", after)):
+            if not np.isfinite(arr).any():
+                continue  # no planar overlap between strips: nothing to draw (the strip table says why)
             png = raster_map(arr, dframe, cmap="RdBu_r", label=f"strip-to-strip difference ({vu})",
                              title=f"strip differences {label} adjustment", max_size=max_size, vmin=-scale, vmax=scale,
                              shade=None)  # fmt: skip
@@ -658,7 +673,9 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         figures.append(_figure(png, "voids",
                                f"Voids: DTM nodata cells enclosed by the DTM (orange), and squares of "
                                f"{extra['void_side_m']:.1f} m (4 × the measured pulse spacing) without a first "
-                               f"return inside the covered area (red): {measured['voids']} of them."))  # fmt: skip
+                               f"return inside the covered area (red): {measured['voids']} of them. Water and other surfaces that "
+                               "return no pulse count too: the specification exempts them only where breaklines "
+                               "(not made here) delineate them."))  # fmt: skip
     if data.checkpoints is not None:
         cp = data.checkpoints
         err = cp["error"]

@@ -208,8 +208,8 @@ def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
         assert f'<section id="{section}">' in page
     figures = re.findall(r"<figure>(.*?)</figure>", page, flags=re.S)
     images = re.findall(r"<img ", page)
-    assert len(figures) == len(images) == 10  # relief, density, strips, 2 differences, voids, residuals,
-    # uncertainty, flight lines, histogram
+    # relief, pulse and point density, strips, 2 differences, voids, residuals, uncertainty, flight lines, histogram
+    assert len(figures) == len(images) == 11
     for fig in figures:
         caption = re.search(r"<figcaption>(.+?)</figcaption>", fig, flags=re.S)
         assert caption and len(caption.group(1)) > 20
@@ -223,3 +223,28 @@ def test_measure_reports_why_a_value_is_missing(tmp_path):
     assert values["nva_95"] is None and "stages.accuracy.checkpoints" in why["nva_95"]
     assert _check(verdict, "nva_95")["status"] == "NOT MEASURED"
     assert verdict["status"] == "INCOMPLETE"
+
+
+def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
+    """qc/trajectory.gpkg: a LineString per flight line with its id, times and heights; turns (0) left out."""
+    import pyogrio
+
+    from stages.georeference import write_flight_lines
+    from stages.report import read_flight_lines
+
+    t = np.arange(0.0, 30.0, 1.0)
+    strip = np.repeat([1, 0, 2], 10)
+    xyz = np.column_stack((440000 + 10 * t, 4474000 + 0 * t, 700 + t))
+    path = tmp_path / "trajectory.gpkg"
+    write_flight_lines(path, t, xyz, strip, pyproj.CRS.from_epsg(32630))
+    info = pyogrio.read_info(str(path))
+    assert info["features"] == 2 and info["geometry_type"] == "LineString" and info["crs"] == "EPSG:32630"
+    _, _, _, fields = pyogrio.raw.read(str(path))
+    names = list(info["fields"])
+    assert fields[names.index("strip")].tolist() == [1, 2]
+    assert fields[names.index("time_start")].tolist() == [0.0, 20.0]
+    assert fields[names.index("time_end")].tolist() == [9.0, 29.0]
+    assert fields[names.index("altitude_min")].tolist() == [700.0, 720.0]
+    lines = read_flight_lines(path)
+    assert [name for *_, name in lines] == ["strip 1", "strip 2"]
+    assert lines[1][0].tolist() == (440000 + 10 * t[20:]).tolist()

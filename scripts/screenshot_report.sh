@@ -4,7 +4,7 @@
 # The page is self-contained, so Chromium runs offline (no network, no sync, no updates).
 set -euo pipefail
 page="$(realpath "${1:-out/flight-ldmrs/report.html}")"
-png="${2:-docs/report.png}"
+png="${2:-docs/report_flight.png}"
 height="${3:-7000}"
 command -v chromium >/dev/null || { echo "needs chromium: apt-get install -y chromium" >&2; exit 2; }
 profile="$(mktemp -d)"

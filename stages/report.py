@@ -543,12 +543,12 @@ def _strip_table(corrections: dict, cloud_strips: np.ndarray) -> str:
         s = int(key)
         status = "datum (held fixed)" if s == ref else "not determined: left as it is" if s in weak else "adjusted"
         t, r, st = c["translation_m"], c["rotation_deg"], c["sigma_translation_m"]
-        rows.append([s, c["points"], status, f"{t[0]:+.3f} / {t[1]:+.3f} / {t[2]:+.3f}",
+        rows.append([str(s), c["points"], status, f"{t[0]:+.3f} / {t[1]:+.3f} / {t[2]:+.3f}",
                      f"{r[0]:+.4f} / {r[1]:+.4f} / {r[2]:+.4f}", f"{st[0]:.3f} / {st[1]:.3f} / {st[2]:.3f}"])  # fmt: skip
     listed = {int(k) for k in corrections.get("strips", {})}
     for s in cloud_strips:
         if s > 0 and int(s) not in listed:
-            rows.append([int(s), None, "no overlap with another strip: not adjusted", None, None, None])
+            rows.append([str(int(s)), None, "no overlap with another strip: not adjusted", None, None, None])
     header = ["strip", "points", "status", "shift x / y / z (m)", "rotation x / y / z (°)", "1-σ shift (m)"]
     table = _grid(header, rows)
     pairs = corrections.get("pairs") or []
@@ -855,7 +855,7 @@ def _accuracy_html(accuracy: dict | None, cp: dict | None) -> str:
     out = _table(rows)
     if cp is not None:
         table_rows = [
-            [i, lc, x, y, z, d, e]
+            [i, lc, f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", f"{d:.3f}", f"{e:+.3f}" if np.isfinite(e) else "off the DTM"]
             for i, lc, x, y, z, d, e in zip(
                 cp["id"], cp["land_cover"], cp["x"], cp["y"], cp["z"], cp["dtm"], cp["error"], strict=True
             )

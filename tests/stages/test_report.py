@@ -214,7 +214,7 @@ def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
         caption = re.search(r"<figcaption>(.+?)</figcaption>", fig, flags=re.S)
         assert caption and len(caption.group(1)) > 20
     assert "http://" not in page and "https://" not in page
-    assert "A open 1,010 2,010 650.1 650.12 0.02" in _text(page)  # one row per check point
+    assert "A open 1010.000 2010.000 650.100 650.120 +0.020" in _text(page)  # one row per check point
 
 
 def test_measure_reports_why_a_value_is_missing(tmp_path):
@@ -248,3 +248,30 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     lines = read_flight_lines(path)
     assert [name for *_, name in lines] == ["strip 1", "strip 2"]
     assert lines[1][0].tolist() == (440000 + 10 * t[20:]).tolist()
+
+
+@pytest.mark.slow
+def test_main_job_report_and_acceptance_against_two_specifications(tmp_path):
+    """configs/flight.yaml end to end: qc/acceptance.json for QL2 (default) and ASPRS 2023, every section."""
+    import json
+    from pathlib import Path
+
+    from pipeline.cli import main
+
+    config = Path(__file__).resolve().parents[2] / "configs" / "flight.yaml"
+    verdicts = {}
+    for spec in ("usgs-lbs-ql2", "asprs-2023-10cm"):
+        out = tmp_path / spec
+        args = ["run", str(config), "-q", "--set", f"output={out}", "--set", f"cache={tmp_path / 'cache'}"]
+        assert main([*args, "--set", f"stages.report.specification={spec}"]) == 0
+        verdicts[spec] = json.loads((out / "qc" / "acceptance.json").read_text())
+        page = (out / "report.html").read_text()
+        for section in ("acceptance", "summary", "inputs", "maps", "classes", "raw", "strips", "accuracy"):
+            assert f'<section id="{section}">' in page
+        assert "acquisition.log.gz" in _text(page) and "flight lines" in page
+    ql2 = {c["measure"]: c for c in verdicts["usgs-lbs-ql2"]["checks"]}
+    assert ql2["anpd"]["limit"] == 2.0 and ql2["anpd"]["source"]["table"].startswith("Table 1")
+    assert ql2["nva_95"]["status"] == "PASS"  # the sample's open ground: NVA 0.06 m
+    assert ql2["vva_95"]["status"] == "FAIL"  # the simulated vegetation: VVA 0.42 m > 0.294 m
+    asprs = {c["measure"]: c for c in verdicts["asprs-2023-10cm"]["checks"]}
+    assert asprs["vva_95"]["status"] == "REPORTED" and "anpd" not in asprs

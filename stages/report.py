@@ -445,12 +445,14 @@ def summarise_cloud(
                 ranges[int(s)] = (lo, hi, cnt)
     repeat, cells = None, 0
     if dtm is not None and ranges:
-        gy, gx = np.gradient(dtm, resolution)
+        gy, gx = np.gradient(dtm * units.vertical, resolution * units.horizontal)
         level = np.hypot(gx, gy) <= 0.05  # level cells only: slope 5 % at most (NaN: not level)
         level = level[::lattice, ::lattice].ravel()
-        spans = []
+        spans = [np.zeros(0, np.float32)]
         for lo, hi, cnt in ranges.values():
-            good = (cnt >= 4) & level[: len(cnt)]
+            if len(cnt) != len(level):
+                continue  # allocated before the lattice grew: another geometry of cells
+            good = (cnt >= 4) & level
             spans.append(hi[good] - lo[good])
         spans = np.concatenate(spans)
         cells = int(len(spans))

@@ -79,11 +79,18 @@ _T2 = "Table 2 (relative vertical accuracy for lidar swath data)"
 _T4 = "Table 4 (absolute vertical accuracy for lidar data and DEMs)"
 _VOIDS = "Collection: Data Voids ((4 × ANPS)², first returns)"
 _A72 = "Table 7.2 (vertical accuracy classes for digital elevation data), 10-cm class"
-_SEEN = "values cross-checked with secondary sources found by search (3DEP quality-level page, swath separation image legend 8/16 cm)"
+# how each figure was checked for this code (the standards themselves are not in the repository)
+_SEEN_T1 = (
+    "table numbering: usgs.gov LBS table of contents; 2 and 8 pulses/m² (QL2, QL1): secondary sources found by search"
+)
+_SEEN_T2 = "6 cm (repeatability) and 8 cm (overlap RMSDz) for QL1/QL2: secondary source found by search; 8/16 cm: the LBS swath separation image legend (usgs.gov)"
+_SEEN_T4 = "19.6 cm / 29.4 cm (QL1, QL2): the standard's values as commonly quoted (1.96 x 10 cm RMSEz; 1.5 x NVA); not found by search"
+_SEEN_VOIDS = "(4 x ANPS)^2 on first returns: the standard's rule as commonly quoted; not found by search"
 
 
 def _lbs(table: str) -> Source:
-    return Source(LBS, LBS_EDITION, table, _SEEN)
+    checked = {_T1: _SEEN_T1, _T2: _SEEN_T2, _T4: _SEEN_T4, _VOIDS: _SEEN_VOIDS}[table]
+    return Source(LBS, LBS_EDITION, table, checked)
 
 
 def _asprs(table: str) -> Source:

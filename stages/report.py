@@ -247,7 +247,7 @@ def raster_map(
     if threshold is not None and lo < threshold < hi:
         bar.ax.axhline(threshold, color="red", lw=2)
         bar.ax.text(1.05, threshold, threshold_label, color="red", fontsize=7, transform=bar.ax.get_yaxis_transform())
-        if finite.any():
+        if finite.any() and min(thin.shape) >= 2:  # a contour needs 2 x 2 cells
             ys = np.linspace(extent[3], extent[2], thin.shape[0])
             xs = np.linspace(extent[0], extent[1], thin.shape[1])
             ax.contour(xs, ys, np.nan_to_num(thin, nan=hi), levels=[threshold], colors="red", linewidths=0.8)
@@ -445,8 +445,11 @@ def summarise_cloud(
                 ranges[int(s)] = (lo, hi, cnt)
     repeat, cells = None, 0
     if dtm is not None and ranges:
-        gy, gx = np.gradient(dtm * units.vertical, resolution * units.horizontal)
-        level = np.hypot(gx, gy) <= 0.05  # level cells only: slope 5 % at most (NaN: not level)
+        if min(dtm.shape) >= 2:
+            gy, gx = np.gradient(dtm * units.vertical, resolution * units.horizontal)
+            level = np.hypot(gx, gy) <= 0.05  # level cells only: slope 5 % at most (NaN: not level)
+        else:
+            level = np.zeros(dtm.shape, dtype=bool)  # one row or column: no slope, so no level cell
         level = level[::lattice, ::lattice].ravel()
         spans = [np.zeros(0, np.float32)]
         for lo, hi, cnt in ranges.values():

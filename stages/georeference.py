@@ -177,11 +177,12 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "5"  # 5: heights in the units of a 2-D CRS; units in the metrics
+    version = "6"  # 6: qc/trajectory.gpkg (flight lines); 5: heights in the units of a 2-D CRS
     Params = GeoreferenceParams
     can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
-    outputs: ClassVar = {"points_georef": "points.las"}
+    outputs: ClassVar = {"points_georef": "points.las", "trajectory_lines": "trajectory.gpkg"}
+    products: ClassVar = {"trajectory_lines": "qc/trajectory.gpkg"}
     config_keys = ("crs",)
     description = "pulses + trajectory -> points in the output CRS (raw formats only)"
 
@@ -256,6 +257,8 @@ class Georeference(Stage):
             crs = ltp_crs(lat0, lon0, p.ltp_radius_m)
             traj_used, map_columns = ltp, (lambda e, n, u: (e, n, u))
             bounds = np.array([ltp.position.min(axis=0) - reach, ltp.position.max(axis=0) + reach])
+        platform_map = to_map(exact.position) if p.frame == "exact" else ltp.position
+        write_flight_lines(ctx.outputs["trajectory_lines"], traj["time"], platform_map, renumber[strips_epoch], crs)
         from stages.units import Units
 
         ctx.metrics.update(frame=p.frame, crs=crs.name, crs_epsg=crs.to_epsg(), attitude_convention=convention,
@@ -370,3 +373,22 @@ class Georeference(Stage):
                 f"no pulse could be georeferenced ({no_traj} without trajectory, {in_turns} in turns): "
                 "check that the scanner and navigation files are of the same flight."
             )
+
+
+def write_flight_lines(path, time: np.ndarray, xyz: np.ndarray, strip: np.ndarray, crs) -> None:
+    """``qc/trajectory.gpkg``: one LineString a flight line (strip id, first and last GPS time, height of the
+    platform in the output CRS: mean, lowest, highest), in the output CRS; epochs in turns (strip 0) left out."""
+    from stages.io import line_wkb, write_gpkg
+
+    ids = [int(s) for s in np.unique(strip) if s > 0]
+    lines, rows = [], []
+    for s in ids:
+        m = strip == s
+        pts = xyz[m]
+        lines.append(line_wkb(pts))
+        rows.append((s, time[m].min(), time[m].max(), pts[:, 2].mean(), pts[:, 2].min(), pts[:, 2].max()))
+    names = ("strip", "time_start", "time_end", "altitude_mean", "altitude_min", "altitude_max")
+    table = np.array(rows, dtype=np.float64).reshape(-1, len(names))
+    fields = {n: table[:, i] for i, n in enumerate(names)}
+    fields["strip"] = fields["strip"].astype(np.int32)
+    write_gpkg(path, lines, fields, crs=crs, layer="flight_lines")

@@ -71,6 +71,10 @@ def test_sample_counts_what_was_injected_and_warns_of_nothing_else(tmp_path, cap
     assert warnings == explained
     debug = _debug(out / "qc" / "debug.txt")
     assert {k: debug.get(k) for k in counters} == counters
+    import pyogrio  # qc/trajectory.gpkg: one LineString per flight line
+
+    lines = pyogrio.read_info(str(out / "qc" / "trajectory.gpkg"))
+    assert lines["features"] == len(faults["line_biases_m"]) and lines["geometry_type"] == "LineString"
     run = {s["name"]: s for s in json.loads((out / "run.json").read_text())["stages"]}
     geo, adjust = run["georeference"]["metrics"], run["strip_adjust"]["metrics"]
     assert geo["rejected_no_trajectory"] == 0

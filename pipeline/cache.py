@@ -290,8 +290,13 @@ class Cache:
             self.log.info("removed %d workspace(s) of killed runs from the cache of %s", removed, stage)
         return removed
 
-    def commit(self, stage: str, key: str, workspace: Path, meta: dict[str, Any]) -> Entry:
-        """Record checksums, write ``entry.json`` and move the workspace into place."""
+    def commit(self, stage: str, key: str, workspace: Path, meta: dict[str, Any], replace: bool = False) -> Entry:
+        """Record checksums, write ``entry.json`` and move the workspace into place.
+
+        An intact entry already there (a concurrent run finished first) is kept
+        and the workspace discarded, unless *replace* (``--force``: the caller
+        holds the key's lock and asked for the stage to be computed again).
+        """
         outputs = {}
         for artifact, file_name in meta["outputs"].items():
             target = workspace / file_name
@@ -304,7 +309,7 @@ class Cache:
         atomic_write_text(workspace / ENTRY_FILE, text)
         final = self.entry_folder(stage, key)
         # Fully verified: an entry that fails its checksums is replaced, never kept.
-        existing = self.lookup(stage, key, verify=True, warn=False)
+        existing = None if replace else self.lookup(stage, key, verify=True, warn=False)
         if existing is not None:
             # Same key, same content: a concurrent run finished first; keep its entry.
             self.discard(workspace)

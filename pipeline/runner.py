@@ -611,7 +611,9 @@ def _run_step(
             record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
         else:
             inputs = {n: artifacts[r][0] for n, r in resolved.items()}
-            entry = _execute(step, config, cache, key, inputs, input_hashes, slog, upstream, executor)
+            entry = _execute(
+                step, config, cache, key, inputs, input_hashes, slog, upstream, executor, replace=step.name in force
+            )
             record.update(status="ran", seconds=entry.meta["seconds"])
     _remember(entry, step, artifacts)
     record["outputs"] = {
@@ -637,6 +639,7 @@ def _execute(
     slog: logging.LoggerAdapter,
     upstream: dict[str, dict[str, Any]] | None = None,
     executor: Any = None,
+    replace: bool = False,
 ) -> Entry:
     workspace = cache.new_workspace(step.name, key)
     try:  # from here on, any failure or interruption removes the workspace
@@ -665,7 +668,7 @@ def _execute(
             "metrics": ctx.metrics,
             "seconds": seconds,
         }
-        entry = cache.commit(step.name, key, workspace, meta)
+        entry = cache.commit(step.name, key, workspace, meta, replace=replace)
     except BaseException:
         Cache.discard(workspace)
         raise

@@ -115,6 +115,21 @@ def test_force_reruns_a_cached_stage(toy):
     }
 
 
+def test_force_replaces_the_cached_entry(toy):
+    """--force computes the stage again and keeps the new entry (not the old one as from a concurrent run)."""
+    import time
+    from pathlib import Path
+
+    assert toy.run() == 0
+    record = next(s for s in toy.manifest()["stages"] if s["name"] == "total")
+    entry = Path(next(iter(record["outputs"].values()))["file"]).parent / "entry.json"
+    before = json.loads(entry.read_text())
+    time.sleep(1.1)  # entry.json's creation time has whole seconds
+    assert toy.run("--force", "total") == 0
+    after = json.loads(entry.read_text())
+    assert after["created"] != before["created"]
+
+
 def test_unknown_stage_names_exit_2(toy, capsys):
     assert toy.run("--until", "nope") == 2
     assert "unknown stage 'nope'" in capsys.readouterr().err

@@ -466,6 +466,7 @@ def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[
     power loss) leaves ``run.json`` at ``"publishing"``: the folder is then
     a mix, and the next run completes it.
     """
+    products = _flatten_nested(products)
     folders = {output} | {(output / name).parent for name in products}
     with exclusive_lock(output / PRODUCTS_LOCK, lambda: log.info("waiting for another run to publish its products")):
         _remove_leftovers(folders)
@@ -480,6 +481,16 @@ def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[
                 name
                 for name in (old.get("products") or {})
                 if isinstance(name, str) and name not in products and name != MANIFEST
+            ]
+            # an old folder product now published file by file: only its files no longer made are stale
+            parents = [n for n in stale if any(Path(p).is_relative_to(n) for p in products)]
+            stale = [n for n in stale if n not in parents]
+            stale += [
+                str(f.relative_to(output))
+                for n in parents
+                if (output / n).is_dir()
+                for f in sorted((output / n).rglob("*"))
+                if f.is_file() and not f.name.endswith(".tmp") and str(f.relative_to(output)) not in products
             ]
             manifest.update(
                 status="publishing",
@@ -505,6 +516,31 @@ def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[
             manifest["status"] = "ok"
             _write_manifest(output, manifest)
     log.info("run ok in %.2f s; manifest %s", manifest["seconds"], output / MANIFEST)
+
+
+def _flatten_nested(products: dict[str, tuple[Path, str]]) -> dict[str, tuple[Path, str]]:
+    """Folder products that another product lies inside (``qc`` and ``qc/trajectory.gpkg``), file by file.
+
+    A folder is published by renaming its copy into place, which would drop
+    a product another stage publishes inside it; such a folder's files are
+    published one by one instead (``run.json`` then lists each of them).
+    """
+    nested = {
+        outer
+        for outer in products
+        for inner in products
+        if inner != outer and Path(inner).is_relative_to(outer) and Path(products[outer][0]).is_dir()
+    }
+    if not nested:
+        return products
+    out = {name: v for name, v in products.items() if name not in nested}
+    for outer in sorted(nested):
+        src = Path(products[outer][0])
+        for f in sorted(src.rglob("*")):
+            name = str(Path(outer) / f.relative_to(src))
+            if f.is_file() and name not in out:
+                out[name] = (f, hash_path(f))
+    return out
 
 
 def _is_real(path: Path) -> bool:

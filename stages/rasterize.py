@@ -45,17 +45,25 @@ class IdwParams(StrictModel):
     power: float = Field(2.0, gt=0, description="weights are 1 / distance**power")
 
 
+class TinParams(StrictModel):
+    thin: bool = Field(
+        True,
+        description="triangulate one ground point per half cell (the nearest to its centre); false: every ground point",
+    )
+
+
 class RasterizeParams(StageParams):
     resolution: float = glossary.resolution(1.0)
     method: Literal["tin", "idw", "nearest"] = Field("tin", description="DTM interpolation: tin | idw | nearest")
     nodata_distance: float = glossary.nodata_distance(50.0)
     idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
+    tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")
 
 
 def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, progress=None) -> np.ndarray:
     """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
     if params.method == "tin":
-        return tin(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
+        return tin(ground, grid, nodata_distance=params.nodata_distance, thin=params.tin.thin, progress=progress)
     if params.method == "idw":
         return idw(
             ground,
@@ -254,8 +262,6 @@ def rasterize_tile(task: dict) -> dict:
     """
     import math
 
-    from scipy.spatial import QhullError
-
     from stages.tiles import read_tile
 
     p = RasterizeParams.model_validate(task["params"])
@@ -277,10 +283,7 @@ def rasterize_tile(task: dict) -> dict:
     max_cells = p.nodata_distance / p.resolution
     dtm = np.full((core.rows, core.cols), np.nan)
     if core.rows and core.cols and len(ground) >= (3 if p.method == "tin" else 1):
-        try:
-            dtm = interpolate_dtm(ground, core, p)
-        except QhullError:  # collinear or coincident ground points in a corner tile: no TIN there
-            pass
+        dtm = interpolate_dtm(ground, core, p)  # collinear or coincident ground points: all nodata
     dsm = fill_nearest(cell_max(pts[usable], wide), max_cells=max_cells)[crop]
     dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
     ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))

@@ -22,7 +22,7 @@ from pydantic import Field
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.noise import isolated_given, isolation, low_outliers
+from stages.noise import isolated_points, low_outliers
 
 
 class IsolatedParams(StrictModel):
@@ -84,8 +84,14 @@ def noise_classes(points: np.ndarray, params: DenoiseParams) -> np.ndarray:
         return out
     p = params.isolated
     if p.enabled:
-        far, spacing = isolation(points, neighbors=p.neighbors, spacing_neighbors=p.spacing_neighbors, radius=p.radius)
-        iso = isolated_given(far, spacing, multiplier=p.multiplier, min_distance=p.min_distance)
+        iso = isolated_points(
+            points,
+            neighbors=p.neighbors,
+            spacing_neighbors=p.spacing_neighbors,
+            multiplier=p.multiplier,
+            min_distance=p.min_distance,
+            radius=p.radius,
+        )
         if iso.any():
             from scipy.spatial import cKDTree
 

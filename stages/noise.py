@@ -10,39 +10,6 @@ from __future__ import annotations
 import numpy as np
 
 
-def isolation(
-    xyz: np.ndarray, *, neighbors: int = 2, spacing_neighbors: int = 8, radius: float = 30.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """How far each point is from the others in 3-D, and the point spacing around it in plan.
-
-    Returns the distance (3-D) to the ``neighbors``-th nearest other point
-    and the distance (plan) to the ``spacing_neighbors``-th nearest other
-    point, both counted up to *radius* (a neighbour farther away, or
-    missing, counts as *radius*): a point's values depend only on the
-    points within *radius* of it, which lets a tile with that buffer
-    compute them exactly.
-    """
-    from scipy.spatial import cKDTree
-
-    xyz = np.asarray(xyz, dtype=np.float64)
-    n = len(xyz)
-    if n == 0:
-        return np.zeros(0), np.zeros(0)
-    # Coordinates relative to a whole-metre corner: exact differences, the
-    # same for any subset of the points.
-    centred = xyz - np.floor(xyz.min(axis=0))
-
-    def kth(points, k):
-        if n <= k:  # fewer other points than k: the missing ones are far
-            return np.full(n, radius)
-        d, _ = cKDTree(points, balanced_tree=False, compact_nodes=False).query(
-            points, k=[k + 1], distance_upper_bound=radius, workers=-1
-        )
-        return np.minimum(d[:, 0], radius)
-
-    return kth(centred, neighbors), kth(centred[:, :2], spacing_neighbors)
-
-
 def isolated_points(
     xyz: np.ndarray,
     *,
@@ -57,7 +24,7 @@ def isolated_points(
     A point is isolated when its ``neighbors``-th nearest point in 3-D is
     farther than ``multiplier`` times the local point spacing (the distance
     in plan to its ``spacing_neighbors``-th nearest point) and farther than
-    ``min_distance`` (:func:`isolation`).  A bird, a cloud return or a deep
+    ``min_distance``, both counted up to ``radius``.  A bird, a cloud return or a deep
     multipath echo has many points below or above it in plan (a small
     spacing) and none near it in 3-D; a return in a tree crown has branches
     and leaves within about the spacing; a ground point of a sparse survey
@@ -68,8 +35,8 @@ def isolated_points(
     et al. 2008), which flags points whose mean distance to their k
     neighbours exceeds the survey's mean by a multiple of its deviation:
     that test measured canopy against the ground (74,122 crown returns
-    flagged on the 9.4 M-point bench survey, which has no outlier, and 183
-    provider-ground points on Megaplot).  Comparing a point with the
+    flagged on the 9.4 M-point bench survey, which has no outlier, and about
+    180 provider-ground points on Megaplot).  Comparing a point with the
     density of its own neighbourhood is the idea of the local outlier
     factor (Breunig et al. 2000).
 
@@ -106,13 +73,48 @@ def isolated_points(
     ndarray of bool
         True for isolated points.
     """
-    far, spacing = isolation(xyz, neighbors=neighbors, spacing_neighbors=spacing_neighbors, radius=radius)
-    return isolated_given(far, spacing, multiplier=multiplier, min_distance=min_distance)
+    xyz = np.asarray(xyz, dtype=np.float64)
+    n = len(xyz)
+    out = np.zeros(n, dtype=bool)
+    if n == 0:
+        return out
+    # Coordinates relative to a whole-metre corner: exact differences, the
+    # same for any subset of the points.
+    centred = xyz - np.floor(xyz.min(axis=0))
+    cand = np.arange(n)
+    if min_distance > 0:
+        # A point sharing a cube of side min_distance / sqrt(3) with
+        # `neighbors` others has them within min_distance: never isolated.
+        # This decides most points at the cost of one sort; the k-d trees
+        # are asked about the rest only.
+        v = min_distance / np.sqrt(3.0)
+        cube = np.floor(centred / v).astype(np.int64)
+        top = cube.max(axis=0) + 1
+        key = (cube[:, 0] * top[1] + cube[:, 1]) * top[2] + cube[:, 2]
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        cand = np.flatnonzero(counts[inverse] <= neighbors)
+        del cube, key, inverse
+    if len(cand) == 0:
+        return out
+    far = _kth(centred, cand, neighbors, radius)
+    cand, far = cand[far > min_distance], far[far > min_distance]
+    if len(cand) == 0:
+        return out
+    spacing = _kth(centred[:, :2], cand, spacing_neighbors, radius)
+    out[cand] = far > np.maximum(multiplier * spacing, min_distance)
+    return out
 
 
-def isolated_given(far: np.ndarray, spacing: np.ndarray, *, multiplier: float, min_distance: float) -> np.ndarray:
-    """The isolation test of :func:`isolated_points` on the distances :func:`isolation` returns."""
-    return far > np.maximum(multiplier * spacing, min_distance)
+def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.ndarray:
+    """Distance from each of ``points[which]`` to its k-th nearest other point, counted up to *radius*."""
+    from scipy.spatial import cKDTree
+
+    if len(points) <= k:  # fewer other points than k: the missing ones are far
+        return np.full(len(which), radius)
+    d, _ = cKDTree(points, balanced_tree=False, compact_nodes=False).query(
+        points[which], k=[k + 1], distance_upper_bound=radius, workers=-1
+    )
+    return np.minimum(d[:, 0], radius)
 
 
 def low_outliers(xyz: np.ndarray, *, cell_size: float = 10.0, elevation_threshold: float = 1.0) -> np.ndarray:

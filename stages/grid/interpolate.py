@@ -239,22 +239,29 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     shared by two triangles takes the later one's, everywhere alike).
     """
     res = grid.resolution
-    v0, v1, v2 = (simplices[:, i] for i in range(3))
-    x0, x1, x2 = xy[v0, 0], xy[v1, 0], xy[v2, 0]
-    y0, y1, y2 = xy[v0, 1], xy[v1, 1], xy[v2, 1]
-    c0 = np.maximum(np.ceil(np.minimum(np.minimum(x0, x1), x2) / res - 0.5), grid.col0)
-    c1 = np.minimum(np.floor(np.maximum(np.maximum(x0, x1), x2) / res - 0.5), grid.col0 + grid.cols - 1)
-    r0 = np.maximum(np.ceil(-np.maximum(np.maximum(y0, y1), y2) / res - 0.5), grid.row0)
-    r1 = np.minimum(np.floor(-np.minimum(np.minimum(y0, y1), y2) / res - 0.5), grid.row0 + grid.rows - 1)
-    some = (c1 >= c0) & (r1 >= r0)
-    del x0, x1, x2, y0, y1, y2
-    s = simplices[some].astype(np.int64)
+    # Each triangle's box in whole-grid cell indices, a million triangles at a
+    # time (bounded temporaries); keep those that hold a cell centre.
+    boxes = []
+    for start in range(0, len(simplices), 1_000_000):
+        part = simplices[start : start + 1_000_000]
+        x = [xy[part[:, i], 0] for i in range(3)]
+        y = [xy[part[:, i], 1] for i in range(3)]
+        c0 = np.maximum(np.ceil(np.minimum(np.minimum(x[0], x[1]), x[2]) / res - 0.5), grid.col0)
+        c1 = np.minimum(np.floor(np.maximum(np.maximum(x[0], x[1]), x[2]) / res - 0.5), grid.col0 + grid.cols - 1)
+        r0 = np.maximum(np.ceil(-np.maximum(np.maximum(y[0], y[1]), y[2]) / res - 0.5), grid.row0)
+        r1 = np.minimum(np.floor(-np.minimum(np.minimum(y[0], y[1]), y[2]) / res - 0.5), grid.row0 + grid.rows - 1)
+        some = (c1 >= c0) & (r1 >= r0)
+        boxes.append((part[some], c0[some], c1[some], r0[some], r1[some]))
+    simplices = np.concatenate([b[0] for b in boxes])
+    c0, c1, r0, r1 = (np.concatenate([b[i] for b in boxes]) for i in range(1, 5))
+    del boxes
+    s = simplices.astype(np.int64)
     lo, hi = s.min(axis=1), s.max(axis=1)
     s = np.column_stack((lo, s.sum(axis=1) - lo - hi, hi))  # vertices ascending
     order = np.lexsort(s.T[::-1])
     s = s[order]
-    c0, c1 = c0[some][order].astype(np.int64), c1[some][order].astype(np.int64)
-    r0, r1 = r0[some][order].astype(np.int64), r1[some][order].astype(np.int64)
+    c0, c1 = c0[order].astype(np.int64), c1[order].astype(np.int64)
+    r0, r1 = r0[order].astype(np.int64), r1[order].astype(np.int64)
     p0, p1, p2 = xy[s[:, 0]], xy[s[:, 1]], xy[s[:, 2]]
     ax, ay = p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1]
     bx, by = p2[:, 0] - p0[:, 0], p2[:, 1] - p0[:, 1]
@@ -323,8 +330,14 @@ def canonical_neighbours(tree, queries: np.ndarray, k: int, upper: float) -> tup
             idx[tied] = np.take_along_axis(i2, order, axis=1)
             still = np.isfinite(d2[:, -1]) & (d2[:, -1] == dist[tied, k - 1])
             tied = tied[still]
-    order = np.lexsort((idx, dist), axis=1)[:, :k]
-    dist, idx = np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
+    # The tree returns rows sorted by distance: only rows with equal
+    # distances need their ties put in index order.
+    same = (dist[:, 1:] == dist[:, :-1]) & np.isfinite(dist[:, 1:])
+    tie = np.flatnonzero(same.any(axis=1))
+    if len(tie):
+        order = np.lexsort((idx[tie], dist[tie]), axis=1)
+        dist[tie], idx[tie] = np.take_along_axis(dist[tie], order, axis=1), np.take_along_axis(idx[tie], order, axis=1)
+    dist, idx = dist[:, :k], idx[:, :k]
     if dist.shape[1] < k:  # fewer points than k
         pad = k - dist.shape[1]
         dist = np.hstack((dist, np.full((m, pad), np.inf)))

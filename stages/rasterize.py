@@ -35,7 +35,7 @@ from pipeline.config import StrictModel
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.grid.interpolate import Grid, cell_count, cell_max, cell_mean, idw, nearest, tin
+from stages.grid.interpolate import Grid, cell_max_count, cell_mean, idw, nearest, tin
 from stages.ground.surface import fill_nearest
 from stages.io import NODATA
 
@@ -48,7 +48,8 @@ class IdwParams(StrictModel):
 class TinParams(StrictModel):
     thin: bool = Field(
         True,
-        description="triangulate one ground point per half cell (the nearest to its centre); false: every ground point",
+        description="in cells with more than 4 ground points, triangulate one per half cell (the nearest to its "
+        "centre); false: every ground point",
     )
 
 
@@ -284,10 +285,12 @@ def rasterize_tile(task: dict) -> dict:
     dtm = np.full((core.rows, core.cols), np.nan)
     if core.rows and core.cols and len(ground) >= (3 if p.method == "tin" else 1):
         dtm = interpolate_dtm(ground, core, p)  # collinear or coincident ground points: all nodata
-    dsm = fill_nearest(cell_max(pts[usable], wide), max_cells=max_cells)[crop]
+    highest, count = cell_max_count(pts[usable], wide)  # the core's cells are cells of the wide window
+    del pts, cols["xyz"]
+    dsm = fill_nearest(highest, max_cells=max_cells)[crop]
     dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
     ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
-    density = cell_count(pts[usable], core).astype(np.float64)
+    density = count[crop].astype(np.float64)
     out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
     if "dtm_uncertainty" in task["outputs"]:
         unc = fill_nearest(cell_mean(ground, cols["sigma_vertical"][is_ground], wide), max_cells=max_cells)[crop]

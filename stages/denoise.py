@@ -172,7 +172,10 @@ def denoise_tile(task: dict) -> dict:
     done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | cols["withheld"]
     core = cols["core"]
     found = np.zeros(len(cls), dtype=np.uint8)
-    found[~done] = noise_classes(points[~done], params)
+    if done.any():
+        found[~done] = noise_classes(points[~done], params)
+    else:  # no copy of the points
+        found = noise_classes(points, params)
     cls[found > 0] = found[found > 0]
     write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
     return {

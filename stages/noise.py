@@ -88,12 +88,15 @@ def isolated_points(
         # This decides most points at the cost of one sort; the k-d trees
         # are asked about the rest only.
         v = min_distance / np.sqrt(3.0)
-        cube = np.floor(centred / v).astype(np.int64)
-        top = cube.max(axis=0) + 1
-        key = (cube[:, 0] * top[1] + cube[:, 1]) * top[2] + cube[:, 2]
+        key = np.zeros(n, dtype=np.int64)
+        for axis in range(3):  # one column at a time: no (n, 3) temporary
+            cube = np.floor(centred[:, axis] / v).astype(np.int64)
+            key = key * (int(cube.max()) + 1) + cube
+        del cube
         _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        del key
         cand = np.flatnonzero(counts[inverse] <= neighbors)
-        del cube, key, inverse
+        del inverse
     if len(cand) == 0:
         return out
     far = _kth(centred, cand, neighbors, radius)

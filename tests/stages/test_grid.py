@@ -78,3 +78,20 @@ def test_thinned_tin_keeps_a_surface_it_can_resolve():
     # linear interpolation on edges under 1 m: error below h^2 max|f''| / 8 (f'' = 0.02)
     assert np.abs(thin - truth).max() < 0.02 / 8 * 2
     assert np.abs(full - truth).max() < 0.02 / 8 * 2
+
+
+def test_thinning_keeps_every_point_of_a_sparse_cell():
+    from stages.grid.interpolate import thin_points
+
+    # cell (0, 0) of 1 m (four 0.5 m squares) holds 3 points: all kept, the
+    # duplicate once; cell (1, 0) holds 5: one per square
+    sparse = [[0.10, -0.10], [0.20, -0.20], [0.10, -0.10], [0.80, -0.80]]
+    dense = [
+        [1.10, -0.10],
+        [1.20, -0.20],
+        [1.32, -0.32],
+        [1.70, -0.20],
+        [1.20, -0.70],
+    ]  # 1.20, -0.20 nearest (1.25, -0.25)
+    keep = thin_points(np.array(sparse + dense), 0.5, sparse=4)
+    assert keep.tolist() == [0, 1, 3, 5, 7, 8]

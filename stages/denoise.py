@@ -163,21 +163,23 @@ def denoise_tile(task: dict) -> dict:
 
     Writes ``idx`` and ``classification`` of the core points and returns counts.
     """
-    from stages.tiles import read_tile, write_result
+    from stages.tiles import write_result
 
-    cols = read_tile(Path(task["source"]))
+    source = Path(task["source"])
     params = DenoiseParams.model_validate(task["params"])
-    points = cols["xyz"]
-    cls = cols["classification"].copy()
-    done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | cols["withheld"]
-    core = cols["core"]
+    # the columns mapped and stacked: no second copy of the coordinates in memory
+    points = np.column_stack([np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"])
+    cls = np.load(source / "classification.npy")
+    done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.load(source / "withheld.npy")
+    core = np.load(source / "core.npy")
+    idx = np.load(source / "idx.npy", mmap_mode="r")
     found = np.zeros(len(cls), dtype=np.uint8)
     if done.any():
         found[~done] = noise_classes(points[~done], params)
     else:  # no copy of the points
         found = noise_classes(points, params)
     cls[found > 0] = found[found > 0]
-    write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
+    write_result(Path(task["result"]), idx=idx[core], classification=cls[core])
     return {
         "tile": task["tile"],
         "points": int(core.sum()),

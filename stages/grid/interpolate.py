@@ -93,11 +93,16 @@ def thin_points(xy: np.ndarray, cell: float, *, sparse: int = 0) -> np.ndarray:
     row = np.floor(-xy[:, 1] / cell).astype(np.int64)
     c_lo, r_lo = int(col.min()) // 2 * 2, int(row.min()) // 2 * 2
     width = int(col.max()) - c_lo + 2
-    square = (row - r_lo) * width + (col - c_lo)
     size = (int(row.max()) - r_lo + 2) * width
-    dx = xy[:, 0] - (col + 0.5) * cell
+    d = xy[:, 0] - (col + 0.5) * cell
+    d *= d
     dy = xy[:, 1] + (row + 0.5) * cell
-    d = dx * dx + dy * dy
+    dy *= dy
+    d += dy
+    del dy
+    col -= c_lo
+    row -= r_lo
+    square = row * width + col
     best = np.full(size, np.inf)
     np.minimum.at(best, square, d)
     cand = np.flatnonzero(d == best[square])
@@ -106,7 +111,7 @@ def thin_points(xy: np.ndarray, cell: float, *, sparse: int = 0) -> np.ndarray:
     keep = np.zeros(n, dtype=bool)
     keep[first[first < n]] = True
     if sparse:
-        block = ((row - r_lo) // 2) * (width // 2) + (col - c_lo) // 2
+        block = (row // 2) * (width // 2) + col // 2
         few = np.bincount(block)[block] <= sparse
         keep &= ~few
         alone = np.flatnonzero(few)
@@ -137,8 +142,9 @@ def tin(
 
     Parameters
     ----------
-    points : ndarray, shape (n, 3)
-        x, y, z of the points (at least 3).
+    points : ndarray, shape (n, 3), or a list holding one
+        x, y, z of the points (at least 3).  A list is emptied: the array is
+        then freed as soon as the TIN has what it needs of it (memory).
     grid : Grid
         Where to interpolate (cell centres).
     nodata_distance : float
@@ -176,7 +182,7 @@ def tin(
     """
     import triangle
 
-    pts = np.asarray(points, dtype=np.float64)
+    pts = np.asarray(points.pop() if isinstance(points, list) else points, dtype=np.float64)
     if len(pts) < 3:
         raise ValueError("a TIN needs at least 3 points")
     out = np.full(grid.rows * grid.cols, np.nan)
@@ -186,13 +192,16 @@ def tin(
     origin = np.array([grid.xmin, grid.ymax])
     xy = pts[:, :2] - origin
     keep = thin_points(xy, grid.resolution / 2.0, sparse=4) if thin else _unique_xy(xy)
-    if len(keep) >= 3:
-        vxy = np.ascontiguousarray(xy[keep])
-        simplices = triangle.triangulate({"vertices": vxy}, "Qz").get("triangles")
+    far = _far_from(xy, grid, nodata_distance)  # water, gaps: nodata even inside the hull
+    vxy, vz = np.ascontiguousarray(xy[keep]), pts[keep, 2]
+    del xy, pts, points, keep  # before the triangulation: memory
+    if len(vz) >= 3:
+        # Q quiet, z indices from 0, B N: no boundary markers, no copy of the vertices
+        simplices = triangle.triangulate({"vertices": vxy}, "QzBN").get("triangles")
         if simplices is not None and len(simplices):  # None: all points on a line
-            _draw_triangles(vxy, pts[keep, 2], simplices, grid, out, batch_cells, progress)
+            _draw_triangles(vxy, vz, simplices, grid, out, batch_cells, progress)
     out = out.reshape(grid.rows, grid.cols)
-    out[_far_from(xy, grid, nodata_distance)] = np.nan  # water, gaps: nodata even inside the hull
+    out[far] = np.nan
     out[np.isnan(out)] = nodata
     return out
 

@@ -129,7 +129,7 @@ def _unique_xy(xy: np.ndarray) -> np.ndarray:
 
 
 def tin(
-    points: np.ndarray,
+    points: np.ndarray | list[np.ndarray],
     grid: Grid,
     *,
     nodata_distance: float,

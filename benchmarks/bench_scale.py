@@ -1,24 +1,29 @@
-"""LAZ -> classified LAZ + DTM at survey scale: wall time, points/s and peak RSS per stage.
+"""LAZ -> classified LAZ + DTM at survey scale: three jobs, per-stage seconds, peak memory, ratio to the I/O floor.
 
-    .venv/bin/python benchmarks/bench_scale.py --points 10e6 [--points 50e6] [--workdir /tmp/bench_scale]
+    .venv/bin/python benchmarks/bench_scale.py --points 10e6 [--points 40e6] [--workdir /tmp/bench_scale]
 
-The job matches the PDAL reference of issue 9 (LAZ -> SMRF -> LAZ, ground ->
-1 m IDW DTM): ``parse -> classify_ground (SMRF) -> rasterize (IDW, 1 m) ->
-export_las``; denoise, strip adjustment and the map products are disabled.
+The jobs (strip adjustment and the map products off):
+
+- ``idw``: parse -> SMRF ground -> 1 m IDW DTM (+ DSM, nDSM, density) -> LAZ
+  (the PDAL reference of issue 9);
+- ``tin``: the same with the default TIN DTM;
+- ``defaults``: denoise + SMRF + TIN: the default job without map products.
+
 The survey is the synthetic scene of :mod:`stages.synthetic` at 8 pulses/m2
-(trees give second returns), written as LAZ.
-
-Each stage is measured in its own process (``pipeline run --until STAGE``,
-the stages before it cache hits), so its peak RSS is its own; the whole job
-is also run once in one process on an empty cache.  The I/O floor is laspy +
-lazrs reading the same LAZ and writing it again, in chunks.  Prints Markdown
-rows for docs/BENCHMARKS.md.
+(trees give second returns), written as LAZ.  Each job runs once in its own
+process on an empty cache; its stages' seconds come from its ``run.json``,
+its peak memory is sampled over the whole process tree (the run and its
+workers).  The I/O floor is laspy + lazrs reading the same LAZ and writing
+it again, in chunks, measured in the same run; every row carries the
+machine's load average (other work on the machine slows every figure, the
+ratios less).  Prints Markdown rows for docs/BENCHMARKS.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -29,15 +34,20 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _isolated import emit, machine, run_child  # noqa: E402
 
-STAGES = ["parse", "classify_ground", "rasterize", "export_las"]
+STAGES = ["parse", "denoise", "classify_ground", "rasterize", "export_las"]
+JOBS = {
+    "idw": {"denoise": "false", "method": "idw"},
+    "tin": {"denoise": "false", "method": "tin"},
+    "defaults": {"denoise": "true", "method": "tin"},
+}
 CONFIG = """input: {{format: las, paths: [{laz}]}}
 output: {out}
 cache: {cache}
 stages:
   strip_adjust: {{enabled: false}}
-  denoise: {{enabled: false}}
+  denoise: {{enabled: {denoise}}}
   classify_ground: {{algorithm: {{name: smrf}}}}
-  rasterize: {{resolution: 1.0, method: idw}}
+  rasterize: {{resolution: 1.0, method: {method}}}
   hillshade: {{enabled: false}}
   contours: {{enabled: false}}
   report: {{enabled: false}}
@@ -108,7 +118,11 @@ def _measured(cmd: list[str]) -> tuple[float, float, float]:
     return seconds, peak_rss / 2**20, peak_pss / 2**20
 
 
-def bench(points: float, workdir: Path) -> list[str]:
+def _load() -> str:
+    return f"{os.getloadavg()[0]:.1f}"
+
+
+def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     tag = f"{points / 1e6:g}M"
     work = workdir / tag
     laz = work / "survey.laz"
@@ -124,33 +138,27 @@ def bench(points: float, workdir: Path) -> list[str]:
         shutil.rmtree(work, ignore_errors=True)
         work.mkdir(parents=True)
         n = run_child(__file__, "make", str(laz), str(points))["points"]
-    floor = run_child(__file__, "floor", str(laz), str(work / "copy.laz"))
     pipeline = str(Path(sys.executable).with_name("pipeline"))
-    rows = []
-    # the whole job in one process, empty cache
-    config = work / "job.yaml"
-    config.write_text(CONFIG.format(laz=laz, out=work / "out", cache=work / "cache"))
-    total, total_rss, total_pss = _measured([pipeline, "run", str(config), "-q"])
-    run = json.loads((work / "out" / "run.json").read_text())
-    ran = {s["name"]: s.get("seconds") for s in run["stages"]}
-    # each stage alone (the stages before it cached) for its own peak RSS
-    config2 = work / "job2.yaml"
-    config2.write_text(CONFIG.format(laz=laz, out=work / "out2", cache=work / "cache2"))
-    for stage in STAGES:
-        seconds, rss, pss = _measured([pipeline, "run", str(config2), "-q", "--until", stage])
+    load = _load()
+    floor = run_child(__file__, "floor", str(laz), str(work / "copy.laz"))
+    rows = [
+        f"| {n:,} | I/O floor (laspy + lazrs read + write) | | | | | | {floor['seconds']:.1f} | "
+        f"{floor['peak_mb']:,.0f} | 1 × | {load} |"
+    ]
+    print(rows[-1], flush=True)
+    for job in jobs:
+        config = work / f"{job}.yaml"
+        config.write_text(CONFIG.format(laz=laz, out=work / job, cache=work / f"{job}-cache", **JOBS[job]))
+        load = _load()
+        total, _, pss = _measured([pipeline, "run", str(config), "-q"])
+        run = json.loads((work / job / "run.json").read_text())
+        ran = {s["name"]: s.get("seconds") for s in run["stages"]}
+        cells = " | ".join(f"{ran[s]:.1f}" if ran.get(s) else "–" for s in STAGES)
         rows.append(
-            f"| {tag} | {stage} | {ran.get(stage, 0):.1f} | {n / max(ran.get(stage, 0) or 1e-9, 1e-9) / 1e6:.2f} "
-            f"| {pss:,.0f} | {rss:,.0f} |"
+            f"| {n:,} | {job} | {cells} | **{total:.1f}** | {pss:,.0f} | **{total / floor['seconds']:.1f} ×** | {load} |"
         )
-    rows.append(
-        f"| {tag} | **whole job** (cold cache) | {total:.1f} | {n / total / 1e6:.2f} | {total_pss:,.0f} "
-        f"| {total_rss:,.0f} |"
-    )
-    rows.append(
-        f"| {tag} | I/O floor (laspy+lazrs read + write) | {floor['seconds']:.1f} | "
-        f"{n / floor['seconds'] / 1e6:.2f} | | {floor['peak_mb']:,.0f} |"
-    )
-    rows.append(f"| {tag} | job / floor | {total / floor['seconds']:.1f} x | | | |")
+        print(rows[-1], flush=True)
+        shutil.rmtree(work / f"{job}-cache", ignore_errors=True)
     print(f"{tag}: {n:,} points, LAZ {laz.stat().st_size / 1e6:.0f} MB", file=sys.stderr)
     return rows
 
@@ -166,13 +174,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--points", type=float, action="append", help="survey size (repeatable); default 10e6")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/bench_scale"))
+    parser.add_argument("--job", choices=list(JOBS), action="append", help="job to run (repeatable); default all")
     args = parser.parse_args()
     print(machine())
-    print("| points | stage | seconds | M points/s | peak PSS MB (all processes) | peak RSS MB (summed) |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| points | job | parse s | denoise s | classify_ground s | rasterize s | export_las s | whole job s "
+        "| peak PSS MB (process tree) | / I/O floor | load (1 min) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for points in args.points or [10e6]:
-        for row in bench(points, args.workdir):
-            print(row, flush=True)
+        bench(points, args.workdir, args.job or list(JOBS))
 
 
 if __name__ == "__main__":

@@ -2,8 +2,13 @@
 
 Runs before ground classification, which leaves these classes alone.  Points
 already classified as noise or flagged withheld are not tested again.
-Isolated points above the median height of their neighbours become high
-noise (18), the others low noise (7); low outliers become low noise (7).
+Isolated points (judged in 3-D against the point spacing around them,
+:func:`stages.noise.isolated_points`) above the median height of their
+neighbours become high noise (18), the others low noise (7).  The extended
+local minimum test (low outliers, class 7) is off by default: on steep
+ground under canopy it takes real ground for noise (Megaplot: 23 provider
+ground points, autzen: 34); deep echoes are isolated and found by the first
+test.
 """
 
 from __future__ import annotations
@@ -17,24 +22,32 @@ from pydantic import Field
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.noise import exact_mean_std, low_outliers, neighbour_distance
+from stages.noise import isolated_points, low_outliers
 
 
 class IsolatedParams(StrictModel):
-    """Statistical outlier test (:func:`stages.noise.isolated_points`)."""
+    """Isolation in 3-D at the local point spacing (:func:`stages.noise.isolated_points`)."""
 
     enabled: bool = Field(True, description="look for isolated points")
-    neighbors: int = Field(8, ge=1, description="k: neighbours per point")
-    multiplier: float = Field(5.0, gt=0, description="standard deviations above the mean neighbour distance")
+    neighbors: int = Field(
+        2, ge=1, description="the test looks at the distance (3-D) to this nearest point (2: pairs are found too)"
+    )
+    spacing_neighbors: int = Field(
+        8, ge=1, description="the local point spacing is the distance (plan) to this nearest point"
+    )
+    multiplier: float = Field(10.0, gt=0, description="isolated: farther than this many local spacings")
+    min_distance: float = Field(2.0, ge=0, description="and farther than this (m): closer is never isolated")
     radius: float = Field(
-        20.0, gt=0, description="neighbour distances are counted up to this (m); it bounds how far the test looks"
+        30.0, gt=0, description="distances are counted up to this (m); it bounds how far the test looks"
     )
 
 
 class LowParams(StrictModel):
     """Extended local minimum test (:func:`stages.noise.low_outliers`)."""
 
-    enabled: bool = Field(True, description="look for low outliers")
+    enabled: bool = Field(
+        False, description="look for low outliers (off: on steep ground under canopy it flags real ground)"
+    )
     cell_size: float = glossary.cell_size(10.0)
     elevation_threshold: float = Field(
         2.0, gt=0, description="height gap (m) between a low outlier and the points above it in its cell"
@@ -58,31 +71,27 @@ def reach(params: DenoiseParams) -> float:
 
 
 def noise_classes(points: np.ndarray, params: DenoiseParams) -> np.ndarray:
-    """ASPRS noise class per point: 0 (not noise), 7 (low) or 18 (high)."""
-    distance = None
-    threshold = np.inf
-    if params.isolated.enabled and len(points) > params.isolated.neighbors:
-        p = params.isolated
-        distance = neighbour_distance(points, neighbors=p.neighbors, radius=p.radius)
-        mean, std, _ = exact_mean_std(lambda: [distance])
-        threshold = mean + p.multiplier * std
-    return classes_given(points, distance, threshold, params)
+    """ASPRS noise class per point: 0 (not noise), 7 (low) or 18 (high).
 
-
-def classes_given(points: np.ndarray, distance, threshold: float, params: DenoiseParams) -> np.ndarray:
-    """Noise classes once the isolation threshold (over the whole survey) is known.
-
-    An isolated point (``distance > threshold``) above the median height of
-    the non-isolated points among its ``neighbors`` nearest within
-    ``radius`` (in plan) is high noise (18), otherwise low noise (7); one
-    with no such point within ``radius`` is high noise (a bird, a cloud).
-    Low outliers (:func:`stages.noise.low_outliers`) are low noise.
+    An isolated point above the median height of the non-isolated points
+    among its ``spacing_neighbors`` nearest within ``radius`` (in plan) is high
+    noise (18), otherwise low noise (7); one with no such point within
+    ``radius`` is high noise (a bird, a cloud).  Low outliers
+    (:func:`stages.noise.low_outliers`, when enabled) are low noise.
     """
     out = np.zeros(len(points), dtype=np.uint8)
     if len(points) == 0:
         return out
-    if distance is not None:
-        iso = distance > threshold
+    p = params.isolated
+    if p.enabled:
+        iso = isolated_points(
+            points,
+            neighbors=p.neighbors,
+            spacing_neighbors=p.spacing_neighbors,
+            multiplier=p.multiplier,
+            min_distance=p.min_distance,
+            radius=p.radius,
+        )
         if iso.any():
             from scipy.spatial import cKDTree
 
@@ -93,8 +102,8 @@ def classes_given(points: np.ndarray, distance, threshold: float, params: Denois
             if len(rest):
                 anchor = np.floor(points[:, :2].min(axis=0))  # whole metres: exact, tile or not
                 tree = cKDTree(rest[:, :2] - anchor, balanced_tree=False, compact_nodes=False)
-                k = min(params.isolated.neighbors, len(rest))
-                dist, nb = canonical_neighbours(tree, points[iso, :2] - anchor, k, params.isolated.radius)
+                k = min(p.spacing_neighbors, len(rest))
+                dist, nb = canonical_neighbours(tree, points[iso, :2] - anchor, k, p.radius)
                 found = np.isfinite(dist)
                 z = np.where(found, np.append(rest[:, 2], np.nan)[nb], np.nan)
                 has = found.any(axis=1)
@@ -110,7 +119,7 @@ def classes_given(points: np.ndarray, distance, threshold: float, params: Denois
 
 class Denoise(Stage):
     name = "denoise"
-    version = "2"  # 2: distances counted up to a radius, exact statistics, tiles
+    version = "3"  # 3: isolation judged in 3-D at the local spacing, no survey statistic; ELM off
     Params = DenoiseParams
     description = "isolated points and low outliers to noise classes 18/7"
     inputs = ("points_adjusted",)
@@ -122,25 +131,7 @@ class Denoise(Stage):
         return reach(params)
 
     def run(self, ctx) -> None:
-        from pipeline.tiling import map_largest_first
         from stages.tiles import classes_by_tile
-
-        def between(tasks, results):
-            # The isolation threshold is a statistic of the whole survey: the tiles'
-            # distances (core points), summed exactly; then the tiles classify.
-            threshold = np.inf
-            if ctx.params.isolated.enabled:
-
-                def parts():
-                    for t in tasks:
-                        yield np.load(Path(t["result"]) / "distance.npy")
-
-                mean, std, n = exact_mean_std(parts)
-                if n > ctx.params.isolated.neighbors:
-                    threshold = mean + ctx.params.isolated.multiplier * std
-                ctx.metrics.update(isolation_threshold_m=round(float(threshold), 4) if n else None)
-            second = [{**t, "threshold": float(threshold)} for t in tasks]
-            return map_largest_first(ctx, denoise_tile, second, "noise tiles")
 
         def columns(chunk):
             return {
@@ -155,8 +146,7 @@ class Denoise(Stage):
             buffer=self.tile_buffer(ctx.params),
             columns=columns,
             task=denoise_tile,
-            extra={"params": ctx.params.model_dump(mode="json"), "threshold": None},
-            between=between,
+            extra={"params": ctx.params.model_dump(mode="json")},
         )
         counts = {k: sum(r[k] for r in results) for k in ("points", "low", "high", "done")}
         ctx.metrics.update(
@@ -171,32 +161,25 @@ class Denoise(Stage):
 def denoise_tile(task: dict) -> dict:
     """One tile of the noise tests (runs in a worker process).
 
-    Without ``task["threshold"]``: writes the neighbour distance of the core
-    points (``distance.npy``) for the survey-wide statistic.  With it: writes
-    ``idx`` and ``classification`` of the core points and returns counts.
+    Writes ``idx`` and ``classification`` of the core points and returns counts.
     """
-    from stages.tiles import read_tile, write_result
+    from stages.tiles import write_result
 
-    cols = read_tile(Path(task["source"]))
+    source = Path(task["source"])
     params = DenoiseParams.model_validate(task["params"])
-    points = cols["xyz"]
-    cls = cols["classification"].copy()
-    done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | cols["withheld"]
-    todo = points[~done]
-    core = cols["core"]
-    distance = None
-    if params.isolated.enabled:
-        p = params.isolated
-        distance = neighbour_distance(todo, neighbors=p.neighbors, radius=p.radius)
-    if task["threshold"] is None:
-        result = Path(task["result"])
-        result.mkdir(parents=True, exist_ok=True)
-        np.save(result / "distance.npy", distance[core[~done]] if distance is not None else np.zeros(0))
-        return {"tile": task["tile"]}
+    # the columns mapped and stacked: no second copy of the coordinates in memory
+    points = np.column_stack([np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"])
+    cls = np.load(source / "classification.npy")
+    done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.load(source / "withheld.npy")
+    core = np.load(source / "core.npy")
+    idx = np.load(source / "idx.npy", mmap_mode="r")
     found = np.zeros(len(cls), dtype=np.uint8)
-    found[~done] = classes_given(todo, distance, task["threshold"], params)
+    if done.any():
+        found[~done] = noise_classes(points[~done], params)
+    else:  # no copy of the points
+        found = noise_classes(points, params)
     cls[found > 0] = found[found > 0]
-    write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
+    write_result(Path(task["result"]), idx=idx[core], classification=cls[core])
     return {
         "tile": task["tile"],
         "points": int(core.sum()),

@@ -1,7 +1,8 @@
 """Noise detection before ground classification: isolated points and low outliers.
 
-Two pure functions, each returning a mask; the ``denoise`` stage driver turns
-them into ASPRS classes 7 (low noise) and 18 (high noise).
+Two pure tests, each returning a mask (:func:`isolated_points`,
+:func:`low_outliers`); the ``denoise`` stage driver turns them into ASPRS
+classes 7 (low noise) and 18 (high noise).
 """
 
 from __future__ import annotations
@@ -9,84 +10,63 @@ from __future__ import annotations
 import numpy as np
 
 
-def neighbour_distance(xyz: np.ndarray, *, neighbors: int = 8, radius: float = 20.0) -> np.ndarray:
-    """Mean 3D distance of every point to its ``neighbors`` nearest neighbours.
-
-    Distances are counted up to *radius*: a neighbour farther away (or
-    missing) counts as *radius*.  The value of a point then depends only on
-    the points within *radius* of it, which is what lets a tile with a
-    buffer of *radius* compute it exactly.
-    """
-    from scipy.spatial import cKDTree
-
-    xyz = np.asarray(xyz, dtype=np.float64)
-    if len(xyz) == 0:
-        return np.zeros(0)
-    # Coordinates relative to a whole-metre corner: exact differences, the
-    # same for any subset of the points.
-    centred = xyz - np.floor(xyz.min(axis=0))
-    k = min(neighbors + 1, len(xyz))
-    dist, _ = cKDTree(centred, balanced_tree=False, compact_nodes=False).query(
-        centred, k=k, distance_upper_bound=radius, workers=-1
-    )
-    dist = np.minimum(dist.reshape(len(xyz), k)[:, 1:], radius)
-    if k - 1 < neighbors:  # fewer points than neighbours: the missing ones are far
-        dist = np.hstack((dist, np.full((len(xyz), neighbors - k + 1), radius)))
-    return dist.mean(axis=1)
-
-
-def exact_mean_std(parts) -> tuple[float, float, int]:
-    """Mean and standard deviation of the values of the arrays *parts* yields (a callable).
-
-    Sums are exact (:func:`math.fsum`), so the result does not depend on how
-    the values are cut into parts or ordered: tiles give the untiled figure
-    bit for bit.  *parts* is called twice (mean, then deviation).
-    """
-    import math
-
-    n = 0
-
-    def values():
-        nonlocal n
-        for part in parts():
-            n += len(part)
-            yield from part.tolist()
-
-    total = math.fsum(values())
-    if n == 0:
-        return 0.0, 0.0, 0
-    mean = total / n
-    var = math.fsum(v for part in parts() for v in ((part - mean) ** 2).tolist()) / n
-    return mean, math.sqrt(var), n
-
-
 def isolated_points(
-    xyz: np.ndarray, *, neighbors: int = 8, multiplier: float = 3.0, radius: float = 20.0
+    xyz: np.ndarray,
+    *,
+    neighbors: int = 2,
+    spacing_neighbors: int = 8,
+    multiplier: float = 10.0,
+    min_distance: float = 2.0,
+    radius: float = 30.0,
 ) -> np.ndarray:
-    """Statistical outlier test: points far from their neighbours.
+    """Points isolated in 3-D at the scale of the point spacing around them.
 
-    For every point, the mean 3D distance to its ``neighbors`` nearest
-    neighbours; a point is isolated when that distance exceeds the mean over
-    all points by more than ``multiplier`` standard deviations (Rusu et al.
-    2008, the statistical outlier removal of PCL and PDAL).  Departure:
-    distances are counted up to *radius* (:func:`neighbour_distance`), so
-    that a tile computes them exactly; the mean and deviation are exact sums
-    (:func:`exact_mean_std`).
+    A point is isolated when its ``neighbors``-th nearest point in 3-D is
+    farther than ``multiplier`` times the local point spacing (the distance
+    in plan to its ``spacing_neighbors``-th nearest point) and farther than
+    ``min_distance``, both counted up to ``radius``.  A bird, a cloud return or a deep
+    multipath echo has many points below or above it in plan (a small
+    spacing) and none near it in 3-D; a return in a tree crown has branches
+    and leaves within about the spacing; a ground point of a sparse survey
+    has a large spacing, so the test asks more of it.  The threshold is
+    local: nothing is judged against a survey-wide statistic.
+
+    This departs from the statistical outlier removal of PCL and PDAL (Rusu
+    et al. 2008), which flags points whose mean distance to their k
+    neighbours exceeds the survey's mean by a multiple of its deviation:
+    that test measured canopy against the ground (74,122 crown returns
+    flagged on the 9.4 M-point bench survey, which has no outlier, and about
+    180 provider-ground points on Megaplot).  Comparing a point with the
+    density of its own neighbourhood is the idea of the local outlier
+    factor (Breunig et al. 2000).
 
     Rusu, R. B., Marton, Z. C., Blodow, N., Dolha, M., Beetz, M. (2008).
     Towards 3D point cloud based object maps for household environments.
     Robotics and Autonomous Systems 56(11), 927-941.
     doi:10.1016/j.robot.2008.08.005
 
+    Breunig, M. M., Kriegel, H.-P., Ng, R. T., Sander, J. (2000).  LOF:
+    identifying density-based local outliers.  SIGMOD 2000, 93-104.
+    doi:10.1145/335191.335388
+
     Parameters
     ----------
     xyz : ndarray, shape (n, 3)
     neighbors : int
-        ``k``, neighbours per point.
+        The test looks at the distance to this nearest point in 3-D (2: a
+        pair of outliers close together is still found).
+    spacing_neighbors : int
+        The local spacing is the plan distance to this nearest point.
     multiplier : float
-        Standard deviations above the mean distance.
+        Times the local spacing.
+    min_distance : float
+        A point with its ``neighbors``-th nearest point this close (m) is
+        never isolated.
     radius : float
-        Distances are counted up to this (m).
+        Distances are counted up to this (m): a point is found only if it
+        is farther than ``multiplier`` spacings from its neighbours within
+        it (at 8 points/m2 a spacing is about 0.55 m: 5.5 m; at 1.5
+        points/m2 about 1.3 m: 13 m).
 
     Returns
     -------
@@ -94,11 +74,50 @@ def isolated_points(
         True for isolated points.
     """
     xyz = np.asarray(xyz, dtype=np.float64)
-    if len(xyz) <= neighbors:
-        return np.zeros(len(xyz), dtype=bool)
-    mean = neighbour_distance(xyz, neighbors=neighbors, radius=radius)
-    mu, sigma, _ = exact_mean_std(lambda: [mean])
-    return mean > mu + multiplier * sigma
+    n = len(xyz)
+    out = np.zeros(n, dtype=bool)
+    if n == 0:
+        return out
+    # Coordinates relative to a whole-metre corner: exact differences, the
+    # same for any subset of the points.
+    centred = xyz - np.floor(xyz.min(axis=0))
+    cand = np.arange(n)
+    if min_distance > 0:
+        # A point sharing a cube of side min_distance / sqrt(3) with
+        # `neighbors` others has them within min_distance: never isolated.
+        # This decides most points at the cost of one sort; the k-d trees
+        # are asked about the rest only.
+        v = min_distance / np.sqrt(3.0)
+        key = np.zeros(n, dtype=np.int64)
+        for axis in range(3):  # one column at a time: no (n, 3) temporary
+            cube = np.floor(centred[:, axis] / v).astype(np.int64)
+            key = key * (int(cube.max()) + 1) + cube
+        del cube
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        del key
+        cand = np.flatnonzero(counts[inverse] <= neighbors)
+        del inverse
+    if len(cand) == 0:
+        return out
+    far = _kth(centred, cand, neighbors, radius)
+    cand, far = cand[far > min_distance], far[far > min_distance]
+    if len(cand) == 0:
+        return out
+    spacing = _kth(centred[:, :2], cand, spacing_neighbors, radius)
+    out[cand] = far > np.maximum(multiplier * spacing, min_distance)
+    return out
+
+
+def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.ndarray:
+    """Distance from each of ``points[which]`` to its k-th nearest other point, counted up to *radius*."""
+    from scipy.spatial import cKDTree
+
+    if len(points) <= k:  # fewer other points than k: the missing ones are far
+        return np.full(len(which), radius)
+    d, _ = cKDTree(points, balanced_tree=False, compact_nodes=False).query(
+        points[which], k=[k + 1], distance_upper_bound=radius, workers=-1
+    )
+    return np.minimum(d[:, 0], radius)
 
 
 def low_outliers(xyz: np.ndarray, *, cell_size: float = 10.0, elevation_threshold: float = 1.0) -> np.ndarray:

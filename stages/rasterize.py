@@ -36,7 +36,7 @@ from pipeline.config import StrictModel
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageParams
 from stages import glossary
-from stages.grid.interpolate import Grid, cell_count, cell_max, cell_mean, idw, nearest, tin
+from stages.grid.interpolate import Grid, cell_max_count, cell_mean, idw, nearest, tin
 from stages.ground.surface import fill_nearest
 from stages.io import HEIGHT, NODATA
 
@@ -46,17 +46,26 @@ class IdwParams(StrictModel):
     power: float = Field(2.0, gt=0, description="weights are 1 / distance**power")
 
 
+class TinParams(StrictModel):
+    thin: bool = Field(
+        True,
+        description="in cells with more than 4 ground points, triangulate one per half cell (the nearest to its "
+        "centre); false: every ground point",
+    )
+
+
 class RasterizeParams(StageParams):
     resolution: float = glossary.resolution(1.0)
     method: Literal["tin", "idw", "nearest"] = Field("tin", description="DTM interpolation: tin | idw | nearest")
     nodata_distance: float = glossary.nodata_distance(50.0)
     idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
+    tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")
 
 
 def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, progress=None) -> np.ndarray:
     """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
     if params.method == "tin":
-        return tin(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
+        return tin(ground, grid, nodata_distance=params.nodata_distance, thin=params.tin.thin, progress=progress)
     if params.method == "idw":
         return idw(
             ground,
@@ -312,10 +321,6 @@ def rasterize_tile(task: dict) -> dict:
     """
     import math
 
-    from scipy.spatial import QhullError
-
-    from stages.tiles import read_tile
-
     p = RasterizeParams.model_validate(task["params"])
     g = task["grid"]
     grid = Grid(g["xmin"], g["ymax"], g["resolution"], g["cols"], g["rows"])
@@ -326,26 +331,31 @@ def rasterize_tile(task: dict) -> dict:
     bc0, bc1 = max(c0 - pad, 0), min(c1 + pad, grid.cols)
     wide = grid.window(br0, br1, bc0, bc1)
     crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
-    cols = read_tile(Path(task["source"]))
-    pts = cols["xyz"]
-    cls = cols["classification"]
+    source = Path(task["source"])
+    cls = np.load(source / "classification.npy")
     is_ground = cls == glossary.GROUND
-    ground = pts[is_ground]
-    usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~cols["withheld"]
+    usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.load(source / "withheld.npy")
+    del cls
+    # The columns mapped, not read: only the rows each raster needs are in memory.
+    xyz = [np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"]
+    highest, count = cell_max_count(np.column_stack([a[usable] for a in xyz]), wide)  # core cells are wide cells
+    ground = np.column_stack([a[is_ground] for a in xyz])
+    n_ground = len(ground)
+    del xyz
     max_cells = p.nodata_distance / p.resolution
+    dsm = fill_nearest(highest, max_cells=max_cells)[crop]
     dtm = np.full((core.rows, core.cols), np.nan)
-    if core.rows and core.cols and len(ground) >= (3 if p.method == "tin" else 1):
-        try:
-            dtm = interpolate_dtm(ground, core, p)
-        except QhullError:  # collinear or coincident ground points in a corner tile: no TIN there
-            pass
-    dsm = fill_nearest(cell_max(pts[usable], wide), max_cells=max_cells)[crop]
+    if core.rows and core.cols and n_ground >= (3 if p.method == "tin" else 1):
+        if p.method == "tin" and "dtm_uncertainty" not in task["outputs"]:
+            ground = [ground]  # handed over: the TIN frees the points once it has what it needs
+        dtm = interpolate_dtm(ground, core, p)  # collinear or coincident ground points: all nodata
     dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
     ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
-    density = cell_count(pts[usable], core).astype(np.float64)
+    density = count[crop].astype(np.float64)
     out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
     if "dtm_uncertainty" in task["outputs"]:
-        unc = fill_nearest(cell_mean(ground, cols["sigma_vertical"][is_ground], wide), max_cells=max_cells)[crop]
+        sigma = np.load(source / "sigma_vertical.npy", mmap_mode="r")[is_ground]
+        unc = fill_nearest(cell_mean(ground, sigma, wide), max_cells=max_cells)[crop]
         out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
     vertical = task["vertical"]
     folder = Path(task["result"])

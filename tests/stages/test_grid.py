@@ -43,3 +43,55 @@ def test_cells_far_from_points_or_outside_the_hull_are_nodata():
 def test_tin_needs_three_points():
     with pytest.raises(ValueError):
         tin(np.zeros((2, 3)), Grid(0, 1, 1, 1, 1), nodata_distance=1.0)
+
+
+def test_thinning_keeps_the_point_nearest_each_half_cell_centre():
+    from stages.grid.interpolate import thin_points
+
+    # squares of 0.5 m anchored at the grid corner; centres at 0.25 + 0.5 i, -(0.25 + 0.5 j)
+    xy = np.array(
+        [
+            [0.10, -0.10],  # square (0, 0): 0.212 from its centre
+            [0.26, -0.24],  # square (0, 0): 0.014 -> kept
+            [0.60, -0.30],  # square (1, 0), centre (0.75, -0.25): 0.158
+            [0.70, -0.20],  # square (1, 0): 0.071 -> kept
+            [1.20, -1.20],  # square (2, 2), centre (1.25, -1.25): 0.071, a tie: the first is kept
+            [1.30, -1.30],  # 0.071
+            [1.20, -1.20],  # coincident with the first of the tie: not kept
+        ]
+    )
+    keep = thin_points(xy, 0.5)
+    assert keep.tolist() == [1, 3, 4]
+
+
+def test_thinned_tin_keeps_a_surface_it_can_resolve():
+    # 16 points per 1 m cell on a quadric: thinned to at most 4 per cell, the
+    # TIN stays within the curvature error of the unthinned one
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 40, (25_600, 2))
+    z = 0.01 * (xy[:, 0] - 20) ** 2 + 0.02 * xy[:, 1]
+    g = Grid(0.0, 40.0, 1.0, 40, 40).window(5, 35, 5, 35)
+    full = tin(np.column_stack([xy, z]), g, nodata_distance=5.0, thin=False)
+    thin = tin(np.column_stack([xy, z]), g, nodata_distance=5.0)
+    gx, gy = g.centres()
+    truth = 0.01 * (gx - 20) ** 2 + 0.02 * gy
+    # linear interpolation on edges under 1 m: error below h^2 max|f''| / 8 (f'' = 0.02)
+    assert np.abs(thin - truth).max() < 0.02 / 8 * 2
+    assert np.abs(full - truth).max() < 0.02 / 8 * 2
+
+
+def test_thinning_keeps_every_point_of_a_sparse_cell():
+    from stages.grid.interpolate import thin_points
+
+    # cell (0, 0) of 1 m (four 0.5 m squares) holds 3 points: all kept, the
+    # duplicate once; cell (1, 0) holds 5: one per square
+    sparse = [[0.10, -0.10], [0.20, -0.20], [0.10, -0.10], [0.80, -0.80]]
+    dense = [
+        [1.10, -0.10],
+        [1.20, -0.20],
+        [1.32, -0.32],
+        [1.70, -0.20],
+        [1.20, -0.70],
+    ]  # 1.20, -0.20 nearest (1.25, -0.25)
+    keep = thin_points(np.array(sparse + dense), 0.5, sparse=4)
+    assert keep.tolist() == [0, 1, 3, 5, 7, 8]

@@ -75,10 +75,10 @@ MUTATIONS: list[Mutation] = [
         (BUFFERS, TILED),
     ),
     Mutation(
-        "denoise tile buffer 6 m instead of 41 m",
+        "denoise tile buffer 6 m instead of 61 m",
         "stages/denoise.py",
         "return max(2.0 * params.isolated.radius, params.low.cell_size) + 1.0",
-        "return 0.25 * params.isolated.radius + 1.0",
+        "return 6.0",
         (BUFFERS, TILED),
     ),
     Mutation(
@@ -110,10 +110,10 @@ MUTATIONS: list[Mutation] = [
         ("tests/stages/test_noise_classes.py", "tests/stages/test_ground.py"),
     ),
     Mutation(
-        "isolated-point threshold halved (mean + k std / 2)",
-        "stages/denoise.py",
-        "threshold = mean + ctx.params.isolated.multiplier * std",
-        "threshold = mean + ctx.params.isolated.multiplier * std / 2",
+        "isolated-point threshold halved (5 local spacings instead of 10)",
+        "stages/noise.py",
+        "out[cand] = far > np.maximum(multiplier * spacing, min_distance)",
+        "out[cand] = far > np.maximum(multiplier / 2 * spacing, min_distance)",
         ("tests/stages/test_noise_classes.py", "tests/stages/test_ground.py"),
     ),
     Mutation(

@@ -2,10 +2,10 @@
 
 A small LAS (a 1 m grid of ground, with designed outliers) run to ``denoise``
 or ``rasterize``; answers from the definitions in docs/CONFIG.md: the
-extended local minimum test flags every point of a cell's low cluster (not
-only the lowest), the isolated-point test flags exactly the points whose
-mean neighbour distance exceeds mean + k std (computed here with scipy), and
-the DSM and density ignore noise classes 7 and 18.
+extended local minimum test (when enabled) flags every point of a cell's low
+cluster (not only the lowest), the isolated-point test flags exactly the
+points farther from their neighbours in 3-D than 10 local spacings (computed
+here with scipy), and the DSM and density ignore noise classes 7 and 18.
 """
 
 from __future__ import annotations
@@ -69,32 +69,33 @@ def test_every_point_of_a_low_cluster_is_low_noise(tmp_path):
     low = np.array([[15.2, 15.3, 600.3 - 9.0], [15.6, 15.1, 600.3 - 7.5], [15.9, 15.8, 600.3 - 6.0]])
     cloud = np.vstack((pts, low))
     stages = _run(tmp_path, write_las(tmp_path / "in.las", cloud), "denoise",
-                  "  denoise: {isolated: {enabled: false}, low: {cell_size: 10.0, elevation_threshold: 1.0}}\n")  # fmt: skip
+                  "  denoise: {isolated: {enabled: false}, low: {enabled: true, cell_size: 10.0, elevation_threshold: 1.0}}\n")  # fmt: skip
     cls = _classes(stages["denoise"])
     assert cls[-3:].tolist() == [7, 7, 7]
     assert (cls[:-3] == 0).all()
     assert stages["denoise"]["metrics"]["low_noise"] == 3
 
 
-def test_isolated_points_are_those_beyond_mean_plus_k_std(tmp_path):
-    """Birds at 3-40 m above a 1 m grid: the test flags exactly those whose mean distance to their
-    8 nearest neighbours (capped at 20 m) exceeds the mean over all points by 5 standard deviations."""
+def test_isolated_points_are_those_far_from_their_neighbours_at_the_local_spacing(tmp_path):
+    """Birds 0.5-45 m above a 1 m grid: the test flags exactly those whose 2nd nearest point in 3-D is
+    farther than 10 local spacings (plan distance to the 8th nearest point) and 2 m, both counted up to
+    30 m (the definition in stages/noise.py, computed here with scipy alone)."""
     rng = np.random.default_rng(4)
     pts = _ground()
-    birds = np.column_stack((rng.uniform(5, 55, 60), rng.uniform(5, 55, 60), 600.0 + rng.uniform(0.4, 4.0, 60) ** 2.6))
+    birds = np.column_stack((rng.uniform(5, 55, 20), rng.uniform(5, 55, 20), 600.0 + rng.uniform(0.5, 45.0, 20)))
     cloud = np.vstack((pts, birds))
-    centred = cloud - cloud.min(axis=0)
-    dist, _ = cKDTree(centred).query(centred, k=9, distance_upper_bound=20.0)
-    mean = np.minimum(dist[:, 1:], 20.0).mean(axis=1)
-    threshold = mean.mean() + 5.0 * mean.std()
-    expect = mean > threshold
-    # the survey must tell 5 sigma from less: points between 2.5 and 5 sigma, and beyond 5
-    assert ((mean > mean.mean() + 2.5 * mean.std()) & ~expect).sum() >= 3 and expect.sum() >= 3
+    centred = cloud - np.floor(cloud.min(axis=0))
+    far = np.minimum(cKDTree(centred).query(centred, k=3, distance_upper_bound=30.0)[0][:, 2], 30.0)
+    spacing = np.minimum(cKDTree(centred[:, :2]).query(centred[:, :2], k=9, distance_upper_bound=30.0)[0][:, 8], 30.0)
+    expect = (far > 2.0) & (far > 10.0 * spacing)
+    # the survey must tell the rule from looser ones: birds beyond 2 m but within 10 spacings, and beyond
+    assert ((far > 2.0) & ~expect).sum() >= 3 and expect.sum() >= 3
+    isolated = "{neighbors: 2, spacing_neighbors: 8, multiplier: 10.0, min_distance: 2.0, radius: 30.0}"
     stages = _run(tmp_path, write_las(tmp_path / "in.las", cloud), "denoise",
-                  "  denoise: {low: {enabled: false}, isolated: {neighbors: 8, multiplier: 5.0, radius: 20.0}}\n")  # fmt: skip
+                  f"  denoise: {{low: {{enabled: false}}, isolated: {isolated}}}\n")  # fmt: skip
     cls = _classes(stages["denoise"])
     np.testing.assert_array_equal(np.isin(cls, (7, 18)), expect)
-    assert abs(stages["denoise"]["metrics"]["isolation_threshold_m"] - threshold) < 1e-3
+    assert (cls[expect] == 18).all()  # above the ground around them: high noise
 
 
 def test_dsm_and_density_ignore_noise_classes(tmp_path):

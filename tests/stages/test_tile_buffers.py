@@ -112,7 +112,8 @@ def test_tiled_denoise_equals_untiled_where_the_buffer_matters(tmp_path):
     (tmp_path / "q.yaml").write_text(f"name: q\ninput: {{format: las, paths: [{las}]}}\noutput: out\ncache: cache\n")
     classes = {}
     for name, sets in (("untiled", ["tiling.enabled=false"]), ("tiled", ["tiling.size=100"])):
-        args = ["run", str(tmp_path / "q.yaml"), "-q", "--until", "denoise", "--set", f"output={tmp_path / name}"]
+        args = ["run", str(tmp_path / "q.yaml"), "-q", "--until", "denoise", "--set", f"output={tmp_path / name}",
+                "--set", f"cache={tmp_path / name / 'cache'}"]  # fmt: skip
         for s in sets:
             args += ["--set", s]
         assert main(args) == 0

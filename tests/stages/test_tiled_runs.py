@@ -86,8 +86,10 @@ def test_a_missing_buffer_shows_at_the_seams(runs):
     tmp, m = runs
     bare = _run(tmp, "nobuffer", "tiling.size=200", "executor.workers=2", "tiling.buffer=1")
     differ = {n for n, sha in _products(bare).items() if _products(m["untiled"])[n] != sha}
-    # the DSM (highest return per cell) needs no buffer where every cell holds a point
-    assert {"dtm.tif", "points.laz"} <= differ, differ
+    # the DSM (highest return per cell) needs no buffer where every cell holds a point; on this gentle
+    # sample SMRF's edge-local padding gives the same classes even with a 1 m buffer (the survey where
+    # its buffer matters is tests/stages/test_tile_buffers.py), but the TIN's triangles cross the seams
+    assert "dtm.tif" in differ, differ
     # and the differences sit at the tile edges (multiples of 200 m)
     with rasterio.open(tmp / "untiled" / "dtm.tif") as a, rasterio.open(tmp / "nobuffer" / "dtm.tif") as b:
         da, db, t = a.read(1), b.read(1), a.transform

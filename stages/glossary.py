@@ -22,7 +22,7 @@ HIGH_NOISE = 18
 
 #: ASPRS class names (LAS 1.4 R15, Table 17)
 CLASS_NAMES = {
-    0: "never classified",
+    0: "created, never classified",
     1: "unclassified",
     2: "ground",
     3: "low vegetation",

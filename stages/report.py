@@ -33,21 +33,9 @@ from pydantic import Field
 
 from pipeline import __version__
 from pipeline.stage import Stage, StageIO, StageParams, get_dotted
+from stages import glossary
 from stages.acceptance import DEFAULT_SPECIFICATION, MEASURES, SPECIFICATIONS
 
-ASPRS_NAMES = {
-    0: "created, never classified",
-    1: "unclassified",
-    2: "ground",
-    3: "low vegetation",
-    4: "medium vegetation",
-    5: "high vegetation",
-    6: "building",
-    7: "low noise",
-    9: "water",
-    17: "bridge deck",
-    18: "high noise",
-}
 # Colour ramps: (position 0-1, RGB) - used by strip_adjust's PNG.
 TERRAIN = [
     (0.0, (38, 115, 77)),
@@ -718,7 +706,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     )
     classes = np.flatnonzero(cloud.class_counts)
     class_rows = [
-        [int(k), ASPRS_NAMES.get(int(k), "other"), int(n), f"{100 * n / max(cloud.points, 1):.2f} %"]
+        [int(k), glossary.class_name(int(k)), int(n), f"{100 * n / max(cloud.points, 1):.2f} %"]
         for k, n in zip(classes, cloud.class_counts[classes], strict=True)
     ]
     summary = [

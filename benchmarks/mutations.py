@@ -98,7 +98,7 @@ MUTATIONS: list[Mutation] = [
     Mutation(
         "DSM from noise-class points too",
         "stages/rasterize.py",
-        'usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.load(source / "withheld.npy")',
+        'usable = glossary.usable(cls, np.load(source / "withheld.npy"))',
         'usable = ~np.load(source / "withheld.npy")',
         ("tests/stages/test_noise_classes.py", "tests/stages/test_products_units.py"),
     ),

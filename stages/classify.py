@@ -159,7 +159,7 @@ def nominal_spacing(path: Path, cell: float, info) -> float | None:
     with laspy.open(str(path)) as reader:
         for chunk in reader.chunk_iterator(1_000_000):
             cls = np.asarray(chunk.classification)
-            keep = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.asarray(chunk.withheld, dtype=bool)
+            keep = glossary.usable(cls, chunk.withheld)
             xy = info.units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.zeros(len(cls)))))
             col = np.floor(xy[keep, 0] / big).astype(np.int64)
             row = np.floor(xy[keep, 1] / big).astype(np.int64)

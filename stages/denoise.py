@@ -170,7 +170,7 @@ def denoise_tile(task: dict) -> dict:
     # the columns mapped and stacked: no second copy of the coordinates in memory
     points = np.column_stack([np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"])
     cls = np.load(source / "classification.npy")
-    done = np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) | np.load(source / "withheld.npy")
+    done = ~glossary.usable(cls, np.load(source / "withheld.npy"))
     core = np.load(source / "core.npy")
     idx = np.load(source / "idx.npy", mmap_mode="r")
     found = np.zeros(len(cls), dtype=np.uint8)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from pydantic import Field
 
 #: ASPRS classification codes (LAS 1.4 R15, Table 17) used by the pipeline.
@@ -81,6 +82,11 @@ def max_window_size(default: float) -> Any:
 def nodata_distance(default: float) -> Any:
     """Cells farther than this from every input point are nodata (m)."""
     return Field(default, gt=0, description="cells farther than this from any point are nodata, metres")
+
+
+def usable(classification, withheld) -> np.ndarray:
+    """The points that enter grids and filters: neither noise (7, 18) nor withheld."""
+    return ~np.isin(np.asarray(classification), (LOW_NOISE, HIGH_NOISE)) & ~np.asarray(withheld, dtype=bool)
 
 
 def input_names(config: Any) -> str:

@@ -405,8 +405,6 @@ class Parse(Stage):
         if not sum(report.points.values()):
             files = ", ".join(str(x) for x in params.paths)
             raise InputDataError(f"{files}: no point in the file (its header announces 0 and no record follows).")
-        for note in report.dropped:
-            ctx.log.warning("%s", note)
         from stages.units import Units
 
         _check_dtm_size(ctx.config, report.usable_box, Units.of(crs), ", ".join(str(x) for x in params.paths))
@@ -424,6 +422,7 @@ class Parse(Stage):
             far_from_survey=report.far_from_survey,
             header_count_short={k: list(v) for k, v in report.header_count_short.items()},
             crs_notes=report.crs_notes,
+            crs_read_as=report.crs_read_as,
             fields_dropped=report.dropped,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
@@ -447,8 +446,12 @@ def _log_las_report(log, report, override) -> None:
     """Say what the LAS reader repaired or assumed: every count, never silently."""
     if override is not None:
         log.info("input.override_crs: %s replaces the header CRS of every input file", override.name)
-    for path, note in report.crs_notes.items():  # a unit the GeoKeys give is GDAL's reading, not a repair
-        (log.info if "as GDAL does" in note else log.warning)("%s: %s", path, note)
+    for path, note in report.crs_read_as.items():  # GDAL's reading of the GeoKeys, not a repair
+        log.info("%s: %s", path, note)
+    for path, note in report.crs_notes.items():
+        log.warning("%s: %s", path, note)
+    for note in report.dropped:
+        log.warning("%s", note)
     if report.gps_time_missing:
         log.warning("no GPS time in %s: gps_time set to 0", ", ".join(report.gps_time_missing))
     for path, n in report.return_number_zero.items():

@@ -146,8 +146,7 @@ class Rasterize(Stage):
                 )
             grid = Grid.covering(*extent.box(), p.resolution)  # in metres, written in CRS units
             check_grid_size(grid, extent.box(), units, source=glossary.input_names(ctx.config))
-            grid_args = {"xmin": grid.xmin, "ymax": grid.ymax, "resolution": grid.resolution}
-            grid_args.update(cols=grid.cols, rows=grid.rows)
+            grid_args = dict(xmin=grid.xmin, ymax=grid.ymax, resolution=grid.resolution, cols=grid.cols, rows=grid.rows)
             ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, ground, grid.cols, grid.rows)
             return [
                 {
@@ -257,11 +256,11 @@ class UsableExtent:
         self.hi = np.full(2, -np.inf)
 
     def count(self, cols: dict[str, np.ndarray]) -> np.ndarray:
-        usable = ~np.isin(cols["classification"], (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~cols["withheld"]
+        usable = glossary.usable(cols["classification"], cols["withheld"])
         if usable.any():
-            xy = np.column_stack((cols["x"][usable], cols["y"][usable]))
-            self.lo = np.minimum(self.lo, xy.min(axis=0))
-            self.hi = np.maximum(self.hi, xy.max(axis=0))
+            x, y = cols["x"][usable], cols["y"][usable]
+            self.lo = np.minimum(self.lo, (x.min(), y.min()))
+            self.hi = np.maximum(self.hi, (x.max(), y.max()))
         return np.bincount(cols["classification"], minlength=256)
 
     def box(self) -> tuple[float, float, float, float]:
@@ -334,7 +333,7 @@ def rasterize_tile(task: dict) -> dict:
     source = Path(task["source"])
     cls = np.load(source / "classification.npy")
     is_ground = cls == glossary.GROUND
-    usable = ~np.isin(cls, (glossary.LOW_NOISE, glossary.HIGH_NOISE)) & ~np.load(source / "withheld.npy")
+    usable = glossary.usable(cls, np.load(source / "withheld.npy"))
     del cls
     # The columns mapped, not read: only the rows each raster needs are in memory.
     xyz = [np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"]

@@ -47,8 +47,10 @@ class LasReadReport:
     far_from_survey: int = 0
     #: Horizontal box (xmin, ymin, xmax, ymax, output CRS units) of the points not withheld as stray.
     usable_box: list[float] | None = None
-    #: Per file: why its header CRS was not used as it stands (unreadable; GeoKey units honoured).
+    #: Per file: why its header CRS was not used (unreadable: input.crs used instead).
     crs_notes: dict[str, str] = field(default_factory=dict)
+    #: Per file: how its header CRS was read (GeoKey units honoured, as GDAL reads them).
+    crs_read_as: dict[str, str] = field(default_factory=dict)
     dropped: list[str] = field(default_factory=list)
 
 
@@ -181,13 +183,13 @@ def _extra_bytes_params(dim):
         return None
 
 
-def _file_crs(path: Path, header, assign, override=None, notes: dict | None = None):
+def _file_crs(path: Path, header, assign, override=None, report: LasReadReport | None = None):
     """The CRS of one file's coordinates and where it came from, checked against them.
 
     ``input.override_crs`` (*override*) replaces whatever the header says;
     otherwise the header's CRS, and ``input.crs`` (*assign*) for a header
     without one — or with one that cannot be read (an empty WKT), noted in
-    *notes*.  The coordinates the header's bounds announce must be possible
+    the *report*.  The coordinates the header's bounds announce must be possible
     in that CRS (:func:`stages.crscheck.crs_problem`), or the file is refused
     with the key that fixes it.
     """
@@ -196,9 +198,9 @@ def _file_crs(path: Path, header, assign, override=None, notes: dict | None = No
     else:
         try:
             crs, source = header.parse_crs(), "header"
-            crs, note = honour_linear_units(crs, _geo_keys(header))
-            if note is not None and notes is not None:
-                notes[str(path)] = note
+            crs, note = honour_linear_units(crs, geo_keys(header))
+            if note is not None and report is not None:
+                report.crs_read_as[str(path)] = note
         except Exception as exc:
             if assign is None:
                 raise InputDataError(
@@ -206,8 +208,8 @@ def _file_crs(path: Path, header, assign, override=None, notes: dict | None = No
                     "to the CRS of its coordinates (for example EPSG:2180)."
                 ) from None
             crs, source = None, "input.crs"
-            if notes is not None:
-                notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
+            if report is not None:
+                report.crs_notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
         if crs is None:
             if assign is None:
                 raise InputDataError(
@@ -218,7 +220,7 @@ def _file_crs(path: Path, header, assign, override=None, notes: dict | None = No
     return crs, source
 
 
-def _geo_keys(header) -> list:
+def geo_keys(header) -> list:
     """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
     for vlr in header.vlrs:
         if type(vlr).__name__ == "GeoKeyDirectoryVlr":
@@ -451,7 +453,7 @@ def las_chunks(
     for path in paths:
         with _open(path) as reader:
             header = reader.header
-            src_crs, source = _file_crs(path, header, assign_crs, override_crs, report.crs_notes)
+            src_crs, source = _file_crs(path, header, assign_crs, override_crs, report)
             report.crs_source[str(path)] = source
             _read_all_records(path, header, report)
             bounds = _header_box(header)
@@ -545,8 +547,8 @@ def _outside(box: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> np.ndarray
     return (x < box[0]) | (y < box[1]) | (x > box[2]) | (y > box[3])
 
 
-def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: LasReadReport) -> None:
-    """Return number 0 read as 1; stray points flagged withheld; both counted in *report*."""
+def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: LasReadReport) -> bool:
+    """Return number 0 read as 1; stray points flagged withheld; both counted in *report*.  True if *cols* changed."""
     key = str(path)
     zero = cols["return_number"] == 0
     if zero.any():
@@ -556,6 +558,7 @@ def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: 
     if stray.any():
         cols["withheld"] = np.asarray(cols["withheld"], dtype=bool) | stray
         report.outside_header_bounds[key] = report.outside_header_bounds.get(key, 0) + int(stray.sum())
+    return bool(zero.any() or stray.any())
 
 
 def _grow_box(report: LasReadReport, x: np.ndarray, y: np.ndarray) -> None:
@@ -567,30 +570,24 @@ def _grow_box(report: LasReadReport, x: np.ndarray, y: np.ndarray) -> None:
     report.usable_box = box if old is None else [*np.minimum(old[:2], box[:2]), *np.maximum(old[2:], box[2:])]
 
 
-def _more_records(path: Path, header) -> bool:
-    """Whether an uncompressed LAS holds more records than its header announces."""
-    probe = LasReadReport()
-    count = int(header.point_count)
-    _read_all_records(path, header, probe)
-    header.point_count = count
-    return bool(probe.header_count_short)
+def _records_held(path: Path, header) -> int | None:
+    """How many point records an uncompressed LAS holds (None for LAZ: not known without decompressing).
+
+    The records are the bytes between the point data's offset and the end of
+    the file (or the first extended VLR), over the record length.
+    """
+    if header.point_format.id > 10 or header.are_points_compressed:
+        return None
+    size = path.stat().st_size
+    end = min(int(getattr(header, "start_of_first_evlr", 0) or 0) or size, size)
+    record = int(header.point_format.size)
+    return max(0, end - int(header.offset_to_point_data)) // record if record else None
 
 
 def _read_all_records(path: Path, header, report: LasReadReport) -> None:
-    """Read every record of an uncompressed LAS even when its header announces fewer (counted in *report*).
-
-    The records a file holds are the bytes between the point data's offset
-    and the end of the file (or the first extended VLR), over the record
-    length; a LAZ file's count cannot be checked without decompressing it.
-    """
-    if header.point_format.id > 10 or header.are_points_compressed:
-        return
-    size = path.stat().st_size
-    end = int(getattr(header, "start_of_first_evlr", 0) or 0) or size
-    record = int(header.point_format.size)
-    held = max(0, min(end, size) - int(header.offset_to_point_data)) // record if record else 0
-    announced = int(header.point_count)
-    if held > announced:
+    """Read every record of an uncompressed LAS even when its header announces fewer (counted in *report*)."""
+    held, announced = _records_held(path, header), int(header.point_count)
+    if held is not None and held > announced:
         report.header_count_short[str(path)] = (announced, held)
         header.point_count = held
 
@@ -828,8 +825,9 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     distance = ndimage.distance_transform_edt(labels != main) * cell
     small = (points <= min(ISOLATED_MAX_POINTS, ISOLATED_MAX_SHARE * count)) & (points > 0)
     far = np.zeros(n_groups + 1, dtype=bool)
-    for g in np.flatnonzero(small):
-        far[g] = distance[labels == g].min() > gap
+    groups = np.flatnonzero(small)
+    if len(groups):
+        far[groups] = np.asarray(ndimage.minimum(distance, labels=labels, index=groups)) > gap
     flagged_cells = far[labels.ravel()]
     if not flagged_cells.any():
         return 0
@@ -891,7 +889,7 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayo
             return None
         if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
             return None
-        if override_crs is not None or _more_records(paths[0], h):
+        if override_crs is not None or (_records_held(paths[0], h) or 0) > h.point_count:
             return None  # the header's CRS or count is not the file's: convert, which handles both
         src_crs, source = _file_crs(paths[0], h, assign_crs)
         if source != "header" or not src_crs.is_projected:
@@ -925,12 +923,13 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
                         maxs = [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
                         lo, hi = _extend(path, lo, hi, mins, maxs, target)
                         seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
+                        x, y = np.asarray(chunk.x), np.asarray(chunk.y)
+                        stray = _outside(box, x, y)
                         cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns", "withheld")}
-                        stray = _outside(box, np.asarray(chunk.x), np.asarray(chunk.y))
-                        _repair(path, cols, stray, report)
-                        _grow_box(report, np.asarray(chunk.x)[~stray], np.asarray(chunk.y)[~stray])
-                        for k, v in cols.items():
-                            chunk[k] = v
+                        if _repair(path, cols, stray, report):
+                            for k, v in cols.items():
+                                chunk[k] = v
+                        _grow_box(report, x[~stray], y[~stray])
                     writer.write_points(chunk)
                     n_read += n
                     if progress is not None:

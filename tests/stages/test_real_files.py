@@ -82,7 +82,7 @@ def test_projected_linear_units_geokey_is_honoured():
     lon, lat = pyproj.Transformer.from_crs(crs, 4326, always_xy=True).transform(np.asarray(las.x), np.asarray(las.y))
     # Mississippi West's area of use (EPSG): lon -91.65..-89.37, lat 31.0..35.01
     assert (-91.65 <= lon).all() and (lon <= -89.37).all() and (31.0 <= lat).all() and (lat <= 35.01).all()
-    assert "US survey foot" in report.crs_notes[str(path)]
+    assert "US survey foot" in report.crs_read_as[str(path)]
 
 
 def test_a_stray_point_outside_the_header_bounds_is_withheld():

@@ -36,6 +36,22 @@ def _read(path: Path, **kw):
     return read_las_files([path], crs_setting="auto-utm", assign_crs=kw.pop("assign", None), chunk_size=50_000, **kw)
 
 
+def _write_las(path: Path, x, y, z, *, scale: float = 0.01, point_format: int = 6, version: str = "1.4", **fields):
+    """A synthetic LAS in EPSG:25830: single returns unless *fields* say otherwise."""
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    header.offsets = [float(np.floor(np.min(x))), float(np.floor(np.min(y))), 0.0]
+    header.scales = [scale, scale, scale]
+    header.add_crs(pyproj.CRS.from_epsg(25830))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    ones = np.ones(len(x), dtype=np.uint8)
+    fields = {"return_number": ones, "number_of_returns": ones, **fields}
+    for name, values in fields.items():
+        setattr(las, name, values)
+    las.write(str(path))
+    return path
+
+
 def test_header_crs_that_contradicts_the_coordinates_names_the_override():
     """lone-star.laz says WGS 84 over UTM metres: the true cause and the key, not "damaged scale"."""
     path = real("pdal/lone-star.laz")
@@ -102,17 +118,10 @@ def test_a_stray_point_inside_the_header_bounds_is_withheld(tmp_path):
     from stages.readers.las import convert_las_files
 
     rng = np.random.default_rng(1)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.offsets, header.scales = [440_000.0, 4_474_000.0, 0.0], [0.01, 0.01, 0.01]
-    header.add_crs(pyproj.CRS.from_epsg(25830))
-    las = laspy.LasData(header)
     n = 50_000
     x, y = 440_000 + rng.uniform(0, 300, n), 4_474_000 + rng.uniform(0, 300, n)
     x[7], y[7] = 520_000.0, 4_474_100.0  # 80 km east
-    las.x, las.y, las.z = x, y, rng.uniform(600, 610, n)
-    las.return_number = las.number_of_returns = np.ones(n, dtype=np.uint8)
-    src = tmp_path / "in.las"
-    las.write(str(src))
+    src = _write_las(tmp_path / "in.las", x, y, rng.uniform(600, 610, n), point_format=3, version="1.2")
     _, report, _ = convert_las_files(
         [src], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=10_000
     )
@@ -159,14 +168,8 @@ def test_sparse_surveys_filter_on_cells_of_their_spacing(tmp_path):
     g = np.arange(0.0, 1000.0, 20.0)
     x, y = (v.ravel() for v in np.meshgrid(g, g))
     x, y = np.append(x, 30_000.0) + 440_000.0, np.append(y, 0.0) + 4_000_000.0
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.offsets, header.scales = [440_000.0, 4_000_000.0, 0.0], [0.001, 0.001, 0.001]
-    header.add_crs(pyproj.CRS.from_epsg(25830))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = x, y, np.full(len(x), 100.0)
-    las.withheld = np.arange(len(x)) == len(x) - 1  # a stray point 30 km away counts neither as area nor as a point
-    path = tmp_path / "lattice.las"
-    las.write(str(path))
+    stray = np.arange(len(x)) == len(x) - 1  # a stray point 30 km away counts neither as area nor as a point
+    path = _write_las(tmp_path / "lattice.las", x, y, np.full(len(x), 100.0), scale=0.001, withheld=stray)
     spacing = nominal_spacing(path, 1.0, cloud_info(path))
     assert spacing == pytest.approx(20.0, rel=0.1)
     assert for_spacing(SmrfParams(name="smrf"), spacing).cell_size == math.ceil(spacing)
@@ -185,15 +188,8 @@ def _run_las(tmp_path: Path, path: Path, *sets: str) -> tuple[int, Path]:
 def test_a_wide_sparse_survey_is_refused_at_once(tmp_path, capsys):
     """100 points over 50 x 50 km: one sentence right after reading, not a MemoryError hours later."""
     rng = np.random.default_rng(3)
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.offsets, header.scales = [400_000.0, 4_400_000.0, 0.0], [0.01, 0.01, 0.01]
-    header.add_crs(pyproj.CRS.from_epsg(25830))
-    las = laspy.LasData(header)
-    las.x, las.y = 400_000 + rng.uniform(0, 50_000, 100), 4_400_000 + rng.uniform(0, 50_000, 100)
-    las.z = rng.uniform(600, 700, 100)
-    las.return_number = las.number_of_returns = np.ones(100, dtype=np.uint8)
-    path = tmp_path / "wide.las"
-    las.write(str(path))
+    x, y = 400_000 + rng.uniform(0, 50_000, 100), 4_400_000 + rng.uniform(0, 50_000, 100)
+    path = _write_las(tmp_path / "wide.las", x, y, rng.uniform(600, 700, 100))
     code, out = _run_las(tmp_path, path)
     err = capsys.readouterr().err
     assert code == 3 and "raise stages.rasterize.resolution" in err and str(path) in err
@@ -213,17 +209,10 @@ def test_a_dtm_without_a_valid_cell_is_an_error(tmp_path, capsys):
 def test_empty_strip_difference_maps_are_not_published(tmp_path):
     """One strip, no overlap: no all-nodata strip_difference_*.tif in the output folder, and run.json says so."""
     rng = np.random.default_rng(5)
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.offsets, header.scales = [440_000.0, 4_474_000.0, 0.0], [0.001, 0.001, 0.001]
-    header.add_crs(pyproj.CRS.from_epsg(25830))
-    las = laspy.LasData(header)
     n = 20_000
-    las.x, las.y = 440_000 + rng.uniform(0, 100, n), 4_474_000 + rng.uniform(0, 100, n)
-    las.z = 600 + 0.05 * (las.x - 440_000) + rng.normal(0, 0.02, n)
-    las.return_number = las.number_of_returns = np.ones(n, dtype=np.uint8)
-    las.point_source_id = np.full(n, 7, dtype=np.uint16)
-    path = tmp_path / "one_strip.las"
-    las.write(str(path))
+    x, y = 440_000 + rng.uniform(0, 100, n), 4_474_000 + rng.uniform(0, 100, n)
+    z = 600 + 0.05 * (x - 440_000) + rng.normal(0, 0.02, n)
+    path = _write_las(tmp_path / "one_strip.las", x, y, z, scale=0.001, point_source_id=np.full(n, 7, np.uint16))
     code, out = _run_las(tmp_path, path, "executor.workers=1", "stages.report.enabled=false")
     assert code == 0
     products = json.loads((out / "run.json").read_text())["products"]

@@ -66,8 +66,10 @@ def crs_fit(crs, mins, maxs) -> tuple[bool | None, str | None]:
     return problem is None, problem
 
 
-def summary(path: Path) -> dict:
+def summary(path: Path, points: bool = True) -> dict:
     """Everything ``pipeline info`` says about one LAS/LAZ file, as plain values (JSON-ready).
+
+    With *points* false, only what the header says (no pass over the points).
 
     Raises
     ------
@@ -108,6 +110,8 @@ def summary(path: Path) -> dict:
             "vlrs": [_vlr(v) for v in h.vlrs],
             "evlrs": [_vlr(v) for v in (h.evlrs or [])],
         }
+        if not points:
+            return out
         n = 0
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         classes = np.zeros(256, dtype=np.int64)

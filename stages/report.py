@@ -323,40 +323,38 @@ class CloudSummary:
     header: dict = field(default_factory=dict)  # lasinfo-like figures of the file
 
 
-def las_info(path) -> dict:
-    """Header figures of a LAS/LAZ file, and its GPS time range (read in chunks)."""
-    import laspy
+def las_info(path, gps_range: tuple[float, float] | None = None) -> dict:
+    """One row of the report's per-file table, from :func:`stages.info.summary` (``pipeline info``).
 
-    from stages.io import cloud_crs
+    *gps_range*: the GPS time range when the caller has already read it (the
+    header is then all that is read); otherwise one pass over the points.
+    """
+    from stages.info import summary
 
-    with laspy.open(str(path)) as reader:
-        h = reader.header
-        crs = cloud_crs(reader)
-        tmin, tmax = np.inf, -np.inf
-        has_time = "gps_time" in h.point_format.dimension_names
-        if has_time:
-            for chunk in reader.chunk_iterator(2_000_000):
-                t = np.asarray(chunk.gps_time)
-                t = t[np.isfinite(t)]
-                if len(t):
-                    tmin, tmax = min(tmin, float(t.min())), max(tmax, float(t.max()))
-        by_return = [int(v) for v in h.number_of_points_by_return]
-        while by_return and by_return[-1] == 0:
-            by_return.pop()
-        return {
-            "file": Path(path).name,
-            "LAS version": f"{h.version.major}.{h.version.minor}",
-            "point format": h.point_format.id,
-            "points": int(h.point_count),
-            "bounds x": f"{h.mins[0]:,.2f} – {h.maxs[0]:,.2f}",
-            "bounds y": f"{h.mins[1]:,.2f} – {h.maxs[1]:,.2f}",
-            "bounds z": f"{h.mins[2]:,.2f} – {h.maxs[2]:,.2f}",
-            "CRS": crs.name if crs is not None else "none in the header",
-            "GPS time": f"{tmin:,.3f} – {tmax:,.3f} ({'adjusted standard' if h.global_encoding.gps_time_type else 'GPS week'} time)"
-            if np.isfinite(tmin)
-            else "none",
-            "points by return": ", ".join(f"{i + 1}: {v:,}" for i, v in enumerate(by_return)) or "—",
-        }
+    s = summary(path, points=gps_range is None)
+    if gps_range is None:
+        gps = s.get("gps_time") or {}
+        gps_range = (gps.get("min"), gps.get("max"))
+    tmin, tmax = (np.nan if v is None else v for v in gps_range)
+    adjusted = bool(s["global_encoding"] & 1)
+    by_return = list(s["points_by_return_header"])
+    while by_return and by_return[-1] == 0:
+        by_return.pop()
+    lo, hi = s["bounds_header"]["min"], s["bounds_header"]["max"]
+    return {
+        "file": Path(path).name,
+        "LAS version": s["version"],
+        "point format": s["point_format"],
+        "points": s["points"],
+        "bounds x": f"{lo[0]:,.2f} – {hi[0]:,.2f}",
+        "bounds y": f"{lo[1]:,.2f} – {hi[1]:,.2f}",
+        "bounds z": f"{lo[2]:,.2f} – {hi[2]:,.2f}",
+        "CRS": s["crs"]["name"] or "none in the header",
+        "GPS time": f"{tmin:,.3f} – {tmax:,.3f} ({'adjusted standard' if adjusted else 'GPS week'} time)"
+        if np.isfinite(tmin)
+        else "none",
+        "points by return": ", ".join(f"{i + 1}: {v:,}" for i, v in enumerate(by_return)) or "—",
+    }
 
 
 def summarise_cloud(
@@ -383,6 +381,7 @@ def summarise_cloud(
     n = 0
     ranges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     lattice = 1
+    tmin, tmax = np.inf, -np.inf
     with laspy.open(str(path)) as reader:
         crs = cloud_crs(reader)
         units = Units.of(crs)
@@ -399,9 +398,11 @@ def summarise_cloud(
             cls = np.asarray(chunk.classification)
             counts += np.bincount(cls, minlength=256)
             n += len(chunk)
-            usable = (cls != 7) & (cls != 18)
-            if "withheld" in chunk.point_format.dimension_names:
-                usable &= ~np.asarray(chunk.withheld, dtype=bool)
+            usable = glossary.usable(cls, chunk.withheld)
+            t = np.asarray(chunk.gps_time)
+            t = t[np.isfinite(t)]
+            if len(t):
+                tmin, tmax = min(tmin, float(t.min())), max(tmax, float(t.max()))
             ret = np.asarray(chunk.return_number)
             one = usable & (ret <= 1)
             first += np.bincount((r * cols + c)[one], minlength=rows * cols)
@@ -450,7 +451,7 @@ def summarise_cloud(
         repeat = float(np.median(spans)) if cells else None
     return CloudSummary(
         units, strip_grid, np.array(sorted(seen), dtype=np.int64), counts, n,
-        first.reshape(rows, cols), repeat, cells, las_info(path),
+        first.reshape(rows, cols), repeat, cells, las_info(path, (tmin, tmax)),
     )  # fmt: skip
 
 

@@ -172,3 +172,125 @@ def honour_linear_units(crs, geo_keys):
         f"its GeoKeys give {crs.name} (EPSG:{crs.to_epsg()}) with ProjLinearUnitsGeoKey = {info.name}: "
         f"read as {new.name}, as GDAL does"
     )
+
+
+#: GeoKeys of a LAS GeoKeyDirectory that laspy does not read: the vertical CRS and the heights' unit.
+_VERTICAL_CS_KEY = 4096
+_VERTICAL_UNITS_KEY = 4099
+
+
+def geo_keys(header) -> list:
+    """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
+    for vlr in header.vlrs:
+        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
+            return list(vlr.geo_keys)
+    return []
+
+
+def _key(keys, key_id: int) -> int | None:
+    """The value of GeoKey *key_id*, or None when absent, 0 (undefined) or 32767 (user-defined)."""
+    code = next((int(k.value_offset) for k in keys if int(k.id) == key_id), None)
+    return None if code in (None, 0, 32767) else code
+
+
+def _linear_unit(code: int):
+    """The EPSG linear unit *code* as pyproj's unit info, or None when PROJ does not know it."""
+    import pyproj
+
+    units = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
+    return next((u for u in units.values() if u.code == str(code)), None)
+
+
+def honour_vertical_keys(crs, geo_keys):
+    """The CRS with the vertical CRS ``VerticalCSTypeGeoKey`` names added, as GDAL reads a LAS header.
+
+    laspy builds the CRS from the projected or geographic key alone, so a
+    GeoKeyDirectory that also gives ``VerticalCSTypeGeoKey`` = 5703 (NAVD88
+    height) lost its vertical datum, and with it the heights' meaning, on the
+    way to every product.  GDAL (so PDAL and QGIS) reads the same keys as the
+    compound CRS horizontal + vertical, with the vertical axis in
+    ``VerticalUnitsGeoKey``'s unit when that key is given.
+
+    Without ``VerticalCSTypeGeoKey`` the heights are in the horizontal unit
+    (:mod:`stages.units`); a ``VerticalUnitsGeoKey`` that says otherwise is
+    not silently obeyed or ignored: the note says which unit was used and
+    how to state the other.
+
+    Parameters
+    ----------
+    crs : pyproj.CRS or None
+        The horizontal CRS as read so far.
+    geo_keys : iterable
+        The GeoKeyDirectory's keys (objects with ``id`` and ``value_offset``), or empty.
+
+    Returns
+    -------
+    crs : pyproj.CRS or None
+    note : str or None
+        What was read or assumed, for the log.
+    """
+    import pyproj
+
+    if crs is None or crs.is_compound or crs.is_vertical:
+        return crs, None
+    keys = list(geo_keys)
+    vertical_code, unit_code = _key(keys, _VERTICAL_CS_KEY), _key(keys, _VERTICAL_UNITS_KEY)
+    unit = _linear_unit(unit_code) if unit_code is not None else None
+    if vertical_code is None:
+        if unit is None or crs.is_geographic:
+            return crs, None
+        have = crs.axis_info[0]
+        if have.unit_auth_code == "EPSG" and have.unit_code == str(unit_code):
+            return crs, None
+        return crs, (
+            f"its VerticalUnitsGeoKey gives heights in {unit.name} but no vertical CRS: heights are read in "
+            f"{have.unit_name}, the unit of {crs.name}; if they are in {unit.name}, set input.override_crs to "
+            "a compound CRS that says so (for example EPSG:26915+6360)"
+        )
+    try:
+        vertical = pyproj.CRS.from_epsg(vertical_code)
+    except pyproj.exceptions.CRSError:
+        vertical = None
+    if vertical is None or not vertical.is_vertical:
+        return crs, (
+            f"its VerticalCSTypeGeoKey = {vertical_code} is not an EPSG vertical CRS: ignored, heights read in "
+            f"the unit of {crs.name}; set input.override_crs to a compound CRS to state their datum"
+        )
+    data = vertical.to_json_dict()
+    if unit is not None and vertical.axis_info[0].unit_code != str(unit_code):
+        data.pop("id", None)
+        data["name"] = f"{vertical.name} ({unit.name})"
+        for axis in data["coordinate_system"]["axis"]:
+            axis["unit"] = {
+                "type": "LinearUnit",
+                "name": unit.name,
+                "conversion_factor": unit.conv_factor,
+                "id": {"authority": "EPSG", "code": unit_code},
+            }
+    horizontal = crs.to_json_dict()
+    compound = pyproj.CRS.from_json_dict(
+        {
+            "type": "CompoundCRS",
+            "name": f"{crs.name} + {data['name']}",
+            "components": [horizontal, data],
+        }
+    )
+    return compound, (
+        f"its GeoKeys give the vertical CRS {data['name']} (VerticalCSTypeGeoKey = {vertical_code}) beside "
+        f"{crs.name}: read as the compound CRS {compound.name}, as GDAL does"
+    )
+
+
+def header_crs(header):
+    """The CRS of a LAS header as GDAL reads it, and what was read beyond laspy (notes for the log).
+
+    laspy's ``parse_crs``, then the GeoKeys it does not read:
+    ``ProjLinearUnitsGeoKey`` (:func:`honour_linear_units`) and the vertical
+    CRS (:func:`honour_vertical_keys`).  Raises what laspy raises for a
+    header whose CRS cannot be read.
+    """
+    keys = geo_keys(header)
+    crs, linear = honour_linear_units(header.parse_crs(), keys)
+    crs, vertical = honour_vertical_keys(crs, keys)
+    notes = [n for n in (linear, vertical) if n]
+    return crs, ("; ".join(notes) or None)

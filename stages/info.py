@@ -37,11 +37,10 @@ def gps_time_type(header) -> str | None:
 
 def _crs(header) -> tuple[dict, object]:
     """The CRS of a header as a dict (name, EPSG code, units; or why there is none) and as a pyproj CRS."""
-    from stages.crscheck import honour_linear_units
-    from stages.readers.las import geo_keys
+    from stages.crscheck import header_crs
 
     try:
-        crs, note = honour_linear_units(header.parse_crs(), geo_keys(header))  # as the run reads it
+        crs, _ = header_crs(header)  # as the run reads it
     except Exception as exc:  # laspy raises various errors for malformed GeoTIFF keys or WKT
         return {"name": None, "error": f"unreadable ({exc})"}, None
     if crs is None:

@@ -9,7 +9,9 @@ and converts what it writes back to the CRS's units: a parameter means the
 same distance on the ground in every CRS, and the algorithms never see feet.
 
 Heights are in the unit of the CRS's vertical axis when the CRS has one (a
-compound CRS such as ``EPSG:2263+6360``, NAVD88 height in US survey feet);
+compound CRS such as ``EPSG:2263+6360``, NAVD88 height in US survey feet, or
+a LAS header whose GeoKeys give ``VerticalCSTypeGeoKey``: see
+:func:`stages.crscheck.honour_vertical_keys`);
 otherwise in the unit of its horizontal axes, as is the practice for LAS
 deliveries in a feet CRS.  This rule is logged with the units of every run
 (stage ``parse`` or ``georeference``) and written in the report; a survey with

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputDataError
-from stages.crscheck import honour_linear_units
+from stages.crscheck import header_crs
 from stages.io import PointLayout
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
@@ -197,8 +197,8 @@ def _file_crs(path: Path, header, assign, override=None, report: LasReadReport |
         crs, source = override, "input.override_crs"
     else:
         try:
-            crs, source = header.parse_crs(), "header"
-            crs, note = honour_linear_units(crs, geo_keys(header))
+            crs, note = header_crs(header)
+            source = "header"
             if note is not None and report is not None:
                 report.crs_read_as[str(path)] = note
         except Exception as exc:
@@ -218,14 +218,6 @@ def _file_crs(path: Path, header, assign, override=None, report: LasReadReport |
             crs, source = assign, "input.crs"
     _check_fits(path, header, crs, source)
     return crs, source
-
-
-def geo_keys(header) -> list:
-    """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
-    for vlr in header.vlrs:
-        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
-            return list(vlr.geo_keys)
-    return []
 
 
 def _check_fits(path: Path, header, crs, source: str) -> None:

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.readers.ldmrs import MOUNTINGS
 from stages.sim import scene as sc
 from stages.sim.flight import DT, Flight, fly, plan_lines
 from stages.sim.forward import Earth, RecordedPose, attitude, mounting_matrix
+from stages.sim.reference import TABLE_15_MOUNTINGS, gps_seconds, utm_epsg
 from stages.sim.sensors import Scanner, make_scanner, navigation_sigmas
 
 D_FLIP = np.diag([1.0, -1.0, -1.0])  # NED <-> NWU and forward-right-down <-> forward-left-up
@@ -108,9 +108,6 @@ def _poses(frame: Earth, flight: Flight, lat_s, lon_s, t: np.ndarray):
 
 def simulate(cfg, log=None) -> SimResult:
     """Run the simulation described by a :class:`~stages.sim.config.SimulateConfig`."""
-
-    from stages.readers.las import output_crs
-
     out = Path(cfg.output)
     rng = np.random.default_rng(cfg.seed)
     # noise has its own stream: realisations with another noise_seed see the same scene, flight and echoes
@@ -126,7 +123,7 @@ def simulate(cfg, log=None) -> SimResult:
         sigma_pos = sigma_att = 0.0
     range_noise = scanner.range_noise_m if noise else 0.0
     frame = Earth(cfg.origin.lat, cfg.origin.lon, cfg.origin.h)  # the simulator's own geometry (forward.py)
-    crs = output_crs(cfg.crs, None, (cfg.origin.lon, cfg.origin.lat))
+    crs = _truth_crs(cfg.crs, cfg.origin.lon, cfg.origin.lat)
 
     # --- flight and scene
     f = cfg.flight
@@ -151,7 +148,7 @@ def simulate(cfg, log=None) -> SimResult:
     if scanner.kind == "ldmrs":
         # LD-MRS -> MTi-G body (forward-left-up): Ry(+90 deg), then MPOS; in forward-right-down axes:
         r_nominal = D_FLIP @ mounting_matrix(0.0, np.pi / 2, 0.0)
-        a_nominal = D_FLIP @ np.asarray(MOUNTINGS[cfg.mounting])
+        a_nominal = D_FLIP @ np.asarray(TABLE_15_MOUNTINGS[cfg.mounting])
     else:
         r_nominal = mounting_matrix(*np.radians(cfg.boresight_deg))
         a_nominal = np.asarray(cfg.lever_arm_m, dtype=float)
@@ -225,10 +222,27 @@ def simulate(cfg, log=None) -> SimResult:
     return SimResult(out, faults, files, nav, start)
 
 
-def _gps_seconds(start_utc: str, leap: float) -> float:
-    from stages.readers.ldmrs import utc_to_gps
+def _truth_crs(setting: str, lon: float, lat: float):
+    """The projected CRS of the simulated LAS and truth files: *setting*, or the WGS 84 / UTM zone of the origin."""
+    import pyproj
 
-    value = utc_to_gps(start_utc, leap)
+    crs = pyproj.CRS.from_epsg(utm_epsg(lon, lat)) if setting == "auto-utm" else pyproj.CRS.from_user_input(setting)
+    horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
+    if not horizontal.is_projected:
+        raise SimConfigError(f"crs {crs.name} is not projected; choose a projected CRS or auto-utm")
+    return crs
+
+
+def _gps_seconds(start_utc: str, leap: float) -> float:
+    from datetime import datetime
+
+    try:
+        stamp = datetime.fromisoformat(start_utc.replace("Z", "+00:00"))
+    except ValueError:
+        raise SimConfigError(f"start_utc {start_utc!r} is not an ISO 8601 time") from None
+    if stamp.tzinfo is None:
+        raise SimConfigError(f"start_utc {start_utc!r} has no time zone (UTC times end in Z)")
+    value = gps_seconds(stamp, leap)
     if value != round(value):
         raise SimConfigError("start_utc must be a whole second")
     return float(value)

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.readers.ldmrs import GPS_EPOCH
-from stages.readers.nmea import with_checksum
+from stages.sim.reference import GPS_EPOCH, nmea_sentence
 
 SECONDS_PER_WEEK = 604_800.0
 
@@ -139,7 +138,7 @@ def write_nmea(
 
         def put(body: str) -> None:
             nonlocal k, data
-            s = with_checksum(body)
+            s = nmea_sentence(body)
             if not body.startswith("INZDA"):
                 if data in corrupt:
                     s = s[:-2] + ("00" if s[-2:] != "00" else "01")

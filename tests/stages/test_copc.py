@@ -8,6 +8,7 @@ at byte 375 of the file, 160 bytes; the hierarchy EVLR ``copc``/1000 of
 
 from __future__ import annotations
 
+import io
 import struct
 
 import laspy
@@ -111,7 +112,7 @@ def test_the_root_level_is_a_thinned_cloud_at_the_info_spacing(copc):
 
 def _layout(path):
     data = path.read_bytes()
-    header = laspy.LasHeader.read_from(__import__("io").BytesIO(data))
+    header = laspy.LasHeader.read_from(io.BytesIO(data))
     return data, header
 
 

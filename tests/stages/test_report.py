@@ -247,6 +247,20 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     assert fields[names.index("altitude_min")].tolist() == [700.0, 720.0]
     lines = read_flight_lines(path)
     assert [name for *_, name in lines] == ["strip 1", "strip 2"]
+    # without GDAL too (ogrinfo is not installed here): the standard library's SQLite reads a GeoPackage 1.2
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        assert db.execute("PRAGMA application_id").fetchone()[0] == 0x47504B47  # 'GPKG'
+        assert db.execute("PRAGMA user_version").fetchone()[0] == 10200
+        assert db.execute(
+            "SELECT data_type, srs_id FROM gpkg_contents WHERE table_name = 'flight_lines'"
+        ).fetchall() == [("features", 32630)]
+        assert db.execute("SELECT strip, time_start FROM flight_lines ORDER BY strip").fetchall() == [
+            (1, 0.0),
+            (2, 20.0),
+        ]
+        assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     assert lines[1][0].tolist() == (440000 + 10 * t[20:]).tolist()
 
 

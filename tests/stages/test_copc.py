@@ -180,3 +180,40 @@ def test_a_cloud_without_crs_is_refused_with_a_reason(tmp_path):
     las.write(str(tmp_path / "p.las"))
     with pytest.raises(ValueError, match="WKT"):
         write_copc(tmp_path / "p.las", tmp_path / "p.copc.laz")
+
+
+def _check_tree(xyz, tree, grid, max_node_points):
+    """The COPC octree's invariants, from the geometry of the cube alone."""
+    assert np.array_equal(np.sort(tree.order), np.arange(len(xyz)))  # every point in exactly one node
+    keys = {tuple(int(v) for v in k) for k in tree.keys}
+    assert len(keys) == len(tree.keys)  # no node twice
+    has_child = {(lv - 1, x // 2, y // 2, z // 2) for lv, x, y, z in keys if lv > 0}
+    lo0 = tree.center - tree.halfsize
+    for i, (level, x, y, z) in enumerate(tree.keys):
+        assert level == 0 or (level - 1, x // 2, y // 2, z // 2) in keys  # its parent is there
+        step = 2 * tree.halfsize / 2**level
+        pts = xyz[tree.order[tree.starts[i] : tree.starts[i + 1]]]
+        lo = lo0 + step * np.array([x, y, z])
+        assert np.all(pts >= lo - 1e-9) and np.all(pts <= lo + step + 1e-9), (level, x, y, z)
+        if (level, x, y, z) in has_child:  # an inner node: one point per voxel of its grid
+            voxel = np.clip(np.floor((pts - lo) / step * grid), 0, grid - 1).astype(int)
+            assert len(np.unique(voxel, axis=0)) == len(pts), (level, x, y, z)
+        else:
+            assert len(pts) <= max_node_points or level == 20
+
+
+def test_octree_invariants_with_many_nodes_on_every_level():
+    rng = np.random.default_rng(6)
+    xyz = rng.uniform(0, 1000, (20_000, 3))
+    tree = build_octree(xyz, max_node_points=50, grid=4)
+    assert tree.keys[:, 0].max() >= 4 and np.sum(tree.keys[:, 0] == 3) > 100
+    _check_tree(xyz, tree, 4, 50)
+
+
+def test_a_deep_octree_keeps_its_invariants():
+    """A 3 m cluster far from two outliers: nodes 15 levels deep and more (past the single-key sort)."""
+    rng = np.random.default_rng(4)
+    xyz = np.vstack([rng.uniform(0, 3.0, (20_000, 3)) + 5000.0, [[0.0, 0.0, 0.0], [1e4, 1e4, 1e4]]])
+    tree = build_octree(xyz, max_node_points=50, grid=4)
+    assert np.sum(tree.keys[:, 0] == 15) > 10
+    _check_tree(xyz, tree, 4, 50)

@@ -15,6 +15,8 @@ import laspy
 import lazrs
 import numpy as np
 import pytest
+from laspy.vlrs.vlr import VLR
+from laspy.vlrs.vlrlist import VLRList
 from pyproj import CRS
 
 from stages.copc import ENTRY, INFO, build_octree, write_copc
@@ -29,7 +31,9 @@ def _survey(path, n=60_000, seed=1, fmt=7):
     header.scales = [0.001, 0.001, 0.001]
     header.add_crs(CRS.from_epsg(25830))
     header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+    header.vlrs.append(VLR("survey-co", 7, "the user's own VLR", b"kept as it is"))
     las = laspy.LasData(header)
+    las.evlrs = VLRList([VLR("survey-co", 8, "the user's own EVLR", b"kept too" * 10)])
     x = rng.uniform(500_000, 500_300, n)
     y = rng.uniform(4_400_000, 4_400_200, n)
     z = 100 + 0.05 * (x - 500_000) + np.where(rng.random(n) < 0.2, rng.uniform(0, 15, n), 0.0)
@@ -71,6 +75,11 @@ def test_every_point_and_field_read_back_by_laspy_copc_reader(copc):
         assert reader.header.global_encoding.gps_time_type == laspy.header.GpsTimeType.STANDARD
         assert reader.header.parse_crs().to_epsg() == 25830
     assert len(points) == len(original.points) == 60_000
+    copc_file = laspy.read(str(dst))
+    vlrs = [(v.user_id, v.record_id) for v in copc_file.header.vlrs]
+    assert vlrs[0] == ("copc", 1) and ("survey-co", 7) in vlrs and ("LASF_Projection", 2112) in vlrs
+    evlrs = {(v.user_id, v.record_id): v for v in copc_file.evlrs}
+    assert ("copc", 1000) in evlrs and evlrs[("survey-co", 8)].record_data == b"kept too" * 10
     # the same records, byte for byte, as a set (the octree reorders them)
     assert np.array_equal(_sorted(points.array), _sorted(original.points.array))
     assert tree["levels"] >= 3  # 60,000 points, nodes of at most 4,000: a real octree

@@ -2,7 +2,7 @@
 
 Stage order (the natural order of the graph):
 parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
-export_las; report (last: it reads every stage's metrics).
+export_las, export_tiles; report (last: it reads every stage's metrics).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from stages.accuracy import Accuracy
 from stages.budget.command import BUDGET
 from stages.classify import ClassifyGround
 from stages.denoise import Denoise
+from stages.dtm_tiles import ExportTiles
 from stages.evaluate import EVALUATE
 from stages.export import ExportLas
 from stages.georeference import Georeference
@@ -68,6 +69,7 @@ plugin = Plugin(
         Contours,
         Accuracy,
         ExportLas,
+        ExportTiles,
         Report,
     ],
     global_fields={"crs": _crs_field()},

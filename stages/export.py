@@ -17,6 +17,11 @@ from pipeline.stage import Stage, StageIO, StageParams
 class ExportLasParams(StageParams):
     compress: bool = Field(True, description="write LAZ (points.laz); false writes LAS (points.las)")
     chunk_size: int = Field(1_000_000, ge=1000, description="points copied at a time")
+    copc: bool = Field(
+        False,
+        description="also write points.copc.laz, a Cloud Optimized Point Cloud 1.0 (octree-ordered LAZ that QGIS "
+        "and web viewers stream); off by default (it holds the coordinates of every point in memory)",
+    )
 
 
 class ExportLas(Stage):
@@ -30,7 +35,10 @@ class ExportLas(Stage):
 
     def declare(self, params, config) -> StageIO:
         name = "points.laz" if params.compress else "points.las"
-        return StageIO(self.inputs, {"points_export": name}, {"points_export": name})
+        outputs = {"points_export": name}
+        if params.copc:
+            outputs["points_copc"] = "points.copc.laz"
+        return StageIO(self.inputs, outputs, dict(outputs))
 
     def run(self, ctx) -> None:
         import laspy
@@ -51,3 +59,20 @@ class ExportLas(Stage):
                     writer.write_points(chunk)
                     bar.update(len(chunk))
             ctx.metrics.update(points=int(header.point_count), compressed=ctx.params.compress)
+        if "points_copc" in ctx.outputs:
+            write_copc_product(ctx, src_path, ctx.outputs["points_copc"])
+
+
+def write_copc_product(ctx, src_path, dst_path) -> None:
+    """``points.copc.laz`` from the classified points (:mod:`stages.copc`), its octree in the metrics."""
+    from pipeline.errors import InputDataError
+    from stages.copc import write_copc
+
+    try:
+        tree = write_copc(src_path, dst_path)
+    except ValueError as exc:
+        raise InputDataError(
+            f"points.copc.laz cannot be written: {exc}; or set stages.export_las.copc: false."
+        ) from None
+    ctx.metrics["copc"] = tree
+    ctx.log.info("points.copc.laz: %d octree nodes on %d levels", tree["nodes"], tree["levels"])

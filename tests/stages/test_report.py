@@ -247,6 +247,20 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     assert fields[names.index("altitude_min")].tolist() == [700.0, 720.0]
     lines = read_flight_lines(path)
     assert [name for *_, name in lines] == ["strip 1", "strip 2"]
+    # without GDAL too (ogrinfo is not installed here): the standard library's SQLite reads a GeoPackage 1.2
+    import sqlite3
+
+    with sqlite3.connect(path) as db:
+        assert db.execute("PRAGMA application_id").fetchone()[0] == 0x47504B47  # 'GPKG'
+        assert db.execute("PRAGMA user_version").fetchone()[0] == 10200
+        assert db.execute(
+            "SELECT data_type, srs_id FROM gpkg_contents WHERE table_name = 'flight_lines'"
+        ).fetchall() == [("features", 32630)]
+        assert db.execute("SELECT strip, time_start FROM flight_lines ORDER BY strip").fetchall() == [
+            (1, 0.0),
+            (2, 20.0),
+        ]
+        assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     assert lines[1][0].tolist() == (440000 + 10 * t[20:]).tolist()
 
 
@@ -272,6 +286,18 @@ def test_main_job_report_and_acceptance_against_two_specifications(tmp_path):
     ql2 = {c["measure"]: c for c in verdicts["usgs-lbs-ql2"]["checks"]}
     assert ql2["anpd"]["limit"] == 2.0 and ql2["anpd"]["source"]["table"].startswith("Table 1")
     assert ql2["nva_95"]["status"] == "PASS"  # the sample's open ground: NVA 0.06 m
-    assert ql2["vva_95"]["status"] == "FAIL"  # the simulated vegetation: VVA 0.42 m > 0.294 m
+    assert ql2["vva_95"]["status"] == "FAIL"  # the simulated vegetation: VVA 0.42 m > 0.30 m
     asprs = {c["measure"]: c for c in verdicts["asprs-2023-10cm"]["checks"]}
     assert asprs["vva_95"]["status"] == "REPORTED" and "anpd" not in asprs
+
+
+def test_lbs_vva_limit_is_30_cm_and_every_limit_names_where_it_was_checked():
+    """LBS 2020 and later: VVA <= 30 cm for QL1 and QL2 (29.4 cm was ASPRS 2014's 10-cm class figure)."""
+    for spec in ("usgs-lbs-ql1", "usgs-lbs-ql2"):
+        checks = {c["measure"]: c for c in evaluate(spec, {"vva_95": 0.297, "nva_95": 0.195})["checks"]}
+        assert checks["vva_95"]["limit"] == 0.30 and checks["vva_95"]["status"] == "PASS"
+        assert checks["nva_95"]["limit"] == 0.196 and checks["nva_95"]["status"] == "PASS"
+        assert evaluate(spec, {"vva_95": 0.301})["checks"][2]["status"] == "FAIL"
+    for _, limits in SPECIFICATIONS.values():
+        for lim in limits:
+            assert "http" in lim.source.checked or "doi:" in lim.source.checked, lim

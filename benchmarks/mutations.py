@@ -44,6 +44,7 @@ class Mutation:
 
 TILED = "tests/stages/test_tiled_runs.py"
 BUFFERS = "tests/stages/test_tile_buffers.py"
+SMRF_REACH = "tests/stages/test_smrf_reach.py"
 
 MUTATIONS: list[Mutation] = [
     Mutation(
@@ -58,14 +59,14 @@ MUTATIONS: list[Mutation] = [
         "stages/classify.py",
         "return 4.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
         "return 2.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
-        (BUFFERS, TILED),
+        (SMRF_REACH, BUFFERS, TILED),
     ),
     Mutation(
         "SMRF tile buffer 20 m instead of 74 m",
         "stages/classify.py",
         "return 4.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
         "return 1.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size",
-        (BUFFERS, TILED),
+        (SMRF_REACH, BUFFERS, TILED),
     ),
     Mutation(
         "raster tile buffer 12 m instead of 102 m",

@@ -6,7 +6,8 @@ products too.  This survey (300 m x 300 m, 100 m tiles) is built so that each
 stage's declared reach is needed near a tile edge:
 
 - SMRF (reach 4 w_max + 2 c = 74 m): buildings up to 34 m wide astride the
-  tile edges, on rolling terrain;
+  tile edges, on rolling terrain (a buffer of 38 m gives the same classes
+  here; test_smrf_reach.py is the survey that needs more than 38 m);
 - TIN DTM (reach 2 nodata_distance + 2 cells = 102 m): a lake without
   returns, 62 m wide, astride the edge x = 200 m: the triangles that cover its
   cells span it, so a tile must see the far shore;

@@ -280,9 +280,7 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         default=True,
         help="also compare the TIN DTM of each run's ground with the TIN DTM of the reference ground (default: on)",
     )
-    p.add_argument(
-        "--dtm-cell", type=float, default=1.0, metavar="METRES", help="cell of the DTM check (default 1 m)"
-    )
+    p.add_argument("--dtm-cell", type=float, default=1.0, metavar="METRES", help="cell of the DTM check (default 1 m)")
     p.add_argument(
         "--dtm-max-edge",
         type=float,

@@ -185,8 +185,6 @@ def dtm_check(
     >>> c.n, c.max_above, c.above_0_5
     (100, 0.5, 0.0)
     """
-    from scipy.spatial import Delaunay
-
     from stages.grid.interpolate import Grid, thin_points, tin
 
     xyz = np.asarray(xyz, dtype=np.float64)
@@ -200,20 +198,11 @@ def dtm_check(
     grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], cell)
     reference = tin(xyz[ref], grid, nodata_distance=nodata_distance, thin=thin)
     evaluated = tin(xyz[pred], grid, nodata_distance=nodata_distance, thin=thin) if pred.sum() >= 3 else None
-    # the reference triangles' longest edges, at the cell centres
     origin = np.array([grid.xmin, grid.ymax])
     vxy = xyz[ref, :2] - origin
     vxy = vxy[thin_points(vxy, cell / 2.0, sparse=4)] if thin else np.unique(vxy, axis=0)
     defined = np.isfinite(reference)
-    dense = np.zeros_like(defined)
-    if len(vxy) >= 3:
-        tri = Delaunay(vxy)
-        corners = vxy[tri.simplices]
-        longest = np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2), axis=1)
-        gx, gy = grid.centres()
-        at = np.flatnonzero(defined.ravel())
-        k = tri.find_simplex(np.column_stack((gx.ravel()[at] - origin[0], gy.ravel()[at] - origin[1])))
-        dense.ravel()[at[(k >= 0) & (longest[np.maximum(k, 0)] <= max_edge)]] = True
+    dense = defined & ~_in_long_triangles(vxy, grid, max_edge)
     both = dense & np.isfinite(evaluated) if evaluated is not None else np.zeros_like(dense)
     d = (evaluated[both] - reference[both]) if evaluated is not None else np.zeros(0)
     some = d.size > 0
@@ -232,3 +221,34 @@ def dtm_check(
         max_above=float(max(d.max(), 0.0)) if some else None,
         max_below=float(min(d.min(), 0.0)) if some else None,
     )
+
+
+def _in_long_triangles(xy: np.ndarray, grid, max_edge: float) -> np.ndarray:
+    """Cells of *grid* whose centre lies in a Delaunay triangle of *xy* with an edge longer than *max_edge*.
+
+    *xy* are relative to the grid's top-left corner.  Only the cells in the
+    boxes of the long triangles are located (a summed-area table of the
+    boxes), so the cost follows the voids, not the survey.
+    """
+    from scipy.spatial import Delaunay
+
+    out = np.zeros((grid.rows, grid.cols), dtype=bool)
+    if len(xy) < 3 or not np.isfinite(max_edge):
+        return out
+    tri = Delaunay(xy)
+    corners = xy[tri.simplices]
+    longest = np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2), axis=1)
+    far = corners[longest > max_edge]
+    if not len(far):
+        return out
+    res = grid.resolution
+    c0, c1 = (np.clip(np.floor(f(far[:, :, 0], axis=1) / res), 0, grid.cols - 1).astype(int) for f in (np.min, np.max))
+    r0, r1 = (np.clip(np.floor(-f(far[:, :, 1], axis=1) / res), 0, grid.rows - 1).astype(int) for f in (np.max, np.min))
+    boxes = np.zeros((grid.rows + 1, grid.cols + 1), dtype=np.int64)
+    for rows, cols, sign in ((r0, c0, 1), (r0, c1 + 1, -1), (r1 + 1, c0, -1), (r1 + 1, c1 + 1, 1)):
+        np.add.at(boxes, (rows, cols), sign)
+    at = np.flatnonzero(boxes.cumsum(axis=0).cumsum(axis=1)[: grid.rows, : grid.cols] > 0)
+    gx, gy = grid.centres()
+    k = tri.find_simplex(np.column_stack((gx.ravel()[at] - grid.xmin, gy.ravel()[at] - grid.ymax)))
+    out.ravel()[at[(k >= 0) & (longest[np.maximum(k, 0)] > max_edge)]] = True
+    return out

@@ -145,15 +145,6 @@ def vertical_accuracy(errors: np.ndarray, land_cover: np.ndarray | None = None, 
     return out
 
 
-def compare_with_truth(dtm_path: Path, truth_path: Path) -> np.ndarray:
-    """DTM - truth per DTM cell, in metres; the truth raster is resampled (bilinear) onto the DTM grid.
-
-    Each raster's heights are taken in its own CRS's vertical unit (:mod:`stages.units`).
-    """
-    dtm, truth = truth_on_dtm_cells(dtm_path, truth_path)
-    return dtm - truth
-
-
 def truth_on_dtm_cells(dtm_path: Path, truth_path: Path) -> tuple[np.ndarray, np.ndarray]:
     """The DTM and the truth resampled onto its cells (bilinear, from cell centres), both in metres; NaN = nodata.
 

@@ -310,14 +310,22 @@ def _hidden_log_args(p: argparse.ArgumentParser) -> None:
 def _run_dtm(args: argparse.Namespace) -> int:
     from rasterio.errors import RasterioError
 
-    from stages.accuracy import checkpoint_errors, compare_with_truth, read_checkpoints, vertical_accuracy
+    from stages.accuracy import (
+        checkpoint_errors,
+        read_checkpoints,
+        truth_accuracy,
+        truth_on_dtm_cells,
+        vertical_accuracy,
+    )
 
     for path in (args.dtm, args.truth or args.checkpoints):
         if not path.is_file():
             raise ConfigError(f"{path}: file not found.")
     try:
         if args.truth:
-            result = vertical_accuracy(compare_with_truth(args.dtm, args.truth).ravel())
+            dtm, truth = truth_on_dtm_cells(args.dtm, args.truth)
+            result = vertical_accuracy((dtm - truth).ravel())
+            result["truth"] = {"file": args.truth.name, "resampling": "bilinear", **truth_accuracy(dtm, truth)}
         else:
             points, cover = read_checkpoints(args.checkpoints, args.land_cover_column)
             result = vertical_accuracy(checkpoint_errors(args.dtm, points), cover, args.vegetated)
@@ -338,6 +346,16 @@ def _run_dtm(args: argparse.Namespace) -> int:
     ):
         value = result.get(key)
         print(f"{label:<28} {'—' if value is None else f'{value:.4f}'}")
+    if args.truth:
+        t = result["truth"]
+        for label, key, scale in (
+            ("cells > 1 m off (%)", "off_1m", 100.0),
+            ("cells > 5 m off (%)", "off_5m", 100.0),
+            ("largest above truth (m)", "max_above", 1.0),
+            ("largest below truth (m)", "max_below", 1.0),
+        ):
+            value = t.get(key)
+            print(f"{label:<28} {'—' if value is None else f'{scale * value:.4f}'}")
     return 0
 
 

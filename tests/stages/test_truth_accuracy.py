@@ -121,3 +121,14 @@ def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
     )
     assert acc["truth"] == {"file": "terrain.tif", "resampling": "bilinear", **direct}
     assert acc["truth"]["n"] > 80_000 and acc["truth"]["no_truth"] == 0
+
+
+def test_report_shows_the_truth_figures_apart_from_the_check_points():
+    from stages.report import _accuracy_html
+
+    truth = {"file": "terrain.tif", "resampling": "bilinear", "n": 1000, "rmse": 0.7, "mean": -0.06}
+    truth |= {"off_1m": 0.046, "off_5m": 0.0033, "max_above": 10.4, "max_below": -14.4}
+    alone = _accuracy_html({"truth": truth}, None)
+    assert "DTM against the true terrain (terrain.tif" in alone and "4.6" in alone and "+10.400 / -14.400" in alone
+    assert "No check points were configured" in alone and "RMSEz" not in alone
+    assert "DTM against the true terrain" not in _accuracy_html({"n": 3, "rmse_z": 0.1}, None)

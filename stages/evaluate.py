@@ -286,7 +286,7 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=20.0,
         metavar="METRES",
-        help="DTM check: leave out cells inside a reference triangle with a longer edge (default 20 m)",
+        help="DTM check: leave out cells inside a reference triangle with a longer edge (default 20 m; inf: none)",
     )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)
@@ -368,9 +368,10 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.config}: configuration file not found.")
     if args.param and args.algorithm is None and args.config is not None:
         raise ConfigError("--param needs --algorithm with --config (which algorithm the parameters are for).")
-    for name, value in (("--dtm-cell", args.dtm_cell), ("--dtm-max-edge", args.dtm_max_edge)):
-        if not np.isfinite(value) or value <= 0:
-            raise ConfigError(f"{name} {value:g}: must be a positive number of metres.")
+    if not np.isfinite(args.dtm_cell) or args.dtm_cell <= 0:
+        raise ConfigError(f"--dtm-cell {args.dtm_cell:g}: must be a positive number of metres.")
+    if not args.dtm_max_edge > 0:  # inf: no limit
+        raise ConfigError(f"--dtm-max-edge {args.dtm_max_edge:g}: must be a positive number of metres (or inf).")
     first = None  # None: the configuration's algorithm
     if args.algorithm is not None or (args.param and args.config is None):
         first = _algorithm(args.algorithm or "smrf", args.param)

@@ -115,7 +115,8 @@ def test_evaluate_ground_reports_a_platform_kept_as_ground(tmp_path, capsys):
     assert main(["evaluate", "ground", str(ref), "--no-dtm-check", "--json"]) == 0
     assert "dtm_check" not in json.loads(capsys.readouterr().out)[0]
     assert main(["evaluate", "ground", str(ref), "--dtm-max-edge", "0"]) == 2
-    assert "--dtm-max-edge 0: must be a positive number of metres." in capsys.readouterr().err
+    assert "--dtm-max-edge 0: must be a positive number of metres (or inf)." in capsys.readouterr().err
+    assert main(["evaluate", "ground", str(ref), "--dtm-cell", "nan"]) == 2
 
 
 @pytest.mark.slow

@@ -37,20 +37,22 @@ def _patch(xyz: np.ndarray, x0: float, y0: float, size: int) -> np.ndarray:
 
 def test_raised_and_lowered_patches_give_their_cells_and_rms():
     ground = _lattice()
-    up, down = _patch(ground, 10, 10, 10), _patch(ground, 40, 30, 5)  # 100 and 25 cells
+    up, low, down = _patch(ground, 10, 10, 10), _patch(ground, 10, 40, 6), _patch(ground, 40, 30, 5)
     kept = ground.copy()
-    kept[up, 2] += 3.0  # canopy left as ground: 3 m above the terrain
-    kept[down, 2] -= 1.0  # low noise left as ground
-    xyz = np.vstack((ground, kept[up | down]))
+    kept[up, 2] += 3.0  # 100 cells: canopy left as ground, 3 m above the terrain
+    kept[low, 2] += 1.0  # 36 cells: shrubs, 1 m up
+    kept[down, 2] -= 1.0  # 25 cells: low noise left as ground
+    changed = up | low | down
+    xyz = np.vstack((ground, kept[changed]))
     reference = np.arange(len(xyz)) < len(ground)
-    predicted = np.concatenate((~(up | down), np.ones((up | down).sum(), bool)))
+    predicted = np.concatenate((~changed, np.ones(changed.sum(), bool)))
     c = dtm_check(xyz, reference, predicted)
     n = 3600
     assert (c.n, c.reference_cells, c.sparse_cells, c.missing_cells) == (n, n, 0, 0)
-    assert c.above_2 == pytest.approx(100 / n) and c.above_0_5 == pytest.approx(100 / n)
+    assert c.above_2 == pytest.approx(100 / n) and c.above_0_5 == pytest.approx(136 / n)
     assert c.below_0_5 == pytest.approx(25 / n)
-    assert c.rms == pytest.approx(np.sqrt((100 * 9 + 25 * 1) / n))
-    assert c.mean == pytest.approx((100 * 3 - 25) / n)
+    assert c.rms == pytest.approx(np.sqrt((100 * 9 + 36 + 25) / n))
+    assert c.mean == pytest.approx((300 + 36 - 25) / n)
     assert (c.max_above, c.max_below) == pytest.approx((3.0, -1.0))
     # the same ground everywhere: every figure zero
     same = dtm_check(ground, np.ones(n, bool), np.ones(n, bool))
@@ -80,13 +82,16 @@ def test_cells_where_the_reference_has_no_ground_are_left_out():
     assert every.sparse_cells == 0 and every.max_above == pytest.approx(2.5)
 
 
-def _write_lattice(path: Path, xyz: np.ndarray, classes: np.ndarray) -> Path:
+def _write_lattice(path: Path, xyz: np.ndarray, classes: np.ndarray, *, feet: bool = False) -> Path:
+    """A LAS in UTM 30N, or (*feet*) in Oregon Lambert, international feet (EPSG:2994), x, y and z in feet."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001] * 3)
-    header.offsets = np.array([500000.0, 4000000.0, 0.0])
-    header.add_crs(pyproj.CRS.from_epsg(32630))
+    origin = np.array([636000.0, 849000.0, 0.0]) if feet else np.array([500000.0, 4000000.0, 0.0])
+    header.offsets = origin
+    header.add_crs(pyproj.CRS.from_epsg(2994 if feet else 32630))
     las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0] + 500000, xyz[:, 1] + 4000000, xyz[:, 2]
+    xyz = origin + (xyz / 0.3048 if feet else xyz)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     las.classification = classes.astype(np.uint8)
     las.write(str(path))
     return path
@@ -117,6 +122,22 @@ def test_evaluate_ground_reports_a_platform_kept_as_ground(tmp_path, capsys):
     assert main(["evaluate", "ground", str(ref), "--dtm-max-edge", "0"]) == 2
     assert "--dtm-max-edge 0: must be a positive number of metres (or inf)." in capsys.readouterr().err
     assert main(["evaluate", "ground", str(ref), "--dtm-cell", "nan"]) == 2
+
+
+def test_a_survey_in_feet_is_checked_in_metres(tmp_path, capsys):
+    """The same platform in a feet CRS: 1 m cells, a 1 m (3.28 ft) platform is 1 m up."""
+    xyz = _lattice()
+    xyz[:, :2] += [0.2, 0.8]  # on the centres of 1 m cells once the origin (636000, 849000 ft) is in metres
+    platform = _patch(xyz, 25.2, 25.8, 10)
+    xyz[platform, 2] += 1.0
+    ref = _write_lattice(tmp_path / "ft.laz", xyz, np.where(platform, 1, 2), feet=True)
+    assert main(["evaluate", "ground", str(ref), "--param", "elevation_threshold=2.0", "--json"]) == 0
+    c = json.loads(capsys.readouterr().out)[0]["dtm_check"]
+    # in feet it would be 38,750 cells and 3.28 up; the edge cells' centres are on the hull, or a
+    # 0.1 mm rounding of the feet coordinates outside it
+    assert 3400 <= c["n"] <= 3600
+    assert c["above_0_5"] * c["n"] == pytest.approx(100, abs=0.5)
+    assert c["max_above"] == pytest.approx(1.0, abs=2e-3)
 
 
 @pytest.mark.slow

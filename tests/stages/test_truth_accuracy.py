@@ -132,3 +132,5 @@ def test_report_shows_the_truth_figures_apart_from_the_check_points():
     assert "DTM against the true terrain (terrain.tif" in alone and "4.6" in alone and "+10.400 / -14.400" in alone
     assert "No check points were configured" in alone and "RMSEz" not in alone
     assert "DTM against the true terrain" not in _accuracy_html({"n": 3, "rmse_z": 0.1}, None)
+    both = _accuracy_html({"n": 3, "rmse_z": 0.1, "truth": truth}, None)
+    assert "RMSEz, all 3 check points" in both and "DTM against the true terrain" in both

@@ -3,13 +3,16 @@
     pipeline evaluate dtm DTM.tif (--truth TRUTH.tif | --checkpoints CP.csv)
                               [--land-cover-column NAME] [--vegetated VALUE ...] [--json]
 
-prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy).
+prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy); with
+``--truth``, also the share of cells more than 1 m and 5 m off and the
+largest errors (:func:`stages.accuracy.truth_accuracy`).
 
 ``pipeline evaluate ground``: score a ground classification against reference labels.
 
     pipeline evaluate ground REF.laz [--config RUN.yaml] [--crs EPSG:nnnn]
                                      [--algorithm NAME] [--param k=v ...]
                                      [--no-denoise] [--compare csf] [--write OUT.laz]
+                                     [--no-dtm-check] [--dtm-cell 1] [--dtm-max-edge 20] [--json]
 
 The reference file's class 2 is reference ground; every other class is an
 object.  The file is classified by the run itself: the engine runs
@@ -21,7 +24,12 @@ defaults of every stage, or those of ``--config`` (its ``input.paths``
 replaced by REF); ``--algorithm``/``--param`` replace its ground algorithm.
 Noise and water count as non-ground.  Prints Type I, Type II, total error
 and Cohen's kappa (per cent) for each algorithm run; ``--write`` saves the
-``export_las`` product of the first one.
+``export_las`` product of the first one.  Then the DTM check
+(:func:`stages.ground.metrics.dtm_check`, on unless ``--no-dtm-check``):
+the TIN DTM of each run's ground minus the TIN DTM of the reference ground,
+on 1 m cells (``--dtm-cell``), where no reference triangle edge exceeds
+20 m (``--dtm-max-edge``): RMS, mean, share of cells more than 0.5 m and
+2 m above and 0.5 m below, the largest difference (docs/GROUND.md).
 """
 
 from __future__ import annotations

@@ -60,6 +60,26 @@ def test_known_offsets_give_known_cells_rms_and_extremes(tmp_path):
     assert (r["max_above"], r["max_below"], r["max_abs"]) == pytest.approx((2.0, -6.0, 6.0))
 
 
+def test_figures_by_land_cover(tmp_path):
+    """A land-cover raster on the truth's 1 m cells: its building cells are the DTM's 100 raised 0.5 m cells."""
+    truth, path, dtm = _rasters(tmp_path)
+    dtm[10:20, 10:20] += 2.0  # x 15-20 m, y 10-15 m below the top: truth cells [10:15, 15:20]
+    _write_dtm(path, dtm)
+    cover = np.full((40, 60), 2, dtype=np.float32)
+    cover[10:15, 15:20] = 6
+    cover[20:40, 0:10] = 9  # water, west of the DTM (which starts at x = 10 m): no DTM cell
+    write_cog(tmp_path / "cover.tif", cover, transform=Affine(1.0, 0.0, X0, 0.0, -1.0, Y1), crs=CRS, unit=None)
+    from stages.accuracy import land_cover_on_dtm_cells
+
+    r = truth_accuracy(*truth_on_dtm_cells(path, truth), land_cover_on_dtm_cells(path, tmp_path / "cover.tif"))
+    by = r["by_land_cover"]
+    assert set(by) == {"2", "6"} and by["6"]["name"] == "building"
+    assert (by["6"]["n"], by["6"]["rmse"], by["6"]["off_1m"]) == (100, pytest.approx(2.0), 1.0)
+    assert (by["2"]["n"], by["2"]["rmse"], by["2"]["off_1m"]) == (r["n"] - 100, pytest.approx(0.0), 0.0)
+    with pytest.raises(ValueError, match="set truth_dtm too"):
+        AccuracyParams(truth_land_cover=tmp_path / "cover.tif")
+
+
 def test_truth_is_resampled_bilinearly_from_cell_centres(tmp_path):
     """A 10 % slope on 1 m truth cells: a 0.5 m DTM of the same plane matches it exactly inside the truth."""
     truth, path, dtm = _rasters(tmp_path, slope=0.1)

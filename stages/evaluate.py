@@ -183,6 +183,11 @@ def evaluate_ground(
     from stages.tiles import cloud_info
 
     reference = reference_ground(path)
+    if dtm and reference.sum() < 3:
+        raise InputDataError(
+            f"{path}: {int(reference.sum())} point(s) of class 2: the DTM check needs at least 3 reference ground "
+            "points (--no-dtm-check to score the classes only)."
+        )
     data, base, lines = run_settings(path, config=config, crs=crs)
     model = config_model(plugin)
     rows, classes = [], {}

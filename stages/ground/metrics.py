@@ -230,12 +230,15 @@ def _in_long_triangles(xy: np.ndarray, grid, max_edge: float) -> np.ndarray:
     boxes of the long triangles are located (a summed-area table of the
     boxes), so the cost follows the voids, not the survey.
     """
-    from scipy.spatial import Delaunay
+    from scipy.spatial import Delaunay, QhullError
 
     out = np.zeros((grid.rows, grid.cols), dtype=bool)
     if len(xy) < 3 or not np.isfinite(max_edge):
         return out
-    tri = Delaunay(xy)
+    try:
+        tri = Delaunay(xy)
+    except QhullError:  # all on a line: no triangle, and the TIN has no cell either
+        return out
     corners = xy[tri.simplices]
     longest = np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2), axis=1)
     far = corners[longest > max_edge]

@@ -122,6 +122,11 @@ def test_evaluate_ground_reports_a_platform_kept_as_ground(tmp_path, capsys):
     assert main(["evaluate", "ground", str(ref), "--dtm-max-edge", "0"]) == 2
     assert "--dtm-max-edge 0: must be a positive number of metres (or inf)." in capsys.readouterr().err
     assert main(["evaluate", "ground", str(ref), "--dtm-cell", "nan"]) == 2
+    classes = np.full(3600, 1)
+    classes[:2] = 2
+    two = _write_lattice(tmp_path / "two.laz", xyz, classes)
+    assert main(["evaluate", "ground", str(two)]) == 3
+    assert "2 point(s) of class 2: the DTM check needs at least 3" in capsys.readouterr().err
 
 
 def test_a_survey_in_feet_is_checked_in_metres(tmp_path, capsys):

@@ -223,12 +223,13 @@ def dtm_check(
     )
 
 
-def _in_long_triangles(xy: np.ndarray, grid, max_edge: float) -> np.ndarray:
-    """Cells of *grid* whose centre lies in a Delaunay triangle of *xy* with an edge longer than *max_edge*.
+def _in_long_triangles(xy: np.ndarray, grid, max_edge: float, batch_cells: int = 1_000_000) -> np.ndarray:
+    """Cells of *grid* whose centre lies in (or on) a Delaunay triangle of *xy* with an edge longer than *max_edge*.
 
-    *xy* are relative to the grid's top-left corner.  Only the cells in the
-    boxes of the long triangles are located (a summed-area table of the
-    boxes), so the cost follows the voids, not the survey.
+    *xy* are relative to the grid's top-left corner.  Only the long
+    triangles are drawn, each over the cells of its box (barycentric test,
+    *batch_cells* candidate cells at a time), so the cost follows the
+    voids, not the survey.
     """
     from scipy.spatial import Delaunay, QhullError
 
@@ -241,17 +242,28 @@ def _in_long_triangles(xy: np.ndarray, grid, max_edge: float) -> np.ndarray:
         return out
     corners = xy[tri.simplices]
     longest = np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2), axis=1)
-    far = corners[longest > max_edge]
-    if not len(far):
-        return out
+    p = corners[longest > max_edge]
     res = grid.resolution
-    c0, c1 = (np.clip(np.floor(f(far[:, :, 0], axis=1) / res), 0, grid.cols - 1).astype(int) for f in (np.min, np.max))
-    r0, r1 = (np.clip(np.floor(-f(far[:, :, 1], axis=1) / res), 0, grid.rows - 1).astype(int) for f in (np.max, np.min))
-    boxes = np.zeros((grid.rows + 1, grid.cols + 1), dtype=np.int64)
-    for rows, cols, sign in ((r0, c0, 1), (r0, c1 + 1, -1), (r1 + 1, c0, -1), (r1 + 1, c1 + 1, 1)):
-        np.add.at(boxes, (rows, cols), sign)
-    at = np.flatnonzero(boxes.cumsum(axis=0).cumsum(axis=1)[: grid.rows, : grid.cols] > 0)
-    gx, gy = grid.centres()
-    k = tri.find_simplex(np.column_stack((gx.ravel()[at] - grid.xmin, gy.ravel()[at] - grid.ymax)))
-    out.ravel()[at[(k >= 0) & (longest[np.maximum(k, 0)] > max_edge)]] = True
+    c0 = np.clip(np.ceil(p[:, :, 0].min(axis=1) / res - 0.5), 0, None).astype(np.int64)
+    c1 = np.clip(np.floor(p[:, :, 0].max(axis=1) / res - 0.5), None, grid.cols - 1).astype(np.int64)
+    r0 = np.clip(np.ceil(-p[:, :, 1].max(axis=1) / res - 0.5), 0, None).astype(np.int64)
+    r1 = np.clip(np.floor(-p[:, :, 1].min(axis=1) / res - 0.5), None, grid.rows - 1).astype(np.int64)
+    width = np.maximum(c1 - c0 + 1, 0)
+    count = width * np.maximum(r1 - r0 + 1, 0)
+    a, b = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    det = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    ends = np.cumsum(count)
+    first = 0
+    while first < len(p):
+        base = int(ends[first - 1]) if first else 0
+        last = max(first + 1, int(np.searchsorted(ends, base + batch_cells, side="right")))
+        t = np.repeat(np.arange(first, last), count[first:last])
+        k = np.arange(len(t)) - np.repeat(ends[first:last] - count[first:last] - base, count[first:last])
+        col, row = c0[t] + k % width[t], r0[t] + k // width[t]
+        vx, vy = (col + 0.5) * res - p[t, 0, 0], -(row + 0.5) * res - p[t, 0, 1]
+        l1 = (vx * b[t, 1] - vy * b[t, 0]) / det[t]
+        l2 = (a[t, 0] * vy - a[t, 1] * vx) / det[t]
+        inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1.0 + 1e-9)
+        out[row[inside], col[inside]] = True
+        first = last
     return out

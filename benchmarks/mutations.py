@@ -189,6 +189,41 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/test_evaluate_ground.py",
         ),
     ),  # fmt: skip
+    Mutation(
+        "DTM check: reference minus run (a false hill reads as a hole)",
+        "stages/ground/metrics.py",
+        "d = (evaluated[both] - reference[both])",
+        "d = (reference[both] - evaluated[both])",
+        ("tests/stages/test_dtm_check.py",),
+    ),
+    Mutation(
+        "DTM check: the reference's voids compared (no triangle-edge limit)",
+        "stages/ground/metrics.py",
+        "dense = defined & ~_in_long_triangles(vxy, grid, max_edge)",
+        "dense = defined",
+        ("tests/stages/test_dtm_check.py",),
+    ),
+    Mutation(
+        "DTM check in the CRS's units (feet) instead of metres",
+        "stages/evaluate.py",
+        "xyz = cloud_info(classified).units.to_metres(",
+        "xyz = (",
+        ("tests/stages/test_dtm_check.py",),
+    ),
+    Mutation(
+        "truth raster resampled by nearest cell instead of bilinear",
+        "stages/accuracy.py",
+        "resampling=Resampling.bilinear,",
+        "resampling=Resampling.nearest,",
+        ("tests/stages/test_truth_accuracy.py",),
+    ),
+    Mutation(
+        "truth raster: cells more than 5 m below the truth not counted",
+        "stages/accuracy.py",
+        '"off_5m": float(np.mean(np.abs(e) > TRUTH_OFF_M[1]))',
+        '"off_5m": float(np.mean(e > TRUTH_OFF_M[1]))',
+        ("tests/stages/test_truth_accuracy.py",),
+    ),
 ]
 
 

@@ -13,8 +13,18 @@ feet: :mod:`stages.units`); optionally a land-cover column (default name
 bilinearly at each check point; points outside the DTM or on nodata cells
 are counted and left out.
 
-Stage ``accuracy`` runs when ``stages.accuracy.checkpoints`` names a file;
-``pipeline evaluate dtm`` does the same from the command line.
+Truth raster (``stages.accuracy.truth_dtm``, e.g. a simulated survey's
+``truth/terrain.tif``): resampled bilinearly onto the DTM's cells (GDAL's
+warper, from cell centres), then every DTM cell with a value is compared
+(:func:`truth_accuracy`): RMS, mean, the share of cells more than 1 m and
+5 m off, the largest errors; with ``truth_land_cover`` (a raster of ASPRS
+class codes, nearest cell), the same by land cover.  Check points say how well the DTM fits open
+ground; the truth raster shows what they miss (a building or a bridge deck
+left as ground, channel banks).
+
+Stage ``accuracy`` runs when ``stages.accuracy.checkpoints`` or
+``stages.accuracy.truth_dtm`` names a file; ``pipeline evaluate dtm`` does
+the same from the command line.
 """
 
 from __future__ import annotations
@@ -24,7 +34,7 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from pipeline.config import InputFile
 from pipeline.errors import InputDataError
@@ -136,67 +146,188 @@ def vertical_accuracy(errors: np.ndarray, land_cover: np.ndarray | None = None, 
     return out
 
 
-def compare_with_truth(dtm_path: Path, truth_path: Path) -> np.ndarray:
-    """DTM - truth per DTM cell, in metres; the truth raster is resampled (bilinear) onto the DTM grid.
+def truth_on_dtm_cells(dtm_path: Path, truth_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The DTM and the truth resampled onto its cells (bilinear, from cell centres), both in metres; NaN = nodata.
 
-    Each raster's heights are taken in its own CRS's vertical unit (:mod:`stages.units`).
+    The truth's nodata cells take no part in the bilinear weights (GDAL's
+    warper renormalises over the valid ones); DTM cells outside the truth
+    raster are NaN.
     """
-    import rasterio
-    from rasterio.warp import Resampling, reproject
+    from rasterio.warp import Resampling
 
     from stages.io import read_raster
     from stages.units import raster_units
 
     dtm, transform, crs, _ = read_raster(dtm_path)
-    with rasterio.open(truth_path) as ts:
-        truth_unit = raster_units(ts.crs).vertical
-        truth = np.full(dtm.shape, np.nan)
+    truth, truth_crs = _onto(truth_path, dtm.shape, transform, crs, Resampling.bilinear)
+    return dtm * raster_units(crs).vertical, truth * raster_units(truth_crs).vertical
+
+
+def land_cover_on_dtm_cells(dtm_path: Path, land_cover_path: Path) -> np.ndarray:
+    """The codes of a land-cover raster at the DTM's cells (the nearest cell's; -1 outside it or on its nodata)."""
+    from rasterio.warp import Resampling
+
+    from stages.io import read_raster
+
+    dtm, transform, crs, _ = read_raster(dtm_path)
+    codes, _ = _onto(land_cover_path, dtm.shape, transform, crs, Resampling.nearest)
+    return np.where(np.isfinite(codes), np.nan_to_num(codes), -1).astype(np.int64)
+
+
+def _onto(path: Path, shape: tuple[int, int], transform, crs, resampling):
+    """Band 1 of a raster resampled onto a grid (float64, NaN = nodata or outside), and the raster's CRS."""
+    import rasterio
+    from rasterio.warp import reproject
+
+    with rasterio.open(path) as src:
+        out = np.full(shape, np.nan)
         reproject(
-            source=rasterio.band(ts, 1),
-            destination=truth,
+            source=rasterio.band(src, 1),
+            destination=out,
             dst_transform=transform,
             dst_crs=crs,
             dst_nodata=np.nan,
-            resampling=Resampling.bilinear,
+            resampling=resampling,
         )
-    return dtm * raster_units(crs).vertical - truth * truth_unit
+        return out, src.crs
+
+
+#: |DTM - truth| thresholds (metres) of :func:`truth_accuracy`: 1 m is far beyond a
+#: lidar DTM's error on open ground (ASPRS 2023's 10-cm class allows NVA = 19.6 cm),
+#: so a misclassification, not noise; 5 m, a building or a bridge deck left in the DTM.
+TRUTH_OFF_M = (1.0, 5.0)
+
+
+def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | None = None) -> dict:
+    """The DTM against a truth raster over every DTM cell with a value (metres; errors are DTM - truth).
+
+    Keys: ``cells`` (DTM cells with a value), ``no_truth`` (of those, where
+    the truth has none), ``n`` (cells compared), ``rmse``, ``mean``,
+    ``off_1m`` and ``off_5m`` (fractions of the cells more than 1 m / 5 m
+    off, either way), ``max_abs``, ``max_above``, ``max_below``.  With
+    *land_cover* (integer codes per cell, -1 = none), ``by_land_cover``: per
+    code, its ASPRS class name and the same figures over its cells.
+
+    >>> dtm = np.array([[10.0, 10.0], [10.0, np.nan]])
+    >>> r = truth_accuracy(dtm, np.array([[10.0, 8.0], [np.nan, 10.0]]))
+    >>> r["cells"], r["no_truth"], r["n"], r["rmse"], r["off_1m"], r["max_above"]
+    (3, 1, 2, 1.4142135623730951, 0.5, 2.0)
+    """
+    has = np.isfinite(dtm)
+    both = has & np.isfinite(truth)
+    out = {"cells": int(has.sum()), "no_truth": int((has & ~both).sum()), **_error_figures((dtm - truth)[both])}
+    if land_cover is not None:
+        from stages.glossary import class_name
+
+        out["by_land_cover"] = {
+            str(code): {"name": class_name(int(code)), **_error_figures((dtm - truth)[both & (land_cover == code)])}
+            for code in np.unique(land_cover[both])
+            if code >= 0
+        }
+    return out
+
+
+def _error_figures(e: np.ndarray) -> dict:
+    some = e.size > 0
+    return {
+        "n": int(e.size),
+        "rmse": float(np.sqrt(np.mean(e**2))) if some else None,
+        "mean": float(np.mean(e)) if some else None,
+        "off_1m": float(np.mean(np.abs(e) > TRUTH_OFF_M[0])) if some else None,
+        "off_5m": float(np.mean(np.abs(e) > TRUTH_OFF_M[1])) if some else None,
+        "max_abs": float(np.max(np.abs(e))) if some else None,
+        "max_above": float(max(np.max(e), 0.0)) if some else None,
+        "max_below": float(min(np.min(e), 0.0)) if some else None,
+    }
 
 
 class AccuracyParams(StageParams):
     checkpoints: InputFile | None = Field(
         None, description="CSV of check points (x, y, z[, land_cover]); none = no check"
     )
+    truth_dtm: InputFile | None = Field(
+        None,
+        description="raster of the true terrain (a simulated survey's truth/terrain.tif), compared with the DTM "
+        "at every cell (bilinear onto the DTM's cells); none = no such check",
+    )
+    truth_land_cover: InputFile | None = Field(
+        None,
+        description="raster of land-cover codes (ASPRS class numbers: 2 ground, 5 vegetation, 6 building, 9 water, "
+        "17 bridge deck) for the truth_dtm figures by land cover (nearest cell onto the DTM's); none = not split",
+    )
     land_cover_column: str = Field("land_cover", description="name of the land-cover column in the check points")
     vegetated: list[str] = Field(["vegetated"], description="land-cover values counted as vegetated (for VVA)")
+
+    @model_validator(mode="after")
+    def _land_cover_needs_truth(self):
+        if self.truth_land_cover is not None and self.truth_dtm is None:
+            raise ValueError("truth_land_cover splits the truth_dtm figures: set truth_dtm too")
+        return self
 
 
 class Accuracy(Stage):
     name = "accuracy"
-    version = "1"
+    version = "2"  # 2: the DTM against a truth raster (truth_dtm)
     Params = AccuracyParams
-    description = "DTM vertical accuracy at check points (runs when checkpoints is set)"
+    description = "DTM vertical accuracy at check points and against a truth raster (runs when either is set)"
     inputs = ("dtm",)
     outputs: ClassVar = {"accuracy": "accuracy.json"}
     products: ClassVar = {"accuracy": "accuracy.json"}
 
     def is_enabled(self, params, config) -> bool:
-        return params.enabled and params.checkpoints is not None
+        return params.enabled and (params.checkpoints is not None or params.truth_dtm is not None)
 
     def external_files(self, params, config) -> list[Path]:
-        return [params.checkpoints] if params.checkpoints else []
+        return [f for f in (params.checkpoints, params.truth_dtm, params.truth_land_cover) if f is not None]
 
     def run(self, ctx) -> None:
         import json
 
         p = ctx.params
-        points, cover = read_checkpoints(p.checkpoints, p.land_cover_column)
-        errors = checkpoint_errors(ctx.inputs["dtm"], points)  # metres, whatever the CRS's units
-        result = vertical_accuracy(errors, cover, p.vegetated)
+        result: dict = {}
+        if p.checkpoints is not None:
+            points, cover = read_checkpoints(p.checkpoints, p.land_cover_column)
+            errors = checkpoint_errors(ctx.inputs["dtm"], points)  # metres, whatever the CRS's units
+            result = vertical_accuracy(errors, cover, p.vegetated)
+            ctx.log.info(
+                "RMSEz %.3f m at %d check points (%d outside the DTM)",
+                result["rmse_z"] or float("nan"),
+                result["n"],
+                result["outside"],
+            )
+        if p.truth_dtm is not None:
+            result["truth"] = truth = _truth_block(ctx.inputs["dtm"], p.truth_dtm, p.truth_land_cover)
+            ctx.log.info(
+                "against %s: RMS %.3f m over %d cells, %.1f %% more than 1 m off, %.1f %% more than 5 m",
+                Path(p.truth_dtm).name,
+                truth["rmse"] or float("nan"),
+                truth["n"],
+                100 * (truth["off_1m"] or 0.0),
+                100 * (truth["off_5m"] or 0.0),
+            )
         ctx.metrics.update(result)
         ctx.outputs["accuracy"].write_text(json.dumps(result, indent=2))
-        ctx.log.info(
-            "RMSEz %.3f m at %d check points (%d outside the DTM)",
-            result["rmse_z"] or float("nan"),
-            result["n"],
-            result["outside"],
+
+
+def _truth_block(dtm_path: Path, truth_path: Path, land_cover_path: Path | None = None) -> dict:
+    """accuracy.json's ``truth``: the files, how they were resampled, :func:`truth_accuracy`."""
+    from rasterio.errors import RasterioError
+
+    path = truth_path
+    try:
+        dtm, truth = truth_on_dtm_cells(dtm_path, truth_path)
+        cover = None
+        if land_cover_path is not None:
+            path = land_cover_path
+            cover = land_cover_on_dtm_cells(dtm_path, land_cover_path)
+    except RasterioError as exc:
+        raise InputDataError(f"{path}: cannot be read as a raster ({exc}).") from None
+    out: dict = {"file": Path(truth_path).name, "resampling": "bilinear"}
+    if land_cover_path is not None:
+        out["land_cover_file"] = Path(land_cover_path).name
+    out.update(truth_accuracy(dtm, truth, cover))
+    if out["n"] == 0:
+        raise InputDataError(
+            f"{truth_path}: no DTM cell has a truth value (does the raster cover the survey, in the same CRS?)."
         )
+    return out

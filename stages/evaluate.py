@@ -3,13 +3,16 @@
     pipeline evaluate dtm DTM.tif (--truth TRUTH.tif | --checkpoints CP.csv)
                               [--land-cover-column NAME] [--vegetated VALUE ...] [--json]
 
-prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy).
+prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy); with
+``--truth``, also the share of cells more than 1 m and 5 m off and the
+largest errors (:func:`stages.accuracy.truth_accuracy`).
 
 ``pipeline evaluate ground``: score a ground classification against reference labels.
 
     pipeline evaluate ground REF.laz [--config RUN.yaml] [--crs EPSG:nnnn]
                                      [--algorithm NAME] [--param k=v ...]
                                      [--no-denoise] [--compare csf] [--write OUT.laz]
+                                     [--no-dtm-check] [--dtm-cell 1] [--dtm-max-edge 20] [--json]
 
 The reference file's class 2 is reference ground; every other class is an
 object.  The file is classified by the run itself: the engine runs
@@ -21,7 +24,12 @@ defaults of every stage, or those of ``--config`` (its ``input.paths``
 replaced by REF); ``--algorithm``/``--param`` replace its ground algorithm.
 Noise and water count as non-ground.  Prints Type I, Type II, total error
 and Cohen's kappa (per cent) for each algorithm run; ``--write`` saves the
-``export_las`` product of the first one.
+``export_las`` product of the first one.  Then the DTM check
+(:func:`stages.ground.metrics.dtm_check`, on unless ``--no-dtm-check``):
+the TIN DTM of each run's ground minus the TIN DTM of the reference ground,
+on 1 m cells (``--dtm-cell``), where no reference triangle edge exceeds
+20 m (``--dtm-max-edge``): RMS, mean, share of cells more than 0.5 m and
+2 m above and 0.5 m below, the largest difference (docs/GROUND.md).
 """
 
 from __future__ import annotations
@@ -121,6 +129,9 @@ def evaluate_ground(
     config: Path | None = None,
     crs: str | None = None,
     write: Path | None = None,
+    dtm: bool = True,
+    dtm_cell: float = 1.0,
+    dtm_max_edge: float = 20.0,
 ) -> tuple[list[dict], dict[str, np.ndarray]]:
     """Classify a labelled file with the run's stages, once per algorithm; return scores and classes.
 
@@ -139,12 +150,21 @@ def evaluate_ground(
     write : Path, optional
         Where to save the first algorithm's classified cloud (the
         ``export_las`` product; LAZ when the name ends in ``.laz``).
+    dtm : bool
+        Also run the DTM check (:func:`stages.ground.metrics.dtm_check`): the
+        TIN of each run's ground against the TIN of the reference ground, on
+        cells of *dtm_cell* metres, where no reference triangle edge is longer
+        than *dtm_max_edge* metres; the TINs use the configuration's
+        ``rasterize.nodata_distance`` and ``rasterize.tin.thin``.
+    dtm_cell, dtm_max_edge : float
+        Metres, whatever the CRS's unit.
 
     Returns
     -------
     rows : list of dict
         Per algorithm: name, parameters, seconds (``denoise`` and
-        ``classify_ground``), and the :class:`stages.ground.metrics.GroundScore`.
+        ``classify_ground``), the :class:`stages.ground.metrics.GroundScore`
+        and, with *dtm*, ``dtm_check``: the :class:`stages.ground.metrics.DtmCheck`.
     classes : dict
         Algorithm name -> the classes the run gave every point, in file order.
     """
@@ -159,9 +179,15 @@ def evaluate_ground(
     from pipeline.runner import run
     from pipeline.stage import config_model
     from stages import plugin
-    from stages.ground.metrics import score
+    from stages.ground.metrics import dtm_check, score
+    from stages.tiles import cloud_info
 
     reference = reference_ground(path)
+    if dtm and reference.sum() < 3:
+        raise InputDataError(
+            f"{path}: {int(reference.sum())} point(s) of class 2: the DTM check needs at least 3 reference ground "
+            "points (--no-dtm-check to score the classes only)."
+        )
     data, base, lines = run_settings(path, config=config, crs=crs)
     model = config_model(plugin)
     rows, classes = [], {}
@@ -194,13 +220,27 @@ def evaluate_ground(
                 raise
             records = {r["name"]: r for r in manifest["stages"]}
             classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
-            cls = np.asarray(laspy.read(str(classified)).classification, dtype=np.uint8)
+            las = laspy.read(str(classified))
+            cls = np.asarray(las.classification, dtype=np.uint8)
             if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
                 raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
             used = settings.stages.classify_ground.algorithm
             seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
             s = score(reference, cls == glossary.GROUND)
             rows.append({"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()})
+            if dtm:
+                xyz = cloud_info(classified).units.to_metres(np.column_stack((las.x, las.y, las.z)))
+                grid = settings.stages.rasterize
+                rows[-1]["dtm_check"] = dtm_check(
+                    xyz,
+                    reference,
+                    cls == glossary.GROUND,
+                    cell=dtm_cell,
+                    max_edge=dtm_max_edge,
+                    nodata_distance=grid.nodata_distance,
+                    thin=grid.tin.thin,
+                ).as_dict()
+            del las
             classes[used.name] = cls
             if saving:
                 name = "points.laz" if stages["export_las"]["compress"] else "points.las"
@@ -247,6 +287,20 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="OUT.laz",
         help="save the cloud classified by --algorithm (as export_las writes it)",
     )
+    p.add_argument(
+        "--dtm-check",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also compare the TIN DTM of each run's ground with the TIN DTM of the reference ground (default: on)",
+    )
+    p.add_argument("--dtm-cell", type=float, default=1.0, metavar="METRES", help="cell of the DTM check (default 1 m)")
+    p.add_argument(
+        "--dtm-max-edge",
+        type=float,
+        default=20.0,
+        metavar="METRES",
+        help="DTM check: leave out cells inside a reference triangle with a longer edge (default 20 m; inf: none)",
+    )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)
     p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
@@ -269,14 +323,22 @@ def _hidden_log_args(p: argparse.ArgumentParser) -> None:
 def _run_dtm(args: argparse.Namespace) -> int:
     from rasterio.errors import RasterioError
 
-    from stages.accuracy import checkpoint_errors, compare_with_truth, read_checkpoints, vertical_accuracy
+    from stages.accuracy import (
+        checkpoint_errors,
+        read_checkpoints,
+        truth_accuracy,
+        truth_on_dtm_cells,
+        vertical_accuracy,
+    )
 
     for path in (args.dtm, args.truth or args.checkpoints):
         if not path.is_file():
             raise ConfigError(f"{path}: file not found.")
     try:
         if args.truth:
-            result = vertical_accuracy(compare_with_truth(args.dtm, args.truth).ravel())
+            dtm, truth = truth_on_dtm_cells(args.dtm, args.truth)
+            result = vertical_accuracy((dtm - truth).ravel())
+            result["truth"] = {"file": args.truth.name, "resampling": "bilinear", **truth_accuracy(dtm, truth)}
         else:
             points, cover = read_checkpoints(args.checkpoints, args.land_cover_column)
             result = vertical_accuracy(checkpoint_errors(args.dtm, points), cover, args.vegetated)
@@ -297,6 +359,16 @@ def _run_dtm(args: argparse.Namespace) -> int:
     ):
         value = result.get(key)
         print(f"{label:<28} {'—' if value is None else f'{value:.4f}'}")
+    if args.truth:
+        t = result["truth"]
+        for label, key, scale in (
+            ("cells > 1 m off (%)", "off_1m", 100.0),
+            ("cells > 5 m off (%)", "off_5m", 100.0),
+            ("largest above truth (m)", "max_above", 1.0),
+            ("largest below truth (m)", "max_below", 1.0),
+        ):
+            value = t.get(key)
+            print(f"{label:<28} {'—' if value is None else f'{scale * value:.4f}'}")
     return 0
 
 
@@ -309,6 +381,10 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.config}: configuration file not found.")
     if args.param and args.algorithm is None and args.config is not None:
         raise ConfigError("--param needs --algorithm with --config (which algorithm the parameters are for).")
+    if not np.isfinite(args.dtm_cell) or args.dtm_cell <= 0:
+        raise ConfigError(f"--dtm-cell {args.dtm_cell:g}: must be a positive number of metres.")
+    if not args.dtm_max_edge > 0:  # inf: no limit
+        raise ConfigError(f"--dtm-max-edge {args.dtm_max_edge:g}: must be a positive number of metres (or inf).")
     first = None  # None: the configuration's algorithm
     if args.algorithm is not None or (args.param and args.config is None):
         first = _algorithm(args.algorithm or "smrf", args.param)
@@ -321,6 +397,9 @@ def _run(args: argparse.Namespace) -> int:
         config=args.config,
         crs=args.crs,
         write=args.write,
+        dtm=args.dtm_check,
+        dtm_cell=args.dtm_cell,
+        dtm_max_edge=args.dtm_max_edge,
     )
     if args.json:
         print(json.dumps(rows, indent=2))
@@ -334,9 +413,37 @@ def _run(args: argparse.Namespace) -> int:
                 f"{r['algorithm']:<10} {100 * r['type_1']:9.2f} {100 * r['type_2']:10.2f} "
                 f"{100 * r['total']:8.2f} {100 * r['kappa']:8.2f} {r['seconds']:8.2f}"
             )
+        if args.dtm_check:
+            _print_dtm_check(rows)
     if args.write:
         print(f"classified cloud written to {args.write}", file=sys.stderr)
     return 0
+
+
+def _print_dtm_check(rows: list[dict]) -> None:
+    """The DTM check's table (figures in metres and per cent of the cells compared)."""
+    first = rows[0]["dtm_check"]
+    print()
+    print(
+        f"DTM check: TIN of the ground on {first['cell']:g} m cells minus TIN of the reference ground, "
+        f"where no reference triangle edge exceeds {first['max_edge']:g} m "
+        f"({first['sparse_cells']:,} of {first['reference_cells']:,} reference cells left out as too sparse)"
+    )
+    print(
+        f"{'algorithm':<10} {'cells':>8} {'RMS m':>7} {'mean m':>7} {'>0.5 up %':>9} {'>2 up %':>8} "
+        f"{'>0.5 dn %':>9} {'max up m':>8} {'empty':>6}"
+    )
+
+    def cell(value, scale: float = 1.0, width: int = 7) -> str:
+        return f"{'—':>{width}}" if value is None else f"{scale * value:{width}.2f}"
+
+    for r in rows:
+        c = r["dtm_check"]
+        print(
+            f"{r['algorithm']:<10} {c['n']:8d} {cell(c['rms'])} {cell(c['mean'])} {cell(c['above_0_5'], 100, 9)} "
+            f"{cell(c['above_2'], 100, 8)} {cell(c['below_0_5'], 100, 9)} {cell(c['max_above'], 1, 8)} "
+            f"{c['missing_cells']:6d}"
+        )
 
 
 EVALUATE = Command(

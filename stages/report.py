@@ -491,7 +491,7 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
         count, mask, side = voids(data.cloud.first_returns, cell_m, 1.0 / np.sqrt(anpd))
         out["voids"] = count
         extra.update(void_mask=mask, void_side_m=side)
-    acc = metrics.get("accuracy") or {}
+    acc = {k: v for k, v in (metrics.get("accuracy") or {}).items() if k != "truth"}  # check points only
     if acc:
         out["nva_95"] = acc.get("nva_95")
         out["rmse_z_nv"] = acc["nva_95"] / 1.96 if acc.get("nva_95") is not None else None
@@ -832,8 +832,10 @@ tr.pass td:nth-child(4){{background:#e6f4ea}} tr.fail td:nth-child(4){{backgroun
 
 
 def _accuracy_html(accuracy: dict | None, cp: dict | None) -> str:
+    truth = _truth_html((accuracy or {}).get("truth"))
+    accuracy = {k: v for k, v in (accuracy or {}).items() if k != "truth"}
     if not accuracy:
-        return (
+        return truth + (
             "<p>No check points were configured (<code>stages.accuracy.checkpoints</code>), so no accuracy figures.</p>"
         )
     nva = accuracy.get("nva_95")
@@ -846,7 +848,7 @@ def _accuracy_html(accuracy: dict | None, cp: dict | None) -> str:
         (f"VVA = 95th percentile of |error|, vegetated ({n_v} check points) (m)", accuracy.get("vva_95")),
         ("outside the DTM or on nodata", accuracy.get("outside")),
     ]
-    out = _table(rows)
+    out = _table(rows) + truth
     if cp is not None:
         table_rows = [
             [i, lc, f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", f"{d:.3f}", f"{e:+.3f}" if np.isfinite(e) else "off the DTM"]
@@ -862,6 +864,23 @@ def _accuracy_html(accuracy: dict | None, cp: dict | None) -> str:
             ["id", "land cover", "x", "y", "measured z", "DTM z", "error (m)"], table_rows
         )
     return out
+
+
+def _truth_html(truth: dict | None) -> str:
+    """The DTM against a truth raster (stages.accuracy.truth_dtm): every cell, metres."""
+    if not truth or not truth.get("n"):
+        return ""
+    rows = [
+        (f"RMS over {truth['n']:,} cells (m)", truth["rmse"]),
+        ("mean error (m)", truth["mean"]),
+        ("cells more than 1 m off (%)", 100 * truth["off_1m"]),
+        ("cells more than 5 m off (%)", 100 * truth["off_5m"]),
+        ("largest error above / below the truth (m)", f"{truth['max_above']:+.3f} / {truth['max_below']:+.3f}"),
+    ]
+    return (
+        f"<h3>DTM against the true terrain ({html.escape(str(truth['file']))}, resampled {truth['resampling']} onto "
+        f"the DTM's cells; DTM − truth)</h3>" + _table(rows)
+    )
 
 
 def _enabled(config, name: str) -> bool:

@@ -45,9 +45,13 @@ def test_evaluate_prints_metrics_and_writes_the_cloud(tmp_path, capsys):
     assert main(["evaluate", "ground", str(ref), "--compare", "pmf", "--write", str(out)]) == 0
     text = capsys.readouterr().out
     assert "8000 points" in text
-    rows = {line.split()[0]: line.split()[1:] for line in text.splitlines()[2:]}
+    scores, dtm = text.split("\n\n")
+    rows = {line.split()[0]: line.split()[1:] for line in scores.splitlines()[2:]}
     assert set(rows) == {"smrf", "pmf"}
     assert float(rows["smrf"][2]) < 1.0  # total error, per cent
+    checks = {line.split()[0]: line.split()[1:] for line in dtm.splitlines()[2:]}
+    assert set(checks) == {"smrf", "pmf"}
+    assert float(checks["smrf"][1]) < 0.05  # the DTM check's RMS: the building is removed
     written = laspy.read(out)
     assert written.header.parse_crs().to_epsg() == 32630
     truth = np.asarray(laspy.read(ref).classification) == 2

@@ -13,7 +13,7 @@ point.
 Written (``<output>/``): ``ldmrs/acquisition.log.gz`` (3.A), ``lmsq/scan.lmsq``
 + ``lmsq/nav.nmea`` + ``lmsq/ins.csv`` (3.B), ``lmsq/trajectory.sbet`` +
 ``lmsq/trajectory.smrmsg`` (3.C, same stream), ``las/points.laz`` (3.D),
-``truth/points.laz``, ``truth/terrain.tif``, ``truth/faults.json``.
+``truth/points.laz``, ``truth/terrain.tif``, ``truth/land_cover.tif``, ``truth/faults.json``.
 """
 
 from __future__ import annotations
@@ -211,7 +211,8 @@ def simulate(cfg, log=None) -> SimResult:
     if "lmsq" in faults:
         faults["lmsq"]["nmea_bad_checksums"] = cfg.faults.nmea_bad_checksums
     files["truth_terrain"] = "truth/terrain.tif"
-    _write_truth_terrain(out / "truth" / "terrain.tif", world, frame, crs, extent, cfg.truth_resolution)
+    files["truth_land_cover"] = "truth/land_cover.tif"
+    _write_truth_terrain(out / "truth", world, frame, crs, extent, cfg.truth_resolution)
     if cfg.checkpoints:
         _write_checkpoints(
             out / "checkpoints.csv", world, frame, crs, flight.pos[flight.line > 0], cfg.checkpoints, rng
@@ -711,8 +712,15 @@ def _write_checkpoints(path: Path, world, frame: Earth, crs, on_lines: np.ndarra
             fh.write(f"CP{i:03d},{xi:.3f},{yi:.3f},{zi:.3f},{r[2]}\n")
 
 
-def _write_truth_terrain(path: Path, world, frame: Earth, crs, extent, resolution: float) -> None:
-    """The bare earth on a grid of the output CRS: for each cell centre, the height where it meets the ground."""
+def _write_truth_terrain(folder: Path, world, frame: Earth, crs, extent, resolution: float) -> None:
+    """The bare earth on a grid of the output CRS, and what covers it, on the same cells.
+
+    ``terrain.tif``: for each cell centre, the height where the vertical meets
+    the ground.  ``land_cover.tif`` (uint8, ASPRS class codes, 0 = outside the
+    scene): the class of the solid surface there (2 ground, 6 building,
+    9 water, 17 bridge deck), 5 where tree crowns stand more than 0.5 m above
+    it (the rule the check points' "vegetated" follows).
+    """
     import pyproj
 
     from stages.io import NODATA, write_cog
@@ -729,8 +737,15 @@ def _write_truth_terrain(path: Path, world, frame: Earth, crs, extent, resolutio
     xs = x0 + (np.arange(nx) + 0.5) * resolution
     ys = y1 - (np.arange(ny) + 0.5) * resolution
     X, Y = np.meshgrid(xs, ys)
-    h, _ = _ground_height(world, frame, crs, X.ravel(), Y.ravel())
+    h, local = _ground_height(world, frame, crs, X.ravel(), Y.ravel())
     z = np.where(np.isfinite(h), h, NODATA).reshape(ny, nx)
     from rasterio.transform import from_origin
 
-    write_cog(path, z.astype(np.float32), transform=from_origin(x0, y1, resolution, resolution), crs=crs)
+    transform = from_origin(x0, y1, resolution, resolution)
+    write_cog(folder / "terrain.tif", z.astype(np.float32), transform=transform, crs=crs)
+    e, n = local[:, 0], local[:, 1]
+    cover = world.class_at(e, n).astype(np.uint8)
+    trees = world.sample(world.canopy, e, n) > world.sample(world.solid, e, n) + 0.5
+    cover = np.where(trees, sc.VEGETATION, cover)
+    cover = np.where(np.isfinite(h), cover, 0).reshape(ny, nx).astype(np.uint8)
+    write_cog(folder / "land_cover.tif", cover, transform=transform, crs=crs, nodata=0, dtype="uint8", unit=None)

@@ -128,7 +128,7 @@ def test_accuracy_stage_reports_the_truth_raster(tmp_path):
 
 @pytest.mark.slow
 def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
-    """configs/flight.yaml sets truth_dtm: accuracy.json holds the figures of the DTM against truth/terrain.tif."""
+    """configs/flight.yaml sets truth_dtm and truth_land_cover: the DTM against truth/terrain.tif, all and by cover."""
     sets = [f"output={tmp_path / 'out'}", f"cache={tmp_path / 'cache'}"]
     args = ["run", str(ROOT / "configs" / "flight.yaml"), "--until", "accuracy", "-q"]
     assert main(args + [a for s in sets for a in ("--set", s)]) == 0
@@ -139,8 +139,17 @@ def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
             tmp_path / "out" / "dtm.tif", ROOT / "data_samples" / "flight_ldmrs" / "truth" / "terrain.tif"
         )
     )
-    assert acc["truth"] == {"file": "terrain.tif", "resampling": "bilinear", **direct}
+    by_cover = acc["truth"].pop("by_land_cover")
+    assert acc["truth"] == {
+        "file": "terrain.tif",
+        "resampling": "bilinear",
+        "land_cover_file": "land_cover.tif",
+        **direct,
+    }
     assert acc["truth"]["n"] > 80_000 and acc["truth"]["no_truth"] == 0
+    # the simulator's land cover (truth/land_cover.tif) splits every compared cell by what covers the ground
+    assert set(by_cover) == {"2", "5", "6", "9", "17"}
+    assert sum(v["n"] for v in by_cover.values()) == acc["truth"]["n"]
 
 
 def test_report_shows_the_truth_figures_apart_from_the_check_points():

@@ -877,10 +877,38 @@ def _truth_html(truth: dict | None) -> str:
         ("cells more than 5 m off (%)", 100 * truth["off_5m"]),
         ("largest error above / below the truth (m)", f"{truth['max_above']:+.3f} / {truth['max_below']:+.3f}"),
     ]
-    return (
+    out = (
         f"<h3>DTM against the true terrain ({html.escape(str(truth['file']))}, resampled {truth['resampling']} onto "
         f"the DTM's cells; DTM − truth)</h3>" + _table(rows)
     )
+    by_cover = truth.get("by_land_cover") or {}
+    if by_cover:
+        header = [
+            "land cover",
+            "cells",
+            "RMS (m)",
+            "mean (m)",
+            "> 1 m off (%)",
+            "> 5 m off (%)",
+            "max above / below (m)",
+        ]
+        table = [
+            [
+                f"{code} {v['name']}",
+                f"{v['n']:,}",
+                v["rmse"],
+                v["mean"],
+                100 * v["off_1m"],
+                100 * v["off_5m"],
+                f"{v['max_above']:+.3f} / {v['max_below']:+.3f}",
+            ]
+            for code, v in sorted(by_cover.items(), key=lambda kv: int(kv[0]))
+        ]
+        out += (
+            f"<p>By what covers the ground ({html.escape(str(truth.get('land_cover_file', '')))}, nearest cell):</p>"
+            + _grid(header, table)
+        )
+    return out
 
 
 def _enabled(config, name: str) -> bool:

@@ -152,6 +152,21 @@ def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
     assert sum(v["n"] for v in by_cover.values()) == acc["truth"]["n"]
 
 
+def test_report_splits_the_truth_figures_by_land_cover():
+    from stages.report import _accuracy_html
+
+    truth = {"file": "terrain.tif", "resampling": "bilinear", "n": 1000, "rmse": 0.7, "mean": -0.06}
+    truth |= {"off_1m": 0.046, "off_5m": 0.0033, "max_above": 10.4, "max_below": -14.4}
+    cover = {"n": 672, "rmse": 1.81, "mean": 1.15, "off_1m": 0.47, "off_5m": 0.018, "max_above": 9.07}
+    truth |= {
+        "land_cover_file": "land_cover.tif",
+        "by_land_cover": {"17": {"name": "bridge deck", **cover, "max_below": -2.7}},
+    }
+    page = _accuracy_html({"truth": truth}, None)
+    assert "By what covers the ground (land_cover.tif" in page
+    assert "17 bridge deck" in page and "<td>672</td>" in page and "<td>47</td>" in page and "+9.070 / -2.700" in page
+
+
 def test_report_shows_the_truth_figures_apart_from_the_check_points():
     from stages.report import _accuracy_html
 

@@ -918,7 +918,7 @@ def _enabled(config, name: str) -> bool:
 
 class Report(Stage):
     name = "report"
-    version = "5"  # 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
+    version = "6"  # 6: truth figures by land cover; 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
     Params = ReportParams
     description = "self-contained QC page (report.html) and acceptance (qc/acceptance.json)"
     inputs = ("dtm", "density", "points_classified")

@@ -56,7 +56,13 @@ class MountingParams(StrictModel):
     max_correlation: float = Field(
         0.95, gt=0, lt=1, description="of two unknowns correlated beyond this, the less certain one is held"
     )
-    rounds: int = Field(3, ge=1, description="correspondence searches (each followed by Gauss-Newton iterations)")
+    min_significance: float = Field(
+        3.0,
+        ge=0,
+        description="an estimate within this many of its sigmas of zero is reported but not applied (held at the "
+        "configured value, the others solved again); 0: apply every estimate",
+    )
+    rounds: int = Field(3, ge=2, description="correspondence searches (each followed by Gauss-Newton iterations)")
 
 
 class StripAdjustParams(StageParams):

@@ -274,7 +274,7 @@ def run(ctx, write_rasters) -> None:
     if len(strips) >= 2:
         cal = solve(geo.exact, geo.mounting, base, _link_finder(base, strips, p, control), unknowns,
                     rounds=mp.rounds, max_iterations=p.max_iterations, max_correlation=mp.max_correlation,
-                    log=progress)  # fmt: skip
+                    min_significance=mp.min_significance, log=progress)  # fmt: skip
     note = None
     if cal is None:
         note = f"{len(strips)} strip(s) without planar overlap: nothing to estimate, points passed on unchanged"
@@ -297,6 +297,8 @@ def run(ctx, write_rasters) -> None:
     ctx.metrics.update(
         model="mounting", note=note, strips=len(strips), pairs=len(pair_rows), datum=summary["datum"],
         boresight_correction_deg=[by[n]["correction"] for n in ("boresight_roll", "boresight_pitch", "boresight_yaw")],
+        boresight_estimate_deg=[by[n]["estimate"] for n in ("boresight_roll", "boresight_pitch", "boresight_yaw")],
+        not_significant=[u["name"] for u in summary["unknowns"] if u["not_applied_because"]],
         boresight_sigma_deg=[by[n]["sigma"] for n in ("boresight_roll", "boresight_pitch", "boresight_yaw")],
         lever_arm_correction_m=[by[n]["correction"] for n in ("lever_arm_x", "lever_arm_y", "lever_arm_z")],
         lever_arm_sigma_m=[by[n]["sigma"] for n in ("lever_arm_x", "lever_arm_y", "lever_arm_z")],
@@ -317,9 +319,10 @@ def run(ctx, write_rasters) -> None:
     if note:
         ctx.log.info("mounting calibration skipped: %s", note)
     else:
-        est = ", ".join(f"{u['name']} {u['correction']:+.5f} +- {u['sigma']:.5f} {u['unit']}" for u in summary["unknowns"]
-                        if u["estimated"] and not u["name"].startswith("strip_"))  # fmt: skip
-        ctx.log.info("mounting corrections: %s", est)
+        est = ", ".join(f"{u['name']} {u['estimate']:+.5f} +- {u['sigma']:.5f} {u['unit']}"
+                        + ("" if u["applied"] else " (not significant: not applied)")
+                        for u in summary["unknowns"] if u["estimated"] and not u["name"].startswith("strip_"))  # fmt: skip
+        ctx.log.info("mounting estimates: %s", est)
         ctx.log.info("%d strips, %d pairs: overlap RMS %.4f m -> %.4f m; largest point move %.4f m", len(strips),
                      len(pair_rows), rms_b or 0.0, rms_a or 0.0, moved)  # fmt: skip
         if held:
@@ -342,15 +345,18 @@ def _summary(cal, unknowns, theta, geo, note, pmeta):
     rows = []
     for j, name in enumerate(unknowns.names):
         angle = j < 3
-        scale = 180 / np.pi if angle else 1.0
+        scale, digits = (180 / np.pi, 7) if angle else (1.0, 5)
         estimated = cal is not None and j in cal.free
         why = cal.held.get(j) if cal is not None else None
         key = "strip_offset" if name.startswith("strip_") else name
         rows.append({
             "name": name, "unit": "deg" if angle else "m",
-            "correction": round(float(theta[j] * scale), 7 if angle else 5),
-            "sigma": round(float(cal.sigma[j] * scale), 7 if angle else 5) if estimated else None,
-            "estimated": bool(estimated), "held_because": why, "determined_by": ADVICE[key] if why else None,
+            "correction": round(float(theta[j] * scale), digits),
+            "estimate": round(float(cal.estimate[j] * scale), digits) if estimated else None,
+            "sigma": round(float(cal.sigma[j] * scale), digits) if estimated else None,
+            "estimated": bool(estimated), "applied": bool(estimated and j not in cal.not_significant),
+            "not_applied_because": cal.not_significant.get(j) if estimated else None,
+            "held_because": why, "determined_by": ADVICE[key] if why else None,
         })  # fmt: skip
     new = corrected_mounting(geo.mounting, theta)
     summary = {

@@ -173,8 +173,9 @@ class Links:
         return len(self.origin)
 
 
-def _fit_quadratics(q: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
-    """Least-squares z = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2 per group (coef (k, 6))."""
+def _fit_quadratics(q: np.ndarray, group: np.ndarray, k: int, normals: bool = False):
+    """Least-squares z = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2 per group (coef (k, 6)); with
+    *normals*, also the regularised normal matrices (k, 6, 6)."""
     x, y, z = q[:, 0], q[:, 1], q[:, 2]
     basis = (np.ones_like(x), x, y, x * x, x * y, y * y)
     ata = np.empty((k, 6, 6))
@@ -183,8 +184,9 @@ def _fit_quadratics(q: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
         atb[:, i] = np.bincount(group, basis[i] * z, k)
         for j in range(i, 6):
             ata[:, i, j] = ata[:, j, i] = np.bincount(group, basis[i] * basis[j], k)
-    ridge = 1e-9 * np.maximum(np.einsum("kii->k", ata), 1.0)[:, None, None] * np.eye(6)
-    return np.linalg.solve(ata + ridge, atb[:, :, None])[:, :, 0]
+    ata += 1e-9 * np.maximum(np.einsum("kii->k", ata), 1.0)[:, None, None] * np.eye(6)
+    coef = np.linalg.solve(ata, atb[:, :, None])[:, :, 0]
+    return (coef, ata) if normals else coef
 
 
 def distances(links: Links, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -200,6 +202,23 @@ def distances(links: Links, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     gx = c[:, 1] + 2 * c[:, 3] * x + c[:, 4] * y
     gy = c[:, 2] + c[:, 4] * x + 2 * c[:, 5] * y
     return (q[:, 2] - height) / np.sqrt(1.0 + gx * gx + gy * gy), g
+
+
+def link_weights(links: Links, xyz: np.ndarray) -> np.ndarray:
+    """Inverse variance of each link's residual, in units of one point's variance: 1 / (1/n + h), with n
+    the points observed (a control point counts as *weight* points) and h the variance factor of the
+    fitted surface at their mean position (x_mean' (A'A)^-1 x_mean): a surface fitted to few points
+    is uncertain, and its uncertainty enters the mean distance undiminished."""
+    k = links.size
+    _, ata = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k, normals=True)
+    b = np.vstack((xyz[links.obs], links.fixed))
+    g = np.concatenate((links.obs_group, links.fixed_group))
+    q = b - links.origin[g]
+    x, y = q[:, 0], q[:, 1]
+    cnt = np.maximum(np.bincount(g, minlength=k), 1)
+    mean = np.column_stack([np.bincount(g, v, k) / cnt for v in (np.ones_like(x), x, y, x * x, x * y, y * y)])
+    h = np.einsum("ki,ki->k", mean, np.linalg.solve(ata, mean[:, :, None])[:, :, 0])
+    return 1.0 / (1.0 / links.weight + h)
 
 
 def residuals(links: Links, xyz: np.ndarray) -> np.ndarray:
@@ -233,7 +252,8 @@ def jacobian(traj, mounting, sample, links, theta, unknowns, cols) -> np.ndarray
 
 
 def robust_weights(r: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, float]:
-    """Huber weights (k = 2) of residuals that are means of *base* points, and the robust per-point scale."""
+    """Huber weights (k = 2) of residuals whose variances are sigma^2 / *base*, and the robust scale sigma
+    (of one point)."""
     z = r * np.sqrt(base)
     sigma = max(1.4826 * float(np.median(np.abs(z - np.median(z)))), 1e-4)
     return base * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12)), sigma
@@ -290,7 +310,8 @@ def _fmt(value: float, col: int, unknowns: Unknowns) -> str:
 
 @dataclass
 class Calibration:
-    """The estimated corrections (radians, metres), their sigmas and correlations, what was held and why."""
+    """The applied corrections (radians, metres), the estimates with their sigmas and correlations, what was
+    held and why."""
 
     theta: np.ndarray
     unknowns: Unknowns
@@ -302,74 +323,94 @@ class Calibration:
     iterations: int
     links: Links
     sample: Sample
+    estimate: np.ndarray  # (size,) the estimate of every determinable unknown, before the significance test
+    not_significant: dict[int, str]  # estimated but not applied (held at the configured value), and why
 
 
 def solve(traj: Trajectory, mounting: Mounting, sample: Sample, find_links, unknowns: Unknowns, *,
-          rounds: int = 3, max_iterations: int = 10, max_correlation: float = 0.95,
+          rounds: int = 3, max_iterations: int = 10, max_correlation: float = 0.95, min_significance: float = 3.0,
           log=None) -> Calibration | None:  # fmt: skip
     """Gauss-Newton over *rounds* correspondence searches (see the module notes).
 
     *find_links(xyz)* returns the :class:`Links` of the sample's points *xyz* (local ENU) and the sample
-    indices they use.  Returns None when there is no correspondence.
+    indices they use.  Returns None when there is no correspondence.  After the last round, an estimate
+    within *min_significance* of its sigmas of zero is not applied: the least significant is held at
+    its configured value and the others are solved again, until every applied one is significant
+    (0: apply every estimate).
     """
     theta = np.zeros(unknowns.size)
     free = list(unknowns.free)
     held: dict[int, str] = {}
-    cov = np.zeros((0, 0))
-    sigma = 0.0
-    total_it = 0
+    state = {"cov": np.zeros((0, 0)), "sigma": 0.0, "iterations": 0}
     links = sub = None
-    checked = False
+
+    def iterate(cols: list[int], prior_on: bool) -> None:
+        for _ in range(max_iterations):
+            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
+            r = residuals(links, xyz)
+            w, state["sigma"] = robust_weights(r, link_weights(links, xyz))
+            if not cols:
+                return
+            jac = jacobian(traj, mounting, sub, links, theta, unknowns, cols)
+            jw = jac * (w / state["sigma"] ** 2)[:, None]
+            # first round: a weak prior (1 unit: degree or metre) keeps what the flight cannot determine from
+            # wandering before the determinability check; afterwards the solution is the plain least squares
+            prior = 1.0 / np.where(np.asarray(cols) < 3, np.radians(1.0), 1.0) ** 2 if prior_on else np.zeros(len(cols))
+            normal = jac.T @ jw + np.diag(prior)
+            dx = np.linalg.solve(normal, -(jw.T @ r) - prior * theta[cols])
+            state["cov"] = np.linalg.inv(normal)
+            theta[cols] += dx
+            state["iterations"] += 1
+            if all(abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, cols, strict=True)):
+                return
+
     for rnd in range(max(rounds, 2)):
-        xyz = georeference_sample(traj, mounting, sample, theta, unknowns)
-        found = find_links(xyz)
+        found = find_links(georeference_sample(traj, mounting, sample, theta, unknowns))
         if found is None:
             if rnd == 0:
                 return None
             break
         links, used = found
         sub = sample.subset(used)
-        for _ in range(max_iterations):
-            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
-            r = residuals(links, xyz)
-            w, sigma = robust_weights(r, links.weight)
-            jac = jacobian(traj, mounting, sub, links, theta, unknowns, free)
-            if not free:
-                break
-            jw = jac * (w / sigma**2)[:, None]
-            normal = jac.T @ jw
-            # first round: a weak prior (1 unit: degree or metre) keeps what the flight cannot determine from
-            # wandering before the determinability check; afterwards the solution is the plain least squares
-            prior = np.zeros(len(free)) if checked else 1.0 / np.where(np.asarray(free) < 3, np.radians(1.0), 1.0) ** 2
-            dx = np.linalg.solve(normal + np.diag(prior), -(jw.T @ r) - prior * theta[free])
-            cov = np.linalg.inv(normal + np.diag(prior))
-            theta[free] += dx
-            total_it += 1
-            small = [abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, free, strict=True)]
-            if all(small):
-                break
+        iterate(free, prior_on=rnd == 0)
         if log is not None:
-            log(rnd, theta, sigma, links.size)
-        if not checked:
+            log(rnd, theta, state["sigma"], links.size)
+        if rnd == 0:
             # determinability at the first round's solution, with its residual scale (not that of the
             # uncorrected flight, which the errors themselves inflate); the held unknowns go back to zero
             xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
-            _, sigma = robust_weights(residuals(links, xyz), links.weight)
+            base = link_weights(links, xyz)
+            _, sigma = robust_weights(residuals(links, xyz), base)
             jac = jacobian(traj, mounting, sub, links, theta, unknowns, free)
-            # the geometry's weights (points per correspondence), not the robust ones: what the flight can
-            # determine does not depend on how well the first round fitted
-            held = determinability(jac, links.weight, sigma, unknowns, free, max_correlation)
+            # the geometry's weights, not the robust ones: what the flight can determine does not depend on
+            # how well the first round fitted
+            held = determinability(jac, base, sigma, unknowns, free, max_correlation)
             free = [c for c in free if c not in held]
             theta[list(held)] = 0.0
-            checked = True
-    # covariance at the solution (the last step is below the tolerance)
+    estimate = theta.copy()
     sd_full = np.full(unknowns.size, np.nan)
     corr = np.zeros((len(free), len(free)))
+    cov = state["cov"]
     if free and cov.size:
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
         sd_full[free] = sd
         corr = cov / np.outer(sd, sd)
-    return Calibration(theta, unknowns, free, sd_full, corr, held, sigma, total_it, links, sub)
+    # significance: backward elimination of the estimates that do not differ from zero
+    applied = list(free)
+    not_significant: dict[int, str] = {}
+    while min_significance > 0 and applied and state["cov"].size:
+        sd = np.sqrt(np.clip(np.diag(state["cov"]), 0, None))
+        ratio = np.abs(theta[applied]) / np.maximum(sd, 1e-300)
+        k = int(np.argmin(ratio))
+        if ratio[k] >= min_significance:
+            break
+        c = applied.pop(k)
+        not_significant[c] = f"estimate within {min_significance:g} sigma of the configured value"
+        theta[c] = 0.0
+        if applied:
+            iterate(applied, prior_on=False)
+    return Calibration(theta, unknowns, free, sd_full, corr, held, state["sigma"], state["iterations"], links, sub,
+                       estimate, not_significant)  # fmt: skip
 
 
 def corrected_mounting(mounting: Mounting, theta: np.ndarray) -> Mounting:

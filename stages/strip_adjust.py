@@ -119,7 +119,7 @@ class StripAdjust(Stage):
     name = "strip_adjust"
     version = "8"  # 8: difference maps over the overlap patches, not published when there is no overlap
     Params = StripAdjustParams
-    description = "joint point-to-plane ICP: one rigid correction per strip"
+    description = "joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration"
     inputs: ClassVar = ("points_georef",)
     outputs: ClassVar = {
         "points_adjusted": "points.las",

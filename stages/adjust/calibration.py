@@ -281,7 +281,8 @@ def run(ctx, write_rasters) -> None:
         theta = np.zeros(unknowns.size)
     else:
         theta = cal.theta
-    summary, pair_rows, before, after = _summary(cal, unknowns, theta, geo, note, pmeta)
+    summary, pair_rows, before, after = _summary(cal, unknowns, theta, geo, note, pmeta, p.cell)
+    summary["strips"] = _strip_rows(summary, unknowns, strips, np.bincount(sid, minlength=max(strips, default=0) + 1))
     if not pair_rows:
         from pipeline.runner import UNPUBLISHED
 
@@ -336,7 +337,21 @@ def _combined(values, weights):
     return float(np.sqrt(np.sum(w * v**2) / np.sum(w)))
 
 
-def _summary(cal, unknowns, theta, geo, note, pmeta):
+def _strip_rows(summary: dict, unknowns, strips: list[int], counts: np.ndarray) -> dict:
+    """Per strip, in the rigid model's layout (the report reads it): the strip's trajectory offset as its
+    translation (zero unless ``strip_offsets``), no rotation (the mounting turns it, see ``unknowns``)."""
+    by = {u["name"]: u for u in summary["unknowns"]}
+    rows = {}
+    for s in strips:
+        names = [f"strip_{s}_offset_{a}" for a in "enu"]
+        t = [by[n]["correction"] if n in by else 0.0 for n in names]
+        sd = [(by[n]["sigma"] or 0.0) if n in by else 0.0 for n in names]
+        rows[str(s)] = {"translation_m": t, "rotation_deg": [0.0, 0.0, 0.0], "sigma_translation_m": sd,
+                        "sigma_rotation_deg": [0.0, 0.0, 0.0], "points": int(counts[s])}  # fmt: skip
+    return rows
+
+
+def _summary(cal, unknowns, theta, geo, note, pmeta, cell):
     """strip_corrections.json for the mounting model, the per-pair rows, and the difference-map values."""
     from scipy.spatial.transform import Rotation
 
@@ -394,7 +409,8 @@ def _summary(cal, unknowns, theta, geo, note, pmeta):
         lk = (links.strips[:, 0] == a) & (links.strips[:, 1] == b)
         pts = lk[g]
         summary["pairs"].append({
-            "strips": [a, b], "patches": int(lk.sum()), "points": int(pts.sum()),
+            "strips": [a, b], "overlap_area_m2": round(float(lk.sum() * cell * cell), 1), "patches": int(lk.sum()),
+            "points": int(pts.sum()),
             "rms_before_m": round(float(np.sqrt(np.mean(d0[pts] ** 2))), 4),
             "rms_after_m": round(float(np.sqrt(np.mean(d1[pts] ** 2))), 4),
             "systematic_rms_before_m": round(float(np.sqrt(np.mean(m0[lk] ** 2))), 4),

@@ -71,7 +71,7 @@ class FlightConfig(StrictModel):
     second_altitude_m: float | None = Field(
         None,
         gt=0,
-        description="fly the middle line again, the other way, at this height: with the alternating lines and the "
+        description="fly the middle line again, there and back, at this height: with the alternating lines and the "
         "cross line, a calibration flight (docs/CALIBRATION.md); default: no such line",
     )
     bank_deg: float = Field(30.0, gt=0, lt=60, description="bank angle in turns (sets the turn radius)")

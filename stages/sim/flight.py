@@ -35,7 +35,7 @@ def plan_lines(
     """Parallel lines (alternating direction) centred on *centre*, and a cross line through the middle.
 
     *one_way*: every parallel line is flown in the first line's direction (a turn back between lines).
-    *second_altitude*: the middle line is flown once more, in the opposite direction, at this height
+    *second_altitude*: the middle line is flown again, there and back, at this height
     (a calibration flight: opposite directions, a cross line and two heights separate the boresight
     angles and the lever arm; docs/CALIBRATION.md).
     """
@@ -59,6 +59,7 @@ def plan_lines(
         mid = lines[n_lines // 2]
         end = mid.start + mid.length * np.array([np.sin(mid.heading), np.cos(mid.heading)])
         lines.append(Line(end, mid.heading + np.pi, mid.length, second_altitude))
+        lines.append(Line(mid.start, mid.heading, mid.length, second_altitude))
     return lines
 
 

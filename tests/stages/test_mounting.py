@@ -87,7 +87,7 @@ def test_calibration_flight_recovers_the_injected_boresight(tmp_path):
 @pytest.fixture(scope="module")
 def error_free(tmp_path_factory):
     root = tmp_path_factory.mktemp("mount_free")
-    sim = _flight(root)
+    sim = _flight(root, pulse_rate=6_000)
     return _run(root, sim, "model: mounting, cell: 6")
 
 

@@ -323,7 +323,7 @@ def run(ctx, write_rasters) -> None:
         est = ", ".join(f"{u['name']} {u['estimate']:+.5f} +- {u['sigma']:.5f} {u['unit']}"
                         + ("" if u["applied"] else " (not significant: not applied)")
                         for u in summary["unknowns"] if u["estimated"] and not u["name"].startswith("strip_"))  # fmt: skip
-        ctx.log.info("mounting estimates: %s", est)
+        ctx.log.info("mounting estimates: %s", est or "none (every unknown held)")
         ctx.log.info("%d strips, %d pairs: overlap RMS %.4f m -> %.4f m; largest point move %.4f m", len(strips),
                      len(pair_rows), rms_b or 0.0, rms_a or 0.0, moved)  # fmt: skip
         if held:

@@ -46,19 +46,18 @@ def pulse_index(pulse_time: np.ndarray, las_time: np.ndarray) -> np.ndarray:
 
 
 def _read_points(path):
-    """gps_time, strip, number of returns and coordinates (CRS units) of every point."""
+    """gps_time, strip and whether it is a single return, of every point (11 bytes a point)."""
     import laspy
 
-    parts = {k: [] for k in ("t", "sid", "nret", "xyz")}
+    parts = {k: [] for k in ("t", "sid", "single")}
     with laspy.open(str(path)) as reader:
         for chunk in reader.chunk_iterator(1_000_000):
             parts["t"].append(np.asarray(chunk.gps_time, dtype=np.float64))
-            parts["sid"].append(np.asarray(chunk.point_source_id).astype(np.int64))
-            parts["nret"].append(np.asarray(chunk.number_of_returns).astype(np.int64))
-            parts["xyz"].append(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
+            parts["sid"].append(np.asarray(chunk.point_source_id).astype(np.uint16))
+            parts["single"].append(np.asarray(chunk.number_of_returns) <= 1)
     if not parts["t"]:
-        return np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-    return tuple(np.concatenate(parts[k]) for k in ("t", "sid", "nret", "xyz"))
+        return np.zeros(0), np.zeros(0, np.uint16), np.zeros(0, bool)
+    return tuple(np.concatenate(parts[k]) for k in ("t", "sid", "single"))
 
 
 class _Geometry:
@@ -226,18 +225,18 @@ def run(ctx, write_rasters) -> None:
     pulses, pmeta = read_columns(ctx.inputs["pulses"])
     geo = _Geometry(ctx, traj, tmeta, pulses, pmeta)
     info = cloud_info(src)
-    t_las, sid, nret, xyz_crs = _read_points(src)
+    t_las, sid, is_single = _read_points(src)
     idx = pulse_index(pulses["time"], t_las)
+    del t_las
+    from stages.adjust.mounting import georeference_sample
     from stages.georef.core import locate
 
-    t_pulse = np.asarray(pulses["time"], dtype=np.float64)[idx]
-    v_all = np.column_stack([np.asarray(pulses[k], dtype=np.float64)[idx] for k in ("x", "y", "z")])
-    i_all, f_all, _ = locate(geo.exact, t_pulse, float("inf"))
     # the estimation sample: single returns of strips, on a lattice of cells above max_points
-    from stages.adjust.mounting import georeference_sample
-
-    single = np.flatnonzero((nret <= 1) & (sid > 0))
-    base = Sample(i_all[single], f_all[single], v_all[single], sid[single])
+    single = np.flatnonzero(is_single & (sid > 0))
+    ids = idx[single]
+    i_s, f_s, _ = locate(geo.exact, np.asarray(pulses["time"], dtype=np.float64)[ids], float("inf"))
+    v_s = np.column_stack([np.asarray(pulses[k], dtype=np.float64)[ids] for k in ("x", "y", "z")])
+    base = Sample(i_s, f_s, v_s, sid[single].astype(np.int64))
     unknowns0 = make_unknowns(lever_arm=False, range_offset=False, offset_strips=[], reference=None,
                               limits=(1.0, 1.0, 1.0, 1.0))  # fmt: skip
     local = georeference_sample(geo.exact, geo.mounting, base, np.zeros(unknowns0.size), unknowns0)
@@ -247,6 +246,7 @@ def run(ctx, write_rasters) -> None:
         lattice = np.flatnonzero((ix % step == 0) & (iy % step == 0))
         base = base.subset(lattice)
         ctx.log.info("estimation on every %d-th cell in x and y: %d single returns", step, len(lattice))
+    del i_s, f_s, v_s, ids
     counts = np.bincount(base.strip, minlength=1)
     strips = [int(s) for s in np.flatnonzero(counts) if s > 0 and counts[s] >= p.min_points]
     control = None
@@ -287,7 +287,7 @@ def run(ctx, write_rasters) -> None:
         from pipeline.runner import UNPUBLISHED
 
         ctx.metrics[UNPUBLISHED] = ["strip_difference_before", "strip_difference_after", "strip_difference_png"]
-    moved = _write(ctx, src, ctx.outputs["points_adjusted"], geo, theta, unknowns, idx, xyz_crs, info.units)
+    moved = _write(ctx, src, ctx.outputs["points_adjusted"], geo, theta, unknowns, idx, pulses, info.units)
     summary["largest_point_move_m"] = round(moved, 5)
     ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
     write_rasters(ctx, info.extent, before, after, p.difference_resolution, info.crs, info.units)
@@ -421,7 +421,7 @@ def _summary(cal, unknowns, theta, geo, note, pmeta, cell):
     return summary, summary["pairs"], before, after
 
 
-def _write(ctx, src, dst, geo, theta, unknowns, idx, xyz_old, units) -> float:
+def _write(ctx, src, dst, geo, theta, unknowns, idx, pulses, units) -> float:
     """Copy *src* to *dst* with every point georeferenced again under *theta*; the largest move (m)."""
     import laspy
 
@@ -431,10 +431,6 @@ def _write(ctx, src, dst, geo, theta, unknowns, idx, xyz_old, units) -> float:
     table = np.zeros((65536, 3))
     for k, s in enumerate(unknowns.offset_strips):
         table[s] = theta[7 + 3 * k : 10 + 3 * k]
-    pulses_t, pulses_v = None, None
-    from stages.io import read_columns
-
-    pulses, _ = read_columns(ctx.inputs["pulses"])
     pulses_t = pulses["time"]
     pulses_v = [pulses[k] for k in ("x", "y", "z")]
     largest = 0.0
@@ -452,7 +448,7 @@ def _write(ctx, src, dst, geo, theta, unknowns, idx, xyz_old, units) -> float:
                     e, nn, u = georeference_local(geo.output, v[:, 0], v[:, 1], v[:, 2], new, i, f)
                     off = table[np.asarray(chunk.point_source_id).astype(np.int64)]
                     x, y, z = geo.to_map(e + off[:, 0], nn + off[:, 1], u + off[:, 2])
-                    old = xyz_old[start : start + n]
+                    old = np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)))
                     moved = units.to_metres(np.column_stack((x, y, z))) - units.to_metres(old)
                     largest = max(largest, float(np.max(np.linalg.norm(moved, axis=1))))
                     chunk.x, chunk.y, chunk.z = x, y, z

@@ -23,11 +23,12 @@ BORESIGHT = (0.05, -0.08, 0.15)  # injected roll, pitch, yaw error, degrees
 LEVER = (0.03, -0.04, 0.0)  # injected lever-arm error, metres (5 cm)
 
 
-def _flight(root: Path, *, boresight=(0.0, 0.0, 0.0), lever=(0.0, 0.0, 0.0), pulse_rate=10_000, **flight) -> Path:
+def _flight(root: Path, *, boresight=(0.0, 0.0, 0.0), lever=(0.0, 0.0, 0.0), pulse_rate=10_000, checkpoints=0,
+            **flight) -> Path:  # fmt: skip
     plan = {"altitude_m": 300, "speed_ms": 40, "lines": 2, "sidelap": 0.5, "line_length_m": 300,
             "cross_line": True, "bank_deg": 45, "lead_in_m": 50, "second_altitude_m": 150, **flight}  # fmt: skip
     simulate(SimulateConfig(
-        output=root / "sim", seed=5, formats=["lmsq_sbet"], checkpoints=0,
+        output=root / "sim", seed=5, formats=["lmsq_sbet"], checkpoints=checkpoints,
         scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": pulse_rate, "scan_rate_hz": 40},
         navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
         flight=plan, faults={"boresight_error_deg": boresight, "lever_arm_error_m": lever},
@@ -132,3 +133,15 @@ def test_mounting_model_with_las_input_is_a_usage_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "stages.strip_adjust.model: mounting needs a raw flight" in err and "model: rigid" in err
     assert "Traceback" not in err
+
+
+def test_ground_control_determines_the_vertical_lever_arm(tmp_path):
+    # a 5 cm vertical lever-arm error lifts every strip alike: only ground control sees it.  The control
+    # points are the simulator's check points in the open (true terrain, the output CRS, ellipsoidal)
+    sim = _flight(tmp_path, lever=(0.0, 0.0, 0.05), pulse_rate=6_000, checkpoints=40)
+    lines = (sim / "checkpoints.csv").read_text().splitlines()
+    control = tmp_path / "control.csv"
+    control.write_text("\n".join(lines[:2] + [row for row in lines[2:] if row.endswith(",open")]) + "\n")
+    _, corr = _run(tmp_path, sim, f"model: mounting, cell: 6, control_points: {control}, mounting: {{lever_arm: true}}")
+    z = _unknowns(corr)["lever_arm_z"]
+    assert z["applied"] and abs(z["estimate"] - 0.05) <= 3 * z["sigma"] and z["sigma"] < 0.01, z

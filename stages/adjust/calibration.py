@@ -281,7 +281,13 @@ def run(ctx, write_rasters) -> None:
         theta = np.zeros(unknowns.size)
     else:
         theta = cal.theta
-    summary, pair_rows, before, after = _summary(cal, unknowns, theta, geo, note, pmeta, p.cell)
+    if not unknowns.offset_strips:
+        datum = "the trajectory (no strip offsets)"
+    elif control is not None:
+        datum = "control points"
+    else:
+        datum = f"strip {reference} (its offsets held)"
+    summary, pair_rows, before, after = _summary(cal, unknowns, theta, geo, note, pmeta, p.cell, datum)
     summary["strips"] = _strip_rows(summary, unknowns, strips, np.bincount(sid, minlength=max(strips, default=0) + 1))
     if not pair_rows:
         from pipeline.runner import UNPUBLISHED
@@ -351,7 +357,7 @@ def _strip_rows(summary: dict, unknowns, strips: list[int], counts: np.ndarray) 
     return rows
 
 
-def _summary(cal, unknowns, theta, geo, note, pmeta, cell):
+def _summary(cal, unknowns, theta, geo, note, pmeta, cell, datum):
     """strip_corrections.json for the mounting model, the per-pair rows, and the difference-map values."""
     from scipy.spatial.transform import Rotation
 
@@ -376,7 +382,7 @@ def _summary(cal, unknowns, theta, geo, note, pmeta, cell):
     new = corrected_mounting(geo.mounting, theta)
     summary = {
         "model": "mounting",
-        "datum": None if note else "the trajectory (per-strip offsets: see unknowns)",
+        "datum": None if note else datum,
         "note": note,
         "unknowns": rows,
         "correlation": {"names": [unknowns.names[j] for j in cal.free] if cal else [],

@@ -14,6 +14,13 @@ LAStools' lasoverlap), and ``strip_difference.png`` (before | after).
 
 A survey with one strip, or strips that do not overlap, passes through
 unchanged with a note in the log and the metrics.
+
+``model: mounting`` (raw flights only): instead of a correction per strip,
+the system calibration itself (boresight angles, optionally the lever arm,
+a range offset and per-strip trajectory offsets) is estimated from the
+overlaps and every pulse is georeferenced again with it
+(:mod:`stages.adjust.calibration`, :mod:`stages.adjust.mounting`,
+docs/CALIBRATION.md).
 """
 
 from __future__ import annotations
@@ -24,12 +31,48 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from pipeline.config import InputFile
-from pipeline.stage import Stage, StageParams
+from pipeline.config import InputFile, StrictModel
+from pipeline.stage import Stage, StageIO, StageParams
 from stages.glossary import cell_size
 
 
+class MountingParams(StrictModel):
+    """What ``model: mounting`` estimates besides the boresight angles, and when an unknown counts as determined."""
+
+    lever_arm: bool = Field(
+        False, description="estimate the lever arm (x, y, z) too; default: held at the configured (surveyed) values"
+    )
+    range_offset: bool = Field(False, description="estimate a constant range offset too")
+    strip_offsets: bool = Field(
+        False,
+        description="estimate a 3-D trajectory offset per strip too (datum: reference_strip, else the strip with "
+        "most single returns; none with control_points)",
+    )
+    max_sigma_boresight_deg: float = Field(
+        0.005, gt=0, description="a boresight angle less certain than this (1-sigma, degrees) is held, not estimated"
+    )
+    max_sigma_lever_arm_m: float = Field(0.02, gt=0, description="likewise for a lever-arm component (1-sigma, metres)")
+    max_sigma_range_offset_m: float = Field(0.02, gt=0, description="likewise for the range offset (1-sigma, metres)")
+    max_correlation: float = Field(
+        0.95, gt=0, lt=1, description="of two unknowns correlated beyond this, the less certain one is held"
+    )
+    min_significance: float = Field(
+        3.0,
+        ge=0,
+        description="an estimate within this many of its sigmas of zero is reported but not applied (held at the "
+        "configured value, the others solved again); 0: apply every estimate",
+    )
+    rounds: int = Field(3, ge=2, description="correspondence searches (each followed by Gauss-Newton iterations)")
+
+
 class StripAdjustParams(StageParams):
+    model: Literal["rigid", "mounting"] = Field(
+        "rigid",
+        description="rigid: one rigid correction per strip (any input); mounting: the boresight (and optionally lever "
+        "arm, range offset, strip offsets) estimated from the overlaps and the pulses georeferenced again (raw "
+        "flights only; docs/CALIBRATION.md)",
+    )
+    mounting: MountingParams = Field(default_factory=MountingParams, description="model: mounting settings")
     cell: float = cell_size(4.0)
     min_points: int = Field(8, ge=4, description="fewest single returns of one strip in a cell for a plane")
     max_plane_rms: float = Field(
@@ -76,7 +119,7 @@ class StripAdjust(Stage):
     name = "strip_adjust"
     version = "8"  # 8: difference maps over the overlap patches, not published when there is no overlap
     Params = StripAdjustParams
-    description = "joint point-to-plane ICP: one rigid correction per strip"
+    description = "joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration"
     inputs: ClassVar = ("points_georef",)
     outputs: ClassVar = {
         "points_adjusted": "points.las",
@@ -96,11 +139,28 @@ class StripAdjust(Stage):
     def external_files(self, params, config):
         return [params.control_points] if params.control_points is not None else []
 
+    def is_enabled(self, params, config) -> bool:
+        from stages.adjust.calibration import check_model
+
+        check_model(params, config)
+        return super().is_enabled(params, config)
+
+    def declare(self, params, config) -> StageIO:
+        io = super().declare(params, config)
+        if params.model == "mounting" and config.input.format != "las":
+            return StageIO((*io.inputs, "trajectory", "pulses"), io.outputs, io.products)
+        return io
+
     def run(self, ctx) -> None:
         from stages.adjust.icp import adjust, match, planar_patches
         from stages.tiles import cloud_info
 
         p = ctx.params
+        if p.model == "mounting":
+            from stages.adjust.calibration import run
+
+            run(ctx, _difference_rasters)
+            return
         src = ctx.inputs["points_georef"]
         info = cloud_info(src)
         extent, units, total, crs = info.extent, info.units, info.count, info.crs

@@ -65,6 +65,15 @@ class FlightConfig(StrictModel):
     line_length_m: float = Field(600.0, gt=0, description="length of each parallel line, metres")
     heading_deg: float = Field(0.0, description="direction of the first line, degrees clockwise from north")
     cross_line: bool = Field(True, description="add a line across the others")
+    one_way: bool = Field(
+        False, description="fly every parallel line in the first line's direction (default: alternating)"
+    )
+    second_altitude_m: float | None = Field(
+        None,
+        gt=0,
+        description="fly the middle line again, there and back, at this height: with the alternating lines and the "
+        "cross line, a calibration flight (docs/CALIBRATION.md); default: no such line",
+    )
     bank_deg: float = Field(30.0, gt=0, lt=60, description="bank angle in turns (sets the turn radius)")
     lead_in_m: float = Field(50.0, ge=0, description="straight flight before and after each line, metres")
 

@@ -25,12 +25,20 @@ class Line:
     start: np.ndarray  # (e, n) local metres
     heading: float  # radians, clockwise from north
     length: float
+    altitude: float | None = None  # flying height of this line (None: the flight's altitude)
 
 
 def plan_lines(
-    centre: tuple[float, float], n_lines: int, spacing: float, length: float, heading_deg: float, cross: bool
-) -> list[Line]:
-    """Parallel lines (alternating direction) centred on *centre*, and a cross line through the middle."""
+    centre: tuple[float, float], n_lines: int, spacing: float, length: float, heading_deg: float, cross: bool,
+    *, one_way: bool = False, second_altitude: float | None = None,
+) -> list[Line]:  # fmt: skip
+    """Parallel lines (alternating direction) centred on *centre*, and a cross line through the middle.
+
+    *one_way*: every parallel line is flown in the first line's direction (a turn back between lines).
+    *second_altitude*: the middle line is flown again, there and back, at this height
+    (a calibration flight: opposite directions, a cross line and two heights separate the boresight
+    angles and the lever arm; docs/CALIBRATION.md).
+    """
     psi = np.radians(heading_deg)
     along = np.array([np.sin(psi), np.cos(psi)])
     across = np.array([np.cos(psi), -np.sin(psi)])
@@ -39,7 +47,7 @@ def plan_lines(
     for k in range(n_lines):
         off = (k - (n_lines - 1) / 2) * spacing
         mid = c + off * across
-        if k % 2 == 0:
+        if k % 2 == 0 or one_way:
             lines.append(Line(mid - along * length / 2, psi, length))
         else:
             lines.append(Line(mid + along * length / 2, psi + np.pi, length))
@@ -47,6 +55,11 @@ def plan_lines(
         width = (n_lines - 1) * spacing + spacing
         cross_len = max(width, length / 2)
         lines.append(Line(c - across * cross_len / 2, psi + np.pi / 2, cross_len))
+    if second_altitude is not None:
+        mid = lines[n_lines // 2]
+        end = mid.start + mid.length * np.array([np.sin(mid.heading), np.cos(mid.heading)])
+        lines.append(Line(end, mid.heading + np.pi, mid.length, second_altitude))
+        lines.append(Line(mid.start, mid.heading, mid.length, second_altitude))
     return lines
 
 
@@ -114,7 +127,8 @@ def fly(
     smooth_s: float = 3.0,
     seed: int = 0,
 ) -> Flight:
-    """Fly *lines* in order at constant *altitude* (local up) and *speed*, with turns between them."""
+    """Fly *lines* in order at *altitude* (local up; a line's own ``altitude`` when set) and *speed*, with
+    turns between them; a change of height is flown as a steady climb or descent between the lines."""
     radius = speed**2 / (G * np.tan(np.radians(bank_deg)))
     # segments: (duration, heading rate, line index)
     segs: list[tuple[float, float, int]] = []
@@ -133,6 +147,7 @@ def fly(
         segs += [(lead_in / speed, 0.0, 0), (line.length / speed, 0.0, k), (lead_in / speed, 0.0, 0)]
         p, psi = line.start + line.length * d + lead_in * d, line.heading
     segs.append((run_in, 0.0, 0))
+    heights = [altitude if line.altitude is None else line.altitude for line in lines]
     total = sum(s[0] for s in segs)
     t = np.arange(0.0, total + DT / 2, DT)
     omega = np.zeros_like(t)
@@ -149,7 +164,16 @@ def fly(
     ve, vn = speed * np.sin(heading), speed * np.cos(heading)
     e = start_p[0] + np.concatenate(([0.0], np.cumsum((ve[1:] + ve[:-1]) / 2 * DT)))
     n = start_p[1] + np.concatenate(([0.0], np.cumsum((vn[1:] + vn[:-1]) / 2 * DT)))
-    pos = np.column_stack((e, n, np.full_like(e, altitude)))
+    up = np.full_like(e, altitude)
+    if any(hh != altitude for hh in heights):
+        # level from the start of each line's lead-in to the end of its lead-out, climbing in between
+        knots_t, knots_h = [], []
+        for k, hh in enumerate(heights, 1):
+            on = np.flatnonzero(label == k)
+            knots_t += [t[on[0]] - lead_in / speed, t[on[-1]] + lead_in / speed]
+            knots_h += [hh, hh]
+        up = np.interp(t, knots_t, knots_h)
+    pos = np.column_stack((e, n, up))
     rng = np.random.default_rng(seed)
     ph = rng.uniform(0, 2 * np.pi, 3)
     roll = np.arctan(speed * omega_s / G) + np.radians(0.6) * np.sin(2 * np.pi * 0.21 * t + ph[0])

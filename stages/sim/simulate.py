@@ -129,7 +129,8 @@ def simulate(cfg, log=None) -> SimResult:
     f = cfg.flight
     swath = 2 * f.altitude_m * np.tan(np.radians(scanner.half_angle_deg))
     spacing = swath * (1 - f.sidelap)
-    lines = plan_lines((0.0, 0.0), f.lines, spacing, f.line_length_m, f.heading_deg, f.cross_line)
+    lines = plan_lines((0.0, 0.0), f.lines, spacing, f.line_length_m, f.heading_deg, f.cross_line,
+                       one_way=f.one_way, second_altitude=f.second_altitude_m)  # fmt: skip
     flight = fly(lines, altitude=f.altitude_m, speed=f.speed_ms, bank_deg=f.bank_deg, lead_in=f.lead_in_m,
                  seed=cfg.seed)  # fmt: skip
     # RIEGL systems record on the lines (and lead-ins); the seed-0 LD-MRS logs the whole flight

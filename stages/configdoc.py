@@ -116,6 +116,7 @@ writes one survey, or several under `surveys: {name: {...}}` (as
 | `las/points.laz` | format 3.D: the echoes georeferenced from the recorded navigation |
 | `truth/points.laz` | every echo at its true position: `gps_time`, return number/count, `scanner_channel`, `scan_angle`, `point_source_id` = flight line (0 off the lines), class (2 ground, 5 vegetation, 6 building, 7 noise, 9 water, 17 bridge), extra byte `fault` (0 none, 1 invalid scan, 2 bad GPS, 3 clutter, 4 dirt, 5 after a missed PPS (dated by the µs counter: kept), 6 invalid quality, 7 dust) |
 | `truth/terrain.tif` | the bare earth in the output CRS (ellipsoidal heights; water surface over water) |
+| `truth/land_cover.tif` | what covers the bare earth on the same cells (uint8 ASPRS codes: 2 open ground, 5 tree crowns more than 0.5 m above the solid surface, 6 building, 9 water, 17 bridge deck; 0 outside the scene); `stages.accuracy.truth_land_cover` splits the DTM-against-truth figures by it |
 | `truth/faults.json` | every injected fault with its count as written, systematic errors, per-line GNSS biases |
 | `checkpoints.csv` | check points on the true terrain (open and under trees; none within 5 m of structures, water, breaklines or slopes over 20 %) |
 

@@ -528,7 +528,45 @@ def _strip_label(ids: np.ndarray) -> str:
     return f"{len(ids):,} (point_source_id {shown})"
 
 
+def _mounting_table(corrections: dict) -> str:
+    """The system calibration (``strip_adjust.model: mounting``): each unknown, its estimate, sigma and fate."""
+    rows = []
+    for u in corrections.get("unknowns", []):
+        if u["held_because"]:
+            fate = f"not determined ({u['held_because']}): held at the configured value; {u['determined_by']}"
+        elif not u["estimated"]:
+            fate = "not estimated (configuration)"
+        elif not u["applied"]:
+            fate = f"not applied ({u['not_applied_because']})"
+        else:
+            fate = "applied"
+        digits = 5 if u["unit"] == "deg" else 4
+        est = None if u["estimate"] is None else f"{u['estimate']:+.{digits}f}"
+        sd = None if u["sigma"] is None else f"{u['sigma']:.{digits}f}"
+        rows.append([u["name"], u["unit"], est, sd, f"{u['correction']:+.{digits}f}", fate])
+    header = ["unknown", "unit", "estimate", "1-σ", "correction applied", "status"]
+    mounting = corrections.get("mounting") or {}
+    lead = "<p>System calibration from the strip overlaps (<code>strip_adjust.model: mounting</code>)"
+    if mounting.get("estimated_boresight_deg"):
+        roll, pitch, yaw = mounting["estimated_boresight_deg"]
+        lead += f"; boresight to configure (input.boresight_deg): {roll:+.5f}, {pitch:+.5f}, {yaw:+.5f}°"
+    if corrections.get("residual_sigma_m") is not None:
+        lead += f"; residual σ of one point {corrections['residual_sigma_m']:.4f} m"
+    if corrections.get("largest_point_move_m") is not None:
+        lead += f"; largest point move {corrections['largest_point_move_m']:.4f} m"
+    return lead + ".</p>" + _grid(header, rows)
+
+
 def _strip_table(corrections: dict, cloud_strips: np.ndarray) -> str:
+    if corrections.get("model") == "mounting":
+        pairs = corrections.get("pairs") or []
+        pair_rows = [[f"{p['strips'][0]} – {p['strips'][1]}", p.get("overlap_area_m2"), p.get("patches"),
+                      p.get("points"), p.get("rms_before_m"), p.get("rms_after_m")] for p in pairs]  # fmt: skip
+        header = ["strips", "overlap (m²)", "patches", "points", "RMS before (m)", "RMS after (m)"]
+        note = corrections.get("note")
+        out = f"<p>{html.escape(note)}</p>" if note else ""
+        out += _mounting_table(corrections)
+        return out + ("<h3>Overlaps (planar patches)</h3>" + _grid(header, pair_rows) if pairs else "")
     datum = corrections.get("datum") or ""
     ref = int(datum.split()[1]) if datum.startswith("strip ") else None
     weak = {int(k) for k in corrections.get("not_determined", {})}
@@ -918,7 +956,7 @@ def _enabled(config, name: str) -> bool:
 
 class Report(Stage):
     name = "report"
-    version = "6"  # 6: truth figures by land cover; 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
+    version = "6"  # 6: truth figures by land cover, the mounting calibration; 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
     Params = ReportParams
     description = "self-contained QC page (report.html) and acceptance (qc/acceptance.json)"
     inputs = ("dtm", "density", "points_classified")

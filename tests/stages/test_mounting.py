@@ -121,6 +121,15 @@ def test_lines_flown_one_way_cannot_determine_pitch(tmp_path, capfd):
     # what the lines do determine is found: roll and yaw
     assert abs(u["boresight_roll"]["correction"] - BORESIGHT[0]) <= 0.005
     assert abs(u["boresight_yaw"]["correction"] - BORESIGHT[2]) <= 0.01
+    # the report's strip-adjustment section is the calibration: each unknown with its estimate and fate
+    from stages.report import _strip_table
+
+    page = _strip_table(corr, np.array([]))
+    assert "strip_adjust.model: mounting" in page
+    row = page.split("<td>boresight_pitch</td>")[1].split("</tr>")[0]
+    assert "not determined" in row and "opposite directions" in row
+    row = page.split("<td>boresight_roll</td>")[1].split("</tr>")[0]
+    assert f"{u['boresight_roll']['estimate']:+.5f}" in row and "applied" in row
 
 
 def test_mounting_model_with_las_input_is_a_usage_error(tmp_path, capsys):

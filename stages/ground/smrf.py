@@ -113,11 +113,20 @@ def smrf(
     Notes
     -----
     Steps of the paper: (1) minimum surface at ``c``, empty cells inpainted;
-    (2) low outliers: the progressive filter on the negated surface with
-    slope 5 and radius 1 cell; flagged cells are emptied; (3) the progressive
-    filter with radii 1..``w_max / c``, threshold ``s * r * c``; (4) object
-    cells emptied and re-inpainted: the provisional DEM; (5) a point is ground
-    when ``|z - DEM| <= et + es * slope(DEM)`` at the point.
+    (2) low outliers, on a separate fork: the progressive filter on the
+    negated surface with slope 5 and radius 1 cell; (3) the progressive
+    filter with radii 1..``w_max / c``, threshold ``s * r * c``, on the
+    surface of step 1 (low cells included); (4) object and low cells emptied
+    and re-inpainted: the provisional DEM; (5) a point is ground when
+    ``|z - DEM| <= et + es * slope(DEM)`` at the point.
+
+    The low cells leave the provisional DEM only, as the paper says ("the
+    resulting mask is used to flag low outlier cells as OBJ before the
+    inpainting of the provisional DEM") and as PDAL does.  In a dense forest
+    most cells' lowest point is canopy, and a cell that holds a ground return
+    is then a pit more than 5 m deep: emptying it *before* the object filter
+    (as this function did until 2026-12-01) leaves a surface of canopy wider
+    than the window, which the filter keeps as ground (docs/GROUND.md).
 
     Departures: the opening uses an octagon instead of a disk, and the
     surface is padded by continuing its slopes so that uphill survey edges
@@ -141,15 +150,15 @@ def smrf(
         return np.zeros(0, dtype=bool)
     idx = index_points(xyz[:, :2], cell_size)
     zmin = min_grid(xyz[:, 2], idx)
-    has_points = ~np.isnan(zmin)
-    low = progressive_filter(-inpaint(zmin), cell_size=cell_size, slope=5.0, max_radius=1)
-    zmin[low & has_points] = np.nan
-    if np.isnan(zmin).all():
-        return np.zeros(len(xyz), dtype=bool)
+    surface = inpaint(zmin)
+    # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM.  Emptying them
+    # before the object filter (this code until 2026-12-01) removes the ground cells of a dense forest:
+    # a ground cell among cells whose lowest point is canopy is a "pit" of the minimum surface.
+    low = progressive_filter(-surface, cell_size=cell_size, slope=5.0, max_radius=1)
     max_radius = max(1, int(math.ceil(max_window_size / cell_size)))
-    objects = progressive_filter(inpaint(zmin), cell_size=cell_size, slope=slope, max_radius=max_radius)
+    objects = progressive_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius)
     provisional = zmin.copy()
-    provisional[objects] = np.nan
+    provisional[objects | low] = np.nan
     if np.isnan(provisional).all():
         return np.zeros(len(xyz), dtype=bool)
     dem = inpaint(provisional)

@@ -197,14 +197,13 @@ def smrf(
     if dem is None:
         return np.zeros(len(xyz), dtype=bool)
     tolerance = elevation_threshold + elevation_scalar * slope_grid(dem, cell_size)
-    with np.errstate(invalid="ignore"):  # empty cells (NaN) are not outliers
-        deep = low & (zmin < dem - tolerance)
+    deep = low & (zmin < dem - tolerance)  # empty cells (NaN) compare False: not outliers
     if deep.any():  # the low cells that are below the terrain, not below a canopy: out of the object filter too
         cleaned = zmin.copy()
         cleaned[deep] = np.nan
         objects = progressive_filter(inpaint(cleaned), cell_size=cell_size, slope=slope, max_radius=max_radius)
         dem = _provisional(zmin, objects | low)
-        if dem is None:  # pragma: no cover - the first pass kept a cell, the second keeps at least it
+        if dem is None:  # pragma: no cover - defensive: every cell an object or low
             return np.zeros(len(xyz), dtype=bool)
     slope_dem = slope_grid(dem, cell_size)
     ground = np.empty(len(xyz), dtype=bool)

@@ -216,7 +216,7 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "6"  # 6: SMRF low outliers as in the paper (canopy), second pass for pits; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
+    version = "6"  # 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)

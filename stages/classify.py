@@ -85,13 +85,16 @@ def reach(algorithm: StrictModel) -> float:
     SMRF: an opening of radius ``w_max`` reads ``2 w_max`` around a cell, and
     a gap it fills (a building, at most ``2 w_max`` wide by the parameter's
     definition) takes its values from cells that far again, so ``4 w_max``
-    plus two cells.  PMF: the largest square window, twice, plus two cells.
+    plus two cells for the provisional DEM; the second pass (low cells below
+    that DEM left out of the openings, :func:`stages.ground.smrf.smrf`)
+    opens and fills again around cells decided by it: ``8 w_max`` plus two
+    cells.  PMF: the largest square window, twice, plus two cells.
     CSF: the cloth is one global simulation; 50 m is a practical margin and
     tiled CSF results may differ from untiled ones within a few metres of
     tile edges (docs/ARCHITECTURE.md).
     """
     if algorithm.name == "smrf":
-        return 4.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size
+        return 8.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size
     if algorithm.name == "pmf":
         return 2.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size
     return 50.0
@@ -213,7 +216,7 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "5"  # 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
+    version = "6"  # 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)

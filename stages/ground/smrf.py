@@ -35,6 +35,29 @@ def _element(step: int) -> np.ndarray:
     return _CROSS if step % 2 == 1 else _SQUARE
 
 
+def _dilate_octagon(grid: np.ndarray, radius: int) -> np.ndarray:
+    """Grey dilation by the octagon of *radius* (the sum of ``_element(1..radius)``), in a few passes.
+
+    The octagon is the sum of ``radius // 2`` 3x3 squares, one square of side
+    ``2 (radius // 2) + 1`` (two separable 1-D passes), and ``c = ceil(radius / 2)``
+    crosses, a diamond of radius ``c``.  A diamond of radius ``2a + 1`` is a
+    cross plus the diagonal and anti-diagonal segments of ``2a + 1`` cells
+    (those two give the cells of even parity within ``2a``; the cross reaches
+    the odd ones); one of radius ``2a`` is one more cross.  Cells at least
+    *radius* from the grid's edge get exactly the value of the octagon's
+    dilation (the callers pad the grid by the largest radius).
+    """
+    out = ndimage.maximum_filter(grid, size=2 * (radius // 2) + 1, mode="nearest")
+    crosses = (radius + 1) // 2
+    a = (crosses - 1) // 2
+    if a > 0:
+        out = ndimage.maximum_filter(out, footprint=np.eye(2 * a + 1, dtype=bool), mode="nearest")
+        out = ndimage.maximum_filter(out, footprint=np.eye(2 * a + 1, dtype=bool)[::-1], mode="nearest")
+    for _ in range(crosses - 2 * a):
+        out = ndimage.grey_dilation(out, footprint=_CROSS, mode="nearest")
+    return out
+
+
 def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, max_radius: int) -> np.ndarray:
     """Flag cells that an opening of growing radius lowers by more than the slope allows.
 
@@ -60,7 +83,8 @@ def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, m
     that the survey's uphill edges are not mistaken for objects.  The
     opening at radius ``r`` uses an octagon (alternately a 3x3 cross and
     square, ``r`` times) instead of the paper's disk; the erosion is carried
-    from one radius to the next, so radius ``r`` costs ``r + 1`` 3x3 passes.
+    from one radius to the next (one 3x3 pass per radius), and the dilation
+    is decomposed into a few passes (:func:`_dilate_octagon`).
     """
     pad = max_radius
     surface = pad_linear(surface, pad)
@@ -69,12 +93,19 @@ def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, m
     eroded = surface
     for radius in range(1, max_radius + 1):
         eroded = ndimage.grey_erosion(eroded, footprint=_element(radius), mode="nearest")
-        opened = eroded
-        for step in range(1, radius + 1):
-            opened = ndimage.grey_dilation(opened, footprint=_element(step), mode="nearest")
+        opened = _dilate_octagon(eroded, radius)
         objects |= (previous - opened) > slope * radius * cell_size
         previous = opened
     return objects[pad:-pad, pad:-pad]
+
+
+def _provisional(zmin: np.ndarray, objects: np.ndarray) -> np.ndarray | None:
+    """The provisional DEM: the minimum surface without its object cells, inpainted; None when nothing is left."""
+    provisional = zmin.copy()
+    provisional[objects] = np.nan
+    if np.isnan(provisional).all():
+        return None
+    return inpaint(provisional)
 
 
 def smrf(
@@ -113,11 +144,27 @@ def smrf(
     Notes
     -----
     Steps of the paper: (1) minimum surface at ``c``, empty cells inpainted;
-    (2) low outliers: the progressive filter on the negated surface with
-    slope 5 and radius 1 cell; flagged cells are emptied; (3) the progressive
-    filter with radii 1..``w_max / c``, threshold ``s * r * c``; (4) object
-    cells emptied and re-inpainted: the provisional DEM; (5) a point is ground
-    when ``|z - DEM| <= et + es * slope(DEM)`` at the point.
+    (2) low outliers, on a separate fork: the progressive filter on the
+    negated surface with slope 5 and radius 1 cell; (3) the progressive
+    filter with radii 1..``w_max / c``, threshold ``s * r * c``, on the
+    surface of step 1 (low cells included); (4) object and low cells emptied
+    and re-inpainted: the provisional DEM; (5) a point is ground when
+    ``|z - DEM| <= et + es * slope(DEM)`` at the point.
+
+    The low cells leave the provisional DEM only, as the paper says ("the
+    resulting mask is used to flag low outlier cells as OBJ before the
+    inpainting of the provisional DEM") and as PDAL does.  In a dense forest
+    most cells' lowest point is canopy, and a cell that holds a ground return
+    is then a pit more than 5 m deep: emptying every low cell *before* the
+    object filter (as this function did until 2026-12-01) leaves a surface
+    of canopy wider than the window, which the filter keeps as ground.
+
+    Departure (a second look at the low cells): a low cell whose lowest
+    point lies below the provisional DEM by more than the point test's
+    tolerance ``et + es * slope`` is below the *terrain*, not below a canopy;
+    such cells are emptied and steps 3-4 run once more, so that a deep pit
+    does not drag the openings around it down (on ISPRS samp11, 500 ground
+    points beside pits were otherwise taken for objects; docs/GROUND.md).
 
     Departures: the opening uses an octagon instead of a disk, and the
     surface is padded by continuing its slopes so that uphill survey edges
@@ -141,18 +188,23 @@ def smrf(
         return np.zeros(0, dtype=bool)
     idx = index_points(xyz[:, :2], cell_size)
     zmin = min_grid(xyz[:, 2], idx)
-    has_points = ~np.isnan(zmin)
-    low = progressive_filter(-inpaint(zmin), cell_size=cell_size, slope=5.0, max_radius=1)
-    zmin[low & has_points] = np.nan
-    if np.isnan(zmin).all():
-        return np.zeros(len(xyz), dtype=bool)
+    surface = inpaint(zmin)
+    # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM (see Notes).
+    low = progressive_filter(-surface, cell_size=cell_size, slope=5.0, max_radius=1)
     max_radius = max(1, int(math.ceil(max_window_size / cell_size)))
-    objects = progressive_filter(inpaint(zmin), cell_size=cell_size, slope=slope, max_radius=max_radius)
-    provisional = zmin.copy()
-    provisional[objects] = np.nan
-    if np.isnan(provisional).all():
+    objects = progressive_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius)
+    dem = _provisional(zmin, objects | low)
+    if dem is None:
         return np.zeros(len(xyz), dtype=bool)
-    dem = inpaint(provisional)
+    tolerance = elevation_threshold + elevation_scalar * slope_grid(dem, cell_size)
+    deep = low & (zmin < dem - tolerance)  # empty cells (NaN) compare False: not outliers
+    if deep.any():  # the low cells that are below the terrain, not below a canopy: out of the object filter too
+        cleaned = zmin.copy()
+        cleaned[deep] = np.nan
+        objects = progressive_filter(inpaint(cleaned), cell_size=cell_size, slope=slope, max_radius=max_radius)
+        dem = _provisional(zmin, objects | low)
+        if dem is None:  # pragma: no cover - defensive: every cell an object or low
+            return np.zeros(len(xyz), dtype=bool)
     slope_dem = slope_grid(dem, cell_size)
     ground = np.empty(len(xyz), dtype=bool)
     for a in range(0, len(xyz), _BLOCK):  # in blocks: bilinear sampling makes ten temporaries per point

@@ -154,11 +154,18 @@ def slope_grid(grid: np.ndarray, cell_size: float) -> np.ndarray:
 def pad_linear(grid: np.ndarray, width: int) -> np.ndarray:
     """Pad a grid by *width* cells, continuing its slope across each edge from the cells near that edge.
 
-    Along every row (then every column of the result), the last *width*
-    cells before an edge get a least-squares line; the padding continues
-    that line, lowered to the lowest residual of those cells.  A planar
-    slope thus continues exactly, and an object cut by the survey's boundary
-    is bordered by ground-level padding, so an opening can still remove it.
+    Along every row (then every column of the result), the padding
+    continues the line that supports the last *width* cells before an edge
+    from below at the middle of that band: the edge of their lower convex
+    hull there, the line under every one of those cells that is highest at
+    the band's middle.  A planar slope thus continues exactly, an object
+    within the band (a roof, a tree) does not tilt it, and an object cut by
+    the survey's boundary is bordered by ground-level padding, so an opening
+    can still remove it.  (Until 2026-12-01 this was a least-squares line
+    lowered to its lowest residual: a roof within the band tilted it, the
+    padding dropped away from ground that rises to the edge, and the opening
+    took the last metre for an object — issue 16's band of missed ground
+    along one edge of a synthetic survey.)
     Flat ("nearest") padding instead makes every uphill edge look like the
     foot of an object, which an opening then lowers.
 
@@ -176,21 +183,25 @@ def _pad_rows(grid: np.ndarray, width: int) -> np.ndarray:
     """Pad the columns' ends of every row (see :func:`pad_linear`)."""
     rows, cols = grid.shape
     band = min(width, cols)
-    k = np.arange(band, dtype=np.float64)
     out = np.empty((rows, cols + 2 * width))
     out[:, width : width + cols] = grid
     ahead = np.arange(1, width + 1, dtype=np.float64)
+    # between two cells, so that one edge of the lower hull spans it (at a cell, every line under it would)
+    middle = band // 2 - 0.5 if band % 2 == 0 else band // 2 + 0.5
+    # every pair of cells (i, j) that straddles that point: the lower hull there is the lowest of their chords
+    pairs = [(i, j) for i in range(band) for j in range(i + 1, band) if i <= middle <= j]
+    i, j = (np.array([p[n] for p in pairs], dtype=np.int64) for n in (0, 1))
     for side in ("low", "high"):
         cells = grid[:, :band][:, ::-1] if side == "low" else grid[:, cols - band :]
         # cells ordered towards the edge: position k = 0 .. band-1, the edge cell last
         if band > 1:
-            kc = k - k.mean()
-            slope = (cells - cells.mean(axis=1, keepdims=True)) @ kc / float(kc @ kc)
+            slopes = (cells[:, j] - cells[:, i]) / (j - i)
+            at_middle = cells[:, i] + slopes * (middle - i)
+            best = np.argmin(at_middle, axis=1)
+            slope = slopes[np.arange(rows), best]
+            edge = at_middle[np.arange(rows), best] + slope * (band - 1 - middle)
         else:
-            slope = np.zeros(rows)
-        line = cells.mean(axis=1, keepdims=True) + slope[:, None] * (k - k.mean())
-        base = (cells - line).min(axis=1)
-        edge = line[:, -1] + base
+            slope, edge = np.zeros(rows), cells[:, -1]
         values = edge[:, None] + slope[:, None] * ahead
         if side == "low":
             out[:, :width] = values[:, ::-1]

@@ -5,9 +5,9 @@ but there a buffer much smaller than each stage declares gives the same
 products too.  This survey (300 m x 300 m, 100 m tiles) is built so that each
 stage's declared reach is needed near a tile edge:
 
-- SMRF (reach 4 w_max + 2 c = 74 m): buildings up to 34 m wide astride the
+- SMRF (reach 8 w_max + 2 c = 146 m since issue 16): buildings up to 34 m wide astride the
   tile edges, on rolling terrain (a buffer of 38 m gives the same classes
-  here; test_smrf_reach.py is the survey that needs more than 38 m);
+  here; test_smrf_reach.py has the surveys that need more than 38 m and 74 m);
 - TIN DTM (reach 2 nodata_distance + 2 cells = 102 m): a lake without
   returns, 62 m wide, astride the edge x = 200 m: the triangles that cover its
   cells span it, so a tile must see the far shore;
@@ -155,7 +155,7 @@ def test_a_new_tiling_buffer_reruns_the_ground_stage(survey):
 
 def test_smrf_near_the_survey_boundary_does_not_depend_on_the_tile():
     """Buildings 5-10 m from the survey's north edge: SMRF on each 100 m tile plus the declared buffer
-    (74 m) must classify its core points as SMRF on the whole survey does."""
+    (146 m) must classify its core points as SMRF on the whole survey does."""
     from stages.classify import SmrfParams, reach
     from stages.ground.smrf import smrf
 

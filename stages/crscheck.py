@@ -152,22 +152,10 @@ def honour_linear_units(crs, geo_keys):
     have = crs.axis_info[0]
     if have.unit_auth_code == "EPSG" and have.unit_code == str(code):
         return crs, None
-    try:
-        unit = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
-        info = next(u for u in unit.values() if u.code == str(code))
-    except StopIteration:
+    info = _linear_unit(code)
+    if info is None:
         return crs, None
-    data = crs.to_json_dict()
-    data.pop("id", None)
-    data["name"] = f"{crs.name} ({info.name})"
-    for axis in data["coordinate_system"]["axis"]:
-        axis["unit"] = {
-            "type": "LinearUnit",
-            "name": info.name,
-            "conversion_factor": info.conv_factor,
-            "id": {"authority": "EPSG", "code": code},
-        }
-    new = pyproj.CRS.from_json_dict(data)
+    new = pyproj.CRS.from_json_dict(_in_unit(crs, info, code))
     return new, (
         f"its GeoKeys give {crs.name} (EPSG:{crs.to_epsg()}) with ProjLinearUnitsGeoKey = {info.name}: "
         f"read as {new.name}, as GDAL does"
@@ -199,6 +187,21 @@ def _linear_unit(code: int):
 
     units = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
     return next((u for u in units.values() if u.code == str(code)), None)
+
+
+def _in_unit(crs, unit, code: int) -> dict:
+    """PROJJSON of *crs* with every axis in the EPSG linear *unit* (its parameters keep their own units)."""
+    data = crs.to_json_dict()
+    data.pop("id", None)
+    data["name"] = f"{crs.name} ({unit.name})"
+    for axis in data["coordinate_system"]["axis"]:
+        axis["unit"] = {
+            "type": "LinearUnit",
+            "name": unit.name,
+            "conversion_factor": unit.conv_factor,
+            "id": {"authority": "EPSG", "code": code},
+        }
+    return data
 
 
 def honour_vertical_keys(crs, geo_keys):
@@ -258,15 +261,7 @@ def honour_vertical_keys(crs, geo_keys):
         )
     data = vertical.to_json_dict()
     if unit is not None and vertical.axis_info[0].unit_code != str(unit_code):
-        data.pop("id", None)
-        data["name"] = f"{vertical.name} ({unit.name})"
-        for axis in data["coordinate_system"]["axis"]:
-            axis["unit"] = {
-                "type": "LinearUnit",
-                "name": unit.name,
-                "conversion_factor": unit.conv_factor,
-                "id": {"authority": "EPSG", "code": unit_code},
-            }
+        data = _in_unit(vertical, unit, unit_code)
     horizontal = crs.to_json_dict()
     compound = pyproj.CRS.from_json_dict(
         {

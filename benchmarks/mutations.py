@@ -134,8 +134,8 @@ MUTATIONS: list[Mutation] = [
     Mutation(
         "strip datum most_overlap takes the least-overlapping strip",
         "stages/strip_adjust.py",
-        "reference = max(linked, key=lambda s: overlap[s]) if linked else None",
-        "reference = min(linked, key=lambda s: overlap[s]) if linked else None",
+        "max(linked, key=lambda s: overlap[s]) if linked else None",
+        "min(linked, key=lambda s: overlap[s]) if linked else None",
         ("tests/stages/test_strip_datum.py", "tests/stages/test_strip_adjust.py"),
     ),
     Mutation(

@@ -152,7 +152,6 @@ class StripAdjust(Stage):
         return io
 
     def run(self, ctx) -> None:
-        from stages.adjust.icp import adjust, match, planar_patches
         from stages.tiles import cloud_info
 
         p = ctx.params
@@ -171,87 +170,30 @@ class StripAdjust(Stage):
         sample, count, sums = _gather(src, units, p.cell, step)
         pts, sid = sample
         strips = [int(s) for s in np.flatnonzero(count) if s > 0 and count[s] >= p.min_points]
-        patches, centres = {}, {}
-        for s in strips:
-            sel = np.flatnonzero(sid == s)
-            centres[s] = sums[s] / count[s]
-            patches[s] = planar_patches(pts[sel], cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
-            patches[s].order = sel[patches[s].order]  # indices into the sample
+        patches, centres, limit = _strip_patches(pts, sid, count, sums, strips, p)
         ctx.metrics.update(estimation_points=int(len(pts)), lattice_step=step)
+        if limit is not None:
+            ctx.metrics.update(plane_rms_limit_m=limit)
         if step > 1:
             ctx.log.info("estimation on every %d-th cell in x and y: %d single returns", step, len(pts))
-        # smooth means smooth for this survey: at most 2.5 x the median patch RMS (the noise level);
-        # well sampled means at least half the strip's median points per patch, which drops water
-        # (specular: most pulses return nothing) and the thinly sampled swath edges
-        all_rms = np.concatenate([patches[s].rms for s in strips]) if strips else np.zeros(0)
-        if len(all_rms):
-            limit = min(p.max_plane_rms, 2.5 * float(np.median(all_rms)))
-            for s in strips:
-                dense = patches[s].count >= 0.5 * np.median(patches[s].count) if len(patches[s].count) else True
-                patches[s].keep((patches[s].rms <= limit) & dense)
-            ctx.metrics.update(plane_rms_limit_m=limit)
-        # overlap with identity transforms: which strips take part, and the reference
-        from stages.adjust.icp import Transform
-
-        ident = {s: Transform(centres[s]) for s in strips}
-        overlap = dict.fromkeys(strips, 0)
-        for i, a in enumerate(strips):
-            for b in strips[i + 1 :]:
-                ia, _ = match(patches[a], ident[a], patches[b], ident[b], max_distance=p.max_distance)
-                overlap[a] += len(ia)
-                overlap[b] += len(ia)
-        linked = [s for s in strips if overlap[s] > 0]
+        ident, linked, reference = _datum(strips, patches, centres, p)
         control = units.to_metres(_read_control(p.control_points)) if p.control_points is not None else None
         skipped_note = None
         if len(linked) < 2:
             skipped_note = (
                 f"{len(strips)} strip(s), {len(linked)} with overlap: nothing to adjust, points passed on unchanged"
             )
-        if p.reference_strip == "most_overlap":
-            reference = max(linked, key=lambda s: overlap[s]) if linked else None
-        else:
-            reference = p.reference_strip
-            if linked and reference not in linked:
-                from pipeline.errors import ConfigError
-
-                raise ConfigError(
-                    f"stages.strip_adjust.reference_strip: strip {reference} has no overlap with another strip "
-                    f"(strips with overlap: {', '.join(map(str, linked))})."
-                )
         if control is not None and len(control):
             reference = None
-        corrections = {}
-        weak: dict[int, list[float]] = {}
-        pair_rows = []
+        corrections, weak, pair_rows, transforms = {}, {}, [], {}
         before = after = None
         if skipped_note is None:
-            # a correction the overlaps do not determine (small or flat overlap) is not applied: the
-            # strip is held as it is and the others are solved again without it moving
-            while True:
-                sol = adjust({s: patches[s] for s in linked}, centres, pts, reference=reference, control=control,
-                             fixed=tuple(weak), max_distance=p.max_distance, max_iterations=p.max_iterations,
-                             prior_translation=p.prior_translation_m, prior_rotation=np.radians(p.prior_rotation_deg),
-                             prior_yaw=np.radians(p.prior_yaw_deg))  # fmt: skip
-                new_weak = {
-                    s: sd for s, sd in sol.std.items()
-                    if np.max(sd[:3]) > p.max_sigma_translation_m or np.degrees(np.max(sd[3:5])) > p.max_sigma_rotation_deg
-                }  # fmt: skip
-                if not new_weak:
-                    break
-                weak.update({s: [round(float(v), 4) for v in sd[:3]] for s, sd in new_weak.items()})
+            sol, weak = _solve(linked, patches, centres, pts, reference, control, p)
             if weak:
                 ctx.log.warning("strips %s left unadjusted: their corrections are not determined by the overlaps "
                                 "(1-sigma translation %s m)", ", ".join(map(str, weak)), list(weak.values()))  # fmt: skip
             ctx.metrics.update(strips_not_determined=sorted(weak))
-            for s, tf in sol.transforms.items():
-                corrections[str(s)] = {
-                    "translation_m": [round(float(v), 5) for v in tf.translation],
-                    "rotation_deg": [round(float(v), 6) for v in np.degrees(tf.rotation_vector)],
-                    "centre": [round(float(v), 3) for v in tf.centre],
-                    "sigma_translation_m": [round(float(v), 5) for v in sol.std.get(s, np.zeros(6))[:3]],
-                    "sigma_rotation_deg": [round(float(v), 6) for v in np.degrees(sol.std.get(s, np.zeros(6))[3:])],
-                    "points": int(count[s]),
-                }
+            corrections = _corrections(sol, count)
             before, after = [], []
             for pair in sol.pairs:
                 row, b_vals, a_vals = _pair_figures(pair, patches, pts, ident, sol.transforms, p.cell)
@@ -260,7 +202,7 @@ class StripAdjust(Stage):
                 after.append(a_vals)
             ctx.metrics.update(iterations=sol.iterations, correspondences=sol.correspondences,
                                residual_sigma_m=sol.sigma)  # fmt: skip
-        transforms = sol.transforms if skipped_note is None else {}
+            transforms = sol.transforms
         if not pair_rows:  # no overlap measured: the difference maps would be empty, so they are not published
             from pipeline.runner import UNPUBLISHED
 
@@ -276,24 +218,123 @@ class StripAdjust(Stage):
             "pairs": pair_rows,
         }
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
-        rms_b = _combined_rms([r["rms_before_m"] for r in pair_rows], [r["points"] for r in pair_rows])
-        rms_a = _combined_rms([r["rms_after_m"] for r in pair_rows], [r["points"] for r in pair_rows])
-        largest_t = max((float(np.linalg.norm(c["translation_m"])) for c in corrections.values()), default=0.0)
-        largest_r = max((float(np.max(np.abs(c["rotation_deg"]))) for c in corrections.values()), default=0.0)
-        ctx.metrics.update(
-            strips=len(strips), strips_adjusted=len(corrections), datum=summary["datum"], note=skipped_note,
-            strips_estimated=len([s for s in corrections if int(s) != reference and int(s) not in weak]),
-            overlap_rms_before_m=rms_b, overlap_rms_after_m=rms_a, largest_translation_m=largest_t,
-            largest_rotation_deg=largest_r, pairs=len(pair_rows),
+        _report(ctx, summary, strips, reference, weak, skipped_note)
+
+
+def _strip_patches(pts, sid, count, sums, strips, p):
+    """Each strip's centroid and planar patches of its single returns, kept where smooth and well sampled.
+
+    Smooth means smooth for this survey: at most 2.5 x the median patch RMS
+    (the noise level); well sampled means at least half the strip's median
+    points per patch, which drops water (specular: most pulses return
+    nothing) and the thinly sampled swath edges.  Returns the patches, the
+    centroids and the RMS limit used (None without any patch).
+    """
+    from stages.adjust.icp import planar_patches
+
+    patches, centres = {}, {}
+    for s in strips:
+        sel = np.flatnonzero(sid == s)
+        centres[s] = sums[s] / count[s]
+        patches[s] = planar_patches(pts[sel], cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
+        patches[s].order = sel[patches[s].order]  # indices into the sample
+    all_rms = np.concatenate([patches[s].rms for s in strips]) if strips else np.zeros(0)
+    if not len(all_rms):
+        return patches, centres, None
+    limit = min(p.max_plane_rms, 2.5 * float(np.median(all_rms)))
+    for s in strips:
+        dense = patches[s].count >= 0.5 * np.median(patches[s].count) if len(patches[s].count) else True
+        patches[s].keep((patches[s].rms <= limit) & dense)
+    return patches, centres, limit
+
+
+def _datum(strips, patches, centres, p):
+    """Which strips overlap (matched with identity transforms), and the reference strip held fixed.
+
+    Returns the identity transforms, the strips with overlap and the
+    reference (``most_overlap``: the strip with most matched patches).
+    """
+    from stages.adjust.icp import Transform, match
+
+    ident = {s: Transform(centres[s]) for s in strips}
+    overlap = dict.fromkeys(strips, 0)
+    for i, a in enumerate(strips):
+        for b in strips[i + 1 :]:
+            ia, _ = match(patches[a], ident[a], patches[b], ident[b], max_distance=p.max_distance)
+            overlap[a] += len(ia)
+            overlap[b] += len(ia)
+    linked = [s for s in strips if overlap[s] > 0]
+    if p.reference_strip == "most_overlap":
+        return ident, linked, (max(linked, key=lambda s: overlap[s]) if linked else None)
+    if linked and p.reference_strip not in linked:
+        from pipeline.errors import ConfigError
+
+        raise ConfigError(
+            f"stages.strip_adjust.reference_strip: strip {p.reference_strip} has no overlap with another strip "
+            f"(strips with overlap: {', '.join(map(str, linked))})."
+        )
+    return ident, linked, p.reference_strip
+
+
+def _solve(linked, patches, centres, pts, reference, control, p):
+    """The joint adjustment, strips whose correction the overlaps do not determine held as they are.
+
+    A correction less certain than ``max_sigma_*`` (small or flat overlap) is
+    not applied: the strip is fixed and the others are solved again without
+    it moving.  Returns the solution and the held strips' 1-sigma translations.
+    """
+    from stages.adjust.icp import adjust
+
+    weak: dict[int, list[float]] = {}
+    while True:
+        sol = adjust({s: patches[s] for s in linked}, centres, pts, reference=reference, control=control,
+                     fixed=tuple(weak), max_distance=p.max_distance, max_iterations=p.max_iterations,
+                     prior_translation=p.prior_translation_m, prior_rotation=np.radians(p.prior_rotation_deg),
+                     prior_yaw=np.radians(p.prior_yaw_deg))  # fmt: skip
+        new_weak = {
+            s: sd for s, sd in sol.std.items()
+            if np.max(sd[:3]) > p.max_sigma_translation_m or np.degrees(np.max(sd[3:5])) > p.max_sigma_rotation_deg
+        }  # fmt: skip
+        if not new_weak:
+            return sol, weak
+        weak.update({s: [round(float(v), 4) for v in sd[:3]] for s, sd in new_weak.items()})
+
+
+def _corrections(sol, count) -> dict:
+    """strip_corrections.json's ``strips``: each strip's correction, its sigmas and its point count."""
+    out = {}
+    for s, tf in sol.transforms.items():
+        out[str(s)] = {
+            "translation_m": [round(float(v), 5) for v in tf.translation],
+            "rotation_deg": [round(float(v), 6) for v in np.degrees(tf.rotation_vector)],
+            "centre": [round(float(v), 3) for v in tf.centre],
+            "sigma_translation_m": [round(float(v), 5) for v in sol.std.get(s, np.zeros(6))[:3]],
+            "sigma_rotation_deg": [round(float(v), 6) for v in np.degrees(sol.std.get(s, np.zeros(6))[3:])],
+            "points": int(count[s]),
+        }
+    return out
+
+
+def _report(ctx, summary: dict, strips, reference, weak, skipped_note) -> None:
+    """The stage's metrics and log line: overlap RMS before and after, the largest correction."""
+    corrections, pair_rows = summary["strips"], summary["pairs"]
+    rms_b = _combined_rms([r["rms_before_m"] for r in pair_rows], [r["points"] for r in pair_rows])
+    rms_a = _combined_rms([r["rms_after_m"] for r in pair_rows], [r["points"] for r in pair_rows])
+    largest_t = max((float(np.linalg.norm(c["translation_m"])) for c in corrections.values()), default=0.0)
+    largest_r = max((float(np.max(np.abs(c["rotation_deg"]))) for c in corrections.values()), default=0.0)
+    estimated = len([s for s in corrections if int(s) != reference and int(s) not in weak])
+    ctx.metrics.update(
+        strips=len(strips), strips_adjusted=len(corrections), datum=summary["datum"], note=skipped_note,
+        strips_estimated=estimated, overlap_rms_before_m=rms_b, overlap_rms_after_m=rms_a,
+        largest_translation_m=largest_t, largest_rotation_deg=largest_r, pairs=len(pair_rows),
+    )  # fmt: skip
+    if skipped_note:
+        ctx.log.info("strip adjustment skipped: %s", skipped_note)
+    else:
+        ctx.log.info(
+            "%d strips, %d corrected (datum %s): overlap RMS %.3f m -> %.3f m; largest correction %.3f m, %.4f deg",
+            len(corrections), estimated, summary["datum"], rms_b or 0.0, rms_a or 0.0, largest_t, largest_r,
         )  # fmt: skip
-        if skipped_note:
-            ctx.log.info("strip adjustment skipped: %s", skipped_note)
-        else:
-            ctx.log.info(
-                "%d strips, %d corrected (datum %s): overlap RMS %.3f m -> %.3f m; largest correction %.3f m, %.4f deg",
-                len(corrections), len([s for s in corrections if int(s) != reference and int(s) not in weak]), datum,
-                rms_b or 0.0, rms_a or 0.0, largest_t, largest_r,
-            )  # fmt: skip
 
 
 def _gather(path, units, cell: float, step: int):

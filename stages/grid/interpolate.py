@@ -584,13 +584,22 @@ def cell_mean(points: np.ndarray, values: np.ndarray, grid: Grid) -> np.ndarray:
     return np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(grid.rows, grid.cols)
 
 
-def cell_max_count(points: np.ndarray, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`cell_max` (NaN where empty) and :func:`cell_count` in one pass over the points."""
-    row, col = cell_of(points, grid)
-    inside = row >= 0
-    k = row[inside] * grid.cols + col[inside]
+def cell_max_count(points, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cell_max` (NaN where empty) and :func:`cell_count` in one pass over the points.
+
+    *points*: an (n, 3) array, or its three columns x, y, z (1-D arrays,
+    memory-mapped ones too: no stacked copy is made).
+    """
+    x, y, z = (points[:, 0], points[:, 1], points[:, 2]) if isinstance(points, np.ndarray) else points
+    col = np.floor((x - grid.xmin) / grid.resolution).astype(np.int64) - grid.col0
+    row = np.floor((grid.ymax - y) / grid.resolution).astype(np.int64) - grid.row0
+    inside = (col >= 0) & (col < grid.cols) & (row >= 0) & (row < grid.rows)
+    k = row * grid.cols + col
+    del row, col
+    if not inside.all():
+        k, z = k[inside], np.asarray(z)[inside]
     highest = np.full(grid.rows * grid.cols, -np.inf)
-    np.maximum.at(highest, k, points[inside, 2])
+    np.maximum.at(highest, k, z)
     highest[~np.isfinite(highest)] = np.nan
     count = np.bincount(k, minlength=grid.rows * grid.cols)
     return highest.reshape(grid.rows, grid.cols), count.reshape(grid.rows, grid.cols)

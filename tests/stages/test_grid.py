@@ -175,3 +175,17 @@ def test_cells_the_near_points_leave_undrawn_inside_the_whole_hull_are_seen(monk
     assert np.array_equal(tin(pts.copy(), grid, nodata_distance=50.0, margin=3.0), every)
     monkeypatch.setattr(gi, "_same_as_all", lambda *a: True)
     assert np.isfinite(tin(pts.copy(), grid, nodata_distance=50.0, margin=3.0)).sum() == 3
+
+
+def test_highest_point_and_count_per_cell_from_columns_or_rows():
+    """Cell (row 0, col 1) of a 2 x 3 grid of 1 m holds z 5 and 7; points off the grid count nowhere."""
+    from stages.grid.interpolate import cell_max_count
+
+    pts = np.array([[1.5, 9.5, 5.0], [1.2, 9.1, 7.0], [0.5, 8.5, 1.0], [-0.5, 9.5, 99.0], [3.5, 9.5, 99.0]])
+    grid = Grid(xmin=0.0, ymax=10.0, resolution=1.0, cols=3, rows=2)
+    expected_max = np.array([[np.nan, 7.0, np.nan], [1.0, np.nan, np.nan]])
+    expected_count = np.array([[0, 2, 0], [1, 0, 0]])
+    for given in (pts, [pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy()]):
+        highest, count = cell_max_count(given, grid)
+        assert np.array_equal(highest, expected_max, equal_nan=True)
+        assert np.array_equal(count, expected_count)

@@ -13,7 +13,9 @@ The survey is the synthetic scene of :mod:`stages.synthetic` at 8 pulses/m2
 (trees give second returns), written as LAZ.  Each job runs once in its own
 process on an empty cache; its stages' seconds come from its ``run.json``,
 its peak memory is sampled over the whole process tree (the run and its
-workers).  The I/O floor is laspy + lazrs reading the same LAZ and writing
+workers); its DTM's RMSE against the scene's true terrain
+(:func:`stages.synthetic.terrain`, every cell with a value) is the
+accuracy check.  The I/O floor is laspy + lazrs reading the same LAZ and writing
 it again, in chunks, measured in the same run; every row carries the
 machine's load average (other work on the machine slows every figure, the
 ratios less).  Prints Markdown rows for docs/BENCHMARKS.md.
@@ -29,6 +31,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -118,6 +122,22 @@ def _measured(cmd: list[str]) -> tuple[float, float, float]:
     return seconds, peak_rss / 2**20, peak_pss / 2**20
 
 
+def _rmse(dtm: Path) -> float:
+    """RMSE (m) of a DTM of the scene against its true terrain, over every cell with a value."""
+    import rasterio
+
+    from stages.synthetic import SAMPLE_ORIGIN, terrain
+
+    with rasterio.open(dtm) as src:
+        z = src.read(1).astype(np.float64)
+        t = src.transform
+        z[z == src.nodata] = np.nan
+    rows, cols = np.mgrid[0 : z.shape[0], 0 : z.shape[1]]
+    x, y = t.c + (cols + 0.5) * t.a, t.f + (rows + 0.5) * t.e
+    e = z - terrain(x - SAMPLE_ORIGIN[0], y - SAMPLE_ORIGIN[1])
+    return float(np.sqrt(np.nanmean(e**2)))
+
+
 def _load() -> str:
     return f"{os.getloadavg()[0]:.1f}"
 
@@ -143,7 +163,7 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     floor = run_child(__file__, "floor", str(laz), str(work / "copy.laz"))
     rows = [
         f"| {n:,} | I/O floor (laspy + lazrs read + write) | | | | | | {floor['seconds']:.1f} | "
-        f"{floor['peak_mb']:,.0f} | 1 × | {load} |"
+        f"{floor['peak_mb']:,.0f} | 1 × | | {load} |"
     ]
     print(rows[-1], flush=True)
     for job in jobs:
@@ -154,8 +174,10 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
         run = json.loads((work / job / "run.json").read_text())
         ran = {s["name"]: s.get("seconds") for s in run["stages"]}
         cells = " | ".join(f"{ran[s]:.1f}" if ran.get(s) else "–" for s in STAGES)
+        rmse = _rmse(work / job / "dtm.tif")
         rows.append(
-            f"| {n:,} | {job} | {cells} | **{total:.1f}** | {pss:,.0f} | **{total / floor['seconds']:.1f} ×** | {load} |"
+            f"| {n:,} | {job} | {cells} | **{total:.1f}** | {pss:,.0f} | **{total / floor['seconds']:.1f} ×** "
+            f"| {rmse:.4f} | {load} |"
         )
         print(rows[-1], flush=True)
         shutil.rmtree(work / f"{job}-cache", ignore_errors=True)
@@ -179,9 +201,9 @@ def main() -> None:
     print(machine())
     print(
         "| points | job | parse s | denoise s | classify_ground s | rasterize s | export_las s | whole job s "
-        "| peak PSS MB (process tree) | / I/O floor | load (1 min) |"
+        "| peak PSS MB (process tree) | / I/O floor | DTM RMSE m | load (1 min) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for points in args.points or [10e6]:
         bench(points, args.workdir, args.job or list(JOBS))
 

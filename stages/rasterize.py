@@ -337,7 +337,8 @@ def rasterize_tile(task: dict) -> dict:
     del cls
     # The columns mapped, not read: only the rows each raster needs are in memory.
     xyz = [np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"]
-    highest, count = cell_max_count(np.column_stack([a[usable] for a in xyz]), wide)  # core cells are wide cells
+    # core cells are wide cells; every point usable (the usual case): the mapped columns as they are
+    highest, count = cell_max_count(xyz if usable.all() else [a[usable] for a in xyz], wide)
     ground = np.column_stack([a[is_ground] for a in xyz])
     n_ground = len(ground)
     del xyz

@@ -135,6 +135,7 @@ def tin(
     nodata_distance: float,
     nodata: float = np.nan,
     thin: bool = True,
+    margin: float | None = 25.0,
     batch_cells: int = 1_000_000,
     progress=None,
 ) -> np.ndarray:
@@ -157,6 +158,15 @@ def tin(
         square of half a cell, the nearest to the square's centre
         (:func:`thin_points`); sparser cells keep every point.  False:
         every point.
+    margin : float or None
+        First triangulate only the points within *margin* (rounded up to
+        whole cells) of the grid, then prove that this gives the result of
+        triangulating every point: each triangle that drew a cell must be a
+        Delaunay triangle of all the points (its circumcircle holds none of
+        the points left out), and no cell nearer than *nodata_distance* to a
+        point may be left undrawn.  Otherwise every point is triangulated.
+        The result is the same either way; only the cost differs (a tile's
+        buffer is mostly far from its cells).  None: every point at once.
     batch_cells : int
         Candidate cells handled at a time (bounds memory).
     progress : Progress, optional
@@ -178,32 +188,142 @@ def tin(
     cell can resolve: on the 9.4 M-point bench survey (8 ground points per
     m2) it halves the points and the RMSE against the true terrain goes from
     0.0218 to 0.0210 m; on the LAS sample (1.5 per m2) the check-point
-    figures move by 0.01 mm (docs/BENCHMARKS.md).
+    figures move by 0.01 mm (docs/BENCHMARKS.md).  The *margin* test is the
+    empty-circumcircle property of Delaunay triangles (Delaunay 1934; de
+    Berg et al. 2008, *Computational Geometry*, 3rd ed., Theorem 9.6,
+    doi:10.1007/978-3-540-77974-2): a triangle of a subset whose
+    circumcircle holds no other point of the whole set is a triangle of the
+    whole set's triangulation.
     """
-    import triangle
-
     pts = np.asarray(points.pop() if isinstance(points, list) else points, dtype=np.float64)
     if len(pts) < 3:
         raise ValueError("a TIN needs at least 3 points")
-    out = np.full(grid.rows * grid.cols, np.nan)
     # Work around the grid's anchor (the whole grid's corner, for a window
     # too): exact differences on large absolute coordinates (UTM), the same
     # in a tile as in the whole survey.
     origin = np.array([grid.xmin, grid.ymax])
     xy = pts[:, :2] - origin
-    keep = thin_points(xy, grid.resolution / 2.0, sparse=4) if thin else _unique_xy(xy)
+    z = pts[:, 2]
+    del pts, points
     far = _far_from(xy, grid, nodata_distance)  # water, gaps: nodata even inside the hull
-    vxy, vz = np.ascontiguousarray(xy[keep]), pts[keep, 2]
-    del xy, pts, points, keep  # before the triangulation: memory
-    if len(vz) >= 3:
-        # Q quiet, z indices from 0, B N: no boundary markers, no copy of the vertices
-        simplices = triangle.triangulate({"vertices": vxy}, "QzBN").get("triangles")
-        if simplices is not None and len(simplices):  # None: all points on a line
-            _draw_triangles(vxy, vz, simplices, grid, out, batch_cells, progress)
+
+    def chosen(sel: np.ndarray) -> np.ndarray:
+        """The points of *sel* (whole cells) that are triangulated: thinned, or distinct x, y."""
+        return sel[thin_points(xy[sel], grid.resolution / 2.0, sparse=4) if thin else _unique_xy(xy[sel])]
+
+    inner = _near_grid(xy, grid, margin)
+    if inner is None:  # every point is near the grid
+        out, _ = _tin_draw(xy, z, chosen(np.arange(len(z))), grid, batch_cells, progress)
+    else:
+        keep = chosen(np.flatnonzero(inner))
+        rest: list[np.ndarray] = []
+
+        def outer() -> np.ndarray:  # the points left out, chosen as they would be; once, if asked for
+            if not rest:
+                rest.append(chosen(np.flatnonzero(~inner)))
+            return rest[0]
+
+        out, drawn = _tin_draw(xy, z, keep, grid, batch_cells, None)
+        if not _same_as_all(xy, keep, outer, drawn, grid, margin, np.isnan(out).reshape(far.shape) & ~far):
+            keep = np.union1d(keep, outer())  # ascending: the input order, as if all were triangulated at once
+            out, _ = _tin_draw(xy, z, keep, grid, batch_cells, progress)
+        elif progress is not None:
+            progress.update(grid.rows)
     out = out.reshape(grid.rows, grid.cols)
     out[far] = np.nan
     out[np.isnan(out)] = nodata
     return out
+
+
+def _near_grid(xy: np.ndarray, grid: Grid, margin: float | None) -> np.ndarray | None:
+    """Points in the cells of *grid* or within *margin* (whole cells) of it; None: all of them, or no margin."""
+    if margin is None:
+        return None
+    res = grid.resolution
+    m = int(math.ceil(margin / res))
+    # the cell of each point as :func:`thin_points` sees it (squares of half a cell, two per cell)
+    col = np.floor(xy[:, 0] / (res / 2.0)).astype(np.int64) // 2 - grid.col0
+    inner = (col >= -m) & (col < grid.cols + m)
+    del col
+    row = np.floor(-xy[:, 1] / (res / 2.0)).astype(np.int64) // 2 - grid.row0
+    inner &= (row >= -m) & (row < grid.rows + m)
+    return None if inner.all() else inner
+
+
+def _tin_draw(xy, z, keep, grid: Grid, batch_cells: int, progress) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate the points *keep* (ascending) and draw them on *grid*: flat values, drawing triangles."""
+    import triangle
+
+    out = np.full(grid.rows * grid.cols, np.nan)
+    drawn = np.zeros((0, 3), dtype=np.int64)
+    if len(keep) >= 3:
+        vxy = np.ascontiguousarray(xy[keep])
+        # Q quiet, z indices from 0, B N: no boundary markers, no copy of the vertices
+        simplices = triangle.triangulate({"vertices": vxy}, "QzBN").get("triangles")
+        if simplices is not None and len(simplices):  # None: all points on a line
+            drawn = keep[_draw_triangles(vxy, z[keep], simplices, grid, out, batch_cells, progress)]
+            return out, drawn
+    if progress is not None:
+        progress.update(grid.rows)
+    return out, drawn
+
+
+def _same_as_all(xy, keep, outer, drawn, grid: Grid, margin: float, undrawn: np.ndarray) -> bool:
+    """Whether the TIN of the points *keep* drew the grid as the TIN of *keep* and *outer* would.
+
+    True when every triangle that drew a cell (*drawn*, rows of indices
+    into *xy*) has an empty circumcircle among the *outer* points (it is
+    then a triangle of the whole triangulation), and no cell within reach
+    of a point yet drawn by no triangle (*undrawn*, outside the hull of
+    *keep*) lies inside the convex hull of all the points (where the whole
+    triangulation would draw it).  Circumcircles inside the region of
+    *keep* (the grid plus *margin*) need no look at *outer*, a function
+    (the points left out are chosen only if they are needed).
+    """
+    if undrawn.any():
+        from scipy.spatial import ConvexHull, QhullError
+
+        rest = outer()
+        if not len(rest):
+            return True
+        try:
+            hull = ConvexHull(np.concatenate((xy[keep], xy[rest])))
+        except QhullError:  # all points on a line: nothing is drawn either way
+            return not len(drawn)
+        gx, gy = grid.centres()
+        q = np.column_stack((gx[undrawn] - grid.xmin, gy[undrawn] - grid.ymax))
+        eq = hull.equations  # inside: normal . q + offset <= 0 for every edge
+        tol = 1e-9 * max(1.0, float(np.abs(q).max()))
+        for start in range(0, len(q), 65_536):
+            block = q[start : start + 65_536]
+            if ((block @ eq[:, :2].T + eq[:, 2]) <= tol).all(axis=1).any():  # on or inside the hull
+                return False
+    if not len(drawn):
+        return True
+    a, b, c = xy[drawn[:, 0]], xy[drawn[:, 1]], xy[drawn[:, 2]]
+    bx, by = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    cx, cy = c[:, 0] - a[:, 0], c[:, 1] - a[:, 1]
+    d = 2.0 * (bx * cy - by * cx)
+    b2, c2 = bx * bx + by * by, cx * cx + cy * cy
+    ux, uy = (cy * b2 - by * c2) / d, (bx * c2 - cx * b2) / d
+    radius = np.hypot(ux, uy) * (1.0 + 1e-9) + 1e-9  # a point on the circle counts as inside: no ties
+    ux += a[:, 0]
+    uy += a[:, 1]
+    res = grid.resolution
+    m = int(math.ceil(margin / res))
+    x0, x1 = (grid.col0 - m) * res, (grid.col0 + grid.cols + m) * res
+    y1, y0 = -(grid.row0 - m) * res, -(grid.row0 + grid.rows + m) * res
+    out_of = ~((ux - radius > x0) & (ux + radius < x1) & (uy - radius > y0) & (uy + radius < y1))
+    if not out_of.any():
+        return True
+    from scipy.spatial import cKDTree
+
+    rest = outer()
+    if not len(rest):
+        return True
+    tree = cKDTree(xy[rest], balanced_tree=False, compact_nodes=False)
+    dist, _ = tree.query(np.column_stack((ux[out_of], uy[out_of])), k=1, workers=-1)
+    return bool((dist > radius[out_of]).all())
 
 
 def _far_from(xy: np.ndarray, grid: Grid, distance: float) -> np.ndarray:
@@ -244,7 +364,7 @@ def _far_from(xy: np.ndarray, grid: Grid, distance: float) -> np.ndarray:
     return far
 
 
-def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: int, progress) -> None:
+def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: int, progress) -> np.ndarray:
     """Fill *out* (flat, rows * cols) with each triangle's plane at the cell centres inside it.
 
     Coordinates *xy* are relative to the grid's anchor (top-left corner of
@@ -256,6 +376,7 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     interior into the same triangles; drawn in the same order from the same
     vertex order, they give the same values bit for bit (a cell on an edge
     shared by two triangles takes the later one's, everywhere alike).
+    Returns the triangles that drew a cell (vertex indices, ascending).
     """
     res = grid.resolution
     # Each triangle's box in whole-grid cell indices, a million triangles at a
@@ -292,6 +413,7 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     total = int(ends[-1]) if len(ends) else 0
     z0, z1, z2 = z[s[:, 0]], z[s[:, 1]], z[s[:, 2]]
     eps = 1e-9
+    used = np.zeros(len(count), dtype=bool)
     first = 0
     while first < len(count):
         # triangles [first, last): at most batch_cells candidate cells (at least one triangle)
@@ -310,11 +432,13 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
             inside = (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1.0 + eps)
             value = z0[t] + l1 * (z1[t] - z0[t]) + l2 * (z2[t] - z0[t])  # exact on flat triangles
             out[(row[inside] - grid.row0) * grid.cols + (col[inside] - grid.col0)] = value[inside]
+            used[t[inside]] = True
         if progress is not None and total:
             progress.update(grid.rows * n / total)
         first = last
     if progress is not None and not total:
         progress.update(grid.rows)
+    return s[used]
 
 
 def canonical_neighbours(tree, queries: np.ndarray, k: int, upper: float) -> tuple[np.ndarray, np.ndarray]:
@@ -460,13 +584,22 @@ def cell_mean(points: np.ndarray, values: np.ndarray, grid: Grid) -> np.ndarray:
     return np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(grid.rows, grid.cols)
 
 
-def cell_max_count(points: np.ndarray, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`cell_max` (NaN where empty) and :func:`cell_count` in one pass over the points."""
-    row, col = cell_of(points, grid)
-    inside = row >= 0
-    k = row[inside] * grid.cols + col[inside]
+def cell_max_count(points, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cell_max` (NaN where empty) and :func:`cell_count` in one pass over the points.
+
+    *points*: an (n, 3) array, or its three columns x, y, z (1-D arrays,
+    memory-mapped ones too: no stacked copy is made).
+    """
+    x, y, z = (points[:, 0], points[:, 1], points[:, 2]) if isinstance(points, np.ndarray) else points
+    col = np.floor((x - grid.xmin) / grid.resolution).astype(np.int64) - grid.col0
+    row = np.floor((grid.ymax - y) / grid.resolution).astype(np.int64) - grid.row0
+    inside = (col >= 0) & (col < grid.cols) & (row >= 0) & (row < grid.rows)
+    k = row * grid.cols + col
+    del row, col
+    if not inside.all():
+        k, z = k[inside], np.asarray(z)[inside]
     highest = np.full(grid.rows * grid.cols, -np.inf)
-    np.maximum.at(highest, k, points[inside, 2])
+    np.maximum.at(highest, k, z)
     highest[~np.isfinite(highest)] = np.nan
     count = np.bincount(k, minlength=grid.rows * grid.cols)
     return highest.reshape(grid.rows, grid.cols), count.reshape(grid.rows, grid.cols)

@@ -793,16 +793,22 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     if span <= 0:
         return 0
     cell = span / ISOLATION_GRID * (1 + 1e-9)
-    records = np.memmap(path, dtype=np.uint8, mode="r+", offset=offset, shape=(count, size))
 
-    def cells(a: int, b: int):
-        xy = np.ascontiguousarray(records[a:b, 0:8]).view("<i4").reshape(-1, 2) * scales[:2] + offsets[:2]
+    def records(a: int, b: int, mode: str = "r") -> np.memmap:
+        # Records a:b mapped on their own and unmapped after use: a map of the whole
+        # file would hold every page read in the process (its size in RSS).
+        return np.memmap(path, dtype=np.uint8, mode=mode, offset=offset + a * size, shape=(b - a, size))
+
+    def cells(rec: np.ndarray):
+        xy = np.ascontiguousarray(rec[:, 0:8]).view("<i4").reshape(-1, 2) * scales[:2] + offsets[:2]
         c = np.minimum(((xy - mins[:2]) / cell).astype(np.int64), ISOLATION_GRID - 1)
         return c[:, 1] * ISOLATION_GRID + c[:, 0], xy
 
     hist = np.zeros(ISOLATION_GRID * ISOLATION_GRID, dtype=np.int64)
     for a in range(0, count, block):
-        hist += np.bincount(cells(a, min(a + block, count))[0], minlength=hist.size)
+        rec = records(a, min(a + block, count))
+        hist += np.bincount(cells(rec)[0], minlength=hist.size)
+        del rec
     occupied = (hist > 0).reshape(ISOLATION_GRID, ISOLATION_GRID)
     labels, n_groups = ndimage.label(ndimage.binary_dilation(occupied, np.ones((3, 3))), np.ones((3, 3)))
     labels = np.where(occupied, labels, 0)
@@ -826,17 +832,18 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     withheld = 0
     box = None
     for a in range(0, count, block):
-        b = min(a + block, count)
-        flat, xy = cells(a, b)
+        rec = records(a, min(a + block, count), "r+")
+        flat, xy = cells(rec)
         hit = flagged_cells[flat]
         if hit.any():
-            records[a:b, 15][hit] |= 0x04  # classification flags, bit 2: withheld (LAS 1.4, formats 6-10)
+            rec[:, 15][hit] |= 0x04  # classification flags, bit 2: withheld (LAS 1.4, formats 6-10)
             withheld += int(hit.sum())
-        keep = ~hit & (records[a:b, 15] & 0x04 == 0)
+            rec.flush()
+        keep = ~hit & (rec[:, 15] & 0x04 == 0)
+        del rec
         if keep.any():
             lo, hi = xy[keep].min(axis=0), xy[keep].max(axis=0)
             box = [*lo, *hi] if box is None else [*np.minimum(box[:2], lo), *np.maximum(box[2:], hi)]
-    records.flush()
     report.far_from_survey = report.far_from_survey + withheld
     report.usable_box = None if box is None else [float(v) for v in box]
     return withheld

@@ -95,6 +95,7 @@ def test_second_run_is_all_cache_hits(run_dir):
     m = _manifest(out)
     status = {s["name"]: s["status"] for s in m["stages"]}
     assert status.pop("georeference") == "not applicable"  # LAS input is already georeferenced
+    assert status.pop("export_tiles") == "not applicable"  # no stages.export_tiles.tile_size
     assert set(status.values()) == {"cached"}
     assert m["products"] == before
 
@@ -115,6 +116,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
             "contours": "ran",
             "accuracy": "ran",
             "export_las": "cached",
+            "export_tiles": "not applicable",
             "report": "ran",
         }
         with rasterio.open(out / "out" / "dtm.tif") as ds:

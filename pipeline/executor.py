@@ -31,7 +31,7 @@ from importlib import import_module
 from typing import Any
 
 from pipeline.errors import ConfigError
-from pipeline.interrupt import sigint_ignored
+from pipeline.interrupt import sigint_held
 
 
 class LocalExecutor:
@@ -48,7 +48,7 @@ class LocalExecutor:
         """Start the workers and import *fn*'s module in each, while this process does other work."""
         if self.workers == 1:
             return
-        with sigint_ignored():  # the workers start here and inherit it
+        with sigint_held():  # the workers start here and inherit the blocked mask
             if self._pool is None:
                 self._pool = _pool(self.workers)
             for _ in range(self.workers):
@@ -62,7 +62,7 @@ class LocalExecutor:
                 results.append(fn(t))
                 _done(log, i + 1, len(tasks), what)
             return results
-        with sigint_ignored():  # workers may start here and inherit it
+        with sigint_held():  # workers may start here and inherit the blocked mask
             if self._pool is None:
                 self._pool = _pool(self.workers)
             futures = [self._pool.submit(fn, t) for t in tasks]

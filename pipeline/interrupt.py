@@ -102,19 +102,24 @@ def deferred() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT for the block: processes started in it inherit the ignoring.
+def sigint_held() -> Iterator[None]:
+    """Hold SIGINT back for the block: processes and threads started in it never receive it.
 
     Worker processes are started so: a Ctrl-C reaches every process of the
     terminal's group, and only the run that owns the workers must act on it
-    (it stops them).  A Ctrl-C during the few milliseconds of the block is
-    lost; press it again.
+    (it stops them).  The signal is blocked in this thread's mask, which the
+    processes started here inherit through ``exec`` until their initializer
+    ignores it; a Ctrl-C arriving during the block is not lost (as it was
+    when the block set ``SIG_IGN``) but held (:func:`deferred`) and raised
+    when the block ends, and the run stops then.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    # the mask is for the processes started here; deferred() holds a signal another thread took
+    with deferred():
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)

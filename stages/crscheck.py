@@ -115,8 +115,55 @@ def _unit(crs) -> str:
         return "units"
 
 
-#: GeoTIFF linear unit codes (EPSG) a LAS GeoKeyDirectory may give in ProjLinearUnitsGeoKey.
+#: The GeoKey that gives a projected CRS's linear unit (an EPSG unit code), which laspy does not read.
 _PROJ_LINEAR_UNITS_KEY = 3076
+
+#: GeoKeys of a LAS GeoKeyDirectory that laspy does not read: the vertical CRS and the heights' unit.
+_VERTICAL_CS_KEY = 4096
+_VERTICAL_UNITS_KEY = 4099
+
+
+def geo_keys(header) -> list:
+    """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
+    for vlr in header.vlrs:
+        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
+            return list(vlr.geo_keys)
+    return []
+
+
+def _key(keys, key_id: int) -> int | None:
+    """The value of GeoKey *key_id*, or None when absent, 0 (undefined) or 32767 (user-defined)."""
+    code = next((int(k.value_offset) for k in keys if int(k.id) == key_id), None)
+    return None if code in (None, 0, 32767) else code
+
+
+def _axis_in(crs, code: int) -> bool:
+    """Whether *crs*'s first axis is already in the EPSG linear unit *code*."""
+    axis = crs.axis_info[0]
+    return axis.unit_auth_code == "EPSG" and axis.unit_code == str(code)
+
+
+def _linear_unit(code: int):
+    """The EPSG linear unit *code* as pyproj's unit info, or None when PROJ does not know it."""
+    import pyproj
+
+    units = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
+    return next((u for u in units.values() if u.code == str(code)), None)
+
+
+def _in_unit(crs, unit, code: int) -> dict:
+    """PROJJSON of *crs* with every axis in the EPSG linear *unit* (its parameters keep their own units)."""
+    data = crs.to_json_dict()
+    data.pop("id", None)
+    data["name"] = f"{crs.name} ({unit.name})"
+    for axis in data["coordinate_system"]["axis"]:
+        axis["unit"] = {
+            "type": "LinearUnit",
+            "name": unit.name,
+            "conversion_factor": unit.conv_factor,
+            "id": {"authority": "EPSG", "code": code},
+        }
+    return data
 
 
 def honour_linear_units(crs, geo_keys):
@@ -146,11 +193,8 @@ def honour_linear_units(crs, geo_keys):
 
     if crs is None or not crs.is_projected or crs.is_compound:
         return crs, None
-    code = next((int(k.value_offset) for k in geo_keys if int(k.id) == _PROJ_LINEAR_UNITS_KEY), None)
-    if code is None or code in (0, 32767):
-        return crs, None
-    have = crs.axis_info[0]
-    if have.unit_auth_code == "EPSG" and have.unit_code == str(code):
+    code = _key(geo_keys, _PROJ_LINEAR_UNITS_KEY)
+    if code is None or _axis_in(crs, code):
         return crs, None
     info = _linear_unit(code)
     if info is None:
@@ -160,48 +204,6 @@ def honour_linear_units(crs, geo_keys):
         f"its GeoKeys give {crs.name} (EPSG:{crs.to_epsg()}) with ProjLinearUnitsGeoKey = {info.name}: "
         f"read as {new.name}, as GDAL does"
     )
-
-
-#: GeoKeys of a LAS GeoKeyDirectory that laspy does not read: the vertical CRS and the heights' unit.
-_VERTICAL_CS_KEY = 4096
-_VERTICAL_UNITS_KEY = 4099
-
-
-def geo_keys(header) -> list:
-    """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
-    for vlr in header.vlrs:
-        if type(vlr).__name__ == "GeoKeyDirectoryVlr":
-            return list(vlr.geo_keys)
-    return []
-
-
-def _key(keys, key_id: int) -> int | None:
-    """The value of GeoKey *key_id*, or None when absent, 0 (undefined) or 32767 (user-defined)."""
-    code = next((int(k.value_offset) for k in keys if int(k.id) == key_id), None)
-    return None if code in (None, 0, 32767) else code
-
-
-def _linear_unit(code: int):
-    """The EPSG linear unit *code* as pyproj's unit info, or None when PROJ does not know it."""
-    import pyproj
-
-    units = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
-    return next((u for u in units.values() if u.code == str(code)), None)
-
-
-def _in_unit(crs, unit, code: int) -> dict:
-    """PROJJSON of *crs* with every axis in the EPSG linear *unit* (its parameters keep their own units)."""
-    data = crs.to_json_dict()
-    data.pop("id", None)
-    data["name"] = f"{crs.name} ({unit.name})"
-    for axis in data["coordinate_system"]["axis"]:
-        axis["unit"] = {
-            "type": "LinearUnit",
-            "name": unit.name,
-            "conversion_factor": unit.conv_factor,
-            "id": {"authority": "EPSG", "code": code},
-        }
-    return data
 
 
 def honour_vertical_keys(crs, geo_keys):
@@ -242,12 +244,11 @@ def honour_vertical_keys(crs, geo_keys):
     if vertical_code is None:
         if unit is None or crs.is_geographic:
             return crs, None
-        have = crs.axis_info[0]
-        if have.unit_auth_code == "EPSG" and have.unit_code == str(unit_code):
+        if _axis_in(crs, unit_code):
             return crs, None
         return crs, (
             f"its VerticalUnitsGeoKey gives heights in {unit.name} but no vertical CRS: heights are read in "
-            f"{have.unit_name}, the unit of {crs.name}; if they are in {unit.name}, set input.override_crs to "
+            f"{crs.axis_info[0].unit_name}, the unit of {crs.name}; if they are in {unit.name}, set input.override_crs to "
             "a compound CRS that says so (for example EPSG:26915+6360)"
         )
     try:
@@ -260,7 +261,7 @@ def honour_vertical_keys(crs, geo_keys):
             f"the unit of {crs.name}; set input.override_crs to a compound CRS to state their datum"
         )
     data = vertical.to_json_dict()
-    if unit is not None and vertical.axis_info[0].unit_code != str(unit_code):
+    if unit is not None and not _axis_in(vertical, unit_code):
         data = _in_unit(vertical, unit, unit_code)
     horizontal = crs.to_json_dict()
     compound = pyproj.CRS.from_json_dict(

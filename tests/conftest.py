@@ -5,10 +5,13 @@ samples, real surveys under ``../shared/data``) skips where the data are
 missing on a developer's machine, but *fails* when the environment variable
 ``CI`` is set (as every CI service sets it): a CI run that silently skips its
 acceptance tests would report them as passing.
+
+``run_stages``: a run's ``run.json`` stage entries by stage name.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -36,3 +39,8 @@ def require_data(*paths: Path, what: str = "test data") -> None:
 def need_data() -> Callable[..., None]:
     """``need_data(path, ..., what="ISPRS samples")``: see :func:`require_data`."""
     return require_data
+
+
+def run_stages(out: Path) -> dict[str, dict]:
+    """The stage entries of the ``run.json`` in the output folder *out*, by stage name."""
+    return {s["name"]: s for s in json.loads((Path(out) / "run.json").read_text())["stages"]}

@@ -8,8 +8,6 @@ of R_b^n . (R_s^b . v_s + a_b) can be done by hand (written out below).
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pyproj
 import pytest
@@ -17,6 +15,7 @@ import pytest
 from pipeline.cli import main
 from stages.georef.core import Mounting, georeference_local, locate, prepare_trajectory
 from stages.georef.rotation import rot_y, rot_z
+from tests.conftest import run_stages
 
 A = 6_378_137.0
 S30, C30 = 0.5, np.sqrt(3) / 2
@@ -93,7 +92,7 @@ def test_sbet_pulse_end_to_end_by_hand(tmp_path):
         "crs: EPSG:32631\noutput: out\nstages: {georeference: {max_gap_s: 2.0, strips: {keep_turns: true}}}\n"
     )
     assert main(["run", str(config), "-q", "--until", "georeference"]) == 0
-    stages = {s["name"]: s for s in json.loads((tmp_path / "out" / "run.json").read_text())["stages"]}
+    stages = run_stages(tmp_path / "out")
     import laspy
 
     las = laspy.read(stages["georeference"]["outputs"]["points_georef"]["file"])
@@ -129,7 +128,7 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
         "output: out\nstages: {georeference: {frame: ltp, strips: {keep_turns: true}}}\n"
     )
     assert main(["run", str(config), "-q", "--until", "georeference"]) == 0
-    m = {s["name"]: s for s in json.loads((tmp_path / "out" / "run.json").read_text())["stages"]}["georeference"]
+    m = run_stages(tmp_path / "out")["georeference"]
     m = m["metrics"]
     d = m["ltp_vs_exact_extent_m"]  # farthest point from the first fix
     assert 800 < d < 1300  # the 1 km line, from a first fix 3 s before its start

@@ -16,6 +16,7 @@ import pytest
 from pipeline.cli import main
 from stages.sim.config import SimulateConfig
 from stages.sim.simulate import simulate
+from tests.conftest import run_stages
 from tests.stages.test_simulate_georef import _match
 
 SIGMA = 0.03  # range noise, metres
@@ -46,7 +47,7 @@ def _run(root: Path, sim: Path, adjust: str, out: str = "out") -> tuple[dict, di
         f"stages: {{georeference: {{strips: {{turn_rate_deg_s: 2.0, min_line_s: 3.0}}}}, strip_adjust: {{{adjust}}}}}\n"
     )
     assert main(["run", str(config), "-q", "--until", "strip_adjust"]) == 0
-    stages = {s["name"]: s for s in json.loads((root / out / "run.json").read_text())["stages"]}
+    stages = run_stages(root / out)
     stage = stages["strip_adjust"]
     return stage, json.loads(Path(stage["outputs"]["strip_corrections"]["file"]).read_text())
 

@@ -10,7 +10,6 @@ here with scipy), and the DSM and density ignore noise classes 7 and 18.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import laspy
@@ -20,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.cli import main
 from stages.io import read_raster
+from tests.conftest import run_stages
 
 X0, Y0 = 440_000.0, 4_474_000.0
 
@@ -46,7 +46,7 @@ def _run(tmp: Path, las: Path, until: str, stages: str) -> dict:
         f"tiling: {{enabled: false}}\nstages:\n{stages}"
     )
     assert main(["run", str(config), "-q", "--until", until]) == 0
-    return {s["name"]: s for s in json.loads((tmp / "out" / "run.json").read_text())["stages"]}
+    return run_stages(tmp / "out")
 
 
 def _ground(size: int = 60, seed: int = 0) -> np.ndarray:

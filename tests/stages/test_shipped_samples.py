@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.cli import main
+from tests.conftest import run_stages
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = {"flight.yaml": "flight_ldmrs", "flight_nmea.yaml": "flight_lmsq", "flight_sbet.yaml": "flight_lmsq"}
@@ -75,7 +76,7 @@ def test_sample_counts_what_was_injected_and_warns_of_nothing_else(tmp_path, cap
 
     lines = pyogrio.read_info(str(out / "qc" / "trajectory.gpkg"))
     assert lines["features"] == len(faults["line_biases_m"]) and lines["geometry_type"] == "LineString"
-    run = {s["name"]: s for s in json.loads((out / "run.json").read_text())["stages"]}
+    run = run_stages(out)
     geo, adjust = run["georeference"]["metrics"], run["strip_adjust"]["metrics"]
     assert geo["rejected_no_trajectory"] == 0
     # every flown line is a strip, and the adjustment corrects every strip but the datum

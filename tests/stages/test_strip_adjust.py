@@ -15,6 +15,7 @@ import pytest
 from pipeline.cli import main
 from stages.sim.config import SimulateConfig
 from stages.sim.simulate import simulate
+from tests.conftest import run_stages
 from tests.stages.test_simulate_georef import _match
 
 SIGMA = 0.02
@@ -39,7 +40,7 @@ def _adjust(root: Path, sim: Path, extra: str = "reference_strip: 1") -> dict:
         f"input: {{format: las, paths: [{sim}/las/points.laz]}}\noutput: out\nstages: {{strip_adjust: {{{extra}}}}}\n"
     )
     assert main(["run", str(config), "-q", "--until", "strip_adjust"]) == 0
-    stages = {s["name"]: s for s in json.loads((root / "out" / "run.json").read_text())["stages"]}
+    stages = run_stages(root / "out")
     return stages["strip_adjust"]
 
 

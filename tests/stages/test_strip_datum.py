@@ -17,6 +17,7 @@ import numpy as np
 from pipeline.cli import main
 from stages.sim.config import SimulateConfig
 from stages.sim.simulate import simulate
+from tests.conftest import run_stages
 from tests.stages.test_simulate_georef import _match
 
 
@@ -36,7 +37,7 @@ def test_most_overlap_holds_the_middle_strip_and_lands_on_the_truth(tmp_path):
         "stages: {strip_adjust: {reference_strip: most_overlap}}\n"
     )
     assert main(["run", str(config), "-q", "--until", "strip_adjust"]) == 0
-    stages = {s["name"]: s for s in json.loads((tmp_path / "out" / "run.json").read_text())["stages"]}
+    stages = run_stages(tmp_path / "out")
     stage = stages["strip_adjust"]
     assert stage["metrics"]["datum"] == "strip 2"
     report = json.loads((tmp_path / "out" / "strip_corrections.json").read_text())

@@ -33,6 +33,7 @@ import pytest
 from pipeline.cli import main
 from stages.io import read_raster
 from stages.synthetic import make_scene
+from tests.conftest import run_stages
 from tests.stages.test_noise_classes import X0, Y0, write_las
 
 assert X0 % 100 == 0 and Y0 % 100 == 0  # the origin on whole tiles: tile edges at local x, y = 100, 200
@@ -65,7 +66,7 @@ def _run(root: Path, name: str, *sets: str, cache: str | None = None, until: str
     for s in sets:
         args += ["--set", s]
     assert main(args) == 0
-    return {s["name"]: s for s in json.loads((out / "run.json").read_text())["stages"]}
+    return run_stages(out)
 
 
 @pytest.fixture(scope="module")

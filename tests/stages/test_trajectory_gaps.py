@@ -8,8 +8,6 @@ flight whose SBET loses 1.5 s of epochs.
 
 from __future__ import annotations
 
-import json
-
 import laspy
 import numpy as np
 
@@ -17,6 +15,7 @@ from pipeline.cli import main
 from stages.georef.core import Mounting, georeference, prepare_trajectory
 from stages.sim.config import SimulateConfig
 from stages.sim.simulate import simulate
+from tests.conftest import run_stages
 from tests.stages.test_simulate_georef import RIEGL, _input
 
 LAS_GPS_OFFSET = 1e9
@@ -62,7 +61,7 @@ def test_a_navigation_outage_rejects_the_pulses_inside_it(tmp_path):
         "stages:\n  georeference: {max_gap_s: 0.5, strips: {turn_rate_deg_s: 2.0, min_line_s: 2.0}}\n"
     )
     assert main(["run", str(config), "-q", "--until", "georeference"]) == 0
-    stages = {s["name"]: s for s in json.loads((tmp_path / "out" / "run.json").read_text())["stages"]}
+    stages = run_stages(tmp_path / "out")
     geo = stages["georeference"]
     assert geo["metrics"]["rejected_no_trajectory"] == int(inside.sum())
     points = laspy.read(geo["outputs"]["points_georef"]["file"])

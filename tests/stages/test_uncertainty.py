@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +10,7 @@ import pytest
 from pipeline.cli import main
 from stages.georef.core import Mounting, locate, prepare_trajectory
 from stages.georef.uncertainty import Sigmas, propagate
+from tests.conftest import run_stages
 
 
 def _level_pulse(v_s, sig, lever=(0.0, 0.0, 0.0)):
@@ -84,7 +84,7 @@ def test_monte_carlo_matches_the_propagated_sigma(tmp_path):
             "uncertainty: {range_m: 0.03, scan_angle_deg: 0.0}}}\n"
         )
         assert main(["run", str(config), "-q", "--until", "georeference"]) == 0
-        stages = {s["name"]: s for s in json.loads((tmp_path / f"out{k}" / "run.json").read_text())["stages"]}
+        stages = run_stages(tmp_path / f"out{k}")
         out = Path(stages["georeference"]["outputs"]["points_georef"]["file"])
         truth, pts, ia, ib, d = _match(sim / "truth" / "points.laz", out)
         if keys is None:  # the same echoes in every realisation

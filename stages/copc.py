@@ -195,7 +195,7 @@ def write_copc(src: Path, dst: Path, max_node_points: int = 100_000, chunk_size:
     max_node_points : int
         Largest node of the octree (points).
     chunk_size : int
-        Points read at a time for the coordinates.
+        Records taken at a time for the coordinates and GPS times, and the points compressed in one batch.
 
     Returns
     -------
@@ -225,30 +225,29 @@ def write_copc(src: Path, dst: Path, max_node_points: int = 100_000, chunk_size:
         if not header.global_encoding.wkt or not any(v.record_id == 2112 for v in header.vlrs):
             raise ValueError("COPC requires the CRS as WKT and the cloud has none (set input.crs)")
         n = int(header.point_count)
-        xyz = np.empty((n, 3), dtype=np.int32)  # the records' X, Y, Z
-        gps = [math.inf, -math.inf]
-        at = 0
-        for chunk in reader.chunk_iterator(chunk_size):
-            m = len(chunk)
-            xyz[at : at + m] = np.column_stack([chunk.X, chunk.Y, chunk.Z])
-            if m:
-                t = np.asarray(chunk.gps_time)
-                gps = [min(gps[0], float(t.min())), max(gps[1], float(t.max()))]
-            at += m
         evlrs = list(reader.evlrs or []) if hasattr(reader, "evlrs") else []
         compressed = header.are_points_compressed
         offset_to_points = header.offset_to_point_data
     if n == 0:
         raise ValueError("the cloud is empty and a COPC file needs at least one point")
-    scales, offsets = np.asarray(header.scales), np.asarray(header.offsets)
-    tree = build_octree(xyz, max_node_points=max_node_points, scale=scales, offset=offsets)
-    lo, hi = xyz.min(axis=0) * scales + offsets, xyz.max(axis=0) * scales + offsets
-    del xyz
     size = fmt.size
     if compressed:
         records = np.frombuffer(laspy.read(str(src)).points.array.tobytes(), np.uint8).reshape(n, size)
     else:
         records = np.memmap(src, dtype=np.uint8, mode="r", offset=offset_to_points, shape=(n, size))
+    # one pass over the records (read once): X, Y, Z are their first 12 bytes, the GPS time bytes 22-29
+    # in formats 6-8 (LAS 1.4 R15, Table 28)
+    xyz = np.empty((n, 3), dtype=np.int32)
+    gps = [math.inf, -math.inf]
+    for at in range(0, n, chunk_size):
+        block = records[at : at + chunk_size]
+        xyz[at : at + len(block)] = np.ascontiguousarray(block[:, :12]).view("<i4")
+        t = np.ascontiguousarray(block[:, 22:30]).view("<f8")
+        gps = [min(gps[0], float(t.min())), max(gps[1], float(t.max()))]
+    scales, offsets = np.asarray(header.scales), np.asarray(header.offsets)
+    tree = build_octree(xyz, max_node_points=max_node_points, scale=scales, offset=offsets)
+    lo, hi = xyz.min(axis=0) * scales + offsets, xyz.max(axis=0) * scales + offsets
+    del xyz
 
     out = copy.deepcopy(header)
     out.point_count = n

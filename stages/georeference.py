@@ -88,6 +88,23 @@ def ltp_crs(lat0: float, lon0: float, radius: float):
     )
 
 
+def prepare_exact(traj: dict, convention: str, pmeta: dict):
+    """The trajectory in the exact frame (local level at the first fix) and the mounting of the pulses.
+
+    Returns the :class:`~stages.georef.geodesy.LocalFrame`, the
+    :class:`~stages.georef.core.Trajectory` and the
+    :class:`~stages.georef.core.Mounting` (``pmeta``'s rotation and lever arm).
+    """
+    from stages.georef.core import Mounting, prepare_trajectory
+    from stages.georef.geodesy import LocalFrame
+
+    frame = LocalFrame(float(traj["lat"][0]), float(traj["lon"][0]), float(traj["h"][0]))
+    exact = prepare_trajectory(traj["time"], traj["lat"], traj["lon"], traj["h"], traj["roll"], traj["pitch"],
+                               traj["yaw"], convention, frame)  # fmt: skip
+    mounting = Mounting(np.asarray(pmeta["rotation"], dtype=np.float64), np.asarray(pmeta["lever_arm"], float))
+    return frame, exact, mounting
+
+
 def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: float):
     """A :class:`~stages.georef.core.Trajectory` in the seed-0 LTP: formula positions, one fixed local level."""
     from stages.georef.core import trajectory_from
@@ -204,8 +221,8 @@ class Georeference(Stage):
     def run(self, ctx) -> None:
         import laspy
 
-        from stages.georef.core import Mounting, georeference, georeference_local, locate, prepare_trajectory
-        from stages.georef.geodesy import LocalFrame, MapTransform
+        from stages.georef.core import georeference, georeference_local, locate
+        from stages.georef.geodesy import MapTransform
         from stages.georef.strips import segment_strips
         from stages.io import point_header, read_columns
         from stages.readers.las import output_crs
@@ -218,11 +235,8 @@ class Georeference(Stage):
         if len(traj["time"]) == 0 or n_pulses == 0:
             raise InputDataError("nothing to georeference: the trajectory or the pulses are empty.")
         lat0, lon0, h0 = float(traj["lat"][0]), float(traj["lon"][0]), float(traj["h"][0])
-        frame = LocalFrame(lat0, lon0, h0)
-        exact = prepare_trajectory(traj["time"], traj["lat"], traj["lon"], traj["h"], traj["roll"], traj["pitch"],
-                                   traj["yaw"], convention, frame)  # fmt: skip
+        frame, exact, mounting = prepare_exact(traj, convention, pmeta)
         ltp = prepare_ltp(traj, convention, lat0, lon0, p.ltp_radius_m)
-        mounting = Mounting(np.asarray(pmeta["rotation"], dtype=np.float64), np.asarray(pmeta["lever_arm"], float))
 
         # strips from the trajectory's heading
         strips_epoch = segment_strips(traj["time"], traj["yaw"], turn_rate_deg_s=p.strips.turn_rate_deg_s,

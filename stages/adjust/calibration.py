@@ -15,8 +15,7 @@ import numpy as np
 
 from pipeline.errors import ConfigError, InputDataError
 from stages.adjust.mounting import ADVICE, Links, Sample, corrected_mounting, distances, make_unknowns, solve
-
-LAS_GPS_OFFSET = 1e9  # as stages.georeference writes gps_time
+from stages.georeference import LAS_GPS_OFFSET  # how the georeference stage writes gps_time
 
 
 def pulse_index(pulse_time: np.ndarray, las_time: np.ndarray) -> np.ndarray:
@@ -64,20 +63,15 @@ class _Geometry:
     """The trajectory, mounting and map transform of the georeference stage, rebuilt."""
 
     def __init__(self, ctx, traj, tmeta, pulses, pmeta):
-        from stages.georef.core import Mounting, prepare_trajectory
-        from stages.georef.geodesy import LocalFrame, MapTransform
-        from stages.georeference import prepare_ltp
+        from stages.georef.geodesy import MapTransform
+        from stages.georeference import prepare_exact, prepare_ltp
         from stages.readers.las import output_crs
 
         g = ctx.config.stages.georeference
         self.max_gap_s = g.max_gap_s
         convention = tmeta["convention"]
-        lat0, lon0, h0 = float(traj["lat"][0]), float(traj["lon"][0]), float(traj["h"][0])
-        frame = LocalFrame(lat0, lon0, h0)
-        self.exact = prepare_trajectory(traj["time"], traj["lat"], traj["lon"], traj["h"], traj["roll"],
-                                        traj["pitch"], traj["yaw"], convention, frame)  # fmt: skip
-        self.mounting = Mounting(np.asarray(pmeta["rotation"], dtype=np.float64),
-                                 np.asarray(pmeta["lever_arm"], dtype=np.float64))  # fmt: skip
+        lat0, lon0 = float(traj["lat"][0]), float(traj["lon"][0])
+        frame, self.exact, self.mounting = prepare_exact(traj, convention, pmeta)
         reach = 0.0
         for s in range(0, len(pulses["time"]), 2_000_000):
             v = np.column_stack([np.asarray(pulses[k][s : s + 2_000_000]) for k in ("x", "y", "z")])

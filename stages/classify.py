@@ -21,6 +21,7 @@ the default, and how each algorithm scores: docs/GROUND.md.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
@@ -77,6 +78,13 @@ class ClassifyGroundParams(StageParams):
     )
     last_returns: bool = Field(True, description="only last or single returns can be ground")
     keep_water: bool = Field(True, description="points the input classified as water (9) keep it; never ground")
+    one_grid_cells: int = Field(
+        8_000_000,
+        ge=0,
+        description="SMRF filters the whole survey on one grid, in passes over the points, when the grid has at "
+        "most this many cells (8 km2 of 1 m cells; about 55 bytes a cell while it is filtered, more where cells "
+        "are empty); larger surveys are cut into tiles with its buffer; 0: always tiles",
+    )
 
 
 def reach(algorithm: StrictModel) -> float:
@@ -191,6 +199,30 @@ def ground_mask(points: np.ndarray, algorithm: StrictModel) -> np.ndarray:
     raise ValueError(f"unknown ground algorithm {algorithm.name}")  # pragma: no cover - config rejects it
 
 
+def candidates_of(
+    classification: np.ndarray,
+    return_number: np.ndarray,
+    number_of_returns: np.ndarray,
+    withheld: np.ndarray,
+    params: ClassifyGroundParams,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(keep, candidates)``: the points whose class stays, and those the algorithm may call ground."""
+    kept_classes = (glossary.LOW_NOISE, glossary.HIGH_NOISE) + ((glossary.WATER,) if params.keep_water else ())
+    keep = np.isin(classification, kept_classes) | np.asarray(withheld, dtype=bool)
+    candidates = ~keep
+    if params.last_returns:
+        candidates &= np.asarray(return_number) >= np.asarray(number_of_returns)
+    return keep, candidates
+
+
+def new_classes(classification: np.ndarray, keep: np.ndarray, ground: np.ndarray) -> np.ndarray:
+    """2 where *ground*, 1 for the other points not kept, the input class where *keep*."""
+    cls = np.asarray(classification).copy()
+    cls[~keep] = glossary.UNCLASSIFIED
+    cls[ground] = glossary.GROUND
+    return cls
+
+
 def classify(
     points: np.ndarray,
     classification: np.ndarray,
@@ -200,18 +232,11 @@ def classify(
     params: ClassifyGroundParams,
 ) -> np.ndarray:
     """New classes: 2 ground, 1 other; noise (7, 18), withheld and (``keep_water``) water (9) points unchanged."""
-    cls = np.asarray(classification).copy()
-    kept_classes = (glossary.LOW_NOISE, glossary.HIGH_NOISE) + ((glossary.WATER,) if params.keep_water else ())
-    keep = np.isin(cls, kept_classes) | np.asarray(withheld, dtype=bool)
-    candidates = ~keep
-    if params.last_returns:
-        candidates &= np.asarray(return_number) >= np.asarray(number_of_returns)
-    ground = np.zeros(len(cls), dtype=bool)
+    keep, candidates = candidates_of(classification, return_number, number_of_returns, withheld, params)
+    ground = np.zeros(len(keep), dtype=bool)
     if candidates.any():
         ground[candidates] = ground_mask(points[candidates], params.algorithm)
-    cls[~keep] = glossary.UNCLASSIFIED
-    cls[ground] = glossary.GROUND
-    return cls
+    return new_classes(classification, keep, ground)
 
 
 class ClassifyGround(Stage):
@@ -246,15 +271,31 @@ class ClassifyGround(Stage):
                 grid_cell(used),
             )
             params = params.model_copy(update={"algorithm": used})
-        results = classes_by_tile(
-            ctx,
-            src,
-            ctx.outputs["points_classified"],
-            buffer=self.tile_buffer(params),
-            columns=_classify_columns,
-            task=classify_tile,
-            extra={"params": params.model_dump(mode="json")},
-        )
+        whole = None
+        if params.algorithm.name == "smrf" and params.one_grid_cells > 0:
+            with ctx.progress(2 * cloud_info(src).count, "filtering", unit="pt") as bar:
+                threads = max(1, min(ctx.config.executor.workers, os.cpu_count() or 1))
+                whole = smrf_one_grid(src, ctx.outputs["points_classified"], params, threads=threads, progress=bar)
+        if whole is not None:  # SMRF on one grid of the whole survey: no tile, no buffer (see smrf_one_grid)
+            ctx.metrics["tiling"] = {
+                "tiles": 1,
+                "size": None,
+                "buffer": 0.0,
+                "executor": "one grid, this process",
+                "grid": list(whole["grid"]),
+            }
+            ctx.log.info("SMRF on one grid of %d x %d cells of %g m", *whole["grid"], grid_cell(params.algorithm))
+            results = [whole]
+        else:
+            results = classes_by_tile(
+                ctx,
+                src,
+                ctx.outputs["points_classified"],
+                buffer=self.tile_buffer(params),
+                columns=_classify_columns,
+                task=classify_tile,
+                extra={"params": params.model_dump(mode="json")},
+            )
         counts = {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground", "last_returns")}
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]
         if n and ground == 0 and params.last_returns and counts["last_returns"] == 0:
@@ -310,3 +351,176 @@ def classify_tile(task: dict) -> dict:
         "ground": int((kept == glossary.GROUND).sum()),
         "non_ground": int((kept == glossary.UNCLASSIFIED).sum()),
     }
+
+
+def _chunks(path: Path, work, *, threads: int = 1, chunk_size: int = 1_000_000):
+    """``work(chunk, xyz, columns)`` of each chunk of a LAS file, in file order, on *threads* threads.
+
+    ``xyz`` are the chunk's coordinates in metres and ``columns`` what
+    :func:`classify` needs, as :func:`stages.tiles.split_cloud` reads them.
+    The file is read in this thread; numpy releases the interpreter lock
+    in the arithmetic, so two threads share a chunk's work on two cores.
+    At most one chunk more than there are threads is read ahead.
+    """
+    import laspy
+
+    from stages.io import cloud_crs
+    from stages.units import Units
+
+    with laspy.open(str(path)) as reader:
+        units = Units.of(cloud_crs(reader))
+
+        def one(chunk):
+            xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
+            return work(chunk, xyz, _classify_columns(chunk))
+
+        if threads <= 1:
+            for chunk in reader.chunk_iterator(chunk_size):
+                yield one(chunk)
+            return
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(threads) as pool:
+            pending: deque = deque()
+            for chunk in reader.chunk_iterator(chunk_size):
+                pending.append(pool.submit(one, chunk))
+                if len(pending) > threads:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+
+
+def _anchored(lo, hi, cell: float) -> tuple[float, float, int, int]:
+    """``(x0, y0, rows, cols)`` of the grid of cells of *cell* over a box, anchored as :func:`stages.ground.surface.index_points`."""
+    x0 = float(np.floor(lo[0] / cell) * cell)
+    y0 = float(np.floor(lo[1] / cell) * cell)
+    return x0, y0, int(np.floor((hi[1] - y0) / cell)) + 1, int(np.floor((hi[0] - x0) / cell)) + 1
+
+
+def _candidate_bounds(src: Path, params: ClassifyGroundParams, threads: int = 1, chunk_size: int = 1_000_000):
+    """Lowest and highest x, y of the points the algorithm may call ground; None when there is none."""
+
+    def bounds(_, xyz, cols):
+        _, cand = candidates_of(**cols, params=params)
+        if not cand.any():
+            return np.full(2, np.inf), np.full(2, -np.inf)
+        return xyz[cand, :2].min(axis=0), xyz[cand, :2].max(axis=0)
+
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    for low, high in _chunks(src, bounds, threads=threads, chunk_size=chunk_size):
+        lo, hi = np.minimum(lo, low), np.maximum(hi, high)
+    return (lo, hi) if np.isfinite(lo).all() else None
+
+
+def _lowest(
+    src: Path, params: ClassifyGroundParams, anchor, progress=None, threads: int = 1, chunk_size: int = 1_000_000
+):
+    """The lowest candidate per cell of the grid *anchor*, and the rows and columns the candidates occupy.
+
+    Returns ``(zmin, (r0, r1, c0, c1))`` (NaN where a cell holds no
+    candidate; ``r1``, ``c1`` inclusive; None without candidates), or None
+    when a candidate lies off the grid (a header whose bounds miss points).
+    """
+    x0, y0, rows, cols = anchor
+    cell = params.algorithm.cell_size
+
+    def cells(_, xyz, columns):
+        _, cand = candidates_of(**columns, params=params)
+        col = np.floor((xyz[cand, 0] - x0) / cell).astype(np.int64)
+        row = np.floor((xyz[cand, 1] - y0) / cell).astype(np.int64)
+        if not len(col):
+            return len(xyz), None, None, None
+        box = (row.min(), row.max(), col.min(), col.max())
+        return len(xyz), box, row * cols + col, xyz[cand, 2]
+
+    zmin = np.full(rows * cols, np.inf)
+    box = [rows, -1, cols, -1]
+    for n, part, flat, z in _chunks(src, cells, threads=threads, chunk_size=chunk_size):
+        if part is not None:
+            r0, r1, c0, c1 = part
+            if r0 < 0 or c0 < 0 or r1 >= rows or c1 >= cols:
+                return None
+            box = [min(box[0], r0), max(box[1], r1), min(box[2], c0), max(box[3], c1)]
+            np.minimum.at(zmin, flat, z)
+        if progress is not None:
+            progress.update(n)
+    zmin[~np.isfinite(zmin)] = np.nan
+    return zmin.reshape(rows, cols), (tuple(int(b) for b in box) if box[1] >= 0 else None)
+
+
+def smrf_one_grid(
+    src: Path,
+    dst: Path,
+    params: ClassifyGroundParams,
+    *,
+    threads: int = 1,
+    chunk_size: int = 1_000_000,
+    progress=None,
+) -> dict | None:
+    """SMRF on one grid of the whole survey: *src* copied to *dst* with the new classes; None when too big.
+
+    SMRF's grid steps (:func:`stages.ground.smrf.provisional_dem`) need no
+    point, and a survey's grid is small next to its points (8 bytes a cell
+    against 30 or more a point), so the survey is filtered whole, in
+    passes over the points a chunk at a time:
+
+    1. the lowest candidate per cell, on the grid of the file header's
+       bounds (when a candidate lies off it, or that grid has more than
+       ``one_grid_cells`` cells, the candidates' bounds are read first);
+    2. the grid cut to the cells the candidates occupy: the grid
+       :func:`classify` makes of all the points at once, so the classes
+       are those of an untiled run, with no buffer read twice and memory
+       that follows the grid and the chunk, not the points;
+    3. each chunk's point test and classes, written as it is read.
+
+    Returns the counts, or None (nothing written) when the grid of the
+    candidates has more than ``one_grid_cells`` cells: the caller tiles.
+    """
+    import laspy
+
+    from stages.ground.smrf import point_test, provisional_dem
+    from stages.ground.surface import CellIndex
+    from stages.tiles import cloud_info
+
+    algo = params.algorithm
+    cell, cap = algo.cell_size, params.one_grid_cells
+    extent = cloud_info(src).extent
+    anchor = _anchored(extent[:2], extent[2:], cell)
+    got = _lowest(src, params, anchor, progress, threads, chunk_size) if anchor[2] * anchor[3] <= cap else None
+    if got is None:  # the header's grid is too big (stray points) or misses points: the candidates' own
+        bounds = _candidate_bounds(src, params, threads, chunk_size)
+        anchor = _anchored(*bounds, cell) if bounds is not None else (0.0, 0.0, 1, 1)
+        if anchor[2] * anchor[3] > cap:
+            return None
+        got = _lowest(src, params, anchor, threads=threads, chunk_size=chunk_size)
+    zmin, box = got
+    test = {"elevation_threshold": algo.elevation_threshold, "elevation_scalar": algo.elevation_scalar}
+    surfaces, grid = None, None
+    if box is not None:
+        r0, r1, c0, c1 = box
+        x0, y0 = anchor[0] + c0 * cell, anchor[1] + r0 * cell
+        grid = CellIndex(x0, y0, cell, r1 - r0 + 1, c1 - c0 + 1, np.zeros(0, np.int64), np.zeros(0, np.int64))
+        zmin = zmin[r0 : r1 + 1, c0 : c1 + 1]
+        surfaces = provisional_dem(zmin, cell_size=cell, slope=algo.slope, max_window_size=algo.max_window_size, **test)
+    del zmin
+
+    def classes(chunk, xyz, cols):
+        keep, cand = candidates_of(**cols, params=params)
+        ground = np.zeros(len(keep), dtype=bool)
+        if surfaces is not None and cand.any():
+            ground[cand] = point_test(xyz[cand], grid, *surfaces, **test)
+        chunk.classification = cls = new_classes(cols["classification"], keep, ground)
+        last = int((cols["return_number"] >= cols["number_of_returns"]).sum())
+        return chunk, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
+
+    counts = dict.fromkeys(("points", "ground", "non_ground", "last_returns"), 0)
+    with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+        for chunk, numbers in _chunks(src, classes, threads=threads, chunk_size=chunk_size):
+            writer.write_points(chunk)
+            for key, value in zip(counts, numbers, strict=True):
+                counts[key] += value
+            if progress is not None:
+                progress.update(numbers[0])
+    counts["grid"] = (grid.rows, grid.cols) if grid is not None else (0, 0)
+    return counts

@@ -14,12 +14,13 @@ import numpy as np
 from scipy import ndimage
 
 from stages.ground.surface import (
+    CellIndex,
     as_xyz,
     index_points,
     inpaint,
     min_grid,
     pad_linear,
-    sample_bilinear,
+    sample_bilinear_all,
     slope_grid,
 )
 
@@ -58,7 +59,9 @@ def _dilate_octagon(grid: np.ndarray, radius: int) -> np.ndarray:
     return out
 
 
-def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, max_radius: int) -> np.ndarray:
+def progressive_filter(
+    surface: np.ndarray, *, cell_size: float, slope: float, max_radius: int, threads: int = 1
+) -> np.ndarray:
     """Flag cells that an opening of growing radius lowers by more than the slope allows.
 
     Parameters
@@ -71,6 +74,9 @@ def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, m
         ``s``: the threshold at radius ``r`` cells is ``s * r * c``.
     max_radius : int
         Largest radius, in cells.
+    threads : int
+        Bands of rows filtered at once (SciPy's filters release the
+        interpreter lock); the result does not depend on it.
 
     Returns
     -------
@@ -88,6 +94,27 @@ def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, m
     """
     pad = max_radius
     surface = pad_linear(surface, pad)
+    rows = surface.shape[0]
+    # An opening of radius r reads 2 r cells around a cell (r erosions, a dilation of r), so a band of
+    # rows filtered with 2 max_radius rows more on each side gives its own rows exactly.
+    reach = 2 * max_radius
+    bands = max(1, min(threads, rows // max(4 * reach, 64)))
+    if bands == 1:
+        return _flag(surface, cell_size, slope, max_radius)[pad:-pad, pad:-pad]
+    cuts = np.linspace(0, rows, bands + 1).round().astype(int)
+    spans = [(max(a - reach, 0), min(b + reach, rows), a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+    from concurrent.futures import ThreadPoolExecutor
+
+    objects = np.empty(surface.shape, dtype=bool)
+    with ThreadPoolExecutor(bands) as pool:
+        parts = pool.map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius), spans)
+        for (lo, _, a, b), part in zip(spans, parts, strict=True):
+            objects[a:b] = part[a - lo : b - lo]
+    return objects[pad:-pad, pad:-pad]
+
+
+def _flag(surface: np.ndarray, cell_size: float, slope: float, max_radius: int) -> np.ndarray:
+    """The object cells of a padded surface (the loop of :func:`progressive_filter`)."""
     objects = np.zeros(surface.shape, dtype=bool)
     previous = surface
     eroded = surface
@@ -96,7 +123,7 @@ def progressive_filter(surface: np.ndarray, *, cell_size: float, slope: float, m
         opened = _dilate_octagon(eroded, radius)
         objects |= (previous - opened) > slope * radius * cell_size
         previous = opened
-    return objects[pad:-pad, pad:-pad]
+    return objects
 
 
 def _provisional(zmin: np.ndarray, objects: np.ndarray) -> np.ndarray | None:
@@ -187,29 +214,78 @@ def smrf(
     if len(xyz) == 0:
         return np.zeros(0, dtype=bool)
     idx = index_points(xyz[:, :2], cell_size)
-    zmin = min_grid(xyz[:, 2], idx)
+    surfaces = provisional_dem(
+        min_grid(xyz[:, 2], idx),
+        cell_size=cell_size,
+        slope=slope,
+        max_window_size=max_window_size,
+        elevation_threshold=elevation_threshold,
+        elevation_scalar=elevation_scalar,
+    )
+    if surfaces is None:
+        return np.zeros(len(xyz), dtype=bool)
+    return point_test(xyz, idx, *surfaces, elevation_threshold=elevation_threshold, elevation_scalar=elevation_scalar)
+
+
+def provisional_dem(
+    zmin: np.ndarray,
+    *,
+    cell_size: float,
+    slope: float,
+    max_window_size: float,
+    elevation_threshold: float,
+    elevation_scalar: float,
+    threads: int = 1,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Steps 1-4 of :func:`smrf` on a minimum surface: the provisional DEM and its slope; None without one.
+
+    *zmin* is the lowest *z* per cell (NaN where a cell holds no point) on
+    the grid of the points' bounding box (:func:`stages.ground.surface.index_points`):
+    this is all of SMRF that needs no point, so a survey's grid can be
+    made in one streaming pass over its points and filtered whole.
+    *threads*: see :func:`progressive_filter`.
+    """
     surface = inpaint(zmin)
-    # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM (see Notes).
+    # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM (see smrf's Notes).
     low = progressive_filter(-surface, cell_size=cell_size, slope=5.0, max_radius=1)
     max_radius = max(1, int(math.ceil(max_window_size / cell_size)))
-    objects = progressive_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius)
+    objects = progressive_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius, threads=threads)
+    del surface
     dem = _provisional(zmin, objects | low)
     if dem is None:
-        return np.zeros(len(xyz), dtype=bool)
+        return None
     tolerance = elevation_threshold + elevation_scalar * slope_grid(dem, cell_size)
     deep = low & (zmin < dem - tolerance)  # empty cells (NaN) compare False: not outliers
     if deep.any():  # the low cells that are below the terrain, not below a canopy: out of the object filter too
         cleaned = zmin.copy()
         cleaned[deep] = np.nan
-        objects = progressive_filter(inpaint(cleaned), cell_size=cell_size, slope=slope, max_radius=max_radius)
+        objects = progressive_filter(
+            inpaint(cleaned), cell_size=cell_size, slope=slope, max_radius=max_radius, threads=threads
+        )
+        del cleaned
         dem = _provisional(zmin, objects | low)
         if dem is None:  # pragma: no cover - defensive: every cell an object or low
-            return np.zeros(len(xyz), dtype=bool)
-    slope_dem = slope_grid(dem, cell_size)
+            return None
+    return dem, slope_grid(dem, cell_size)
+
+
+def point_test(
+    xyz: np.ndarray,
+    idx: CellIndex,
+    dem: np.ndarray,
+    slope_dem: np.ndarray,
+    *,
+    elevation_threshold: float,
+    elevation_scalar: float,
+) -> np.ndarray:
+    """Step 5 of :func:`smrf`: True where ``|z - DEM| <= et + es * slope(DEM)``, both sampled bilinearly.
+
+    Only ``idx``'s grid (corner and cell) is used, not its points: any
+    points on that grid can be tested, a chunk at a time.
+    """
     ground = np.empty(len(xyz), dtype=bool)
     for a in range(0, len(xyz), _BLOCK):  # in blocks: bilinear sampling makes ten temporaries per point
         x, y, z = xyz[a : a + _BLOCK, 0], xyz[a : a + _BLOCK, 1], xyz[a : a + _BLOCK, 2]
-        at = sample_bilinear(dem, idx, x, y)
-        grad = sample_bilinear(slope_dem, idx, x, y)
+        at, grad = sample_bilinear_all((dem, slope_dem), idx, x, y)
         ground[a : a + _BLOCK] = np.abs(z - at) <= elevation_threshold + elevation_scalar * grad
     return ground

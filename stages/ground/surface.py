@@ -129,18 +129,33 @@ def inpaint(grid: np.ndarray) -> np.ndarray:
 
 def sample_bilinear(grid: np.ndarray, idx: CellIndex, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of cell-centre values at points (clamped at the edges)."""
+    return sample_bilinear_all((grid,), idx, x, y)[0]
+
+
+def sample_bilinear_all(
+    grids: tuple[np.ndarray, ...], idx: CellIndex, x: np.ndarray, y: np.ndarray
+) -> list[np.ndarray]:
+    """:func:`sample_bilinear` of several grids of one shape at the same points (the weights computed once)."""
     fx = (x - idx.x0) / idx.cell_size - 0.5
     fy = (y - idx.y0) / idx.cell_size - 0.5
-    rows, cols = grid.shape
+    rows, cols = grids[0].shape
     c0 = np.clip(np.floor(fx).astype(np.int64), 0, max(cols - 2, 0))
     r0 = np.clip(np.floor(fy).astype(np.int64), 0, max(rows - 2, 0))
-    c1 = np.minimum(c0 + 1, cols - 1)
-    r1 = np.minimum(r0 + 1, rows - 1)
     tx = np.clip(fx - c0, 0.0, 1.0)
     ty = np.clip(fy - r0, 0.0, 1.0)
-    top = grid[r0, c0] * (1 - tx) + grid[r0, c1] * tx
-    bottom = grid[r1, c0] * (1 - tx) + grid[r1, c1] * tx
-    return top * (1 - ty) + bottom * ty
+    # the four corners as flat indices (the next column and row, or the same one on a grid one cell wide)
+    i00 = r0 * cols + c0
+    i01 = i00 + (1 if cols > 1 else 0)
+    i10 = i00 + (cols if rows > 1 else 0)
+    i11 = i10 + (i01 - i00)
+    ux, uy = 1 - tx, 1 - ty
+    out = []
+    for grid in grids:
+        flat = grid.ravel()
+        top = flat.take(i00) * ux + flat.take(i01) * tx
+        bottom = flat.take(i10) * ux + flat.take(i11) * tx
+        out.append(top * uy + bottom * ty)
+    return out
 
 
 def slope_grid(grid: np.ndarray, cell_size: float) -> np.ndarray:

@@ -78,6 +78,10 @@ def _survey(path: Path, far: float, length: float) -> np.ndarray:
     return np.r_[np.zeros(len(ground), bool), np.ones(ROWS, bool)]
 
 
+#: SMRF filters a grid this small whole (no tile, no buffer); these runs make it cut the survey into tiles.
+TILES = ("stages.classify_ground.one_grid_cells=0",)
+
+
 @pytest.fixture(scope="module", params=list(RIVERS))
 def river(request, tmp_path_factory):
     far, length, short = RIVERS[request.param]
@@ -91,8 +95,8 @@ def river(request, tmp_path_factory):
     runs = {}
     for name, sets in (
         ("untiled", ["tiling.enabled=false"]),
-        ("declared", ["tiling.size=100"]),  # the buffer the stage declares
-        ("short", ["tiling.size=100", f"tiling.buffer={short:g}"]),
+        ("declared", ["tiling.size=100", *TILES]),  # the buffer the stage declares
+        ("short", ["tiling.size=100", f"tiling.buffer={short:g}", *TILES]),
     ):
         args = ["run", str(root / "river.yaml"), "-q", "--until", "classify_ground",
                 "--set", f"output={root / name}", "--set", f"cache={root / name / 'cache'}"]  # fmt: skip

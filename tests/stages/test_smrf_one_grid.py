@@ -1,0 +1,121 @@
+"""SMRF on one grid of the whole survey (issue 17): the classes of SMRF run on all the points at once.
+
+``classify_ground`` filters a survey whose SMRF grid has at most
+``one_grid_cells`` cells in passes over its points (lowest point per cell,
+the grid filtered whole, the point test chunk by chunk) instead of tiles.
+The reference is :func:`stages.classify.classify` on every point in memory,
+the untiled code of before; the survey has buildings, trees with multiple
+returns, points the filter must leave alone (noise, water, withheld) and a
+stray withheld point 40 km away that makes the header's grid too big, and a
+building cut by the survey's west edge, beside noise points 30 m farther
+west: a grid that reached them (the header's) would fill the empty cells
+from the roof and make the building too wide to remove.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+
+from stages.classify import ClassifyGroundParams, classify, smrf_one_grid
+from stages.ground.smrf import progressive_filter
+from stages.synthetic import make_scene
+
+X0, Y0 = 440_000.0, 4_474_000.0
+
+
+def _survey(path: Path, *, stray: bool) -> laspy.LasData:
+    scene = make_scene(width=260.0, height=190.0, density=2.0, seed=7, n_trees=40)
+    n = len(scene.x)
+    rng = np.random.default_rng(3)
+    cls = np.zeros(n, np.uint8)
+    cls[rng.random(n) < 0.01] = 7  # noise and water keep their class and are no candidates
+    cls[rng.random(n) < 0.01] = 9
+    withheld = rng.random(n) < 0.005
+    x, y, z = scene.x, scene.y, scene.z.copy()
+    z[(x < 20.0) & (y > 80.0) & (y < 110.0)] += 6.0  # a building cut by the survey's west edge
+    # noise beyond the candidates' box on the west: the header's grid is wider than the one SMRF filters
+    x = np.r_[x, -30.0, -25.0]
+    y, z = np.r_[y, 50.0, 60.0], np.r_[z, z.min() - 20.0, z.min() - 25.0]
+    cls, withheld = np.r_[cls, 7, 7], np.r_[withheld, False, False]
+    rn, nr = np.r_[scene.return_number, 1, 1], np.r_[scene.number_of_returns, 1, 1]
+    if stray:  # a withheld point 40 km east: its header's grid has 8 million cells
+        x, y, z = np.r_[x, 40_000.0], np.r_[y, 100.0], np.r_[z, z.mean()]
+        cls, withheld, rn, nr = np.r_[cls, 0], np.r_[withheld, True], np.r_[rn, 1], np.r_[nr, 1]
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001] * 3)
+    header.offsets = np.array([X0, Y0, 0.0])
+    header.add_crs(pyproj.CRS.from_epsg(25830))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x + X0, y + Y0, z
+    las.return_number, las.number_of_returns = rn, nr
+    las.classification = cls
+    las.withheld = withheld
+    las.write(str(path))
+    return laspy.read(str(path))
+
+
+def _reference(las: laspy.LasData, params: ClassifyGroundParams) -> np.ndarray:
+    xyz = np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))
+    return classify(
+        xyz,
+        np.asarray(las.classification),
+        np.asarray(las.return_number),
+        np.asarray(las.number_of_returns),
+        np.asarray(las.withheld),
+        params,
+    )
+
+
+@pytest.mark.parametrize("stray", [False, True], ids=["header grid", "candidates' grid"])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_one_grid_gives_the_classes_of_smrf_on_all_points(tmp_path, stray, threads):
+    las = _survey(tmp_path / "in.las", stray=stray)
+    params = ClassifyGroundParams(one_grid_cells=1_000_000)
+    expected = _reference(las, params)
+    assert 0.3 < (expected == 2).mean() < 0.9 and (expected == 1).sum() > 1000  # buildings and trees removed
+    counts = smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", params, threads=threads, chunk_size=7_000)
+    out = laspy.read(str(tmp_path / "out.las"))
+    np.testing.assert_array_equal(np.asarray(out.classification), expected)
+    # every other field and the header's bounds and counts as they were
+    for name in ("X", "Y", "Z", "return_number", "number_of_returns", "withheld", "gps_time"):
+        np.testing.assert_array_equal(np.asarray(out[name]), np.asarray(las[name]))
+    assert counts["points"] == len(expected) and counts["ground"] == int((expected == 2).sum())
+    assert counts["non_ground"] == int((expected == 1).sum())
+    # the grid is the candidates' box (about 260 x 190 cells), not the header's
+    assert counts["grid"][1] < 300 and counts["grid"][0] < 250
+
+
+def test_a_grid_over_the_limit_is_left_to_the_tiles(tmp_path):
+    _survey(tmp_path / "in.las", stray=True)
+    params = ClassifyGroundParams(one_grid_cells=20_000)  # the candidates' grid has about 50,000 cells
+    assert smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", params) is None
+    assert not (tmp_path / "out.las").exists()
+
+
+def test_the_progressive_filter_in_bands_equals_one_band():
+    """Wide buildings 35 rows deep start 10 rows before each cut between the bands.
+
+    An opening of radius 18 cells (37 across) removes them, but only when it
+    sees all 35 rows: a band that read less than 2 w_max = 36 rows beyond its
+    own (18, say) would see them run on past its edge and keep their first
+    10 rows as ground."""
+    rng = np.random.default_rng(5)
+    rows, cols, w = 600, 160, 18
+    yy, xx = np.mgrid[0:rows, 0:cols].astype(float)
+    base = 100.0 + 0.05 * xx + 0.03 * yy + rng.normal(0, 0.05, (rows, cols))
+    one_band = progressive_filter(base, cell_size=1.0, slope=0.15, max_radius=w)
+    for threads in (2, 3, 4):
+        surface = base.copy()
+        # the bands split the rows padded by w on each side evenly
+        for cut in np.linspace(0, rows + 2 * w, threads + 1).round().astype(int)[1:-1] - w:
+            surface[cut - 10 : cut + 25, 20:140] += 8.0
+        one = progressive_filter(surface, cell_size=1.0, slope=0.15, max_radius=w)
+        assert one[surface > base].all() and one_band.mean() < 0.01  # every building cell is an object
+        np.testing.assert_array_equal(
+            progressive_filter(surface, cell_size=1.0, slope=0.15, max_radius=w, threads=threads), one
+        )

@@ -371,8 +371,12 @@ def _chunks(path: Path, work, *, threads: int = 1, chunk_size: int = 1_000_000):
         units = Units.of(cloud_crs(reader))
 
         def one(chunk):
-            xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
-            return work(chunk, xyz, _classify_columns(chunk))
+            # laspy's scaled x, y, z ((X * scale) + offset, the same values), made in the columns of one array
+            xyz = np.empty((len(chunk), 3), order="F")
+            for axis, name in enumerate("XYZ"):
+                np.multiply(chunk.array[name], chunk.scales[axis], out=xyz[:, axis])
+                xyz[:, axis] += chunk.offsets[axis]
+            return work(chunk, units.to_metres(xyz), _classify_columns(chunk))
 
         if threads <= 1:
             for chunk in reader.chunk_iterator(chunk_size):

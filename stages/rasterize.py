@@ -105,7 +105,7 @@ class Rasterize(Stage):
 
     def run(self, ctx) -> None:
         from pipeline.tiling import run_tiled
-        from stages.tiles import RasterMosaic, cleanup, cloud_info, core_window, split_cloud, task_folder
+        from stages.tiles import cleanup, cloud_info, core_window, split_cloud, task_folder
 
         p = ctx.params
         src = ctx.inputs["points_classified"]
@@ -167,42 +167,27 @@ class Rasterize(Stage):
             ]
 
         def merge(layout, tasks, results):
-            import rasterio
-
-            with rasterio.Env(GDAL_CACHEMAX=64):  # MB: GDAL's default, 5 % of the RAM, would grow with the grid
-                return _merge(layout, tasks, results)
-
-        def _merge(layout, tasks, results):
             transform = units.transform_from_metres(grid.transform)
-            mosaics = {
-                n: RasterMosaic(
-                    ctx.outputs[n],
-                    rows=grid.rows,
-                    cols=grid.cols,
-                    transform=transform,
-                    crs=crs,
-                    nodata=NODATA,
-                    fill=0.0 if n == "density" else NODATA,
-                    unit=None if n == "density" else HEIGHT,
-                )
+            done = {t["tile"] for t in tasks}
+            jobs = [
+                {
+                    "path": str(ctx.outputs[n]),
+                    "rows": grid.rows,
+                    "cols": grid.cols,
+                    "transform": transform,
+                    "crs": crs,
+                    "fill": 0.0 if n == "density" else NODATA,
+                    "unit": None if n == "density" else HEIGHT,
+                    "windows": [(t["window"], str(Path(t["result"]) / f"{n}.npy")) for t in tasks],
+                    "empty": [core_window(grid, tile, layout) for tile in layout.tiles if tile.index not in done],
+                }
                 for n in names
-            }
-            try:
-                done = {t["tile"] for t in tasks}
-                for task in tasks:
-                    r0, r1, c0, c1 = task["window"]
-                    for n in names:
-                        mosaics[n].write(r0, c0, np.load(Path(task["result"]) / f"{n}.npy"))
-                for tile in layout.tiles:
-                    if tile.index not in done:
-                        for n in names:
-                            mosaics[n].write_fill(*core_window(grid, tile, layout))
-                for m in mosaics.values():
-                    m.finish()
-            except BaseException:
-                for m in mosaics.values():
-                    m.abort()
-                raise
+            ]
+            if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
+                ctx.executor.map(mosaic_raster, jobs, what="rasters")
+            else:
+                for job in jobs:
+                    mosaic_raster(job)
             return results, transform
 
         try:
@@ -327,6 +312,39 @@ def reach(params: RasterizeParams) -> float:
     """
     far = 2.0 if params.method == "tin" else 1.0
     return far * params.nodata_distance + 2.0 * params.resolution
+
+
+def mosaic_raster(job: dict) -> None:
+    """Assemble one raster of the survey from its tiles' windows and write it as a COG (runs in a worker).
+
+    *job*: ``path``, ``rows``, ``cols``, ``transform``, ``crs``, ``fill``,
+    ``unit`` (:class:`stages.tiles.RasterMosaic`), ``windows`` (each
+    ``((r0, r1, c0, c1), npy file)``) and ``empty`` (windows no tile wrote).
+    """
+    import rasterio
+
+    from stages.tiles import RasterMosaic
+
+    with rasterio.Env(GDAL_CACHEMAX=64):  # MB: GDAL's default, 5 % of the RAM, would grow with the grid
+        mosaic = RasterMosaic(
+            Path(job["path"]),
+            rows=job["rows"],
+            cols=job["cols"],
+            transform=job["transform"],
+            crs=job["crs"],
+            nodata=NODATA,
+            fill=job["fill"],
+            unit=job["unit"],
+        )
+        try:
+            for (r0, _, c0, _), values in job["windows"]:
+                mosaic.write(r0, c0, np.load(values))
+            for window in job["empty"]:
+                mosaic.write_fill(*window)
+            mosaic.finish()
+        except BaseException:
+            mosaic.abort()
+            raise
 
 
 def rasterize_tile(task: dict) -> dict:

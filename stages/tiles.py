@@ -8,7 +8,9 @@ not on the survey:
   tile, the columns its task needs (coordinates in metres, classes, ...) of
   the points inside the tile plus its buffer, in file order, with each
   point's index in the file (``idx``) and whether it lies in the tile's core
-  (``core``).
+  (``core``); given the run's executor, its workers split ranges of the
+  file's records side by side, each into parts of the tiles
+  (:func:`tile_parts`).
 - :func:`merge_classes` writes the input file again, chunk by chunk, with
   the classes the tiles computed for their core points: every point is in
   exactly one core, so the output has the input's points in the input's
@@ -297,6 +299,7 @@ def classes_by_tile(
     task: Callable[[dict], dict],
     extra: dict,
     between: Callable[[list[dict], list[dict]], list[dict]] | None = None,
+    on_workers: bool = False,
 ) -> list[dict]:
     """A stage that reclassifies points, tile by tile: *src* copied to *dst* with the tiles' classes.
 
@@ -305,7 +308,9 @@ def classes_by_tile(
     own (it writes ``idx`` and ``classification`` of its core points with
     :func:`write_result`), optionally *between* (a second round of tasks,
     given the first round's), then :func:`merge_classes`.  Returns the
-    tasks' results.
+    tasks' results.  *on_workers*: the split runs on the run's workers
+    (*columns* then a module-level function; the task reads the tile's
+    parts, :func:`tile_parts`).
     """
     from pipeline.tiling import run_tiled
 
@@ -314,7 +319,8 @@ def classes_by_tile(
 
     def split(layout):
         with ctx.progress(info.count, "tiling", unit="pt") as bar:
-            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar)
+            executor = ctx.executor if on_workers and len(layout) > 1 else None
+            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar, executor=executor)
         return point_tasks(rows, work, **extra)
 
     def merge(layout, tasks, results):
@@ -363,11 +369,24 @@ def read_column(folder: Path, name: str) -> np.ndarray:
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
+def read_xyz(folder: Path) -> np.ndarray:
+    """A tile's x, y, z as one (n, 3) array, filled from the mapped columns of its parts (no other copy)."""
+    parts = tile_parts(folder)
+    cols = [[np.load(p / f"{a}.npy", mmap_mode="r") for a in "xyz"] for p in parts]
+    xyz = np.empty((sum(len(c[0]) for c in cols), 3))
+    at = 0
+    for c in cols:
+        for i, a in enumerate(c):
+            xyz[at : at + len(a), i] = a
+        at += len(c[0])
+    return xyz
+
+
 def read_tile(folder: Path) -> dict[str, np.ndarray]:
     """The columns :func:`split_cloud` wrote for one tile, read into memory, ``x, y, z`` as one (n, 3) ``xyz``."""
     names = sorted(p.stem for p in tile_parts(folder)[0].glob("*.npy"))
-    cols = {name: read_column(folder, name) for name in names}
-    cols["xyz"] = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed
+    cols = {name: read_column(folder, name) for name in names if name not in ("x", "y", "z")}
+    cols["xyz"] = read_xyz(folder)
     return cols
 
 

@@ -148,3 +148,21 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
             assert a == b, (tile.index, name)
         drawn += results[0]["cells"] - results[0]["nodata_cells"]
     assert drawn > 0.5 * grid.rows * grid.cols
+
+
+def test_a_tile_split_on_two_workers_gives_the_same_noise_classes(split, tmp_path):
+    from stages.denoise import DenoiseParams, denoise_tile
+
+    _, _, tmp, (rows, _), _ = split
+    params = DenoiseParams().model_dump(mode="json")
+    for t in rows:
+        results = [
+            denoise_tile(
+                {"tile": t, "source": str(tmp / run / str(t)), "result": str(tmp_path / run / str(t)), "params": params}
+            )
+            for run in ("one", "two")
+        ]
+        assert results[0] == results[1]
+        for name in ("idx", "classification"):
+            a = (tmp_path / "one" / str(t) / f"{name}.npy").read_bytes()
+            assert a == (tmp_path / "two" / str(t) / f"{name}.npy").read_bytes(), (t, name)

@@ -180,6 +180,7 @@ class Rasterize(Stage):
                     "unit": None if n == "density" else HEIGHT,
                     "windows": [(t["window"], str(Path(t["result"]) / f"{n}.npy")) for t in tasks],
                     "empty": [core_window(grid, tile, layout) for tile in layout.tiles if tile.index not in done],
+                    "cache_mb": 64 // (ctx.executor.workers if len(layout) > 1 else 1),
                 }
                 for n in names
             ]
@@ -319,13 +320,15 @@ def mosaic_raster(job: dict) -> None:
 
     *job*: ``path``, ``rows``, ``cols``, ``transform``, ``crs``, ``fill``,
     ``unit`` (:class:`stages.tiles.RasterMosaic`), ``windows`` (each
-    ``((r0, r1, c0, c1), npy file)``) and ``empty`` (windows no tile wrote).
+    ``((r0, r1, c0, c1), npy file)``), ``empty`` (windows no tile wrote)
+    and ``cache_mb`` (GDAL's block cache).
     """
     import rasterio
 
     from stages.tiles import RasterMosaic
 
-    with rasterio.Env(GDAL_CACHEMAX=64):  # MB: GDAL's default, 5 % of the RAM, would grow with the grid
+    # GDAL's block cache, 64 MB for all the workers at once: its default, 5 % of the RAM, would grow with the grid
+    with rasterio.Env(GDAL_CACHEMAX=job["cache_mb"]):
         mosaic = RasterMosaic(
             Path(job["path"]),
             rows=job["rows"],

@@ -167,8 +167,10 @@ def split_cloud(
     executor : LocalExecutor or DaskExecutor, optional
         With more than one worker, the file's records are cut into ranges
         (two per worker, at least *chunk_size* each) that the workers split
-        at once; *columns* and *count* then travel to them, so they must be
-        module-level functions (or ``functools.partial`` of one).
+        at once, each reading chunks and buffering columns of its share of
+        what one process would (memory); *columns* and *count* then travel
+        to them, so they must be module-level functions (or
+        ``functools.partial`` of one).
 
     Returns
     -------
@@ -199,7 +201,8 @@ def split_cloud(
             "columns": columns,
             "count": count,
             "index": index,
-            "chunk_size": chunk_size,
+            "chunk_size": max(chunk_size // workers, 1),  # the workers' chunks and buffers together: one process's
+            "spill": SPILL_BYTES // workers,
             "part": str(k),
         }
         for k in range(pieces)
@@ -238,6 +241,7 @@ def split_range(task: dict) -> tuple[dict[int, tuple[int, int]], Any]:
             task["index"],
             task["part"],
             None,
+            spill=task["spill"],
         )
 
 
@@ -247,12 +251,14 @@ def _open_las(path: Path):
     return laspy.open(str(path))
 
 
-def _split_records(reader, crs, start, stop, layout, folder, columns, chunk_size, count, index, part, progress):
+def _split_records(
+    reader, crs, start, stop, layout, folder, columns, chunk_size, count, index, part, progress, spill=SPILL_BYTES
+):
     """Split records ``start:stop`` of an open LAS *reader* into the tiles (the work of :func:`split_cloud`)."""
     from stages.units import Units
 
     units = Units.of(crs)
-    spill = _Spill(folder, part=part)
+    spill = _Spill(folder, spill, part=part)
     core_rows: dict[int, int] = {}
     counted = None
     if start:

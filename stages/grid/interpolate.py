@@ -512,7 +512,7 @@ def _query_grid(
             every.append(cKDTree(xy, balanced_tree=False, compact_nodes=False))
         return every[0]
 
-    if inner is None:
+    if inner is None or not inner.any():  # every point near the grid, or none
         tree, kept = full(), None
     else:
         kept = np.flatnonzero(inner)

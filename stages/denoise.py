@@ -133,20 +133,15 @@ class Denoise(Stage):
     def run(self, ctx) -> None:
         from stages.tiles import classes_by_tile
 
-        def columns(chunk):
-            return {
-                "classification": np.asarray(chunk.classification, dtype=np.uint8),
-                "withheld": np.asarray(chunk.withheld, dtype=bool),
-            }
-
         results = classes_by_tile(
             ctx,
             ctx.inputs["points_adjusted"],
             ctx.outputs["points_denoised"],
             buffer=self.tile_buffer(ctx.params),
-            columns=columns,
+            columns=denoise_columns,
             task=denoise_tile,
             extra={"params": ctx.params.model_dump(mode="json")},
+            on_workers=True,
         )
         counts = {k: sum(r[k] for r in results) for k in ("points", "low", "high", "done")}
         ctx.metrics.update(
@@ -158,21 +153,28 @@ class Denoise(Stage):
         ctx.log.info("%d low and %d high noise points of %d", counts["low"], counts["high"], counts["points"])
 
 
+def denoise_columns(chunk) -> dict[str, np.ndarray]:
+    """The columns the noise tests need besides x, y, z (:func:`stages.tiles.split_cloud`)."""
+    return {
+        "classification": np.asarray(chunk.classification, dtype=np.uint8),
+        "withheld": np.asarray(chunk.withheld, dtype=bool),
+    }
+
+
 def denoise_tile(task: dict) -> dict:
     """One tile of the noise tests (runs in a worker process).
 
     Writes ``idx`` and ``classification`` of the core points and returns counts.
     """
-    from stages.tiles import write_result
+    from stages.tiles import read_column, read_xyz, write_result
 
     source = Path(task["source"])
     params = DenoiseParams.model_validate(task["params"])
-    # the columns mapped and stacked: no second copy of the coordinates in memory
-    points = np.column_stack([np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"])
-    cls = np.load(source / "classification.npy")
-    done = ~glossary.usable(cls, np.load(source / "withheld.npy"))
-    core = np.load(source / "core.npy")
-    idx = np.load(source / "idx.npy", mmap_mode="r")
+    points = read_xyz(source)  # the columns mapped and stacked: no second copy of the coordinates in memory
+    cls = read_column(source, "classification")
+    done = ~glossary.usable(cls, read_column(source, "withheld"))
+    core = read_column(source, "core")
+    idx = read_column(source, "idx")
     found = np.zeros(len(cls), dtype=np.uint8)
     if done.any():
         found[~done] = noise_classes(points[~done], params)

@@ -26,6 +26,8 @@ cells of 3.2808 ftUS and heights in ftUS; :mod:`stages.units`).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -103,7 +105,7 @@ class Rasterize(Stage):
 
     def run(self, ctx) -> None:
         from pipeline.tiling import run_tiled
-        from stages.tiles import RasterMosaic, cleanup, cloud_info, core_window, split_cloud, task_folder
+        from stages.tiles import cleanup, cloud_info, core_window, split_cloud, task_folder
 
         p = ctx.params
         src = ctx.inputs["points_classified"]
@@ -119,24 +121,23 @@ class Rasterize(Stage):
         work = task_folder(ctx.workdir, self.name)
         params = p.model_dump(mode="json")
         grid = None  # sized by the usable points once they are split (not by the header: stray points)
-        extent = UsableExtent()
         ground = 0
-
-        def columns(chunk):
-            cols = {
-                "classification": np.asarray(chunk.classification, dtype=np.uint8),
-                "withheld": np.asarray(chunk.withheld, dtype=bool),
-            }
-            if "dtm_uncertainty" in ctx.outputs:
-                cols["sigma_vertical"] = np.asarray(chunk["sigma_vertical"], dtype=np.float64)
-            return cols
+        columns = partial(raster_columns, sigma="dtm_uncertainty" in ctx.outputs)
 
         def split(layout):
             nonlocal ground, grid
             with ctx.progress(info.count, "tiling", unit="pt") as bar:
-                rows, per_class = split_cloud(
-                    src, layout, work / "in", columns, progress=bar, count=extent.count, index=False
+                rows, usable = split_cloud(
+                    src,
+                    layout,
+                    work / "in",
+                    columns,
+                    progress=bar,
+                    count=Usable.of,
+                    index=False,
+                    executor=ctx.executor if len(layout) > 1 else None,
                 )
+            per_class = usable.classes
             ground = int(per_class[glossary.GROUND])
             if ground < 3:
                 classes = ", ".join(f"class {c}: {per_class[c]:,}" for c in np.flatnonzero(per_class))
@@ -144,8 +145,8 @@ class Rasterize(Stage):
                     f"{glossary.input_names(ctx.config)}: only {ground} ground points (class 2) among {info.count:,} points ({classes}): a DTM needs "
                     "at least 3, so no DTM can be made (a survey of water only, or a ground classification to check)."
                 )
-            grid = Grid.covering(*extent.box(), p.resolution)  # in metres, written in CRS units
-            check_grid_size(grid, extent.box(), units, source=glossary.input_names(ctx.config))
+            grid = Grid.covering(*usable.box(), p.resolution)  # in metres, written in CRS units
+            check_grid_size(grid, usable.box(), units, source=glossary.input_names(ctx.config))
             grid_args = dict(xmin=grid.xmin, ymax=grid.ymax, resolution=grid.resolution, cols=grid.cols, rows=grid.rows)
             ctx.log.info("%s DTM from %d ground points on %d x %d cells", p.method, ground, grid.cols, grid.rows)
             return [
@@ -166,42 +167,28 @@ class Rasterize(Stage):
             ]
 
         def merge(layout, tasks, results):
-            import rasterio
-
-            with rasterio.Env(GDAL_CACHEMAX=64):  # MB: GDAL's default, 5 % of the RAM, would grow with the grid
-                return _merge(layout, tasks, results)
-
-        def _merge(layout, tasks, results):
             transform = units.transform_from_metres(grid.transform)
-            mosaics = {
-                n: RasterMosaic(
-                    ctx.outputs[n],
-                    rows=grid.rows,
-                    cols=grid.cols,
-                    transform=transform,
-                    crs=crs,
-                    nodata=NODATA,
-                    fill=0.0 if n == "density" else NODATA,
-                    unit=None if n == "density" else HEIGHT,
-                )
+            done = {t["tile"] for t in tasks}
+            jobs = [
+                {
+                    "path": str(ctx.outputs[n]),
+                    "rows": grid.rows,
+                    "cols": grid.cols,
+                    "transform": transform,
+                    "crs": crs,
+                    "fill": 0.0 if n == "density" else NODATA,
+                    "unit": None if n == "density" else HEIGHT,
+                    "windows": [(t["window"], str(Path(t["result"]) / f"{n}.npy")) for t in tasks],
+                    "empty": [core_window(grid, tile, layout) for tile in layout.tiles if tile.index not in done],
+                    "cache_mb": 64 // (ctx.executor.workers if len(layout) > 1 else 1),
+                }
                 for n in names
-            }
-            try:
-                done = {t["tile"] for t in tasks}
-                for task in tasks:
-                    r0, r1, c0, c1 = task["window"]
-                    for n in names:
-                        mosaics[n].write(r0, c0, np.load(Path(task["result"]) / f"{n}.npy"))
-                for tile in layout.tiles:
-                    if tile.index not in done:
-                        for n in names:
-                            mosaics[n].write_fill(*core_window(grid, tile, layout))
-                for m in mosaics.values():
-                    m.finish()
-            except BaseException:
-                for m in mosaics.values():
-                    m.abort()
-                raise
+            ]
+            if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
+                ctx.executor.map(mosaic_raster, jobs, what="rasters")
+            else:
+                for job in jobs:
+                    mosaic_raster(job)
             return results, transform
 
         try:
@@ -244,24 +231,40 @@ class Rasterize(Stage):
         ctx.log.info("DTM %d x %d cells at %g m, %d nodata", grid.cols, grid.rows, p.resolution, empty)
 
 
-class UsableExtent:
-    """The extent (metres) of the points a grid is made of: all but noise (7, 18) and withheld.
+def raster_columns(chunk, *, sigma: bool = False) -> dict[str, np.ndarray]:
+    """The columns the tiles need besides x, y, z (:func:`stages.tiles.split_cloud`): classes, withheld, sigma."""
+    cols = {
+        "classification": np.asarray(chunk.classification, dtype=np.uint8),
+        "withheld": np.asarray(chunk.withheld, dtype=bool),
+    }
+    if sigma:
+        cols["sigma_vertical"] = np.asarray(chunk["sigma_vertical"], dtype=np.float64)
+    return cols
 
-    Used as :func:`stages.tiles.split_cloud`'s ``count``: it returns the
-    class histogram of each chunk and keeps the box of its usable points.
+
+@dataclass(frozen=True)
+class Usable:
+    """The class histogram of some points, and the box (metres) of the usable ones: all but noise (7, 18) and withheld.
+
+    :meth:`of` is :func:`stages.tiles.split_cloud`'s ``count``; the sum of
+    two is the histogram and box of both (the grid is sized by the box).
     """
 
-    def __init__(self) -> None:
-        self.lo = np.full(2, np.inf)
-        self.hi = np.full(2, -np.inf)
+    classes: np.ndarray  # points per class 0..255
+    lo: np.ndarray  # xmin, ymin (inf: none usable)
+    hi: np.ndarray  # xmax, ymax
 
-    def count(self, cols: dict[str, np.ndarray]) -> np.ndarray:
+    @classmethod
+    def of(cls, cols: dict[str, np.ndarray]) -> Usable:
         usable = glossary.usable(cols["classification"], cols["withheld"])
+        lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
         if usable.any():
             x, y = cols["x"][usable], cols["y"][usable]
-            self.lo = np.minimum(self.lo, (x.min(), y.min()))
-            self.hi = np.maximum(self.hi, (x.max(), y.max()))
-        return np.bincount(cols["classification"], minlength=256)
+            lo, hi = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
+        return cls(np.bincount(cols["classification"], minlength=256), lo, hi)
+
+    def __add__(self, other: Usable) -> Usable:
+        return Usable(self.classes + other.classes, np.minimum(self.lo, other.lo), np.maximum(self.hi, other.hi))
 
     def box(self) -> tuple[float, float, float, float]:
         if not np.isfinite(self.lo).all():
@@ -312,6 +315,41 @@ def reach(params: RasterizeParams) -> float:
     return far * params.nodata_distance + 2.0 * params.resolution
 
 
+def mosaic_raster(job: dict) -> None:
+    """Assemble one raster of the survey from its tiles' windows and write it as a COG (runs in a worker).
+
+    *job*: ``path``, ``rows``, ``cols``, ``transform``, ``crs``, ``fill``,
+    ``unit`` (:class:`stages.tiles.RasterMosaic`), ``windows`` (each
+    ``((r0, r1, c0, c1), npy file)``), ``empty`` (windows no tile wrote)
+    and ``cache_mb`` (GDAL's block cache).
+    """
+    import rasterio
+
+    from stages.tiles import RasterMosaic
+
+    # GDAL's block cache, 64 MB for all the workers at once: its default, 5 % of the RAM, would grow with the grid
+    with rasterio.Env(GDAL_CACHEMAX=job["cache_mb"]):
+        mosaic = RasterMosaic(
+            Path(job["path"]),
+            rows=job["rows"],
+            cols=job["cols"],
+            transform=job["transform"],
+            crs=job["crs"],
+            nodata=NODATA,
+            fill=job["fill"],
+            unit=job["unit"],
+        )
+        try:
+            for (r0, _, c0, _), values in job["windows"]:
+                mosaic.write(r0, c0, np.load(values))
+            for window in job["empty"]:
+                mosaic.write_fill(*window)
+            mosaic.finish()
+        except BaseException:
+            mosaic.abort()
+            raise
+
+
 def rasterize_tile(task: dict) -> dict:
     """The rasters of one tile's core cells, from its points (core plus buffer).
 
@@ -319,6 +357,8 @@ def rasterize_tile(task: dict) -> dict:
     height unit, NaN = nodata) to ``task["result"]`` and returns figures.
     """
     import math
+
+    from stages.tiles import tile_parts
 
     p = RasterizeParams.model_validate(task["params"])
     g = task["grid"]
@@ -330,18 +370,31 @@ def rasterize_tile(task: dict) -> dict:
     bc0, bc1 = max(c0 - pad, 0), min(c1 + pad, grid.cols)
     wide = grid.window(br0, br1, bc0, bc1)
     crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
-    source = Path(task["source"])
-    cls = np.load(source / "classification.npy")
-    is_ground = cls == glossary.GROUND
-    usable = glossary.usable(cls, np.load(source / "withheld.npy"))
+    parts = tile_parts(Path(task["source"]))  # the tile's points in file order, a range of records each
+    masks = []
+    for part in parts:
+        cls = np.load(part / "classification.npy")
+        masks.append((cls == glossary.GROUND, glossary.usable(cls, np.load(part / "withheld.npy"))))
     del cls
-    # The columns mapped, not read: only the rows each raster needs are in memory.
-    xyz = [np.load(source / f"{a}.npy", mmap_mode="r") for a in "xyz"]
-    # core cells are wide cells; every point usable (the usual case): the mapped columns as they are
-    highest, count = cell_max_count(xyz if usable.all() else [a[usable] for a in xyz], wide)
-    ground = np.column_stack([a[is_ground] for a in xyz])
-    n_ground = len(ground)
-    del xyz
+    n_ground = sum(int(is_ground.sum()) for is_ground, _ in masks)
+    ground = np.empty((n_ground, 3))
+    highest = count = None
+    sigma_parts = []
+    at = 0
+    for part, (is_ground, usable) in zip(parts, masks, strict=True):
+        # The columns mapped, not read: only the rows each raster needs are in memory.
+        xyz = [np.load(part / f"{a}.npy", mmap_mode="r") for a in "xyz"]
+        # core cells are wide cells; every point usable (the usual case): the mapped columns as they are
+        high, n = cell_max_count(xyz if usable.all() else [a[usable] for a in xyz], wide)
+        highest, count = (high, n) if highest is None else (np.fmax(highest, high), count + n)
+        k = int(is_ground.sum())
+        for i, a in enumerate(xyz):
+            ground[at : at + k, i] = a[is_ground]
+        at += k
+        if "dtm_uncertainty" in task["outputs"]:
+            sigma_parts.append(np.load(part / "sigma_vertical.npy", mmap_mode="r")[is_ground])
+        del xyz, high, n
+    del masks
     max_cells = p.nodata_distance / p.resolution
     dsm = fill_nearest(highest, max_cells=max_cells)[crop]
     dtm = np.full((core.rows, core.cols), np.nan)
@@ -354,7 +407,7 @@ def rasterize_tile(task: dict) -> dict:
     density = count[crop].astype(np.float64)
     out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
     if "dtm_uncertainty" in task["outputs"]:
-        sigma = np.load(source / "sigma_vertical.npy", mmap_mode="r")[is_ground]
+        sigma = sigma_parts[0] if len(sigma_parts) == 1 else np.concatenate(sigma_parts)
         unc = fill_nearest(cell_mean(ground, sigma, wide), max_cells=max_cells)[crop]
         out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
     vertical = task["vertical"]

@@ -8,7 +8,9 @@ not on the survey:
   tile, the columns its task needs (coordinates in metres, classes, ...) of
   the points inside the tile plus its buffer, in file order, with each
   point's index in the file (``idx``) and whether it lies in the tile's core
-  (``core``).
+  (``core``); given the run's executor, its workers split ranges of the
+  file's records side by side, each into parts of the tiles
+  (:func:`tile_parts`).
 - :func:`merge_classes` writes the input file again, chunk by chunk, with
   the classes the tiles computed for their core points: every point is in
   exactly one core, so the output has the input's points in the input's
@@ -41,15 +43,20 @@ MERGE_BLOCK = 65_536
 
 
 class _Spill:
-    """Per-tile columns appended to ``<root>/<tile>/<name>.npy``, buffered in memory up to a budget."""
+    """Per-tile columns appended to ``<root>/<tile>[/<part>]/<name>.npy``, buffered in memory up to a budget."""
 
-    def __init__(self, root: Path, budget: int = SPILL_BYTES):
+    def __init__(self, root: Path, budget: int = SPILL_BYTES, part: str | None = None):
         self.root = Path(root)
         self.budget = budget
+        self.part = part
         self.pending: dict[int, list[dict[str, np.ndarray]]] = {}
         self.pending_bytes = 0
         self.rows: dict[int, int] = {}
         self.dtypes: dict[str, np.dtype] = {}
+
+    def folder(self, tile: int) -> Path:
+        folder = self.root / str(tile)
+        return folder if self.part is None else folder / self.part
 
     def add(self, tile: int, columns: dict[str, np.ndarray]) -> None:
         self.pending.setdefault(tile, []).append(columns)
@@ -59,7 +66,7 @@ class _Spill:
 
     def flush(self) -> None:
         for tile, parts in self.pending.items():
-            folder = self.root / str(tile)
+            folder = self.folder(tile)
             new = tile not in self.rows
             folder.mkdir(parents=True, exist_ok=True)
             for name in parts[0]:
@@ -68,7 +75,7 @@ class _Spill:
                     if new:
                         fh.write(b"\0" * NpyColumns.HEADER_BYTES)
                     for part in parts:
-                        fh.write(np.ascontiguousarray(part[name]).tobytes())
+                        fh.write(np.ascontiguousarray(part[name]).data)
             self.rows[tile] = self.rows.get(tile, 0) + sum(len(p["core"]) for p in parts)
         self.pending.clear()
         self.pending_bytes = 0
@@ -77,7 +84,7 @@ class _Spill:
         self.flush()
         for tile, rows in self.rows.items():
             for name, dtype in self.dtypes.items():
-                with open(self.root / str(tile) / f"{name}.npy", "r+b") as fh:
+                with open(self.folder(tile) / f"{name}.npy", "r+b") as fh:
                     fh.write(npy_header(dtype, rows))
         return dict(self.rows)
 
@@ -123,13 +130,18 @@ def split_cloud(
     *,
     chunk_size: int = 1_000_000,
     progress=None,
-    count: Callable[[dict[str, np.ndarray]], np.ndarray] | None = None,
+    count: Callable[[dict[str, np.ndarray]], Any] | None = None,
     index: bool = True,
-) -> tuple[dict[int, tuple[int, int]], np.ndarray | None]:
+    executor=None,
+) -> tuple[dict[int, tuple[int, int]], Any]:
     """Write each tile's points (core plus buffer) as ``.npy`` columns under ``folder/<tile>/``.
 
     Every tile gets ``x``, ``y``, ``z`` in metres and ``core``; the rest is
-    the caller's.
+    the caller's.  Read a tile back with :func:`tile_parts` (or
+    :func:`read_tile`): in one process the columns are in the tile's
+    folder; split on an executor's workers they are in one sub-folder per
+    range of records (``0``, ``1``, ...), which read in turn give the same
+    points in the same order.
 
     Parameters
     ----------
@@ -147,54 +159,138 @@ def split_cloud(
     progress : Progress, optional
         Advanced by the points read.
     count : callable, optional
-        ``count(cols) -> array``, summed over the chunks (totals the caller
-        checks before running the tasks).
+        ``count(cols) -> value``, summed (``+``) over the chunks (totals the
+        caller checks before running the tasks).
     index : bool
         Write ``idx``, each point's index in the file (for results per
         point; not needed for results per cell).
+    executor : LocalExecutor or DaskExecutor, optional
+        With more than one worker, the file's records are cut into ranges
+        (two per worker, at least *chunk_size* each) that the workers split
+        at once, each reading chunks and buffering columns of its share of
+        what one process would (memory); *columns* and *count* then travel
+        to them, so they must be module-level functions (or
+        ``functools.partial`` of one).
 
     Returns
     -------
     rows : dict
         Tile index -> (points written, of which in the core); tiles with
         none are absent.
-    counted : ndarray or None
+    counted : object or None
         The sum of *count* over the chunks.
     """
+    from stages.io import cloud_crs
+
+    workers = int(getattr(executor, "workers", 1)) if executor is not None else 1
+    with _open_las(path) as reader:
+        total = int(reader.header.point_count)
+        pieces = min(2 * workers, total // chunk_size) if workers > 1 else 1  # ranges of a chunk at least
+        if pieces < 2:
+            return _split_records(
+                reader, cloud_crs(reader), 0, total, layout, folder, columns, chunk_size, count, index, None, progress
+            )
+    bounds = [total * k // pieces for k in range(pieces + 1)]
+    tasks = [
+        {
+            "path": str(path),
+            "start": bounds[k],
+            "stop": bounds[k + 1],
+            "layout": layout,
+            "folder": str(folder),
+            "columns": columns,
+            "count": count,
+            "index": index,
+            "chunk_size": max(chunk_size // workers, 1),  # the workers' chunks and buffers together: one process's
+            "spill": SPILL_BYTES // workers,
+            "part": str(k),
+        }
+        for k in range(pieces)
+    ]
+    rows: dict[int, tuple[int, int]] = {}
+    counted = None
+    for k, (part_rows, part_counted) in enumerate(executor.map(split_range, tasks, what="tiling")):
+        for t, (n, core) in part_rows.items():
+            had = rows.get(t, (0, 0))
+            rows[t] = (had[0] + n, had[1] + core)
+        if part_counted is not None:
+            counted = part_counted if counted is None else counted + part_counted
+        if progress is not None:
+            progress.update(bounds[k + 1] - bounds[k])
+    return dict(sorted(rows.items())), counted
+
+
+def split_range(task: dict) -> tuple[dict[int, tuple[int, int]], Any]:
+    """Split records ``start:stop`` of a LAS file into the tiles' part ``task["part"]`` (runs in a worker).
+
+    The task is :func:`split_cloud`'s; returns its rows and count for these records.
+    """
+    from stages.io import cloud_crs
+
+    with _open_las(Path(task["path"])) as reader:
+        return _split_records(
+            reader,
+            cloud_crs(reader),
+            task["start"],
+            task["stop"],
+            task["layout"],
+            Path(task["folder"]),
+            task["columns"],
+            task["chunk_size"],
+            task["count"],
+            task["index"],
+            task["part"],
+            None,
+            spill=task["spill"],
+        )
+
+
+def _open_las(path: Path):
     import laspy
 
-    from stages.io import cloud_crs
+    return laspy.open(str(path))
+
+
+def _split_records(
+    reader, crs, start, stop, layout, folder, columns, chunk_size, count, index, part, progress, spill=SPILL_BYTES
+):
+    """Split records ``start:stop`` of an open LAS *reader* into the tiles (the work of :func:`split_cloud`)."""
     from stages.units import Units
 
-    spill = _Spill(folder)
+    units = Units.of(crs)
+    spill = _Spill(folder, spill, part=part)
     core_rows: dict[int, int] = {}
     counted = None
-    with laspy.open(str(path)) as reader:
-        units = Units.of(cloud_crs(reader))
-        start = 0
-        for chunk in reader.chunk_iterator(chunk_size):
-            n = len(chunk)
-            xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
-            cols = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], **columns(chunk)}
-            if index:
-                cols["idx"] = np.arange(start, start + n, dtype=np.int64)
-            if count is not None:
-                counted = count(cols) if counted is None else counted + count(cols)
-            home = layout.locate(xyz[:, 0], xyz[:, 1])
-            point, tile = layout.memberships(xyz[:, 0], xyz[:, 1])
-            bounds = np.flatnonzero(np.diff(tile)) + 1
-            for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(tile)], strict=True):
-                if lo == hi:
-                    continue
-                t = int(tile[lo])
-                sel = point[lo:hi]
-                part = {k: np.asarray(v)[sel] for k, v in cols.items()}
-                part["core"] = home[sel] == t
-                core_rows[t] = core_rows.get(t, 0) + int(part["core"].sum())
-                spill.add(t, part)
-            start += n
-            if progress is not None:
-                progress.update(n)
+    if start:
+        reader.seek(start)
+    while start < stop:
+        chunk = reader.read_points(min(chunk_size, stop - start))
+        n = len(chunk)
+        if n == 0:  # pragma: no cover - fewer records than the header says; the readers check that first
+            break
+        x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+        if not units.is_metre:  # as Units.to_metres does it, column by column
+            x, y, z = x * units.horizontal, y * units.horizontal, z * units.vertical
+        cols = {"x": x, "y": y, "z": z, **columns(chunk)}
+        if index:
+            cols["idx"] = np.arange(start, start + n, dtype=np.int64)
+        if count is not None:
+            counted = count(cols) if counted is None else counted + count(cols)
+        home = layout.locate(x, y)
+        point, tile = layout.memberships(x, y)
+        cuts = np.flatnonzero(np.diff(tile)) + 1
+        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(tile)], strict=True):
+            if lo == hi:
+                continue
+            t = int(tile[lo])
+            sel = point[lo:hi]
+            piece = {k: np.asarray(v)[sel] for k, v in cols.items()}
+            piece["core"] = home[sel] == t
+            core_rows[t] = core_rows.get(t, 0) + int(piece["core"].sum())
+            spill.add(t, piece)
+        start += n
+        if progress is not None:
+            progress.update(n)
     rows = spill.close()
     return {t: (n, core_rows[t]) for t, n in rows.items()}, counted
 
@@ -209,6 +305,7 @@ def classes_by_tile(
     task: Callable[[dict], dict],
     extra: dict,
     between: Callable[[list[dict], list[dict]], list[dict]] | None = None,
+    on_workers: bool = False,
 ) -> list[dict]:
     """A stage that reclassifies points, tile by tile: *src* copied to *dst* with the tiles' classes.
 
@@ -217,7 +314,9 @@ def classes_by_tile(
     own (it writes ``idx`` and ``classification`` of its core points with
     :func:`write_result`), optionally *between* (a second round of tasks,
     given the first round's), then :func:`merge_classes`.  Returns the
-    tasks' results.
+    tasks' results.  *on_workers*: the split runs on the run's workers
+    (*columns* then a module-level function; the task reads the tile's
+    parts, :func:`tile_parts`).
     """
     from pipeline.tiling import run_tiled
 
@@ -226,7 +325,8 @@ def classes_by_tile(
 
     def split(layout):
         with ctx.progress(info.count, "tiling", unit="pt") as bar:
-            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar)
+            executor = ctx.executor if on_workers and len(layout) > 1 else None
+            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar, executor=executor)
         return point_tasks(rows, work, **extra)
 
     def merge(layout, tasks, results):
@@ -257,10 +357,42 @@ def point_tasks(rows: dict[int, tuple[int, int]], work: Path, **extra) -> list[d
     ]
 
 
+def tile_parts(folder: Path) -> list[Path]:
+    """The folders holding one tile's columns, in file order: the tile's own, or its parts ``0``, ``1``, ...
+
+    :func:`split_cloud` in one process writes a tile's columns into its
+    folder; on several workers each range of records goes to a part of its
+    own, and the parts read in turn hold the points in the file's order.
+    """
+    folder = Path(folder)
+    parts = sorted((p for p in folder.iterdir() if p.is_dir() and p.name.isdigit()), key=lambda p: int(p.name))
+    return parts or [folder]
+
+
+def read_column(folder: Path, name: str) -> np.ndarray:
+    """One column of a tile (:func:`split_cloud`), its parts joined, read into memory."""
+    parts = [np.load(p / f"{name}.npy") for p in tile_parts(folder)]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def read_xyz(folder: Path) -> np.ndarray:
+    """A tile's x, y, z as one (n, 3) array, filled from the mapped columns of its parts (no other copy)."""
+    parts = tile_parts(folder)
+    cols = [[np.load(p / f"{a}.npy", mmap_mode="r") for a in "xyz"] for p in parts]
+    xyz = np.empty((sum(len(c[0]) for c in cols), 3))
+    at = 0
+    for c in cols:
+        for i, a in enumerate(c):
+            xyz[at : at + len(a), i] = a
+        at += len(c[0])
+    return xyz
+
+
 def read_tile(folder: Path) -> dict[str, np.ndarray]:
     """The columns :func:`split_cloud` wrote for one tile, read into memory, ``x, y, z`` as one (n, 3) ``xyz``."""
-    cols = {p.stem: np.load(p) for p in sorted(Path(folder).glob("*.npy"))}
-    cols["xyz"] = np.column_stack((cols.pop("x"), cols.pop("y"), cols.pop("z")))  # the columns freed
+    names = sorted(p.stem for p in tile_parts(folder)[0].glob("*.npy"))
+    cols = {name: read_column(folder, name) for name in names if name not in ("x", "y", "z")}
+    cols["xyz"] = read_xyz(folder)
     return cols
 
 

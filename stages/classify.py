@@ -295,6 +295,7 @@ class ClassifyGround(Stage):
                 columns=_classify_columns,
                 task=classify_tile,
                 extra={"params": params.model_dump(mode="json")},
+                on_workers=True,
             )
         counts = {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground", "last_returns")}
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]

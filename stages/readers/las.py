@@ -970,16 +970,13 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
         spans = np.asarray(h.maxs[:2], dtype=np.float64) - np.asarray(h.mins[:2], dtype=np.float64)
-        grid = IsolationGrid(h.mins, h.maxs) if box is not None and spans.max() > 0 else None
+        usable = box is not None and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
+        grid = IsolationGrid(h.mins, h.maxs) if usable else None
         with laspy.open(str(dst), mode="w", header=header) as writer:
             try:
                 for chunk in reader.chunk_iterator(chunk_size):
                     n = len(chunk)
                     if n:
-                        raw = [np.asarray(chunk.array[k]) for k in ("X", "Y", "Z")]  # scaled: only the extremes
-                        mins = [r.min() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
-                        maxs = [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
-                        lo, hi = _extend(path, lo, hi, mins, maxs, target)
                         seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
                         x, y = np.asarray(chunk.x), np.asarray(chunk.y)
                         stray = _outside(box, x, y)
@@ -991,12 +988,13 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
                             _grow_box(report, x[~stray], y[~stray])
                         else:
                             _grow_box(report, x, y)
-                        # sorted: a negative scale turns the raw extremes round
-                        if grid is not None and grid.covers(sorted((mins[0], maxs[0])), sorted((mins[1], maxs[1]))):
+                    writer.write_points(chunk)
+                    if n:  # the writer's header holds the extremes of the points written so far
+                        lo, hi = _extend(path, lo, hi, writer.header.mins, writer.header.maxs, target)
+                        if grid is not None and grid.covers((lo[0], hi[0]), (lo[1], hi[1])):
                             grid.add(x, y)
                         else:
                             grid = None
-                    writer.write_points(chunk)
                     n_read += n
                     if progress is not None:
                         progress.update(n)

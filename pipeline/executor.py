@@ -40,8 +40,6 @@ class LocalExecutor:
     def __init__(self, workers: int = 1):
         self.workers = max(1, int(workers))
         self._pool: ProcessPoolExecutor | None = None
-        #: Pools told to stop, still exiting: their manager thread, processes, result queue (:func:`_shut_down`).
-        self._leaving: list[tuple[Any, list[Any], Any]] = []
 
     def describe(self) -> str:
         return f"local, {self.workers} worker{'s' if self.workers > 1 else ''}"
@@ -78,32 +76,19 @@ class LocalExecutor:
         worker outlives the run and waiting never hangs on a busy one.
         """
         pool, self._pool = self._pool, None
-        if pool is not None:
-            self._leaving.append(_shut_down(pool))
-        leaving, self._leaving = self._leaving, []
-        for thread, workers, results in leaving:
-            if abort:
-                for proc in workers:
-                    with contextlib.suppress(OSError, ValueError, AttributeError):
-                        proc.kill()
-            elif thread is not None:
-                thread.join()
-            for proc in workers:
-                with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
-                    proc.join(5.0 if abort else None)
-            if results is not None and not abort:
-                results.close()
-
-    def release(self) -> None:
-        """Let the workers exit now, without waiting for them: the run has no more work for them.
-
-        They leave while this process goes on (an interpreter's exit takes a
-        few tenths of a second); :meth:`close` waits for them, or kills them
-        when aborting.  A later :meth:`map` starts new workers.
-        """
-        pool, self._pool = self._pool, None
-        if pool is not None:
-            self._leaving.append(_shut_down(pool))
+        if pool is None:
+            return
+        if not abort:
+            pool.shutdown(wait=True, cancel_futures=True)
+            return
+        workers = list(getattr(pool, "_processes", {}).values())  # the pool's own record of its processes
+        for proc in workers:
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                proc.kill()
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in workers:
+            with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+                proc.join(5.0)
 
 
 class DaskExecutor:
@@ -123,9 +108,6 @@ class DaskExecutor:
 
     def prepare(self, fn: Callable[[Any], Any]) -> None:
         """Nothing to do ahead: a Dask cluster is connected to on first use."""
-
-    def release(self) -> None:
-        """Nothing to do: the cluster's workers are not this run's to stop early."""
 
     def _connect(self):
         if self._client is not None:
@@ -174,21 +156,6 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
-
-
-def _shut_down(pool: ProcessPoolExecutor) -> tuple[Any, list[Any], Any]:
-    """Tell *pool*'s workers to exit once their tasks are done, without waiting for them.
-
-    Returns the pool's manager thread, processes and result queue, taken from
-    the pool's own record before ``shutdown`` drops it, so that
-    :meth:`LocalExecutor.close` can wait for them (or kill the processes) and
-    close the queue.
-    """
-    thread = getattr(pool, "_executor_manager_thread", None)
-    workers = list((getattr(pool, "_processes", None) or {}).values())
-    results = getattr(pool, "_result_queue", None)
-    pool.shutdown(wait=False, cancel_futures=True)
-    return thread, workers, results
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:

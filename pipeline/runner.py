@@ -325,15 +325,12 @@ def run(
     records: dict[str, dict[str, Any]] = {}
     executor = make_executor(config)
     published = False
-    tiled = [s.name for s in plan.steps if s.stage.tile_buffer(s.params) is not None]
     try:
         for step in plan.steps:
             record = _run_step(
                 step, plan, config, cache, artifacts, unknown, force, dry_run, manifest, records, executor
             )
             records[step.name] = record
-            if tiled and step.name == tiled[-1]:
-                executor.release()  # no tiled stage left: the workers exit while the others run
         for step in plan.skipped:
             records[step.name] = {"name": step.name, "status": step.note or "disabled"}
         manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]

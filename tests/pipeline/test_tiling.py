@@ -8,7 +8,6 @@ import pytest
 from pipeline.errors import InputDataError
 from pipeline.executor import DaskExecutor, LocalExecutor
 from pipeline.tiling import Layout
-from tests.pipeline import toy as toymod
 
 
 def _brute(layout: Layout, x, y):
@@ -106,34 +105,3 @@ def test_unreachable_scheduler_is_one_sentence(monkeypatch):
     with pytest.raises(ConfigError, match=r"cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1s"):
         ex.map(square, [{"i": 1}])
     ex.close()
-
-
-def test_released_workers_exit_by_themselves_and_a_later_map_starts_new_ones():
-    """release() lets the workers go without waiting (they leave while the run goes on); map() still works after."""
-    ex = LocalExecutor(2)
-    tasks = [{"i": i} for i in range(4)]
-    try:
-        assert ex.map(square, tasks) == [{"i": i, "sq": i * i} for i in range(4)]
-        workers = list(ex._pool._processes.values())
-        ex.release()
-        for proc in workers:
-            proc.join(60.0)  # not killed: close() has not been called
-        assert [proc.exitcode for proc in workers] == [0, 0]
-        assert ex.map(square, tasks) == [{"i": i, "sq": i * i} for i in range(4)]
-    finally:
-        ex.close()
-    assert ex._pool is None and ex._leaving == []
-
-
-def test_the_run_lets_the_workers_go_after_its_last_tiled_stage(toy, monkeypatch):
-    """With 'scale' tiled, the executor is released right after it, before the stages that follow."""
-    from pipeline import executor as executor_mod
-
-    events = []
-    monkeypatch.setattr(toymod.Scale, "tile_buffer", lambda self, params: 1.0)
-    monkeypatch.setattr(executor_mod.LocalExecutor, "release", lambda self: events.append("release"))
-    for cls in toymod.plugin.stages:
-        real_run = cls.run
-        monkeypatch.setattr(cls, "run", lambda self, ctx, _run=real_run: (events.append(self.name), _run(self, ctx))[1])
-    assert toy.run() == 0
-    assert events == ["load", "scale", "release", "total", "histogram", "summary"]

@@ -554,8 +554,8 @@ def _stage_copy(src: Path, dst: Path) -> Path:
     """Put *src* beside *dst* under a temporary name; an error names *dst*, the product.
 
     A file is hard-linked to its cache entry when the file system allows it
-    (:func:`_link_file`), else copied; a folder is copied.  Either way its
-    data is on disk (``fsync``) before it is renamed into place.
+    (:func:`_link_file`), else copied; either way its data is on disk
+    (``fsync``) before it is renamed into place.  A folder is copied.
     """
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.parent / f".{dst.name}.{uuid.uuid4().hex[:8]}.tmp"

@@ -699,8 +699,8 @@ def convert_las_files(
     strips: set[int] = set()
     same = _copyable(paths, crs_setting, assign_crs, layout, override_crs)
     if same is not None:
-        target = _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout)
-        withhold_isolated(dst, report)
+        target, grid = _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout)
+        withhold_isolated(dst, report, counted=grid)
         return target, report, strips
     writer = None
     target = None
@@ -759,7 +759,49 @@ ISOLATED_GAP = 0.1
 ISOLATED_MIN_GAP_UNITS = 500.0
 
 
-def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -> int:
+class IsolationGrid:
+    """Points counted per cell of the ``ISOLATION_GRID``-cell grid over a box (x, y), as
+    :func:`withhold_isolated` counts them.
+
+    Parameters
+    ----------
+    mins, maxs : array-like
+        The box's lower and upper corners (x, y first; further values are ignored); its
+        longer side must be positive.
+    """
+
+    def __init__(self, mins, maxs):
+        self.mins = np.asarray(mins, dtype=np.float64)[:2].copy()
+        self.maxs = np.asarray(maxs, dtype=np.float64)[:2].copy()
+        span = float(max(self.maxs[0] - self.mins[0], self.maxs[1] - self.mins[1]))
+        self.cell = span / ISOLATION_GRID * (1 + 1e-9)
+        self.counts = np.zeros(ISOLATION_GRID * ISOLATION_GRID, dtype=np.int64)
+
+    def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat cell index (row-major, rows along y) of points inside the box."""
+        cx = np.minimum(((x - self.mins[0]) / self.cell).astype(np.int64), ISOLATION_GRID - 1)
+        cy = np.minimum(((y - self.mins[1]) / self.cell).astype(np.int64), ISOLATION_GRID - 1)
+        return cy * ISOLATION_GRID + cx
+
+    def add(self, x: np.ndarray, y: np.ndarray) -> None:
+        """Count points (inside the box)."""
+        self.counts += np.bincount(self.index(x, y), minlength=self.counts.size)
+
+    def covers(self, x_range, y_range) -> bool:
+        """Whether points spanning *x_range* and *y_range* (min, max) lie inside the box."""
+        return bool(
+            self.mins[0] <= x_range[0] and x_range[1] <= self.maxs[0]
+            and self.mins[1] <= y_range[0] and y_range[1] <= self.maxs[1]
+        )  # fmt: skip
+
+    def is_over(self, mins, maxs) -> bool:
+        """Whether this grid is the one over the box *mins*, *maxs* (bit for bit)."""
+        return bool(np.array_equal(self.mins, np.asarray(mins)[:2]) and np.array_equal(self.maxs, np.asarray(maxs)[:2]))
+
+
+def withhold_isolated(
+    path: Path, report: LasReadReport, block: int = 1 << 20, counted: IsolationGrid | None = None
+) -> int:
     """Flag withheld, in place, the few points of an intermediate LAS that lie far from the survey's dense core.
 
     A stray point inside its header's bounds (the bounds were computed with
@@ -773,6 +815,11 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     report's box of usable points is then recomputed.  Only uncompressed LAS
     1.4 formats 6-8 (what the pipeline writes) are changed, through a memory
     map of the records' X, Y and flag bytes.
+
+    *counted*, the file's points already counted while it was written
+    (:func:`_copy`), saves the pass that counts them; it is used only when
+    its grid is the one over the file's header bounds and it holds every
+    point, else the points are counted here.
 
     Returns
     -------
@@ -792,23 +839,25 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     span = float(max(maxs[0] - mins[0], maxs[1] - mins[1]))
     if span <= 0:
         return 0
-    cell = span / ISOLATION_GRID * (1 + 1e-9)
 
     def records(a: int, b: int, mode: str = "r") -> np.memmap:
         # Records a:b mapped on their own and unmapped after use: a map of the whole
         # file would hold every page read in the process (its size in RSS).
         return np.memmap(path, dtype=np.uint8, mode=mode, offset=offset + a * size, shape=(b - a, size))
 
-    def cells(rec: np.ndarray):
-        xy = np.ascontiguousarray(rec[:, 0:8]).view("<i4").reshape(-1, 2) * scales[:2] + offsets[:2]
-        c = np.minimum(((xy - mins[:2]) / cell).astype(np.int64), ISOLATION_GRID - 1)
-        return c[:, 1] * ISOLATION_GRID + c[:, 0], xy
+    def coordinates(rec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        raw = np.ascontiguousarray(rec[:, 0:8]).view("<i4").reshape(-1, 2)
+        return raw[:, 0] * scales[0] + offsets[0], raw[:, 1] * scales[1] + offsets[1]
 
-    hist = np.zeros(ISOLATION_GRID * ISOLATION_GRID, dtype=np.int64)
-    for a in range(0, count, block):
-        rec = records(a, min(a + block, count))
-        hist += np.bincount(cells(rec)[0], minlength=hist.size)
-        del rec
+    if counted is not None and counted.is_over(mins, maxs) and int(counted.counts.sum()) == count:
+        grid = counted
+    else:
+        grid = IsolationGrid(mins, maxs)
+        for a in range(0, count, block):
+            rec = records(a, min(a + block, count))
+            grid.add(*coordinates(rec))
+            del rec
+    hist = grid.counts
     occupied = (hist > 0).reshape(ISOLATION_GRID, ISOLATION_GRID)
     labels, n_groups = ndimage.label(ndimage.binary_dilation(occupied, np.ones((3, 3))), np.ones((3, 3)))
     labels = np.where(occupied, labels, 0)
@@ -818,9 +867,9 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     points[0] = 0
     main = int(np.argmax(points))
     rows, cols = np.nonzero(labels == main)
-    extent = max(int(np.ptp(rows)), int(np.ptp(cols)), 1) * cell
+    extent = max(int(np.ptp(rows)), int(np.ptp(cols)), 1) * grid.cell
     gap = max(ISOLATED_GAP * extent, ISOLATED_MIN_GAP_UNITS)
-    distance = ndimage.distance_transform_edt(labels != main) * cell
+    distance = ndimage.distance_transform_edt(labels != main) * grid.cell
     small = (points <= min(ISOLATED_MAX_POINTS, ISOLATED_MAX_SHARE * count)) & (points > 0)
     far = np.zeros(n_groups + 1, dtype=bool)
     groups = np.flatnonzero(small)
@@ -833,8 +882,8 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
     box = None
     for a in range(0, count, block):
         rec = records(a, min(a + block, count), "r+")
-        flat, xy = cells(rec)
-        hit = flagged_cells[flat]
+        x, y = coordinates(rec)
+        hit = flagged_cells[grid.index(x, y)]
         if hit.any():
             rec[:, 15][hit] |= 0x04  # classification flags, bit 2: withheld (LAS 1.4, formats 6-10)
             withheld += int(hit.sum())
@@ -842,7 +891,8 @@ def withhold_isolated(path: Path, report: LasReadReport, block: int = 1 << 20) -
         keep = ~hit & (rec[:, 15] & 0x04 == 0)
         del rec
         if keep.any():
-            lo, hi = xy[keep].min(axis=0), xy[keep].max(axis=0)
+            lo = np.array([x[keep].min(), y[keep].min()])
+            hi = np.array([x[keep].max(), y[keep].max()])
             box = [*lo, *hi] if box is None else [*np.minimum(box[:2], lo), *np.maximum(box[2:], hi)]
     report.far_from_survey = report.far_from_survey + withheld
     report.usable_box = None if box is None else [float(v) for v in box]
@@ -898,7 +948,14 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayo
 
 
 def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress, layout):
-    """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`)."""
+    """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`).
+
+    Returns the output CRS and the points counted on the isolation grid over
+    the input header's bounds (:class:`IsolationGrid`; None when those bounds
+    are unusable or a point lies outside them): the output's bounds are its
+    points' extremes, so when the header's were right the count is the one
+    :func:`withhold_isolated` needs, without a pass of its own.
+    """
     import laspy
 
     from stages.io import point_header
@@ -912,15 +969,14 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
         header.offsets, header.scales = h.offsets, h.scales
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
+        spans = np.asarray(h.maxs[:2], dtype=np.float64) - np.asarray(h.mins[:2], dtype=np.float64)
+        usable = box is not None and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
+        grid = IsolationGrid(h.mins, h.maxs) if usable else None
         with laspy.open(str(dst), mode="w", header=header) as writer:
             try:
                 for chunk in reader.chunk_iterator(chunk_size):
                     n = len(chunk)
                     if n:
-                        raw = [np.asarray(chunk.array[k]) for k in ("X", "Y", "Z")]  # scaled: only the extremes
-                        mins = [r.min() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
-                        maxs = [r.max() * sc + off for r, sc, off in zip(raw, h.scales, h.offsets, strict=True)]
-                        lo, hi = _extend(path, lo, hi, mins, maxs, target)
                         seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
                         x, y = np.asarray(chunk.x), np.asarray(chunk.y)
                         stray = _outside(box, x, y)
@@ -928,8 +984,17 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
                         if _repair(path, cols, stray, report):
                             for k, v in cols.items():
                                 chunk[k] = v
-                        _grow_box(report, x[~stray], y[~stray])
+                        if stray.any():
+                            _grow_box(report, x[~stray], y[~stray])
+                        else:
+                            _grow_box(report, x, y)
                     writer.write_points(chunk)
+                    if n:  # the writer's header holds the extremes of the points written so far
+                        lo, hi = _extend(path, lo, hi, writer.header.mins, writer.header.maxs, target)
+                        if grid is not None and grid.covers((lo[0], hi[0]), (lo[1], hi[1])):
+                            grid.add(x, y)
+                        else:
+                            grid = None
                     n_read += n
                     if progress is not None:
                         progress.update(n)
@@ -937,7 +1002,7 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
                 raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
     report.points[str(path)] = n_read
     strips.update(int(v) for v in np.flatnonzero(seen))
-    return target
+    return target, grid
 
 
 def _record(cols: dict[str, np.ndarray], header):

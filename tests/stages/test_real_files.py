@@ -130,6 +130,79 @@ def test_a_stray_point_inside_the_header_bounds_is_withheld(tmp_path):
     assert report.usable_box[2] < 440_301 and report.outside_header_bounds == {}
 
 
+def _survey_with_a_far_point(tmp_path, name="in.las"):
+    """50,000 points on 300 m x 300 m and point 7 80 km east, LAS 1.4 format 6 in EPSG:25830 (copied as delivered)."""
+    rng = np.random.default_rng(1)
+    n = 50_000
+    x, y = 440_000 + rng.uniform(0, 300, n), 4_474_000 + rng.uniform(0, 300, n)
+    x[7], y[7] = 520_000.0, 4_474_100.0
+    return _write_las(tmp_path / name, x, y, rng.uniform(600, 610, n))
+
+
+def _set_header_bounds(path: Path, mins, maxs) -> None:
+    """Overwrite a LAS header's bounds (bytes 179-226: max x, min x, max y, min y, max z, min z)."""
+    with open(path, "r+b") as fh:
+        fh.seek(179)
+        fh.write(struct.pack("<6d", maxs[0], mins[0], maxs[1], mins[1], maxs[2], mins[2]))
+
+
+def test_the_copy_counts_the_isolation_grid_of_the_file_it_writes(tmp_path):
+    """A LAS 1.4 copied as delivered: the points counted while copying are those of the file written, cell by cell."""
+    from stages.io import PointLayout
+    from stages.readers.las import IsolationGrid, LasReadReport, _copy
+
+    src = _survey_with_a_far_point(tmp_path)
+    target, layout = pyproj.CRS.from_epsg(25830), PointLayout(point_format=6)
+    _, grid = _copy(src, tmp_path / "out.las", target, LasReadReport(), set(), 10_000, None, layout)
+    out = laspy.read(tmp_path / "out.las")
+    expected = IsolationGrid(out.header.mins, out.header.maxs)
+    expected.add(np.asarray(out.x), np.asarray(out.y))
+    assert grid is not None and grid.is_over(out.header.mins, out.header.maxs)
+    assert np.array_equal(grid.counts, expected.counts) and grid.counts.sum() == 50_000
+
+
+def test_counts_of_another_grid_or_of_too_few_points_are_not_trusted(tmp_path):
+    """withhold_isolated counts the points itself unless the counts given are of its grid and hold every point."""
+    from stages.readers.las import IsolationGrid, LasReadReport, withhold_isolated
+
+    path = _survey_with_a_far_point(tmp_path)
+    with laspy.open(path) as reader:
+        mins, maxs = reader.header.mins, reader.header.maxs
+    other = IsolationGrid(mins - 1.0, maxs)  # another grid, every point in one cell: nothing would be far
+    other.counts[0] = 50_000
+    short = IsolationGrid(mins, maxs)  # the right grid without the points
+    for counted in (other, short, None):
+        report = LasReadReport()
+        assert withhold_isolated(path, report, counted=counted) == 1
+        assert np.flatnonzero(np.asarray(laspy.read(path).withheld)).tolist() == [7]
+        assert report.far_from_survey == 1 and report.usable_box[2] < 440_301
+        _write_las_flags_clear(path)
+
+
+def _write_las_flags_clear(path: Path) -> None:
+    las = laspy.read(path)
+    las.withheld = np.zeros(len(las.x), dtype=bool)
+    las.write(str(path))
+
+
+@pytest.mark.parametrize("shift", [-400.0, 400.0], ids=["bounds-too-narrow", "bounds-too-wide"])
+def test_a_copied_file_whose_header_bounds_are_not_its_points_still_finds_the_far_point(tmp_path, shift):
+    """Header x bounds 400 m inside or outside the points (more than a cell of the isolation grid, within the
+    stray tolerance of 1 % of 80 km): same points withheld."""
+    from stages.readers.las import convert_las_files
+
+    src = _survey_with_a_far_point(tmp_path)
+    with laspy.open(src) as reader:
+        mins, maxs = np.asarray(reader.header.mins), np.asarray(reader.header.maxs)
+    _set_header_bounds(src, mins - [shift, 0, 0], maxs + [shift, 0, 0])
+    _, report, _ = convert_las_files(
+        [src], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=10_000
+    )
+    out = laspy.read(tmp_path / "out.las")
+    assert report.far_from_survey == 1 and np.flatnonzero(np.asarray(out.withheld)).tolist() == [7]
+    assert report.outside_header_bounds == {} and np.array_equal(out.header.mins, mins)
+
+
 def test_return_number_zero_is_read_as_one():
     path = real("pdal/utm17.las")
     las, report = _read(path)

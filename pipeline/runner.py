@@ -4,21 +4,19 @@ Planning happens entirely before any stage runs: every stage's parameters are
 validated (by the configuration model), the enabled stages are ordered from
 their declared inputs, and every input must be produced by an enabled stage
 (or passed on by a disabled one).  Then each stage runs, or is taken from the
-cache when its key matches a complete entry.  Products are hard-linked
-(or, across file systems, copied) from the cache into the output folder
-atomically, and ``run.json`` records what happened.
+cache when its key matches a complete entry.  Products are copied from the
+cache into the output folder atomically, and ``run.json`` records what
+happened.
 """
 
 from __future__ import annotations
 
-import errno
 import json
 import logging
 import os
 import platform
 import shutil
 import signal
-import stat
 import time
 import uuid
 from collections.abc import Iterable
@@ -455,10 +453,9 @@ def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[
 
     Under the output folder's lock:
 
-    1. every product that differs from the one in place is hard-linked to
-       its cache entry, or copied (:func:`_stage_copy`), under a temporary
-       name (``.NAME.*.tmp``) beside it; if that fails (a full disk) the
-       copies are removed and the folder is as it was;
+    1. every product that differs from the one in place is copied under a
+       temporary name (``.NAME.*.tmp``) beside it; if that fails (a full
+       disk) the copies are removed and the folder is as it was;
     2. ``run.json`` is written with ``"status": "publishing"`` and the new
        product list;
     3. the copies are renamed into place, the products of the previous
@@ -551,18 +548,13 @@ def _is_real(path: Path) -> bool:
 
 
 def _stage_copy(src: Path, dst: Path) -> Path:
-    """Put *src* beside *dst* under a temporary name; an error names *dst*, the product.
-
-    A file is hard-linked to its cache entry when the file system allows it
-    (:func:`_link_file`), else copied; either way its data is on disk
-    (``fsync``) before it is renamed into place.  A folder is copied.
-    """
+    """Copy *src* beside *dst* under a temporary name; an error names *dst*, the product."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.parent / f".{dst.name}.{uuid.uuid4().hex[:8]}.tmp"
     try:
         if Path(src).is_dir():
             shutil.copytree(src, tmp)
-        elif not _link_file(Path(src), tmp):
+        else:
             with open(src, "rb") as fin:
                 fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666 & ~_UMASK)
                 with os.fdopen(fd, "wb") as fout:
@@ -576,31 +568,6 @@ def _stage_copy(src: Path, dst: Path) -> Path:
         _remove_path(tmp)
         raise
     return tmp
-
-
-def _link_file(src: Path, tmp: Path) -> bool:
-    """Hard-link the cached file *src* as *tmp* (a new name), its data synced to disk; False where that cannot be.
-
-    Only a regular file is linked, never through a symbolic link (one in the
-    cache is copied from, as before); the new name is created by the link
-    itself, so nothing in its place is followed or overwritten.  False (copy
-    instead) when the output and the cache are on different file systems or
-    the file system has no hard links.
-    """
-    try:
-        if not stat.S_ISREG(os.lstat(src).st_mode):
-            return False
-        os.link(src, tmp, follow_symlinks=False)
-    except OSError as exc:
-        if exc.errno in (errno.EXDEV, errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK, errno.EACCES):
-            return False
-        raise
-    fd = os.open(tmp, os.O_RDONLY | os.O_NOFOLLOW)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    return True
 
 
 def _rename_into_place(tmp: Path, dst: Path) -> None:

@@ -115,9 +115,9 @@ def test_a_full_disk_while_publishing_keeps_every_old_product(toy, capsys, monke
     old = {name: _sha(out / name) for name in ("total.json", "hist.json", "summary.json")}
     old_manifest = toy.manifest()
     (toy.root / "numbers.txt").write_text("5\n6\n7\n")  # every product changes
-    # The disk fills up at the second product, whichever way it is copied or linked.
+    # The disk fills up at the second product, whichever way it is copied.
     calls = {"n": 0}
-    real_copyfileobj, real_copyfile, real_link = shutil.copyfileobj, shutil.copyfile, os.link
+    real_copyfileobj, real_copyfile = shutil.copyfileobj, shutil.copyfile
 
     def full_after_one(copy):
         def copy_or_fail(src, dst, *args, **kwargs):
@@ -132,7 +132,6 @@ def test_a_full_disk_while_publishing_keeps_every_old_product(toy, capsys, monke
 
     monkeypatch.setattr(shutil, "copyfileobj", full_after_one(real_copyfileobj))
     monkeypatch.setattr(shutil, "copyfile", full_after_one(real_copyfile))
-    monkeypatch.setattr(os, "link", full_after_one(real_link))
     capsys.readouterr()
     assert toy.run() == 1
     err = capsys.readouterr().err
@@ -225,48 +224,6 @@ def test_planted_links_are_never_followed(toy, tmp_path):
     assert precious.read_text() == "keep me"
     assert sorted(p.name for p in outside.iterdir()) == ["precious.txt"]
     assert not (out / ".products.lock").is_symlink()
-
-
-def test_a_product_is_a_hard_link_to_its_cache_entry_where_the_file_system_allows(toy):
-    """No copy of the data: the product and the entry are one file, with the checksum run.json gives."""
-    assert toy.run() == 0
-    out = toy.root / "out"
-    entry = _entry_of(toy, "total") / "total.json"
-    product = out / "total.json"
-    assert os.stat(product).st_ino == os.stat(entry).st_ino and os.stat(product).st_nlink == 2
-    _folder_matches_manifest(out)
-
-
-def test_a_product_is_copied_when_it_cannot_be_linked(toy, monkeypatch):
-    """Output and cache on different file systems (EXDEV): the product is a copy, as before."""
-
-    def other_device(src, dst, *args, **kwargs):
-        raise OSError(errno.EXDEV, "Invalid cross-device link")
-
-    monkeypatch.setattr(os, "link", other_device)
-    assert toy.run() == 0
-    out = toy.root / "out"
-    entry = _entry_of(toy, "total") / "total.json"
-    assert os.stat(out / "total.json").st_ino != os.stat(entry).st_ino
-    assert (out / "total.json").read_bytes() == entry.read_bytes()
-    _folder_matches_manifest(out)
-
-
-def test_a_link_planted_in_the_cache_is_copied_from_never_linked_through(toy, tmp_path):
-    """A cache file replaced by a symbolic link to a file outside: the product is a copy, not that file."""
-    assert toy.run() == 0
-    out = toy.root / "out"
-    entry = _entry_of(toy, "total") / "total.json"
-    outside = tmp_path / "outside.json"
-    shutil.copyfile(entry, outside)
-    entry.unlink()
-    entry.symlink_to(outside)  # same content: the entry still passes its checksum
-    (out / "total.json").unlink()
-    assert toy.run() == 0
-    product = out / "total.json"
-    assert not product.is_symlink() and os.stat(product).st_ino != os.stat(outside).st_ino
-    assert product.read_bytes() == outside.read_bytes()
-    _folder_matches_manifest(out)
 
 
 # --------------------------------------------------------------------------

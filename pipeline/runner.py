@@ -706,6 +706,8 @@ def _execute(
         }
         entry = cache.commit(step.name, key, workspace, meta, replace=replace)
     except BaseException:
+        if executor is not None:  # its workers may still be writing tile parts into the workspace: stop them first
+            executor.close(abort=True)
         Cache.discard(workspace)
         raise
     slog.info("done in %.2f s", seconds)

@@ -21,7 +21,6 @@ the default, and how each algorithm scores: docs/GROUND.md.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
@@ -274,8 +273,7 @@ class ClassifyGround(Stage):
         whole = None
         if params.algorithm.name == "smrf" and params.one_grid_cells > 0:
             with ctx.progress(2 * cloud_info(src).count, "filtering", unit="pt") as bar:
-                threads = max(1, min(ctx.config.executor.workers, os.cpu_count() or 1))
-                whole = smrf_one_grid(src, ctx.outputs["points_classified"], params, threads=threads, progress=bar)
+                whole = smrf_one_grid(src, ctx.outputs["points_classified"], params, threads=ctx.workers, progress=bar)
         if whole is not None:  # SMRF on one grid of the whole survey: no tile, no buffer (see smrf_one_grid)
             ctx.metrics["tiling"] = {
                 "tiles": 1,
@@ -380,8 +378,9 @@ def _chunks(path: Path, work, *, chunk_size: int = 1_000_000):
 
 def _anchored(lo, hi, cell: float) -> tuple[float, float, int, int]:
     """``(x0, y0, rows, cols)`` of the grid of cells of *cell* over a box, anchored as :func:`stages.ground.surface.index_points`."""
-    x0 = float(np.floor(lo[0] / cell) * cell)
-    y0 = float(np.floor(lo[1] / cell) * cell)
+    from stages.ground.surface import grid_corner
+
+    x0, y0 = grid_corner(lo, cell)
     return x0, y0, int(np.floor((hi[1] - y0) / cell)) + 1, int(np.floor((hi[0] - x0) / cell)) + 1
 
 

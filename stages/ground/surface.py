@@ -39,6 +39,11 @@ class CellIndex:
         return self.row * self.cols + self.col
 
 
+def grid_corner(lowest, cell_size: float) -> tuple[float, float]:
+    """The corner of a grid over points whose lowest x, y are *lowest*: rounded down to whole multiples of the cell."""
+    return float(np.floor(lowest[0] / cell_size) * cell_size), float(np.floor(lowest[1] / cell_size) * cell_size)
+
+
 def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
     """Grid the bounding box of *xy* with square cells of *cell_size*.
 
@@ -46,8 +51,7 @@ def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
     of *cell_size*, so every subset of the points (a tile) puts each point in
     the same cell, at the same place in the cell, as the whole set does.
     """
-    x0 = float(np.floor(xy[:, 0].min() / cell_size) * cell_size)
-    y0 = float(np.floor(xy[:, 1].min() / cell_size) * cell_size)
+    x0, y0 = grid_corner(xy.min(axis=0), cell_size)
     col = np.floor((xy[:, 0] - x0) / cell_size)
     row = np.floor((xy[:, 1] - y0) / cell_size)
     small = col.max() * (row.max() + 1) + col.max() < 2**31  # int32 indices when the grid allows (memory)

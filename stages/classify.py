@@ -362,18 +362,13 @@ def _chunks(path: Path, work, *, chunk_size: int = 1_000_000):
     """
     import laspy
 
-    from stages.io import cloud_crs
+    from stages.io import chunk_xyz_metres, cloud_crs
     from stages.units import Units
 
     with laspy.open(str(path)) as reader:
         units = Units.of(cloud_crs(reader))
         for chunk in reader.chunk_iterator(chunk_size):
-            # laspy's scaled x, y, z ((X * scale) + offset, the same values), made in the columns of one array
-            xyz = np.empty((len(chunk), 3), order="F")
-            for axis, name in enumerate("XYZ"):
-                np.multiply(chunk.array[name], chunk.scales[axis], out=xyz[:, axis])
-                xyz[:, axis] += chunk.offsets[axis]
-            yield work(chunk, units.to_metres(xyz), _classify_columns(chunk))
+            yield work(chunk, chunk_xyz_metres(chunk, units), _classify_columns(chunk))
 
 
 def _anchored(lo, hi, cell: float) -> tuple[float, float, int, int]:

@@ -147,6 +147,22 @@ def xyz_metres(las) -> tuple[np.ndarray, object]:
     return units.to_metres(xyz(las)), units
 
 
+def chunk_xyz_metres(chunk, units) -> np.ndarray:
+    """A chunk's (laspy record's) coordinates in metres, (n, 3) with contiguous columns.
+
+    laspy's scaled values (``X * scale + offset``, computed as laspy does),
+    then :meth:`stages.units.Units.to_metres`'s factors, column by column:
+    no stacked copy of three separate columns.
+    """
+    xyz = np.empty((len(chunk), 3), order="F")
+    for axis, name in enumerate("XYZ"):
+        np.multiply(chunk.array[name], chunk.scales[axis], out=xyz[:, axis])
+        xyz[:, axis] += chunk.offsets[axis]
+        if not units.is_metre:
+            xyz[:, axis] *= units.vertical if axis == 2 else units.horizontal
+    return xyz
+
+
 def cloud_crs(las):
     """The pyproj CRS of a LasData (or an open laspy reader), or None when its header has none."""
     try:

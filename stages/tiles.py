@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from stages.io import HEIGHT, NpyColumns, npy_header
+from stages.io import HEIGHT, NpyColumns, chunk_xyz_metres, npy_header
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -268,9 +268,8 @@ def _split_records(
         n = len(chunk)
         if n == 0:  # pragma: no cover - fewer records than the header says; the readers check that first
             break
-        x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-        if not units.is_metre:  # as Units.to_metres does it, column by column
-            x, y, z = x * units.horizontal, y * units.horizontal, z * units.vertical
+        xyz = chunk_xyz_metres(chunk, units)
+        x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         cols = {"x": x, "y": y, "z": z, **columns(chunk)}
         if index:
             cols["idx"] = np.arange(start, start + n, dtype=np.int64)

@@ -462,6 +462,7 @@ def smrf_one_grid(
 
     from stages.ground.smrf import point_test, provisional_dem
     from stages.ground.surface import CellIndex
+    from stages.io import open_las_writer
     from stages.tiles import cloud_info
 
     algo = params.algorithm
@@ -496,7 +497,7 @@ def smrf_one_grid(
         return chunk, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
 
     counts = dict.fromkeys(("points", "ground", "non_ground", "last_returns"), 0)
-    with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+    with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
         for chunk, numbers in _chunks(src, classes, chunk_size=chunk_size):
             writer.write_points(chunk)
             for key, value in zip(counts, numbers, strict=True):

@@ -43,6 +43,8 @@ class ExportLas(Stage):
     def run(self, ctx) -> None:
         import laspy
 
+        from stages.io import open_las_writer
+
         src_path = ctx.inputs["points_classified"]
         dst_path = ctx.outputs["points_export"]
         # LazrsParallel: chunks of 50,000 points compressed on every core (same format).
@@ -50,9 +52,7 @@ class ExportLas(Stage):
         with laspy.open(str(src_path)) as reader:
             header = reader.header
             with (
-                laspy.open(
-                    str(dst_path), mode="w", header=header, do_compress=ctx.params.compress, laz_backend=backend
-                ) as writer,
+                open_las_writer(dst_path, header, do_compress=ctx.params.compress, laz_backend=backend) as writer,
                 ctx.progress(header.point_count, "writing", unit="pt") as bar,
             ):
                 for chunk in reader.chunk_iterator(ctx.params.chunk_size):

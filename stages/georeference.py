@@ -224,7 +224,7 @@ class Georeference(Stage):
         from stages.georef.core import georeference, georeference_local, locate
         from stages.georef.geodesy import MapTransform
         from stages.georef.strips import segment_strips
-        from stages.io import point_header, read_columns
+        from stages.io import open_las_writer, point_header, read_columns
         from stages.readers.las import output_crs
 
         p = ctx.params
@@ -293,7 +293,7 @@ class Georeference(Stage):
         per_strip: dict[int, int] = {}
         tmp = ctx.outputs["points_georef"]
         with (
-            laspy.open(tmp, mode="w", header=header) as writer,
+            open_las_writer(tmp, header) as writer,
             ctx.progress(n_pulses, "georeferencing", unit="pulse") as bar,
         ):
             start = 0

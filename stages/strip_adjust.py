@@ -369,7 +369,9 @@ def _apply(src, dst, transforms: dict, units, ctx) -> None:
     """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform."""
     import laspy
 
-    with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+    from stages.io import open_las_writer
+
+    with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
         with ctx.progress(reader.header.point_count, "writing", unit="pt") as bar:
             for chunk in reader.chunk_iterator(1_000_000):
                 if transforms:

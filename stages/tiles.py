@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from stages.io import HEIGHT, NpyColumns, chunk_xyz_metres, npy_header
+from stages.io import HEIGHT, NpyColumns, chunk_xyz_metres, npy_header, open_las_writer
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -460,7 +460,7 @@ def merge_classes(
 
     runs = [_Run(folder, ["classification"]) for folder in results]
     try:
-        with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+        with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
             start = 0
             for chunk in reader.chunk_iterator(chunk_size):
                 n = len(chunk)

@@ -426,6 +426,7 @@ def _write(ctx, src, dst, geo, theta, unknowns, idx, pulses, units) -> float:
     import laspy
 
     from stages.georef.core import georeference_local, locate
+    from stages.io import open_las_writer
 
     new = corrected_mounting(geo.mounting, theta)
     table = np.zeros((65536, 3))
@@ -435,7 +436,7 @@ def _write(ctx, src, dst, geo, theta, unknowns, idx, pulses, units) -> float:
     pulses_v = [pulses[k] for k in ("x", "y", "z")]
     largest = 0.0
     start = 0
-    with laspy.open(str(src)) as reader, laspy.open(str(dst), mode="w", header=reader.header) as writer:
+    with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
         with ctx.progress(reader.header.point_count, "writing", unit="pt") as bar:
             for chunk in reader.chunk_iterator(1_000_000):
                 n = len(chunk)

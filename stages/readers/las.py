@@ -20,7 +20,7 @@ import numpy as np
 
 from pipeline.errors import InputDataError
 from stages.crscheck import header_crs
-from stages.io import PointLayout
+from stages.io import PointLayout, open_las_writer
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
@@ -690,7 +690,6 @@ def convert_las_files(
     strips : set of int
         The point source ids met.
     """
-    import laspy
 
     from stages.io import point_header
 
@@ -722,7 +721,7 @@ def convert_las_files(
                     lo = np.array([cols[k].min() for k in "xyz"]) if n else None
                     hi = np.array([cols[k].max() for k in "xyz"]) if n else None
                 header = point_header(target, lo, hi, layout=layout)
-                writer = laspy.open(str(dst), mode="w", header=header)
+                writer = open_las_writer(dst, header)
             if not n:
                 continue
             for k, axis in zip("xyz", range(3), strict=True):
@@ -740,7 +739,7 @@ def convert_las_files(
                 paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, override_crs=override_crs
             )
             target = las.header.parse_crs()
-            writer = laspy.open(str(dst), mode="w", header=point_header(target, layout=layout))
+            writer = open_las_writer(dst, point_header(target, layout=layout))
     finally:
         if writer is not None:
             writer.close()
@@ -956,7 +955,6 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
     points' extremes, so when the header's were right the count is the one
     :func:`withhold_isolated` needs, without a pass of its own.
     """
-    import laspy
 
     from stages.io import point_header
 
@@ -972,7 +970,7 @@ def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: i
         spans = np.asarray(h.maxs[:2], dtype=np.float64) - np.asarray(h.mins[:2], dtype=np.float64)
         usable = box is not None and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
         grid = IsolationGrid(h.mins, h.maxs) if usable else None
-        with laspy.open(str(dst), mode="w", header=header) as writer:
+        with open_las_writer(dst, header) as writer:
             try:
                 for chunk in reader.chunk_iterator(chunk_size):
                     n = len(chunk)

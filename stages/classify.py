@@ -21,6 +21,7 @@ the default, and how each algorithm scores: docs/GROUND.md.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
@@ -273,7 +274,15 @@ class ClassifyGround(Stage):
         whole = None
         if params.algorithm.name == "smrf" and params.one_grid_cells > 0:
             with ctx.progress(2 * cloud_info(src).count, "filtering", unit="pt") as bar:
-                whole = smrf_one_grid(src, ctx.outputs["points_classified"], params, threads=ctx.workers, progress=bar)
+                whole = smrf_one_grid(
+                    src,
+                    ctx.outputs["points_classified"],
+                    params,
+                    threads=ctx.workers,
+                    progress=bar,
+                    executor=ctx.executor,
+                    workdir=ctx.workdir,
+                )
         if whole is not None:  # SMRF on one grid of the whole survey: no tile, no buffer (see smrf_one_grid)
             ctx.metrics["tiling"] = {
                 "tiles": 1,
@@ -436,6 +445,8 @@ def smrf_one_grid(
     threads: int = 1,
     chunk_size: int = 1_000_000,
     progress=None,
+    executor=None,
+    workdir: Path | None = None,
 ) -> dict | None:
     """SMRF on one grid of the whole survey: *src* copied to *dst* with the new classes; None when too big.
 
@@ -454,20 +465,27 @@ def smrf_one_grid(
     3. each chunk's point test and classes, written as it is read.
 
     *threads* filter bands of the grid's rows at once
-    (:func:`stages.ground.smrf.progressive_filter`).  Returns the counts, or
-    None (nothing written) when the grid of the candidates has more than
+    (:func:`stages.ground.smrf.progressive_filter`).  With an *executor* of
+    more than one worker (and a *workdir* for the grids), step 3 runs on
+    the workers, a range of records each (:func:`_classes_on_workers`):
+    the same file, byte for byte.  Returns the counts, or None (nothing
+    written) when the grid of the candidates has more than
     ``one_grid_cells`` cells: the caller tiles.
     """
     import laspy
 
-    from stages.ground.smrf import point_test, provisional_dem
+    from stages.ground.smrf import provisional_dem
     from stages.ground.surface import CellIndex
     from stages.io import open_las_writer
     from stages.tiles import cloud_info
 
     algo = params.algorithm
     cell, cap = algo.cell_size, params.one_grid_cells
-    extent = cloud_info(src).extent
+    info = cloud_info(src)
+    extent = info.extent
+    parallel = executor is not None and executor.workers > 1 and workdir is not None and info.count >= 2 * chunk_size
+    if parallel:
+        executor.prepare(classes_range)  # the workers start while this process finds the grid
     anchor = _anchored(extent[:2], extent[2:], cell)
     got = _lowest(src, params, anchor, progress, chunk_size) if anchor[2] * anchor[3] <= cap else None
     if got is None:  # the header's grid is too big (stray points) or misses points: the candidates' own
@@ -488,21 +506,161 @@ def smrf_one_grid(
     del zmin
 
     def classes(chunk, xyz, cols):
-        keep, cand = candidates_of(**cols, params=params)
-        ground = np.zeros(len(keep), dtype=bool)
-        if surfaces is not None and cand.any():
-            ground[cand] = point_test(xyz[cand], grid, *surfaces, **test)
-        chunk.classification = cls = new_classes(cols["classification"], keep, ground)
-        last = int((cols["return_number"] >= cols["number_of_returns"]).sum())
-        return chunk, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
+        chunk.classification, numbers = _chunk_classes(xyz, cols, params, grid, surfaces)
+        return chunk, numbers
 
-    counts = dict.fromkeys(("points", "ground", "non_ground", "last_returns"), 0)
-    with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
-        for chunk, numbers in _chunks(src, classes, chunk_size=chunk_size):
-            writer.write_points(chunk)
-            for key, value in zip(counts, numbers, strict=True):
-                counts[key] += value
-            if progress is not None:
-                progress.update(numbers[0])
+    counts = dict.fromkeys(COUNTS, 0)
+    if parallel and surfaces is not None and _classification_byte(src) is not None:
+        numbers = _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, info.count, chunk_size)
+        for key, value in zip(counts, numbers, strict=True):
+            counts[key] += value
+        if progress is not None:
+            progress.update(info.count)
+    else:
+        with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
+            for chunk, numbers in _chunks(src, classes, chunk_size=chunk_size):
+                writer.write_points(chunk)
+                for key, value in zip(counts, numbers, strict=True):
+                    counts[key] += value
+                if progress is not None:
+                    progress.update(numbers[0])
     counts["grid"] = (grid.rows, grid.cols) if grid is not None else (0, 0)
     return counts
+
+
+#: What step 3 counts, in this order: points, ground, non-ground, last (or single) returns.
+COUNTS = ("points", "ground", "non_ground", "last_returns")
+
+
+def _chunk_classes(xyz, cols, params, grid, surfaces) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """Step 3 of :func:`smrf_one_grid` on one chunk: its new classes and :data:`COUNTS`."""
+    from stages.ground.smrf import point_test
+
+    algo = params.algorithm
+    keep, cand = candidates_of(**cols, params=params)
+    ground = np.zeros(len(keep), dtype=bool)
+    if surfaces is not None and cand.any():
+        ground[cand] = point_test(
+            xyz[cand],
+            grid,
+            *surfaces,
+            elevation_threshold=algo.elevation_threshold,
+            elevation_scalar=algo.elevation_scalar,
+        )
+    cls = new_classes(cols["classification"], keep, ground)
+    last = int((cols["return_number"] >= cols["number_of_returns"]).sum())
+    return cls, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
+
+
+def _classification_byte(path: Path) -> tuple[int, int, int] | None:
+    """``(offset to the first record, record length, classification's byte in a record)`` of a LAS file.
+
+    None when the classification is not a byte of its own (point formats
+    0-5 keep it in five bits of a byte shared with three flags), the file
+    is compressed, or anything follows the records (EVLRs, which laspy's
+    writer does not copy): such a file is written by laspy's writer.
+    """
+    import laspy
+
+    with laspy.open(str(path)) as reader:
+        header = reader.header
+        if header.are_points_compressed:
+            return None
+        fields = header.point_format.dtype().fields
+        if "classification" not in fields or fields["classification"][0] != np.uint8:
+            return None
+        offset, size = int(header.offset_to_point_data), int(header.point_format.size)
+        if Path(path).stat().st_size != offset + int(header.point_count) * size:
+            return None
+        return offset, size, int(fields["classification"][1])
+
+
+def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, count, chunk_size) -> list[int]:
+    """Step 3 of :func:`smrf_one_grid` on the workers: *dst* is *src* with the new classes.
+
+    The workers each classify a range of records (:func:`classes_range`,
+    the grids read from ``.npy`` files in *workdir*) and write the range's
+    records, their classification byte replaced, to a file of their own;
+    this process joins *src*'s header and VLRs and those files into *dst*
+    (kernel copies; *src* has nothing after its records,
+    :func:`_classification_byte`).  Only the classification changes, so
+    *src*'s header (bounds, returns, counts) is the one laspy's writer
+    gives the same points (a test compares the bytes).  Returns
+    :data:`COUNTS`.
+    """
+    import shutil
+
+    offset, size, _ = _classification_byte(src)
+    folder = Path(workdir) / ".smrf-one-grid"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    try:
+        np.save(folder / "dem.npy", surfaces[0])
+        np.save(folder / "slope.npy", surfaces[1])
+        pieces = 2 * executor.workers
+        bounds = [count * k // pieces for k in range(pieces + 1)]
+        tasks = [
+            {
+                "path": str(src),
+                "start": bounds[k],
+                "stop": bounds[k + 1],
+                "params": params.model_dump(mode="json"),
+                "grid": [grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols],
+                "surfaces": [str(folder / "dem.npy"), str(folder / "slope.npy")],
+                "result": str(folder / f"records-{k}"),
+                "chunk_size": max(chunk_size // executor.workers, 1),  # the workers' chunks together: one process's
+            }
+            for k in range(pieces)
+        ]
+        results = executor.map(classes_range, tasks, what="point test")
+        with open(src, "rb") as head, open(dst, "wb") as out:
+            _copy_range(head, out, 0, offset)  # header and VLRs
+            for task in tasks:
+                with open(task["result"], "rb") as part:
+                    _copy_range(part, out, 0, (task["stop"] - task["start"]) * size)
+        return [sum(r[k] for r in results) for k in range(len(COUNTS))]
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _copy_range(src, dst, offset: int, length: int) -> None:
+    """Append *length* bytes of the open file *src*, from *offset*, to the open file *dst* (in the kernel)."""
+    while length > 0:
+        sent = os.sendfile(dst.fileno(), src.fileno(), offset, length)
+        if sent == 0:
+            raise InputDataError(f"{src.name}: the file ends {length:,} bytes early (it changed while being read).")
+        offset += sent
+        length -= sent
+
+
+def classes_range(task: dict) -> list[int]:
+    """Step 3 of :func:`smrf_one_grid` on records ``start:stop`` (runs in a worker; see :func:`_classes_on_workers`)."""
+    import laspy
+
+    from stages.ground.surface import CellIndex
+    from stages.io import chunk_xyz_metres, cloud_crs
+    from stages.units import Units
+
+    params = ClassifyGroundParams.model_validate(task["params"])
+    x0, y0, cell, rows, cols = task["grid"]
+    empty = np.zeros(0, np.int64)
+    grid = CellIndex(x0, y0, cell, int(rows), int(cols), empty, empty)
+    surfaces = tuple(np.load(p, mmap_mode="r") for p in task["surfaces"])
+    start, stop = task["start"], task["stop"]
+    totals = [0] * len(COUNTS)
+    with laspy.open(task["path"]) as reader, open(task["result"], "wb") as out:
+        units = Units.of(cloud_crs(reader))
+        reader.seek(start)
+        at = start
+        while at < stop:
+            chunk = reader.read_points(min(task["chunk_size"], stop - at))
+            n = len(chunk)
+            if n == 0:  # pragma: no cover - fewer records than the header says; parse checks that first
+                raise InputDataError(f"{task['path']}: records {at:,} to {stop:,} are missing.")
+            xyz = chunk_xyz_metres(chunk, units)
+            cls, numbers = _chunk_classes(xyz, _classify_columns(chunk), params, grid, surfaces)
+            chunk.array["classification"] = cls
+            out.write(chunk.array.tobytes())
+            totals = [a + b for a, b in zip(totals, numbers, strict=True)]
+            at += n
+    return totals

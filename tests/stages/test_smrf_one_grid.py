@@ -89,6 +89,39 @@ def test_one_grid_gives_the_classes_of_smrf_on_all_points(tmp_path, stray):
     assert counts["grid"][1] < 300 and counts["grid"][0] < 250
 
 
+@pytest.mark.parametrize("evlr", [False, True], ids=["plain", "with an EVLR"])
+def test_the_point_test_on_workers_writes_the_same_file(tmp_path, evlr):
+    """Step 3 on two worker processes (ranges of records, joined): the one-process file, byte for byte.
+
+    The ranges' records are joined between the source's header and its
+    EVLRs; the header's bounds and counts must be what laspy's writer gives.
+    """
+    from laspy.vlrs.vlrlist import VLRList
+
+    from pipeline.executor import LocalExecutor
+
+    las = _survey(tmp_path / "in.las", stray=False)
+    if evlr:
+        las.evlrs = VLRList([laspy.VLR("test", 7, "an EVLR after the points", b"0123456789")])
+        las.write(str(tmp_path / "in.las"))
+    params = ClassifyGroundParams(one_grid_cells=1_000_000)
+    one = smrf_one_grid(tmp_path / "in.las", tmp_path / "one.las", params, chunk_size=7_000)
+    executor = LocalExecutor(2)
+    try:
+        work = tmp_path / "work"
+        work.mkdir()
+        two = smrf_one_grid(
+            tmp_path / "in.las", tmp_path / "two.las", params, chunk_size=7_000, executor=executor, workdir=work
+        )
+        assert executor._pool is not None  # the workers did the point test
+    finally:
+        executor.close()
+    assert one == two
+    assert (tmp_path / "two.las").read_bytes() == (tmp_path / "one.las").read_bytes()
+    np.testing.assert_array_equal(laspy.read(str(tmp_path / "two.las")).classification, _reference(las, params))
+    assert list(work.iterdir()) == []  # the grids and the ranges' records are removed
+
+
 def test_a_grid_over_the_limit_is_left_to_the_tiles(tmp_path):
     _survey(tmp_path / "in.las", stray=True)
     params = ClassifyGroundParams(one_grid_cells=20_000)  # the candidates' grid has about 50,000 cells

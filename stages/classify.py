@@ -21,7 +21,6 @@ the default, and how each algorithm scores: docs/GROUND.md.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated, ClassVar, Literal
 
@@ -578,15 +577,14 @@ def _classification_byte(path: Path) -> tuple[int, int, int] | None:
 def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, count, chunk_size) -> list[int]:
     """Step 3 of :func:`smrf_one_grid` on the workers: *dst* is *src* with the new classes.
 
-    The workers each classify a range of records (:func:`classes_range`,
-    the grids read from ``.npy`` files in *workdir*) and write the range's
-    records, their classification byte replaced, to a file of their own;
-    this process joins *src*'s header and VLRs and those files into *dst*
-    (kernel copies; *src* has nothing after its records,
-    :func:`_classification_byte`).  Only the classification changes, so
-    *src*'s header (bounds, returns, counts) is the one laspy's writer
-    gives the same points (a test compares the bytes).  Returns
-    :data:`COUNTS`.
+    This process writes *src*'s header and VLRs to *dst* and sizes it for
+    the records; the workers each classify a range of records
+    (:func:`classes_range`, the grids read from ``.npy`` files in
+    *workdir*) and write the range's records, their classification byte
+    replaced, at their place in *dst*.  Only the classification changes, so
+    *src*'s header (bounds, returns, counts) is the one laspy's writer gives
+    the same points (a test compares the bytes); *src* has nothing after
+    its records (:func:`_classification_byte`).  Returns :data:`COUNTS`.
     """
     import shutil
 
@@ -597,6 +595,9 @@ def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, cou
     try:
         np.save(folder / "dem.npy", surfaces[0])
         np.save(folder / "slope.npy", surfaces[1])
+        with open(src, "rb") as head, open(dst, "wb") as out:
+            out.write(head.read(offset))  # header and VLRs
+            out.truncate(offset + count * size)
         pieces = 2 * executor.workers
         bounds = [count * k // pieces for k in range(pieces + 1)]
         tasks = [
@@ -607,30 +608,16 @@ def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, cou
                 "params": params.model_dump(mode="json"),
                 "grid": [grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols],
                 "surfaces": [str(folder / "dem.npy"), str(folder / "slope.npy")],
-                "result": str(folder / f"records-{k}"),
+                "result": str(dst),
+                "offset": offset + bounds[k] * size,
                 "chunk_size": max(chunk_size // executor.workers, 1),  # the workers' chunks together: one process's
             }
             for k in range(pieces)
         ]
         results = executor.map(classes_range, tasks, what="point test")
-        with open(src, "rb") as head, open(dst, "wb") as out:
-            _copy_range(head, out, 0, offset)  # header and VLRs
-            for task in tasks:
-                with open(task["result"], "rb") as part:
-                    _copy_range(part, out, 0, (task["stop"] - task["start"]) * size)
         return [sum(r[k] for r in results) for k in range(len(COUNTS))]
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-
-
-def _copy_range(src, dst, offset: int, length: int) -> None:
-    """Append *length* bytes of the open file *src*, from *offset*, to the open file *dst* (in the kernel)."""
-    while length > 0:
-        sent = os.sendfile(dst.fileno(), src.fileno(), offset, length)
-        if sent == 0:
-            raise InputDataError(f"{src.name}: the file ends {length:,} bytes early (it changed while being read).")
-        offset += sent
-        length -= sent
 
 
 def classes_range(task: dict) -> list[int]:
@@ -648,7 +635,9 @@ def classes_range(task: dict) -> list[int]:
     surfaces = tuple(np.load(p, mmap_mode="r") for p in task["surfaces"])
     start, stop = task["start"], task["stop"]
     totals = [0] * len(COUNTS)
-    with laspy.open(task["path"]) as reader, open(task["result"], "wb") as out:
+    # the file exists at its full size: each range writes its own bytes (r+: no truncation)
+    with laspy.open(task["path"]) as reader, open(task["result"], "r+b") as out:
+        out.seek(task["offset"])
         units = Units.of(cloud_crs(reader))
         reader.seek(start)
         at = start
@@ -660,7 +649,7 @@ def classes_range(task: dict) -> list[int]:
             xyz = chunk_xyz_metres(chunk, units)
             cls, numbers = _chunk_classes(xyz, _classify_columns(chunk), params, grid, surfaces)
             chunk.array["classification"] = cls
-            out.write(chunk.array.tobytes())
+            out.write(chunk.array)  # contiguous records: written as they are, no copy
             totals = [a + b for a, b in zip(totals, numbers, strict=True)]
             at += n
     return totals

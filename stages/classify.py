@@ -482,8 +482,10 @@ def smrf_one_grid(
     cell, cap = algo.cell_size, params.one_grid_cells
     info = cloud_info(src)
     extent = info.extent
-    parallel = executor is not None and executor.workers > 1 and workdir is not None and info.count >= 2 * chunk_size
-    if parallel:
+    records = None  # where the records lie, for the workers to write them in place
+    if executor is not None and executor.workers > 1 and workdir is not None and info.count >= 2 * chunk_size:
+        records = _record_layout(src)
+    if records is not None:
         executor.prepare(classes_range)  # the workers start while this process finds the grid
     anchor = _anchored(extent[:2], extent[2:], cell)
     got = _lowest(src, params, anchor, progress, chunk_size) if anchor[2] * anchor[3] <= cap else None
@@ -509,8 +511,8 @@ def smrf_one_grid(
         return chunk, numbers
 
     counts = dict.fromkeys(COUNTS, 0)
-    if parallel and surfaces is not None and _classification_byte(src) is not None:
-        numbers = _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, info.count, chunk_size)
+    if records is not None and surfaces is not None:
+        numbers = _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size)
         for key, value in zip(counts, numbers, strict=True):
             counts[key] += value
         if progress is not None:
@@ -551,8 +553,8 @@ def _chunk_classes(xyz, cols, params, grid, surfaces) -> tuple[np.ndarray, tuple
     return cls, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
 
 
-def _classification_byte(path: Path) -> tuple[int, int, int] | None:
-    """``(offset to the first record, record length, classification's byte in a record)`` of a LAS file.
+def _record_layout(path: Path) -> tuple[int, int, int] | None:
+    """``(offset to the first record, record length, record count)`` of a LAS file the workers may rewrite in place.
 
     None when the classification is not a byte of its own (point formats
     0-5 keep it in five bits of a byte shared with three flags), the file
@@ -568,13 +570,13 @@ def _classification_byte(path: Path) -> tuple[int, int, int] | None:
         fields = header.point_format.dtype().fields
         if "classification" not in fields or fields["classification"][0] != np.uint8:
             return None
-        offset, size = int(header.offset_to_point_data), int(header.point_format.size)
-        if Path(path).stat().st_size != offset + int(header.point_count) * size:
+        offset, size, count = int(header.offset_to_point_data), int(header.point_format.size), int(header.point_count)
+        if Path(path).stat().st_size != offset + count * size:
             return None
-        return offset, size, int(fields["classification"][1])
+        return offset, size, count
 
 
-def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, count, chunk_size) -> list[int]:
+def _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size) -> list[int]:
     """Step 3 of :func:`smrf_one_grid` on the workers: *dst* is *src* with the new classes.
 
     This process writes *src*'s header and VLRs to *dst* and sizes it for
@@ -584,11 +586,11 @@ def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, cou
     replaced, at their place in *dst*.  Only the classification changes, so
     *src*'s header (bounds, returns, counts) is the one laspy's writer gives
     the same points (a test compares the bytes); *src* has nothing after
-    its records (:func:`_classification_byte`).  Returns :data:`COUNTS`.
+    its records (*records*: :func:`_record_layout`).  Returns :data:`COUNTS`.
     """
     import shutil
 
-    offset, size, _ = _classification_byte(src)
+    offset, size, count = records
     folder = Path(workdir) / ".smrf-one-grid"
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
@@ -608,7 +610,7 @@ def _classes_on_workers(src, dst, params, grid, surfaces, executor, workdir, cou
                 "params": params.model_dump(mode="json"),
                 "grid": [grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols],
                 "surfaces": [str(folder / "dem.npy"), str(folder / "slope.npy")],
-                "result": str(dst),
+                "dst": str(dst),
                 "offset": offset + bounds[k] * size,
                 "chunk_size": max(chunk_size // executor.workers, 1),  # the workers' chunks together: one process's
             }
@@ -626,6 +628,7 @@ def classes_range(task: dict) -> list[int]:
 
     from stages.ground.surface import CellIndex
     from stages.io import chunk_xyz_metres, cloud_crs
+    from stages.tiles import record_chunks
     from stages.units import Units
 
     params = ClassifyGroundParams.model_validate(task["params"])
@@ -636,20 +639,15 @@ def classes_range(task: dict) -> list[int]:
     start, stop = task["start"], task["stop"]
     totals = [0] * len(COUNTS)
     # the file exists at its full size: each range writes its own bytes (r+: no truncation)
-    with laspy.open(task["path"]) as reader, open(task["result"], "r+b") as out:
+    with laspy.open(task["path"]) as reader, open(task["dst"], "r+b") as out:
         out.seek(task["offset"])
         units = Units.of(cloud_crs(reader))
-        reader.seek(start)
-        at = start
-        while at < stop:
-            chunk = reader.read_points(min(task["chunk_size"], stop - at))
-            n = len(chunk)
-            if n == 0:  # pragma: no cover - fewer records than the header says; parse checks that first
-                raise InputDataError(f"{task['path']}: records {at:,} to {stop:,} are missing.")
+        for chunk in record_chunks(reader, start, stop, task["chunk_size"]):
             xyz = chunk_xyz_metres(chunk, units)
             cls, numbers = _chunk_classes(xyz, _classify_columns(chunk), params, grid, surfaces)
             chunk.array["classification"] = cls
             out.write(chunk.array)  # contiguous records: written as they are, no copy
             totals = [a + b for a, b in zip(totals, numbers, strict=True)]
-            at += n
+    if totals[0] != stop - start:  # pragma: no cover - fewer records than the header says; parse checks that first
+        raise InputDataError(f"{task['path']}: of records {start:,} to {stop:,}, {totals[0]:,} could be read.")
     return totals

@@ -261,13 +261,8 @@ def _split_records(
     spill = _Spill(folder, spill, part=part)
     core_rows: dict[int, int] = {}
     counted = None
-    if start:
-        reader.seek(start)
-    while start < stop:
-        chunk = reader.read_points(min(chunk_size, stop - start))
+    for chunk in record_chunks(reader, start, stop, chunk_size):
         n = len(chunk)
-        if n == 0:  # pragma: no cover - fewer records than the header says; the readers check that first
-            break
         xyz = chunk_xyz_metres(chunk, units)
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         cols = {"x": x, "y": y, "z": z, **columns(chunk)}
@@ -292,6 +287,22 @@ def _split_records(
             progress.update(n)
     rows = spill.close()
     return {t: (n, core_rows[t]) for t, n in rows.items()}, counted
+
+
+def record_chunks(reader, start: int, stop: int, chunk_size: int):
+    """Records ``start:stop`` of an open LAS *reader*, a chunk of at most *chunk_size* at a time.
+
+    Stops early when the file holds fewer records than that (the readers
+    check the count first; the caller can compare what it got).
+    """
+    if start:
+        reader.seek(start)
+    while start < stop:
+        chunk = reader.read_points(min(chunk_size, stop - start))
+        if len(chunk) == 0:  # pragma: no cover - fewer records than the header says
+            return
+        start += len(chunk)
+        yield chunk
 
 
 def classes_by_tile(

@@ -503,7 +503,9 @@ def smrf_one_grid(
         x0, y0 = anchor[0] + c0 * cell, anchor[1] + r0 * cell
         grid = CellIndex(x0, y0, cell, r1 - r0 + 1, c1 - c0 + 1, np.zeros(0, np.int64), np.zeros(0, np.int64))
         zmin = zmin[r0 : r1 + 1, c0 : c1 + 1]
-        surfaces = provisional_dem(zmin, cell_size=cell, slope=algo.slope, max_window_size=algo.max_window_size, **test)
+        surfaces = provisional_dem(
+            zmin, cell_size=cell, slope=algo.slope, max_window_size=algo.max_window_size, threads=threads, **test
+        )
     del zmin
 
     def classes(chunk, xyz, cols):

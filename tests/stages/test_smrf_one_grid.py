@@ -89,6 +89,27 @@ def test_one_grid_gives_the_classes_of_smrf_on_all_points(tmp_path, stray):
     assert counts["grid"][1] < 300 and counts["grid"][0] < 250
 
 
+def test_the_grid_filter_runs_in_as_many_bands_as_the_stage_has_workers(tmp_path, monkeypatch):
+    """smrf_one_grid hands its *threads* to the object filter (bands of rows on threads; same classes).
+
+    On 37.5 M points the filter of 4.8 M cells took 8.5 s on one thread, 4.1 s on two.
+    """
+    import stages.ground.smrf as smrf_module
+
+    seen = []
+    real = smrf_module.progressive_filter
+
+    def spy(surface, **kwargs):
+        seen.append((kwargs["max_radius"], kwargs.get("threads", 1)))
+        return real(surface, **kwargs)
+
+    monkeypatch.setattr(smrf_module, "progressive_filter", spy)
+    _survey(tmp_path / "in.las", stray=False)
+    smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", ClassifyGroundParams(), threads=2, chunk_size=7_000)
+    objects = [threads for radius, threads in seen if radius > 1]  # the low-outlier fork has radius 1
+    assert objects and all(threads == 2 for threads in objects)
+
+
 @pytest.mark.parametrize("evlr", [False, True], ids=["plain", "with an EVLR"])
 def test_the_point_test_on_workers_writes_the_same_file(tmp_path, evlr):
     """Step 3 on two worker processes (ranges of records, joined): the one-process file, byte for byte.

@@ -13,6 +13,10 @@ parameters, never large arrays) and returning something small; results come
 back in the order of the tasks.  The transport between processes is the
 executors' own (``concurrent.futures`` and Dask serialise the small task
 dicts); nothing they serialise is ever stored.
+
+:func:`thread_map` runs a function over items on threads of this process
+(for compiled code that releases the interpreter lock), then hands the
+memory the threads freed back to the system.
 """
 
 from __future__ import annotations
@@ -156,6 +160,42 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+def thread_map(fn: Callable[[Any], Any], items: Sequence[Any], threads: int) -> list[Any]:
+    """``[fn(item) for item in items]``, on up to *threads* threads of this process.
+
+    Worth it where *fn* spends its time in compiled code that releases the
+    interpreter lock (NumPy, SciPy's filters, PROJ).  Results come in the
+    order of *items*.  Afterwards the memory the threads freed is handed
+    back to the system (:func:`release_freed_memory`).
+    """
+    items = list(items)
+    if threads <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
+    with concurrent.futures.ThreadPoolExecutor(min(threads, len(items))) as pool:
+        out = list(pool.map(fn, items))
+    release_freed_memory()
+    return out
+
+
+def release_freed_memory() -> None:
+    """Give the memory this process has freed but still holds back to the system (glibc's ``malloc_trim``).
+
+    glibc gives each thread its own allocation arena, and an arena keeps the
+    pages of the arrays freed in it (arrays under 32 MB are not mapped on
+    their own): after SMRF's grid filter on two threads, the run held 120 MB
+    more than before through the whole of ``rasterize`` (37.5 M points,
+    2026-12-03), enough to take the TIN job to 1.18 GB.  Does nothing where
+    the C library has no ``malloc_trim`` (macOS, musl).
+    """
+    import ctypes
+
+    try:
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        return
+    trim(0)
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:

@@ -226,13 +226,7 @@ def georeference(
             view[ok, 0], view[ok, 1], view[ok, 2] = x, y, z
         ok_all[sl] = ok
 
-    starts = range(0, n, chunk)
-    if workers > 1 and n > chunk:
-        from concurrent.futures import ThreadPoolExecutor
+    from pipeline.executor import thread_map
 
-        with ThreadPoolExecutor(workers) as pool:
-            list(pool.map(block, starts))
-    else:
-        for s in starts:
-            block(s)
+    thread_map(block, range(0, n, chunk), workers)
     return out, ok_all

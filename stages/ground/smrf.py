@@ -103,13 +103,12 @@ def progressive_filter(
         return _flag(surface, cell_size, slope, max_radius)[pad:-pad, pad:-pad]
     cuts = np.linspace(0, rows, bands + 1).round().astype(int)
     spans = [(max(a - reach, 0), min(b + reach, rows), a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
-    from concurrent.futures import ThreadPoolExecutor
+    from pipeline.executor import thread_map
 
+    parts = thread_map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius), spans, bands)
     objects = np.empty(surface.shape, dtype=bool)
-    with ThreadPoolExecutor(bands) as pool:
-        parts = pool.map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius), spans)
-        for (lo, _, a, b), part in zip(spans, parts, strict=True):
-            objects[a:b] = part[a - lo : b - lo]
+    for (lo, _, a, b), part in zip(spans, parts, strict=True):
+        objects[a:b] = part[a - lo : b - lo]
     return objects[pad:-pad, pad:-pad]
 
 

@@ -173,3 +173,26 @@ def test_the_progressive_filter_in_bands_equals_one_band():
         np.testing.assert_array_equal(
             progressive_filter(surface, cell_size=1.0, slope=0.15, max_radius=w, threads=threads), one
         )
+
+
+_GROWTH = """
+import numpy as np, psutil
+from stages.ground.smrf import progressive_filter
+surface = np.cumsum(np.random.default_rng(0).normal(size=(2400, 2000)), axis=1) * 0.01
+process = psutil.Process()
+before = process.memory_info().rss
+progressive_filter(surface, cell_size=1.0, slope=0.15, max_radius=18, threads=2)
+print((process.memory_info().rss - before) / 2**20)
+"""
+
+
+def test_the_grid_filter_on_two_threads_hands_back_the_memory_it_freed():
+    """glibc keeps the pages freed in a thread's own arena: without ``malloc_trim`` this filter
+    on 4.8 M cells leaves the process 45 MB larger than before it (the run held 120 MB through
+    ``rasterize`` at 37.5 M points); handed back, 3 MB.  In a fresh interpreter, so that no
+    other test's arrays are in the arenas."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _GROWTH], capture_output=True, text=True, check=True)
+    assert float(out.stdout) < 15.0

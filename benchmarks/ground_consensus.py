@@ -1,0 +1,67 @@
+"""SMRF, CSF and their consensus (AND, OR of the ground points) on the shared files (issue 16).
+
+Each file is classified by the run's stages (``stages.evaluate.evaluate_ground``:
+noise step, then SMRF and CSF with their defaults, CSF with each class
+threshold asked for); the two ground masks are combined, and each
+combination is scored against the provider's ground (total error, Type I,
+Type II, per cent) with the DTM check (RMS m, % of cells more than 2 m
+above the provider's ground).  Results in docs/GROUND.md ("Tried for issue
+16 and not kept").  Run from the repository root::
+
+    python benchmarks/ground_consensus.py [--threshold 0.5] [--threshold 2] [FILE ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from ground_real import FILES, SHARED, coordinates  # noqa: E402
+
+
+def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:
+    """Scores of SMRF, CSF, AND and OR on one file: {label: (total, type 1, type 2, DTM RMS, % > 2 m)}."""
+    from stages import glossary
+    from stages.classify import CsfParams, SmrfParams
+    from stages.evaluate import evaluate_ground, reference_ground
+    from stages.ground.metrics import dtm_check, score
+
+    path = SHARED / name
+    algorithms = [SmrfParams(name="smrf"), CsfParams(name="csf", class_threshold=threshold)]
+    _, classes = evaluate_ground(path, algorithms, crs=crs, dtm=False)
+    reference, xyz = reference_ground(path), coordinates(path, crs)
+    smrf, csf = classes["smrf"] == glossary.GROUND, classes["csf"] == glossary.GROUND
+    out = {}
+    for label, ground in (("smrf", smrf), ("csf", csf), ("and", smrf & csf), ("or", smrf | csf)):
+        s, d = score(reference, ground), dtm_check(xyz, reference, ground)
+        dtm = (round(d.rms, 3), round(100 * d.above_2, 2)) if d.n else (None, None)
+        out[label] = (round(100 * s.total, 2), round(100 * s.type_1, 2), round(100 * s.type_2, 2), *dtm)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("files", nargs="*", help="files under ../shared/data (default: those of ground_real.py)")
+    parser.add_argument("--threshold", type=float, action="append", help="CSF class threshold, m (default 0.5)")
+    args = parser.parse_args()
+    names = args.files or list(FILES)
+    for threshold in args.threshold or [0.5]:
+        print(f"CSF class threshold {threshold} m: (total, type I, type II, DTM RMS m, % > 2 m)")
+        totals: dict[str, list[float]] = {}
+        for name in names:
+            row = measure(name, FILES.get(name), threshold)
+            print(f"  {name:<28} " + "  ".join(f"{k} {v}" for k, v in row.items()), flush=True)
+            if name.startswith("isprs/"):
+                for k, v in row.items():
+                    totals.setdefault(k, []).append(v[0])
+        for k, v in totals.items():
+            print(f"  ISPRS mean total error, {k}: {np.mean(v):.2f} %")
+
+
+if __name__ == "__main__":  # the runs start worker processes (spawn): they import this module
+    main()

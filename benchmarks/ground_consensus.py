@@ -5,7 +5,9 @@ noise step, then SMRF and CSF with their defaults, CSF with each class
 threshold asked for); the two ground masks are combined, and each
 combination is scored against the provider's ground (total error, Type I,
 Type II, per cent) with the DTM check (RMS m, % of cells more than 2 m
-above the provider's ground).  Results in docs/GROUND.md ("Tried for issue
+above the provider's ground).  ``veto<t>``: SMRF's ground less the points
+CSF rejects where the slope of SMRF's ground surface (2 m cells) is under
+*t* (t = 0.05, 0.1, 0.2, 0.3).  Results in docs/GROUND.md ("Tried for issue
 16 and not kept").  Run from the repository root::
 
     python benchmarks/ground_consensus.py [--threshold 0.5] [--threshold 2] [FILE ...]
@@ -24,6 +26,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ground_real import FILES, SHARED, coordinates  # noqa: E402
 
 
+def flat_slope(xyz: np.ndarray, ground: np.ndarray, cell: float = 2.0) -> np.ndarray:
+    """At each point, the slope of the surface of the lowest *ground* point per cell (inpainted)."""
+    from stages.ground.surface import inpaint
+
+    g = xyz[ground]
+    x0, y0 = xyz[:, 0].min(), xyz[:, 1].min()
+    rows = int((xyz[:, 1].max() - y0) // cell) + 1
+    cols = int((xyz[:, 0].max() - x0) // cell) + 1
+    z = np.full((rows, cols), np.inf)
+    np.minimum.at(z, (((g[:, 1] - y0) // cell).astype(int), ((g[:, 0] - x0) // cell).astype(int)), g[:, 2])
+    z[np.isinf(z)] = np.nan
+    gy, gx = np.gradient(inpaint(z), cell)
+    r = np.clip(((xyz[:, 1] - y0) // cell).astype(int), 0, rows - 1)
+    c = np.clip(((xyz[:, 0] - x0) // cell).astype(int), 0, cols - 1)
+    return np.hypot(gx, gy)[r, c]
+
+
 def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:
     """Scores of SMRF, CSF, AND and OR on one file: {label: (total, type 1, type 2, DTM RMS, % > 2 m)}."""
     from stages import glossary
@@ -37,7 +56,10 @@ def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:
     reference, xyz = reference_ground(path), coordinates(path, crs)
     smrf, csf = classes["smrf"] == glossary.GROUND, classes["csf"] == glossary.GROUND
     out = {}
-    for label, ground in (("smrf", smrf), ("csf", csf), ("and", smrf & csf), ("or", smrf | csf)):
+    slope = flat_slope(xyz, smrf)
+    variants = [("smrf", smrf), ("csf", csf), ("and", smrf & csf), ("or", smrf | csf)]
+    variants += [(f"veto{t}", smrf & ~(~csf & (slope < t))) for t in (0.05, 0.1, 0.2, 0.3)]
+    for label, ground in variants:
         s, d = score(reference, ground), dtm_check(xyz, reference, ground)
         dtm = (round(d.rms, 3), round(100 * d.above_2, 2)) if d.n else (None, None)
         out[label] = (round(100 * s.total, 2), round(100 * s.type_1, 2), round(100 * s.type_2, 2), *dtm)

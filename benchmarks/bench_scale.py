@@ -1,6 +1,7 @@
 """LAZ -> classified LAZ + DTM at survey scale: three jobs, per-stage seconds, peak memory, ratio to the I/O floor.
 
     .venv/bin/python benchmarks/bench_scale.py --points 10e6 [--points 40e6] [--workdir /tmp/bench_scale]
+    .venv/bin/python benchmarks/bench_scale.py --points 10e6 --pairs 5 [--job idw]   # paired job / floor
 
 The jobs (strip adjustment and the map products off):
 
@@ -91,6 +92,14 @@ def _floor(laz: Path, out: Path) -> None:
             w.write_points(chunk)
             n += len(chunk)
     emit(seconds=time.perf_counter() - t0, points=n)
+
+
+def _timed(cmd: list[str], stdout=subprocess.DEVNULL) -> float:
+    """Wall seconds of a child process, nothing sampled while it runs (sampling memory costs the job CPU)."""
+    t0 = time.perf_counter()
+    if subprocess.run(cmd, stdout=stdout).returncode != 0:
+        raise SystemExit(f"failed: {' '.join(cmd)}")
+    return time.perf_counter() - t0
 
 
 def _measured(cmd: list[str], stdout=subprocess.DEVNULL) -> tuple[float, float, float]:
@@ -203,6 +212,42 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     return rows
 
 
+def pairs(points: float, workdir: Path, jobs: list[str], n: int) -> list[str]:
+    """Each job and the floor in turn, *n* times (job, floor, job, floor ...): the median of the pair ratios.
+
+    One run of a job moves by about 5 % from run to run; pairing keeps the
+    ratio meaningful when the machine's speed drifts.  Whole processes on
+    both sides, each job on an empty cache, nothing sampled while they run
+    (sampling the process tree's memory every 0.2 s, as :func:`bench`
+    does, costs the job more than the floor: at 10 M, 5 pairs each, 3.36 ×
+    sampled against 3.31 × not, minutes apart).  Needs the survey of an earlier
+    run of this script at the same size.
+    """
+    tag = f"{points / 1e6:g}M"
+    work = workdir / tag
+    laz = work / "survey.laz"
+    if not laz.exists():
+        raise SystemExit(f"{laz}: no survey; run this script once with --points {points:g} first")
+    pipeline = str(Path(sys.executable).with_name("pipeline"))
+    rows = []
+    for job in jobs:
+        config = work / f"{job}.yaml"
+        config.write_text(CONFIG.format(laz=laz, out=work / job, cache=work / f"{job}-cache", **JOBS[job]))
+        times, floors = [], []
+        for _ in range(n):
+            shutil.rmtree(work / f"{job}-cache", ignore_errors=True)
+            times.append(_timed([pipeline, "run", str(config), "-q"]))
+            floors.append(_timed([sys.executable, __file__, "--one", "floor", str(laz), str(work / "copy.laz")]))
+        ratios = np.array(times) / np.array(floors)
+        rows.append(
+            f"| {tag} | {job} / floor, {n} pairs | {np.median(times):.2f} | {np.median(floors):.2f} "
+            f"| **{np.median(ratios):.2f} ×** ({ratios.min():.2f}–{ratios.max():.2f}) |"
+        )
+        print(rows[-1], flush=True)
+        shutil.rmtree(work / f"{job}-cache", ignore_errors=True)
+    return rows
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--one":
         what, *rest = sys.argv[2:]
@@ -215,8 +260,17 @@ def main() -> None:
     parser.add_argument("--points", type=float, action="append", help="survey size (repeatable); default 10e6")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/bench_scale"))
     parser.add_argument("--job", choices=list(JOBS), action="append", help="job to run (repeatable); default all")
+    parser.add_argument(
+        "--pairs", type=int, default=0, help="instead: each job and the floor in turn, this many times (median ratio)"
+    )
     args = parser.parse_args()
     print(machine())
+    if args.pairs:
+        print("| points | pair | job s (median) | floor s (median) | job / floor: median (min–max) |")
+        print("|---|---|---|---|---|")
+        for points in args.points or [10e6]:
+            pairs(points, args.workdir, args.job or ["idw"], args.pairs)
+        return
     print(
         "| points | job | parse s | denoise s | classify_ground s | rasterize s | export_las s | whole job s "
         "| peak PSS MB (process tree) | / I/O floor | DTM RMSE m | load (1 min) |"

@@ -154,12 +154,24 @@ def _rmse(dtm: Path) -> float:
     return float(np.sqrt(np.nanmean(e**2)))
 
 
+def _floor_command(laz: Path, out: Path) -> list[str]:
+    """The I/O floor as a process of its own: this script's ``--one floor``."""
+    return [sys.executable, __file__, "--one", "floor", str(laz), str(out)]
+
+
+def _job_config(work: Path, laz: Path, job: str) -> Path:
+    """Write *job*'s configuration for the survey *laz* in *work* (output and cache beside it)."""
+    config = work / f"{job}.yaml"
+    config.write_text(CONFIG.format(laz=laz, out=work / job, cache=work / f"{job}-cache", **JOBS[job]))
+    return config
+
+
 def _floor_process(laz: Path, out: Path) -> tuple[tuple[float, float, float], dict]:
     """The I/O floor as a whole process (as the jobs are timed), and the figures its loop printed."""
     import tempfile
 
     with tempfile.TemporaryFile(mode="w+") as printed:
-        measured = _measured([sys.executable, __file__, "--one", "floor", str(laz), str(out)], stdout=printed)
+        measured = _measured(_floor_command(laz, out), stdout=printed)
         printed.seek(0)
         loop = json.loads(printed.read().strip().splitlines()[-1])
     return measured, loop
@@ -194,8 +206,7 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     ]
     print(rows[-1], flush=True)
     for job in jobs:
-        config = work / f"{job}.yaml"
-        config.write_text(CONFIG.format(laz=laz, out=work / job, cache=work / f"{job}-cache", **JOBS[job]))
+        config = _job_config(work, laz, job)
         load = _load()
         total, _, pss = _measured([pipeline, "run", str(config), "-q"])
         run = json.loads((work / job / "run.json").read_text())
@@ -231,13 +242,12 @@ def pairs(points: float, workdir: Path, jobs: list[str], n: int) -> list[str]:
     pipeline = str(Path(sys.executable).with_name("pipeline"))
     rows = []
     for job in jobs:
-        config = work / f"{job}.yaml"
-        config.write_text(CONFIG.format(laz=laz, out=work / job, cache=work / f"{job}-cache", **JOBS[job]))
+        config = _job_config(work, laz, job)
         times, floors = [], []
         for _ in range(n):
             shutil.rmtree(work / f"{job}-cache", ignore_errors=True)
             times.append(_timed([pipeline, "run", str(config), "-q"]))
-            floors.append(_timed([sys.executable, __file__, "--one", "floor", str(laz), str(work / "copy.laz")]))
+            floors.append(_timed(_floor_command(laz, work / "copy.laz")))
         ratios = np.array(times) / np.array(floors)
         rows.append(
             f"| {tag} | {job} / floor, {n} pairs | {np.median(times):.2f} | {np.median(floors):.2f} "

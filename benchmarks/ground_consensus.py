@@ -28,19 +28,11 @@ from ground_real import FILES, SHARED, coordinates  # noqa: E402
 
 def flat_slope(xyz: np.ndarray, ground: np.ndarray, cell: float = 2.0) -> np.ndarray:
     """At each point, the slope of the surface of the lowest *ground* point per cell (inpainted)."""
-    from stages.ground.surface import inpaint
+    from stages.ground.surface import index_points, inpaint, min_grid, slope_grid
 
-    g = xyz[ground]
-    x0, y0 = xyz[:, 0].min(), xyz[:, 1].min()
-    rows = int((xyz[:, 1].max() - y0) // cell) + 1
-    cols = int((xyz[:, 0].max() - x0) // cell) + 1
-    z = np.full((rows, cols), np.inf)
-    np.minimum.at(z, (((g[:, 1] - y0) // cell).astype(int), ((g[:, 0] - x0) // cell).astype(int)), g[:, 2])
-    z[np.isinf(z)] = np.nan
-    gy, gx = np.gradient(inpaint(z), cell)
-    r = np.clip(((xyz[:, 1] - y0) // cell).astype(int), 0, rows - 1)
-    c = np.clip(((xyz[:, 0] - x0) // cell).astype(int), 0, cols - 1)
-    return np.hypot(gx, gy)[r, c]
+    idx = index_points(xyz[:, :2], cell)
+    lowest = min_grid(np.where(ground, xyz[:, 2], np.inf), idx)  # cells without ground: NaN
+    return slope_grid(inpaint(lowest), cell)[idx.row, idx.col]
 
 
 def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:

@@ -42,6 +42,12 @@ class SmrfParams(StrictModel):
     max_window_size: float = Field(18.0, gt=0, description="w_max: largest window radius, metres")
     elevation_threshold: float = Field(0.5, ge=0, description="et: base height threshold of the point test, metres")
     elevation_scalar: float = Field(1.25, ge=0, description="es: threshold added per unit of local DEM slope, metres")
+    floor_window: float = Field(
+        3.0,
+        ge=0,
+        description="objects flagged by an opening of radius up to this (metres) bound the provisional DEM under "
+        "them by that opening (bridge decks; 0: off; docs/GROUND.md)",
+    )
 
 
 class PmfParams(StrictModel):
@@ -240,7 +246,7 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "6"  # 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
+    version = "7"  # 7: SMRF floor of narrow objects (bridge decks); 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)
@@ -504,7 +510,13 @@ def smrf_one_grid(
         grid = CellIndex(x0, y0, cell, r1 - r0 + 1, c1 - c0 + 1, np.zeros(0, np.int64), np.zeros(0, np.int64))
         zmin = zmin[r0 : r1 + 1, c0 : c1 + 1]
         surfaces = provisional_dem(
-            zmin, cell_size=cell, slope=algo.slope, max_window_size=algo.max_window_size, threads=threads, **test
+            zmin,
+            cell_size=cell,
+            slope=algo.slope,
+            max_window_size=algo.max_window_size,
+            floor_window=algo.floor_window,
+            threads=threads,
+            **test,
         )
     del zmin
 

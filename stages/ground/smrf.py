@@ -92,6 +92,20 @@ def progressive_filter(
     from one radius to the next (one 3x3 pass per radius), and the dilation
     is decomposed into a few passes (:func:`_dilate_octagon`).
     """
+    return object_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius, threads=threads)[0]
+
+
+def object_filter(
+    surface: np.ndarray, *, cell_size: float, slope: float, max_radius: int, floor_radius: int = 0, threads: int = 1
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`progressive_filter`, and the openings that flagged the narrow objects.
+
+    Returns the object cells and, when *floor_radius* > 0, the *floor*: at
+    each cell first flagged by an opening of radius ``r <= floor_radius``
+    (cells), the value of that opening; NaN elsewhere (None when
+    *floor_radius* is 0).  The other parameters are those of
+    :func:`progressive_filter`; neither result depends on *threads*.
+    """
     pad = max_radius
     surface = pad_linear(surface, pad)
     rows = surface.shape[0]
@@ -99,39 +113,58 @@ def progressive_filter(
     # rows filtered with 2 max_radius rows more on each side gives its own rows exactly.
     reach = 2 * max_radius
     bands = max(1, min(threads, rows // max(4 * reach, 64)))
+    inner = np.s_[pad:-pad, pad:-pad]
     if bands == 1:
-        return _flag(surface, cell_size, slope, max_radius)[pad:-pad, pad:-pad]
+        objects, floor = _flag(surface, cell_size, slope, max_radius, floor_radius)
+        return objects[inner], None if floor is None else floor[inner]
     cuts = np.linspace(0, rows, bands + 1).round().astype(int)
     spans = [(max(a - reach, 0), min(b + reach, rows), a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
     from pipeline.executor import thread_map
 
-    parts = thread_map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius), spans, bands)
+    parts = thread_map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius, floor_radius), spans, bands)
     objects = np.empty(surface.shape, dtype=bool)
-    for (lo, _, a, b), part in zip(spans, parts, strict=True):
+    floor = np.empty(surface.shape) if floor_radius > 0 else None
+    for (lo, _, a, b), (part, part_floor) in zip(spans, parts, strict=True):
         objects[a:b] = part[a - lo : b - lo]
-    return objects[pad:-pad, pad:-pad]
+        if floor is not None:
+            floor[a:b] = part_floor[a - lo : b - lo]
+    return objects[inner], None if floor is None else floor[inner]
 
 
-def _flag(surface: np.ndarray, cell_size: float, slope: float, max_radius: int) -> np.ndarray:
-    """The object cells of a padded surface (the loop of :func:`progressive_filter`)."""
+def _flag(
+    surface: np.ndarray, cell_size: float, slope: float, max_radius: int, floor_radius: int = 0
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The object cells of a padded surface and their floor (the loop of :func:`object_filter`)."""
     objects = np.zeros(surface.shape, dtype=bool)
+    floor = np.full(surface.shape, np.nan) if floor_radius > 0 else None
     previous = surface
     eroded = surface
     for radius in range(1, max_radius + 1):
         eroded = ndimage.grey_erosion(eroded, footprint=_element(radius), mode="nearest")
         opened = _dilate_octagon(eroded, radius)
-        objects |= (previous - opened) > slope * radius * cell_size
+        flagged = (previous - opened) > slope * radius * cell_size
+        if radius <= floor_radius:
+            new = flagged & ~objects
+            floor[new] = opened[new]
+        objects |= flagged
         previous = opened
-    return objects
+    return objects, floor
 
 
-def _provisional(zmin: np.ndarray, objects: np.ndarray) -> np.ndarray | None:
-    """The provisional DEM: the minimum surface without its object cells, inpainted; None when nothing is left."""
+def _provisional(zmin: np.ndarray, objects: np.ndarray, floor: np.ndarray | None = None) -> np.ndarray | None:
+    """The provisional DEM: the minimum surface without its object cells, inpainted; None when nothing is left.
+
+    Where *floor* has a value (narrow objects, :func:`object_filter`), the
+    DEM is the lower of the inpainted surface and the floor.
+    """
     provisional = zmin.copy()
     provisional[objects] = np.nan
     if np.isnan(provisional).all():
         return None
-    return inpaint(provisional)
+    dem = inpaint(provisional)
+    if floor is not None:
+        np.fmin(dem, floor, out=dem)  # fmin: NaN (no floor) keeps the inpainted value
+    return dem
 
 
 def smrf(
@@ -142,6 +175,7 @@ def smrf(
     max_window_size: float = 18.0,
     elevation_threshold: float = 0.5,
     elevation_scalar: float = 1.25,
+    floor_window: float = 3.0,
 ) -> np.ndarray:
     """Classify ground points with the simple morphological filter.
 
@@ -161,6 +195,9 @@ def smrf(
     elevation_scalar : float
         ``es``: how much the local slope of the provisional DEM raises the
         threshold.
+    floor_window : float
+        Radius (m) up to which an opening that flags an object also bounds
+        the provisional DEM under it (a departure, below); 0: off.
 
     Returns
     -------
@@ -192,6 +229,19 @@ def smrf(
     does not drag the openings around it down (on ISPRS samp11, 500 ground
     points beside pits were otherwise taken for objects; docs/GROUND.md).
 
+    Departure (the floor of narrow objects): under a cell first flagged by an
+    opening of radius ``r <= floor_window``, the provisional DEM is the lower
+    of the inpainted surface and that opening.  The harmonic inpainting of an
+    object's cells follows every cell around it, so a narrow object that
+    touches higher ground at one end (a bridge deck meeting the top of its
+    bank) is filled with a ramp from that ground, its points pass the point
+    test and the deck stays in the DTM; the opening that flagged the cell is
+    the terrain beside the object, at the scale of the object.  Wide objects
+    (flagged only at larger radii) are left to the inpainting, since an
+    opening of a large radius cuts convex terrain (embankments, ridges) and
+    loses its ground.  3 m: measured on the real and ISPRS files and the
+    simulated flight, docs/GROUND.md.
+
     Departures: the opening uses an octagon instead of a disk, and the
     surface is padded by continuing its slopes so that uphill survey edges
     are not flagged (see :func:`progressive_filter`); inpainting is the harmonic (Laplacian)
@@ -220,6 +270,7 @@ def smrf(
         max_window_size=max_window_size,
         elevation_threshold=elevation_threshold,
         elevation_scalar=elevation_scalar,
+        floor_window=floor_window,
     )
     if surfaces is None:
         return np.zeros(len(xyz), dtype=bool)
@@ -234,6 +285,7 @@ def provisional_dem(
     max_window_size: float,
     elevation_threshold: float,
     elevation_scalar: float,
+    floor_window: float = 3.0,
     threads: int = 1,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Steps 1-4 of :func:`smrf` on a minimum surface: the provisional DEM and its slope; None without one.
@@ -242,15 +294,22 @@ def provisional_dem(
     the grid of the points' bounding box (:func:`stages.ground.surface.index_points`):
     this is all of SMRF that needs no point, so a survey's grid can be
     made in one streaming pass over its points and filtered whole.
-    *threads*: see :func:`progressive_filter`.
+    *floor_window*: see :func:`smrf`; *threads*: see :func:`progressive_filter`.
     """
     surface = inpaint(zmin)
     # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM (see smrf's Notes).
     low = progressive_filter(-surface, cell_size=cell_size, slope=5.0, max_radius=1)
     max_radius = max(1, int(math.ceil(max_window_size / cell_size)))
-    objects = progressive_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius, threads=threads)
+    filters = {
+        "cell_size": cell_size,
+        "slope": slope,
+        "max_radius": max_radius,
+        "floor_radius": min(max_radius, int(math.floor(floor_window / cell_size + 1e-9))),
+        "threads": threads,
+    }
+    objects, floor = object_filter(surface, **filters)
     del surface
-    dem = _provisional(zmin, objects | low)
+    dem = _provisional(zmin, objects | low, floor)
     if dem is None:
         return None
     tolerance = elevation_threshold + elevation_scalar * slope_grid(dem, cell_size)
@@ -258,11 +317,9 @@ def provisional_dem(
     if deep.any():  # the low cells that are below the terrain, not below a canopy: out of the object filter too
         cleaned = zmin.copy()
         cleaned[deep] = np.nan
-        objects = progressive_filter(
-            inpaint(cleaned), cell_size=cell_size, slope=slope, max_radius=max_radius, threads=threads
-        )
+        objects, floor = object_filter(inpaint(cleaned), **filters)
         del cleaned
-        dem = _provisional(zmin, objects | low)
+        dem = _provisional(zmin, objects | low, floor)
         if dem is None:  # pragma: no cover - defensive: every cell an object or low
             return None
     return dem, slope_grid(dem, cell_size)

@@ -72,22 +72,28 @@ def _hillside(seed: int) -> tuple[np.ndarray, int]:
 @pytest.mark.parametrize("seed", [1, 2, 3, 4])
 def test_pits_of_low_echoes_on_a_hillside_do_not_cast_shadows_of_objects(seed):
     """Multipath echoes in 2 m clusters, on curved 40 % slopes: they are not ground, and the ground around them
-    is classified exactly as it is without them.
+    is classified as it is without them.
 
     An opening lowers a cell of a slope when every window that has the cell as its lowest point holds a
     deeper cell: a pit upslope of it.  Kept in the openings (the paper's order, a single pass), the pits
     turn ground around them into objects, which the provisional DEM then fills wrongly on curved ground
-    (1,901 / 3,302 / 2,509 / 595 ground points rejected for these seeds, against 123 / 113 / 117 / 114
-    without the echoes); their cells lie far below the provisional DEM, so the second pass leaves them out
-    of the openings.  (Two clusters that overlap into a wider pit escape the low-outlier test itself, with
-    or without the second pass: seeds 0 and 5.)
+    (1,901 / 3,302 / 2,509 / 595 ground points rejected for these seeds in 2026-12-01's code); their cells
+    lie far below the provisional DEM, so the second pass leaves them out of the openings.  A pit's cell
+    re-enters them inpainted, not at the lowest ground point it hides, so the narrow objects' floor (an
+    opening of up to 3 m) can move a few points near it: 1 / 1 / 0 / 3 of 20,000 (2026-12-03), all within
+    5 m of a pit, against 237 / 188 / 183 / 158 rejected without the echoes.  (Two clusters that overlap
+    into a wider pit escape the low-outlier test itself, with or without the second pass: seeds 0 and 5.)
     """
     pts, n = _hillside(seed)
     with_pits = smrf(pts)
     without = smrf(pts[:n])
     assert not with_pits[n:].any()
-    assert (with_pits[:n] == without).all(), (
-        f"{(~with_pits[:n]).sum()} ground points rejected beside the pits, {(~without).sum()} without them"
+    moved = np.flatnonzero(with_pits[:n] != without)
+    pits = pts[n:, :2]
+    near = [np.hypot(*(pits - pts[i, :2]).T).min() for i in moved]
+    assert len(moved) <= 5 and max(near, default=0.0) < 5.0, (
+        f"{(~with_pits[:n]).sum()} ground points rejected beside the pits, {(~without).sum()} without them; "
+        f"{len(moved)} differ, up to {max(near, default=0.0):.1f} m from a pit"
     )
 
 

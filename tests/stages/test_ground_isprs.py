@@ -3,8 +3,9 @@
 Sithole & Vosselman (2004), doi:10.1016/j.isprsjprs.2004.05.004: reference ground is class 2.  The
 classes come from the stage's own driver (:func:`stages.classify.classify`, last returns only) with every
 default; before issue 16 (low cells emptied before the openings) the same call misclassified 3,436 /
-578 / 543 points (total error 9.04 / 2.00 / 3.04 %, mean 4.70 %); now 3,347 / 547 / 514 (8.81 / 1.90 /
-2.88 %, mean 4.53 %).
+578 / 543 points (total error 9.04 / 2.00 / 3.04 %, mean 4.70 %); on 2026-12-02 3,347 / 547 / 514 (8.81 /
+1.90 / 2.88 %, mean 4.53 %); with the floor of narrow objects (2026-12-03) 3,211 / 543 / 514 (8.45 / 1.88 /
+2.88 %, mean 4.40 %).
 """
 
 from __future__ import annotations
@@ -45,4 +46,4 @@ def test_isprs_samples_no_worse_than_before_and_better_on_average(need_data):
         assert errors <= before, f"{name}: {errors} points misclassified, {before} before"
         totals.append(errors / n)
     assert np.mean(totals) <= 0.0465, f"mean total error {100 * np.mean(totals):.2f} %"
-    assert np.mean(totals) == pytest.approx(0.0453, abs=5e-4)
+    assert np.mean(totals) == pytest.approx(0.0440, abs=5e-4)

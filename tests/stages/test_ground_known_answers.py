@@ -62,6 +62,28 @@ def test_smrf_threshold_grows_with_the_window():
     assert not ground[box & (r2 < 36)].any()
 
 
+def test_smrf_floor_keeps_a_bridge_deck_out_of_the_dem():
+    """A 6 m wide deck 2.5-4 m above a channel, its ends meeting the tops of 13.5 m banks.
+
+    The deck is an object at every radius from 3 m, but its cells, inpainted harmonically, are
+    filled with a ramp from the bank tops, and the deck's points within reach of the ramp pass the
+    point test.  With the floor (the opening that flagged a cell bounds the DEM under it), no deck
+    point more than 3 m from a bank is ground; within 3 m, the bank's own slope widens the point
+    test's tolerance to metres (the paper's ``et + es * slope``).  Without the floor, some are.
+    """
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform([0, 0], [80, 40], (12_800, 2)).T
+    z = np.where((y < 10) | (y > 30), 15.0, np.where((y < 14) | (y > 26), 1.5, 0.0))  # banks, bank band, water
+    deck = (np.abs(x - 40) < 3) & (y > 10) & (y < 30)  # nothing is seen under it
+    z = np.where(deck, 4.0, z) + rng.normal(0, 0.03, x.size)
+    pts = np.column_stack((x, y, z))
+    away = deck & (y > 13) & (y < 27)
+    ground = smrf(pts)
+    assert not ground[away].any(), f"{ground[away].sum()} deck points taken for ground"
+    assert ground[~deck].all()
+    assert smrf(pts, floor_window=0.0)[away].sum() > 20  # what the floor changes
+
+
 def test_inpainting_reproduces_harmonic_surfaces():
     """The discrete Laplace equation is solved exactly by planes and by x^2 - y^2: a hole is filled with them."""
     r, c = np.mgrid[0:40, 0:50].astype(float)

@@ -97,13 +97,13 @@ def test_the_grid_filter_runs_in_as_many_bands_as_the_stage_has_workers(tmp_path
     import stages.ground.smrf as smrf_module
 
     seen = []
-    real = smrf_module.progressive_filter
+    real = smrf_module.object_filter
 
     def spy(surface, **kwargs):
         seen.append((kwargs["max_radius"], kwargs.get("threads", 1)))
         return real(surface, **kwargs)
 
-    monkeypatch.setattr(smrf_module, "progressive_filter", spy)
+    monkeypatch.setattr(smrf_module, "object_filter", spy)
     _survey(tmp_path / "in.las", stray=False)
     smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", ClassifyGroundParams(), threads=2, chunk_size=7_000)
     objects = [threads for radius, threads in seen if radius > 1]  # the low-outlier fork has radius 1

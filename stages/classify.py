@@ -48,6 +48,12 @@ class SmrfParams(StrictModel):
         description="objects flagged by an opening of radius up to this (metres) bound the provisional DEM under "
         "them by that opening (bridge decks; 0: off; docs/GROUND.md)",
     )
+    wall_height: float = Field(
+        2.0,
+        ge=0,
+        description="rise (metres) that walls in a plateau: walled plateaus wider than w_max inside the survey "
+        "are objects (buildings wider than the window; 0: off; docs/GROUND.md)",
+    )
 
 
 class PmfParams(StrictModel):
@@ -246,7 +252,7 @@ def classify(
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "7"  # 7: SMRF floor of narrow objects (bridge decks); 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
+    version = "8"  # 8: SMRF walled plateaus (wide buildings); 7: SMRF floor of narrow objects (bridge decks); 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)
@@ -515,6 +521,7 @@ def smrf_one_grid(
             slope=algo.slope,
             max_window_size=algo.max_window_size,
             floor_window=algo.floor_window,
+            wall_height=algo.wall_height,
             threads=threads,
             **test,
         )

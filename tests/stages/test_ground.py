@@ -124,6 +124,7 @@ def test_algorithm_defaults_are_the_documented_ones():
         "elevation_threshold": 0.5,
         "elevation_scalar": 1.25,
         "floor_window": 3.0,
+        "wall_height": 2.0,
     }
     assert ClassifyGroundParams().algorithm.name == "smrf"
     assert PmfParams(name="pmf").max_window_size == 33.0

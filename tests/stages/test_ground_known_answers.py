@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stages.ground.pmf import pmf
-from stages.ground.smrf import smrf
+from stages.ground.smrf import smrf, walled_plateaus
 from stages.ground.surface import inpaint
 
 
@@ -29,11 +29,13 @@ def _ground_plane(size: float, spacing: float, seed: int, slope=(0.03, 0.01)) ->
 
 @pytest.mark.parametrize("half_width, removed", [(7.0, True), (12.0, False)])
 def test_smrf_window_radius_is_w_max(half_width, removed):
-    """w_max = 10 m: a 14 m wide building is removed, a 24 m wide one is beyond the window (its roof stays)."""
+    """w_max = 10 m: a 14 m wide building is removed, a 24 m wide one is beyond the window (its roof stays).
+
+    The window alone, as the paper has it: the walled-plateau rule, which takes the wider one out, is off."""
     pts = _ground_plane(90.0, 0.7, 1)
     roof = (np.abs(pts[:, 0] - 45) < half_width) & (np.abs(pts[:, 1] - 45) < half_width)
     pts[roof, 2] += 7.0
-    ground = smrf(pts, cell_size=1.0, slope=0.15, max_window_size=10.0)
+    ground = smrf(pts, cell_size=1.0, slope=0.15, max_window_size=10.0, wall_height=0.0)
     inner = (np.abs(pts[:, 0] - 45) < half_width - 1.5) & (np.abs(pts[:, 1] - 45) < half_width - 1.5)
     if removed:
         assert not ground[inner].any()
@@ -82,6 +84,44 @@ def test_smrf_floor_keeps_a_bridge_deck_out_of_the_dem():
     assert not ground[away].any(), f"{ground[away].sum()} deck points taken for ground"
     assert ground[~deck].all()
     assert smrf(pts, floor_window=0.0)[away].sum() > 20  # what the floor changes
+
+
+def test_smrf_takes_a_walled_plateau_wider_than_the_window_for_a_building():
+    """A 60 m x 44 m building 6 m high: no opening of radius 18 m fits inside it, so the openings keep its roof
+    (95 % of its points ground without the walled-plateau rule); walled all round, it is an object.  The same
+    block cut by the survey's edge could be a terrace continuing beyond it: left to the openings, as the
+    surface is padded there."""
+    pts = _ground_plane(150.0, 0.7, 5, slope=(0.05, 0.02))
+    roof = (np.abs(pts[:, 0] - 75) < 30) & (np.abs(pts[:, 1] - 75) < 22)
+    pts[roof, 2] += 6.0
+    ground = smrf(pts)
+    assert not ground[roof].any() and ground[~roof].all()
+    assert smrf(pts, wall_height=0.0)[roof].mean() > 0.9  # what the rule changes
+    pts = _ground_plane(150.0, 0.7, 6, slope=(0.05, 0.02))
+    pts[pts[:, 0] > 90, 2] += 6.0  # a 6 m step across the survey: terrain on both sides
+    assert smrf(pts).mean() > 0.995
+
+
+def test_walled_plateaus_stand_above_their_whole_boundary_inside_the_survey():
+    """A 30 x 30-cell block 6 m up, with empty cells scattered in it, is walled; cut by the survey's outer
+    boundary (empty cells reaching the grid's edge), or below higher ground along one of its four sides (a
+    terrace: 75 % of its boundary walled, under 80 %), it is not; nor is a 15 x 15 block when the square it
+    must hold is 19 cells wide."""
+    z = np.zeros((80, 80))
+    z[20:50, 20:50] = 6.0
+    z[22:48:6, 25:45:7] = np.nan
+    block = (z == 6.0) & np.isfinite(z)
+    assert (walled_plateaus(z, wall=2.0, min_width=9) == block).all()
+    cut = z.copy()
+    cut[:, 50:] = np.nan  # no points east of the block, up to the grid's edge
+    assert not walled_plateaus(cut, wall=2.0, min_width=9).any()
+    terrace = z.copy()
+    terrace[20:50, 50:] = 10.0  # higher ground along the block's east side
+    assert not walled_plateaus(terrace, wall=2.0, min_width=9).any()
+    small = np.zeros((80, 80))
+    small[30:45, 30:45] = 6.0
+    assert not walled_plateaus(small, wall=2.0, min_width=9).any()
+    assert walled_plateaus(small, wall=2.0, min_width=7).sum() == 225
 
 
 def test_inpainting_reproduces_harmonic_surfaces():

@@ -16,7 +16,10 @@ DTM's cells.  This script asks what that comparison can show:
 Each is split into where the cells more than 1 m off lie: the bridge deck
 (land cover 17), cells where the truth's relief within the 3 x 3 DTM cells
 around is 2 m or more (the banks, walls and terrace), building footprints,
-and the rest (with how much of it lies within 10 m of the grid's edge).
+and the rest (with how much of it lies within 10 m of the grid's edge);
+then both split as ``accuracy`` splits them (``by_relief``): where the
+truth varies by under 2 m over the 3 x 3 cells around a cell, and where
+it does not.
 
 Run from the repository root after ``pipeline run configs/flight.yaml``::
 
@@ -70,18 +73,18 @@ def perfect_dtm(dtm_path: Path, workdir: Path) -> np.ndarray:
 
 def where_off(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray, cell: float) -> dict:
     """Cells more than 1 m off, split by where they lie (counts, and per cent of the cells compared)."""
-    from scipy import ndimage
+    from stages.accuracy import TRUTH_STEEP_M, truth_relief
 
     error = dtm - truth
     compared = np.isfinite(error)
     off = compared & (np.abs(error) > 1.0)
-    filled = np.where(np.isfinite(truth), truth, np.nanmean(truth))
-    relief = ndimage.maximum_filter(filled, 3) - ndimage.minimum_filter(filled, 3)
+    with np.errstate(invalid="ignore"):
+        steep = truth_relief(truth) >= TRUTH_STEEP_M
     rows, cols = np.indices(truth.shape)
     edge = np.minimum.reduce([rows, cols, truth.shape[0] - 1 - rows, truth.shape[1] - 1 - cols])
     parts = {
         "bridge deck": land_cover == 17,
-        "relief >= 2 m": relief >= 2.0,
+        "relief >= 2 m": steep,
         "building footprints": land_cover == 6,
     }
     left = np.ones(truth.shape, dtype=bool)
@@ -122,6 +125,16 @@ def main(argv: list[str] | None = None) -> int:
             f"| {name} | {r['cells']:,} | {r['off_1m']:,} ({share:.2f} %) | {r['bridge deck']:,} | "
             f"{r['relief >= 2 m']:,} | {r['building footprints']:,} | {r['elsewhere']:,} "
             f"({r['near the edge']:,}) |"
+        )
+    from stages.accuracy import truth_accuracy
+
+    print()
+    print("| DTM | truth relief < 2 m: cells, > 1 m off | truth relief >= 2 m: cells, > 1 m off |")
+    print("|---|---|---|")
+    for name, grid in (("ours", dtm), ("perfect", perfect)):
+        flat, steep = (truth_accuracy(grid, truth)["by_relief"][k] for k in ("under_2m", "2m_or_more"))
+        print(
+            f"| {name} | {flat['n']:,}, {100 * flat['off_1m']:.2f} % | {steep['n']:,}, {100 * steep['off_1m']:.2f} % |"
         )
     return 0
 

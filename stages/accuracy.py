@@ -18,7 +18,11 @@ Truth raster (``stages.accuracy.truth_dtm``, e.g. a simulated survey's
 warper, from cell centres), then every DTM cell with a value is compared
 (:func:`truth_accuracy`): RMS, mean, the share of cells more than 1 m and
 5 m off, the largest errors; with ``truth_land_cover`` (a raster of ASPRS
-class codes, nearest cell), the same by land cover.  Check points say how well the DTM fits open
+class codes, nearest cell), the same by land cover; and the same apart
+where the truth itself is steep (``by_relief``: it varies by 2 m or more
+over the 3 x 3 DTM cells around a cell, so that a shift of one cell, such
+as the truth raster's own resampling across a wall, is already more than
+the 1 m threshold) and elsewhere.  Check points say how well the DTM fits open
 ground; the truth raster shows what they miss (a building or a bridge deck
 left as ground, channel banks).
 
@@ -197,6 +201,12 @@ def _onto(path: Path, shape: tuple[int, int], transform, crs, resampling):
 #: so a misclassification, not noise; 5 m, a building or a bridge deck left in the DTM.
 TRUTH_OFF_M = (1.0, 5.0)
 
+#: Relief of the truth (max - min over the 3 x 3 DTM cells around a cell, metres) from which
+#: :func:`truth_accuracy` counts a cell as steep: twice :data:`TRUTH_OFF_M`'s 1 m, so that the truth
+#: changes by 1 m or more within one cell of it and a cell's shift is already a 1 m error (a wall, a
+#: bank, a terrace's step; a 1 m truth raster resampled onto 0.5 m cells blurs each wall over a metre).
+TRUTH_STEEP_M = 2.0
+
 
 def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | None = None) -> dict:
     """The DTM against a truth raster over every DTM cell with a value (metres; errors are DTM - truth).
@@ -207,6 +217,9 @@ def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | 
     off, either way), ``max_abs``, ``max_above``, ``max_below``.  With
     *land_cover* (integer codes per cell, -1 = none), ``by_land_cover``: per
     code, its ASPRS class name and the same figures over its cells.
+    ``by_relief``: the same figures where the truth's relief over the 3 x 3
+    cells around a cell is under :data:`TRUTH_STEEP_M` (``under_2m``) and
+    where it is not (``2m_or_more``).
 
     >>> dtm = np.array([[10.0, 10.0], [10.0, np.nan]])
     >>> r = truth_accuracy(dtm, np.array([[10.0, 8.0], [np.nan, 10.0]]))
@@ -216,6 +229,11 @@ def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | 
     has = np.isfinite(dtm)
     both = has & np.isfinite(truth)
     out = {"cells": int(has.sum()), "no_truth": int((has & ~both).sum()), **_error_figures((dtm - truth)[both])}
+    steep = truth_relief(truth) >= TRUTH_STEEP_M
+    out["by_relief"] = {
+        "under_2m": _error_figures((dtm - truth)[both & ~steep]),
+        "2m_or_more": _error_figures((dtm - truth)[both & steep]),
+    }
     if land_cover is not None:
         from stages.glossary import class_name
 
@@ -225,6 +243,18 @@ def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | 
             if code >= 0
         }
     return out
+
+
+def truth_relief(truth: np.ndarray) -> np.ndarray:
+    """Max - min of *truth* over the 3 x 3 cells around each cell (cells without a value left out; NaN where
+    none has one)."""
+    from scipy import ndimage
+
+    has = np.isfinite(truth)
+    high = ndimage.maximum_filter(np.where(has, truth, -np.inf), size=3, mode="nearest")
+    low = ndimage.minimum_filter(np.where(has, truth, np.inf), size=3, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(high), high - low, np.nan)
 
 
 def _error_figures(e: np.ndarray) -> dict:
@@ -267,7 +297,7 @@ class AccuracyParams(StageParams):
 
 class Accuracy(Stage):
     name = "accuracy"
-    version = "2"  # 2: the DTM against a truth raster (truth_dtm)
+    version = "3"  # 3: truth figures by relief; 2: the DTM against a truth raster (truth_dtm)
     Params = AccuracyParams
     description = "DTM vertical accuracy at check points and against a truth raster (runs when either is set)"
     inputs = ("dtm",)

@@ -369,6 +369,10 @@ def _run_dtm(args: argparse.Namespace) -> int:
         ):
             value = t.get(key)
             print(f"{label:<28} {'—' if value is None else f'{scale * value:.4f}'}")
+        for label, part in (("truth relief < 2 m", "under_2m"), ("truth relief >= 2 m", "2m_or_more")):
+            v = t["by_relief"][part]
+            share = "—" if v["off_1m"] is None else f"{100.0 * v['off_1m']:.4f}"
+            print(f"{label:<28} {share} % of {v['n']:,} cells > 1 m off")
     return 0
 
 

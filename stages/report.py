@@ -919,6 +919,26 @@ def _truth_html(truth: dict | None) -> str:
         f"<h3>DTM against the true terrain ({html.escape(str(truth['file']))}, resampled {truth['resampling']} onto "
         f"the DTM's cells; DTM − truth)</h3>" + _table(rows)
     )
+    by_relief = truth.get("by_relief") or {}
+    if by_relief:
+        table = [
+            [
+                label,
+                f"{v['n']:,}",
+                v["rmse"],
+                100 * v["off_1m"] if v["n"] else None,
+                100 * v["off_5m"] if v["n"] else None,
+            ]
+            for label, v in (
+                ("truth varies by under 2 m over 3 × 3 cells", by_relief["under_2m"]),
+                ("2 m or more (walls, banks, steps)", by_relief["2m_or_more"]),
+            )
+        ]
+        out += (
+            "<p>Where the truth itself is steep, a shift of one cell (the truth raster's own resampling "
+            "across a wall) is already more than 1 m:</p>"
+            + _grid(["where", "cells", "RMS (m)", "> 1 m off (%)", "> 5 m off (%)"], table)
+        )
     by_cover = truth.get("by_land_cover") or {}
     if by_cover:
         header = [
@@ -956,7 +976,7 @@ def _enabled(config, name: str) -> bool:
 
 class Report(Stage):
     name = "report"
-    version = "6"  # 6: truth figures by land cover, the mounting calibration; 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
+    version = "7"  # 7: truth figures by relief; 6: truth figures by land cover, the mounting calibration; 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
     Params = ReportParams
     description = "self-contained QC page (report.html) and acceptance (qc/acceptance.json)"
     inputs = ("dtm", "density", "points_classified")

@@ -89,6 +89,27 @@ def test_truth_is_resampled_bilinearly_from_cell_centres(tmp_path):
     assert r["max_abs"] < 1e-4  # nearest would be 0.025 m off everywhere
 
 
+def test_a_wall_in_the_truth_is_counted_apart(tmp_path):
+    """A 5 m wall between two flat halves of a 1 m truth, and a perfect 0.5 m DTM (each cell the true height at its
+    centre): the truth resampled bilinearly blurs the wall over a metre, so the two columns of DTM cells beside it
+    are 1.25 m off (centres 0.25 m from the wall: a quarter of the way to the next truth centre).  Those, and only
+    those, are cells where the truth varies by 2 m or more over 3 x 3 cells."""
+    tx, _ = np.meshgrid(np.arange(60) + 0.5, np.arange(40) + 0.5)
+    write_cog(
+        tmp_path / "truth.tif",
+        np.where(tx < 30, 100.0, 105.0).astype(np.float32),
+        transform=Affine(1.0, 0.0, X0, 0.0, -1.0, Y1),
+        crs=CRS,
+    )
+    dx, _ = np.meshgrid(10.0 + (np.arange(96) + 0.5) * 0.5, np.arange(60))
+    _write_dtm(tmp_path / "dtm.tif", np.where(dx < 30, 100.0, 105.0))
+    r = truth_accuracy(*truth_on_dtm_cells(tmp_path / "dtm.tif", tmp_path / "truth.tif"))
+    steep, flat = r["by_relief"]["2m_or_more"], r["by_relief"]["under_2m"]
+    assert (steep["n"], flat["n"]) == (2 * 60, 94 * 60)
+    assert steep["off_1m"] == 1.0 and steep["max_abs"] == pytest.approx(1.25)
+    assert flat["max_abs"] < 1e-4 and r["off_1m"] == pytest.approx(120 / (96 * 60))
+
+
 def test_evaluate_dtm_prints_the_truth_figures(tmp_path, capsys):
     truth, path, dtm = _rasters(tmp_path)
     dtm[10:20, 10:20] += 2.0
@@ -97,7 +118,8 @@ def test_evaluate_dtm_prints_the_truth_figures(tmp_path, capsys):
     t = json.loads(capsys.readouterr().out)["truth"]
     assert t["resampling"] == "bilinear" and t["off_1m"] == pytest.approx(100 / (106 * 60 - 360))
     assert main(["evaluate", "dtm", str(path), "--truth", str(truth)]) == 0
-    assert "cells > 1 m off (%)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "cells > 1 m off (%)" in out and "truth relief >= 2 m" in out
 
 
 def test_accuracy_stage_reports_the_truth_raster(tmp_path):
@@ -162,7 +184,10 @@ def test_report_splits_the_truth_figures_by_land_cover():
         "land_cover_file": "land_cover.tif",
         "by_land_cover": {"17": {"name": "bridge deck", **cover, "max_below": -2.7}},
     }
+    flat = {"n": 900, "rmse": 0.2, "off_1m": 0.01, "off_5m": 0.0}
+    truth |= {"by_relief": {"under_2m": flat, "2m_or_more": {"n": 100, "rmse": 2.0, "off_1m": 0.37, "off_5m": 0.0}}}
     page = _accuracy_html({"truth": truth}, None)
+    assert "2 m or more (walls, banks, steps)</td><td>100</td><td>2</td><td>37</td>" in page
     assert "By what covers the ground (land_cover.tif" in page
     assert "17 bridge deck" in page and "<td>672</td>" in page and "<td>47</td>" in page and "+9.070 / -2.700" in page
 

@@ -40,16 +40,18 @@ ROOT = Path(__file__).resolve().parent.parent
 SAMPLE = ROOT / "data_samples" / "flight_ldmrs" / "truth"
 
 
-def perfect_dtm(dtm_path: Path, workdir: Path) -> np.ndarray:
-    """The true terrain at the centres of the DTM's cells (NaN where the DTM has none)."""
-    import rasterio
-    from rasterio.warp import Resampling
+def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
+    """The true terrain at the centres of the DTM's cells (NaN where *dtm*, read from *dtm_path*, has none).
 
-    from stages.accuracy import _onto
+    The fine truth's cells are the DTM's, so ``accuracy``'s own bilinear resampling onto them returns its
+    values unchanged.
+    """
+    import rasterio
+
+    from stages.accuracy import truth_on_dtm_cells
 
     with rasterio.open(dtm_path) as src:
-        resolution, transform, crs, shape = src.res[0], src.transform, src.crs, (src.height, src.width)
-        dtm = src.read(1, masked=True).filled(np.nan)
+        resolution, transform = src.res[0], src.transform
     command = [
         str(Path(sys.executable).parent / "pipeline"),
         "simulate",
@@ -67,7 +69,7 @@ def perfect_dtm(dtm_path: Path, workdir: Path) -> np.ndarray:
         offset = np.array([(src.transform.c - transform.c), (src.transform.f - transform.f)]) / resolution
         if src.res[0] != resolution or not np.allclose(offset, np.round(offset), atol=1e-6):
             raise SystemExit(f"{fine}: its cells are not the DTM's ({src.transform} against {transform})")
-    values, _ = _onto(fine, shape, transform, crs, Resampling.nearest)
+    _, values = truth_on_dtm_cells(dtm_path, fine)
     return np.where(np.isfinite(dtm), values, np.nan)
 
 
@@ -106,18 +108,18 @@ def main(argv: list[str] | None = None) -> int:
     if not dtm_path.is_file():
         print(f"{dtm_path}: not found; run `pipeline run configs/flight.yaml` first", file=sys.stderr)
         return 2
-    from stages.accuracy import land_cover_on_dtm_cells, truth_on_dtm_cells
+    from stages.accuracy import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
 
     dtm, truth = truth_on_dtm_cells(dtm_path, SAMPLE / "terrain.tif")
     land_cover = land_cover_on_dtm_cells(dtm_path, SAMPLE / "land_cover.tif")
     with tempfile.TemporaryDirectory() as tmp:
-        perfect = perfect_dtm(dtm_path, Path(tmp))
-    print("| DTM | cells | > 1 m off | bridge deck | relief >= 2 m | buildings | elsewhere (of it near the edge) |")
-    print("|---|---|---|---|---|---|---|")
+        perfect = perfect_dtm(dtm, dtm_path, Path(tmp))
     import rasterio
 
     with rasterio.open(dtm_path) as src:
         cell = src.res[0]
+    print("| DTM | cells | > 1 m off | bridge deck | relief >= 2 m | buildings | elsewhere (of it near the edge) |")
+    print("|---|---|---|---|---|---|---|")
     for name, grid in (("ours", dtm), ("perfect", perfect)):
         r = where_off(grid, truth, land_cover, cell)
         share = 100.0 * r["off_1m"] / r["cells"]
@@ -126,8 +128,6 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['relief >= 2 m']:,} | {r['building footprints']:,} | {r['elsewhere']:,} "
             f"({r['near the edge']:,}) |"
         )
-    from stages.accuracy import truth_accuracy
-
     print()
     print("| DTM | truth relief < 2 m: cells, > 1 m off | truth relief >= 2 m: cells, > 1 m off |")
     print("|---|---|---|")

@@ -405,10 +405,11 @@ def provisional_dem(
     }
     objects, floor = object_filter(surface, **filters)
     del surface
-    if wall_height > 0:  # buildings wider than the window: objects, whatever the openings said
-        walled = walled_plateaus(zmin, wall=wall_height, min_width=(max_radius + 1) // 2)
-        objects |= walled
-    dem = _provisional(zmin, objects | low, floor)
+    # out of the provisional DEM whatever the openings say: the low cells, and buildings wider than the window
+    left_out = low
+    if wall_height > 0:
+        left_out = low | walled_plateaus(zmin, wall=wall_height, min_width=(max_radius + 1) // 2)
+    dem = _provisional(zmin, objects | left_out, floor)
     if dem is None:
         return None
     tolerance = elevation_threshold + elevation_scalar * slope_grid(dem, cell_size)
@@ -418,9 +419,7 @@ def provisional_dem(
         cleaned[deep] = np.nan
         objects, floor = object_filter(inpaint(cleaned), **filters)
         del cleaned
-        if wall_height > 0:
-            objects |= walled
-        dem = _provisional(zmin, objects | low, floor)
+        dem = _provisional(zmin, objects | left_out, floor)
         if dem is None:  # pragma: no cover - defensive: every cell an object or low
             return None
     return dem, slope_grid(dem, cell_size)

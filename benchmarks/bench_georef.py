@@ -32,8 +32,8 @@ from _isolated import machine  # noqa: E402
 
 
 def bench_core(n: int) -> list[tuple[int, float]]:
-    from stages.georef.core import Mounting, georeference, prepare_trajectory
-    from stages.georef.geodesy import MapTransform
+    from dtm.common.geodesy import MapTransform
+    from dtm.common.georeferencing import Mounting, georeference, prepare_trajectory
 
     m = 200 * 600  # 10 minutes at 200 Hz
     t = np.arange(m) / 200.0
@@ -64,8 +64,8 @@ def _time(fn) -> float:
 
 
 def bench_flights(pulses: int, tmp: Path) -> list[tuple[str, int, float, float]]:
-    from stages.sim.config import SimulateConfig
-    from stages.sim.simulate import simulate
+    from dtm.commands.simulate.settings import SimulateConfig
+    from dtm.commands.simulate.simulator import simulate
 
     rate = 50_000
     seconds = pulses / rate * 1.15

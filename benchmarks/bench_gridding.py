@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_gridding.py --points 1e6 1e7
 
 Ground points are drawn uniformly at 1.5 points/m2 on the synthetic terrain
-(stages.synthetic.terrain) with 3 cm noise; the DTM has 1 m cells over the
+(tests.synthetic.terrain) with 3 cm noise; the DTM has 1 m cells over the
 same square.  Times cover interpolation onto the grid (not I/O), each in a
 fresh process.  Prints a Markdown table for docs/BENCHMARKS.md.
 """
@@ -19,8 +19,9 @@ from _isolated import emit, machine, run_child
 def _one(points: float, method: str) -> None:
     import numpy as np
 
-    from stages.grid.interpolate import Grid, idw, nearest, tin
-    from stages.synthetic import terrain
+    from dtm.common.grid import Grid
+    from dtm.stages.rasterize.interpolate import idw, nearest, tin
+    from tests.synthetic import terrain
 
     rng = np.random.default_rng(1)
     n = int(points)

@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_ground.py --points 1e6 1e7 [--timeout 1200]
 
 Each (size, algorithm) runs in its own process (so peak memory and a time
-limit apply to it alone) on the synthetic scene of stages.synthetic at
+limit apply to it alone) on the synthetic scene of tests.synthetic at
 1.5 pulses/m2 over a square area sized for the point count.  Times cover the
 algorithm only (scene generation excluded), and also the denoise step.
 Prints a Markdown table for docs/BENCHMARKS.md.
@@ -22,26 +22,26 @@ ALGORITHMS = ["denoise", "smrf", "pmf", "csf"]
 def _one(points: float, algorithm: str) -> None:
     import numpy as np
 
-    from stages.synthetic import make_scene
+    from tests.synthetic import make_scene
 
     side = float(np.sqrt(points / 1.6))  # about 1.6 points per pulse-m2 with tree returns
     scene = make_scene(width=side, height=side, density=1.5, n_trees=int(side * side / 4000))
     xyz = np.column_stack([scene.x, scene.y, scene.z])
     t0 = time.perf_counter()
     if algorithm == "denoise":
-        from stages.denoise import DenoiseParams, noise_classes
+        from dtm.stages.denoise.stage import DenoiseParams, noise_classes
 
         noise_classes(xyz, DenoiseParams())
     elif algorithm == "smrf":
-        from stages.ground.smrf import smrf
+        from dtm.stages.classify_ground.smrf import smrf
 
         smrf(xyz)
     elif algorithm == "pmf":
-        from stages.ground.pmf import pmf
+        from dtm.stages.classify_ground.pmf import pmf
 
         pmf(xyz)
     else:
-        from stages.ground.csf import csf
+        from dtm.stages.classify_ground.csf import csf
 
         csf(xyz)
     seconds = time.perf_counter() - t0

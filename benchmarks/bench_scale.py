@@ -10,12 +10,12 @@ The jobs (strip adjustment and the map products off):
 - ``tin``: the same with the default TIN DTM;
 - ``defaults``: denoise + SMRF + TIN: the default job without map products.
 
-The survey is the synthetic scene of :mod:`stages.synthetic` at 8 pulses/m2
+The survey is the synthetic scene of :mod:`tests.synthetic` at 8 pulses/m2
 (trees give second returns), written as LAZ.  Each job runs once in its own
 process on an empty cache; its stages' seconds come from its ``run.json``,
 its peak memory is sampled over the whole process tree (the run and its
 workers); its DTM's RMSE against the scene's true terrain
-(:func:`stages.synthetic.terrain`, every cell with a value) is the
+(:func:`tests.synthetic.terrain`, every cell with a value) is the
 accuracy check.  The I/O floor is laspy + lazrs reading the same LAZ and writing
 it again, in chunks, measured in the same run and the same way as the jobs:
 a whole process (interpreter start-up and imports included), wall seconds
@@ -67,7 +67,7 @@ stages:
 
 
 def _make(laz: Path, points: float) -> None:
-    from stages.synthetic import make_scene, write_scene_las
+    from tests.synthetic import make_scene, write_scene_las
 
     density = 8.0
     area = points / (density * 1.1)  # about 10 % of pulses give a second return
@@ -142,7 +142,7 @@ def _rmse(dtm: Path) -> float:
     """RMSE (m) of a DTM of the scene against its true terrain, over every cell with a value."""
     import rasterio
 
-    from stages.synthetic import SAMPLE_ORIGIN, terrain
+    from tests.synthetic import SAMPLE_ORIGIN, terrain
 
     with rasterio.open(dtm) as src:
         z = src.read(1).astype(np.float64)

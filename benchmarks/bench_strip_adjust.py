@@ -30,8 +30,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--rate", type=float, default=80_000)
     args = parser.parse_args()
-    from stages.sim.config import SimulateConfig
-    from stages.sim.simulate import simulate
+    from dtm.commands.simulate.settings import SimulateConfig
+    from dtm.commands.simulate.simulator import simulate
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

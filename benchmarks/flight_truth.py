@@ -48,7 +48,7 @@ def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
     """
     import rasterio
 
-    from stages.accuracy import truth_on_dtm_cells
+    from dtm.stages.accuracy.vertical import truth_on_dtm_cells
 
     with rasterio.open(dtm_path) as src:
         resolution, transform = src.res[0], src.transform
@@ -75,7 +75,7 @@ def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
 
 def where_off(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray, cell: float) -> dict:
     """Cells more than 1 m off, split by where they lie (counts, and per cent of the cells compared)."""
-    from stages.accuracy import TRUTH_STEEP_M, truth_relief
+    from dtm.stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
 
     error = dtm - truth
     compared = np.isfinite(error)
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     if not dtm_path.is_file():
         print(f"{dtm_path}: not found; run `pipeline run configs/flight.yaml` first", file=sys.stderr)
         return 2
-    from stages.accuracy import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
+    from dtm.stages.accuracy.vertical import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
 
     dtm, truth = truth_on_dtm_cells(dtm_path, SAMPLE / "terrain.tif")
     land_cover = land_cover_on_dtm_cells(dtm_path, SAMPLE / "land_cover.tif")

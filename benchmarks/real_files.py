@@ -4,7 +4,7 @@ For each file: points, exit code, seconds, DTM cells, ground share and the first
 line the run printed on failure (or its warnings).  The job is
 ``configs/las.yaml`` pointed at the file, with the per-file keys of
 ``OVERRIDES`` (the two files whose header CRS is unusable need one).  Used for
-issue 22's before/after table; the test ``tests/stages/test_real_files.py``
+issue 22's before/after table; the test ``tests/stages/parse/test_real_files.py``
 asserts the outcomes.
 
     python benchmarks/real_files.py [--timeout 120] [--only NAME ...] [--md]

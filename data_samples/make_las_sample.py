@@ -5,14 +5,14 @@
 Also writes checkpoints.csv (60 check points on the true terrain, a third
 under trees) and truth_terrain.tif (the true terrain at 1 m).
 
-Provenance: synthetic, made by stages.synthetic.make_scene with its default
+Provenance: synthetic, made by tests.synthetic.make_scene with its default
 arguments (512 m x 384 m, 1.5 pulses/m2, 3 cm vertical noise, seed 20111),
 written in ETRS89 / UTM 30N (EPSG:25830) with origin E 440000, N 4474000.
 """
 
 from pathlib import Path
 
-from stages.synthetic import SAMPLE_ORIGIN, make_scene, sample_checkpoints, write_scene_las, write_truth_raster
+from tests.synthetic import SAMPLE_ORIGIN, make_scene, sample_checkpoints, write_scene_las, write_truth_raster
 
 if __name__ == "__main__":
     folder = Path(__file__).resolve().parent / "las"

@@ -29,7 +29,7 @@ def test_no_unsafe_deserialisation_or_eval():
     )
     hits = [
         f"{p.relative_to(ROOT)}:{i}"
-        for folder in ("pipeline", "stages")
+        for folder in ("pipeline", "dtm")
         for p in _sources(folder)
         for i, line in enumerate(p.read_text().splitlines(), 1)
         if bad.search(line)
@@ -38,11 +38,11 @@ def test_no_unsafe_deserialisation_or_eval():
 
 
 def test_config_reference_is_current():
-    from stages.configdoc import render
+    from dtm.commands.configdoc import render
 
     committed = (ROOT / "docs" / "CONFIG.md").read_text()
-    assert committed == render(), "docs/CONFIG.md is stale: python -m stages.configdoc > docs/CONFIG.md"
-    from stages.configdoc import render_simulator
+    assert committed == render(), "docs/CONFIG.md is stale: python -m dtm.commands.configdoc > docs/CONFIG.md"
+    from dtm.commands.configdoc import render_simulator
 
     committed = (ROOT / "docs" / "SIMULATOR.md").read_text()
-    assert committed == render_simulator(), "stale: python -m stages.configdoc --simulator > docs/SIMULATOR.md"
+    assert committed == render_simulator(), "stale: python -m dtm.commands.configdoc --simulator > docs/SIMULATOR.md"

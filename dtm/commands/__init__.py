@@ -1,0 +1,1 @@
+"""The commands that are not stages: evaluate, info, budget, simulate, the config doc."""

@@ -1,0 +1,1 @@
+"""``pipeline budget``: seed 2's error budget."""

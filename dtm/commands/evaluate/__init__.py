@@ -1,0 +1,1 @@
+"""``pipeline evaluate``: a run's ground and DTM against references."""

@@ -1,0 +1,451 @@
+"""``pipeline evaluate ground|dtm``: measure accuracy against reference data.
+
+    pipeline evaluate dtm DTM.tif (--truth TRUTH.tif | --checkpoints CP.csv)
+                              [--land-cover-column NAME] [--vegetated VALUE ...] [--json]
+
+prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy); with
+``--truth``, also the share of cells more than 1 m and 5 m off and the
+largest errors (:func:`dtm.stages.accuracy.vertical.truth_accuracy`).
+
+``pipeline evaluate ground``: score a ground classification against reference labels.
+
+    pipeline evaluate ground REF.laz [--config RUN.yaml] [--crs EPSG:nnnn]
+                                     [--algorithm NAME] [--param k=v ...]
+                                     [--no-denoise] [--compare csf] [--write OUT.laz]
+                                     [--no-dtm-check] [--dtm-cell 1] [--dtm-max-edge 20] [--json]
+
+The reference file's class 2 is reference ground; every other class is an
+object.  The file is classified by the run itself: the engine runs
+``parse``, ``strip_adjust``, ``denoise`` and ``classify_ground`` on it (in a
+temporary output and cache folder), so the unit conversion (a feet CRS),
+the class rules (noise, withheld and, with ``keep_water``, water keep their
+class) and the tiling are those of ``pipeline run``.  The settings are the
+defaults of every stage, or those of ``--config`` (its ``input.paths``
+replaced by REF); ``--algorithm``/``--param`` replace its ground algorithm.
+Noise and water count as non-ground.  Prints Type I, Type II, total error
+and Cohen's kappa (per cent) for each algorithm run; ``--write`` saves the
+``export_las`` product of the first one.  Then the DTM check
+(:func:`dtm.commands.evaluate.scores.dtm_check`, on unless ``--no-dtm-check``):
+the TIN DTM of each run's ground minus the TIN DTM of the reference ground,
+on 1 m cells (``--dtm-cell``), where no reference triangle edge exceeds
+20 m (``--dtm-max-edge``): RMS, mean, share of cells more than 0.5 m and
+2 m above and 0.5 m below, the largest difference (docs/GROUND.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from dtm.common import glossary
+from dtm.common.crs import check_crs_setting
+from dtm.common.las_guard import las_parse_errors, open_las
+from dtm.stages.classify_ground.params import ALGORITHMS
+from pipeline.errors import ConfigError, InputDataError
+from pipeline.stage import Command
+
+
+def _algorithm(name: str, params: list[str]):
+    values: dict = {"name": name}
+    for text in params:
+        key, sep, raw = text.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--param {text}: expected name=value.")
+        values[key.strip()] = yaml.safe_load(raw)
+    try:
+        return ALGORITHMS[name].model_validate(values)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise ConfigError(f"--param {where}: {err['msg']}.") from None
+
+
+def reference_ground(path: Path) -> np.ndarray:
+    """Whether each point of a labelled LAS/LAZ is reference ground (class 2), read in chunks.
+
+    Raises
+    ------
+    InputDataError
+        When the file cannot be read, or no point has class 2.
+    """
+
+    parts = []
+    with open_las(Path(path)) as reader:
+        try:
+            for chunk in reader.chunk_iterator(1_000_000):
+                parts.append(np.asarray(chunk.classification) == glossary.GROUND)
+        except las_parse_errors() as exc:
+            raise InputDataError(f"{path}: unreadable after point {sum(map(len, parts))} ({exc}).") from None
+    reference = np.concatenate(parts) if parts else np.zeros(0, dtype=bool)
+    if not reference.any():
+        raise InputDataError(f"{path}: no point has class 2, so there is no reference ground to compare with.")
+    return reference
+
+
+def run_settings(path: Path, *, config: Path | None = None, crs: str | None = None) -> tuple[dict, Path, dict]:
+    """The configuration (plain values) that runs *path* as ``pipeline run`` would, its base folder, its key lines.
+
+    Without *config*: every stage's defaults.  With it: that file's settings,
+    its input replaced by *path* (which must then be a ``las`` input).
+    *crs* sets ``input.crs`` (the CRS of a file whose header has none).
+    """
+    from pipeline.config import load_yaml
+
+    path = Path(path).resolve()
+    data: dict = {}
+    base = Path.cwd()
+    lines: dict = {}
+    if crs is not None:
+        try:
+            check_crs_setting(crs)
+        except ValueError as exc:
+            raise ConfigError(f"--crs {crs}: {exc}.") from None
+    if config is not None:
+        loaded, lines = load_yaml(config)
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{config}, line 1: the configuration must be a mapping of keys to values.")
+        data, base = loaded, Path(config).resolve().parent
+        if (data.get("input") or {}).get("format", "las") != "las":
+            raise ConfigError(f"{config}: input.format must be las to evaluate a labelled LAS/LAZ file.")
+    data = dict(data)
+    data["input"] = {**(data.get("input") or {}), "format": "las", "paths": [str(path)]}
+    if crs is not None:
+        data["input"]["crs"] = crs
+    data.setdefault("stages", {})
+    return data, base, lines
+
+
+def evaluate_ground(
+    path: Path,
+    algorithms: list | None = None,
+    *,
+    denoise: bool = True,
+    config: Path | None = None,
+    crs: str | None = None,
+    write: Path | None = None,
+    dtm: bool = True,
+    dtm_cell: float = 1.0,
+    dtm_max_edge: float = 20.0,
+) -> tuple[list[dict], dict[str, np.ndarray]]:
+    """Classify a labelled file with the run's stages, once per algorithm; return scores and classes.
+
+    Parameters
+    ----------
+    path : Path
+        Labelled LAS/LAZ (class 2 = reference ground).
+    algorithms : list of ground-algorithm models, optional
+        Default: the configuration's algorithm (SMRF without *config*).
+    denoise : bool
+        Run the ``denoise`` stage (as configured) before classifying.
+    config : Path, optional
+        A run's configuration whose settings to use (see :func:`run_settings`).
+    crs : str, optional
+        ``input.crs``: the CRS of a file whose header has none.
+    write : Path, optional
+        Where to save the first algorithm's classified cloud (the
+        ``export_las`` product; LAZ when the name ends in ``.laz``).
+    dtm : bool
+        Also run the DTM check (:func:`dtm.commands.evaluate.scores.dtm_check`): the
+        TIN of each run's ground against the TIN of the reference ground, on
+        cells of *dtm_cell* metres, where no reference triangle edge is longer
+        than *dtm_max_edge* metres; the TINs use the configuration's
+        ``rasterize.nodata_distance`` and ``rasterize.tin.thin``.
+    dtm_cell, dtm_max_edge : float
+        Metres, whatever the CRS's unit.
+
+    Returns
+    -------
+    rows : list of dict
+        Per algorithm: name, parameters, seconds (``denoise`` and
+        ``classify_ground``), the :class:`dtm.commands.evaluate.scores.GroundScore`
+        and, with *dtm*, ``dtm_check``: the :class:`dtm.commands.evaluate.scores.DtmCheck`.
+    classes : dict
+        Algorithm name -> the classes the run gave every point, in file order.
+    """
+    import logging
+    import shutil
+    import tempfile
+
+    import laspy
+
+    from dtm.commands.evaluate.scores import dtm_check, score
+    from dtm.common.clouds import cloud_info
+    from pipeline.config import describe_validation_error
+    from pipeline.log import LOGGER_NAME
+    from pipeline.plugin import load_plugin
+    from pipeline.runner import run
+    from pipeline.stage import config_model
+
+    reference = reference_ground(path)
+    if dtm and reference.sum() < 3:
+        raise InputDataError(
+            f"{path}: {int(reference.sum())} point(s) of class 2: the DTM check needs at least 3 reference ground "
+            "points (--no-dtm-check to score the classes only)."
+        )
+    data, base, lines = run_settings(path, config=config, crs=crs)
+    plugin = load_plugin()  # the plugin that registered this command (dtm.plugin), found as the CLI finds it
+    model = config_model(plugin)
+    rows, classes = [], {}
+    work = Path(tempfile.mkdtemp(prefix="pipeline-evaluate-"))
+    log = logging.getLogger(LOGGER_NAME)
+    level = log.level
+    if log.level <= logging.INFO:
+        log.setLevel(logging.WARNING)  # the inner runs' progress is not this command's output
+    try:
+        for i, algorithm in enumerate(algorithms or [None]):
+            stages = {key: dict(value or {}) for key, value in data["stages"].items()}
+            stages.setdefault("denoise", {})["enabled"] = denoise
+            if algorithm is not None:
+                stages.setdefault("classify_ground", {})["algorithm"] = algorithm.model_dump(mode="json")
+            saving = write is not None and i == 0
+            if saving:
+                stages["export_las"] = {**stages.get("export_las", {}), "enabled": True}
+                stages["export_las"]["compress"] = Path(write).suffix.lower() == ".laz"
+            values = {**data, "stages": stages, "output": str(work / "out"), "cache": str(work / "cache")}
+            try:
+                settings = model.model_validate(values, context={"base_dir": base})
+            except ValidationError as exc:
+                where = config or Path(path)
+                raise ConfigError(describe_validation_error(exc, values, where, lines, {}, model)) from None
+            try:
+                manifest = run(settings, plugin, until="export_las" if saving else "classify_ground")
+            except InputDataError as exc:
+                if config is None and crs is None and "input.crs" in str(exc):
+                    raise InputDataError(f"{str(exc).rstrip('.')} (for evaluate ground: --crs).") from None
+                raise
+            records = {r["name"]: r for r in manifest["stages"]}
+            classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
+            las = laspy.read(str(classified))
+            cls = np.asarray(las.classification, dtype=np.uint8)
+            if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
+                raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
+            used = settings.stages.classify_ground.algorithm
+            seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
+            s = score(reference, cls == glossary.GROUND)
+            rows.append({"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()})
+            if dtm:
+                xyz = cloud_info(classified).units.to_metres(np.column_stack((las.x, las.y, las.z)))
+                grid = settings.stages.rasterize
+                rows[-1]["dtm_check"] = dtm_check(
+                    xyz,
+                    reference,
+                    cls == glossary.GROUND,
+                    cell=dtm_cell,
+                    max_edge=dtm_max_edge,
+                    nodata_distance=grid.nodata_distance,
+                    thin=grid.tin.thin,
+                ).as_dict()
+            del las
+            classes[used.name] = cls
+            if saving:
+                name = "points.laz" if stages["export_las"]["compress"] else "points.las"
+                tmp = Path(write).with_name(f".{Path(write).name}.tmp")
+                shutil.copyfile(work / "out" / name, tmp)
+                tmp.replace(write)
+    finally:
+        log.setLevel(level)
+        shutil.rmtree(work, ignore_errors=True)
+    return rows, classes
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="what", required=True)
+    p = sub.add_parser("ground", help="ground classification against a labelled LAS/LAZ (class 2 = ground)")
+    p.add_argument("reference", type=Path, help="labelled LAS/LAZ file")
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="RUN.yaml",
+        help="use this run configuration's settings (its input replaced by the reference file); default: "
+        "every stage's defaults",
+    )
+    p.add_argument("--crs", metavar="CRS", help="input.crs: the CRS of a file whose header has none, e.g. EPSG:2992")
+    p.add_argument(
+        "--algorithm",
+        choices=sorted(ALGORITHMS),
+        help="ground algorithm (default: the configuration's, smrf without --config)",
+    )
+    p.add_argument(
+        "--param", action="append", default=[], metavar="NAME=VALUE", help="algorithm parameter (repeatable)"
+    )
+    p.add_argument(
+        "--compare",
+        action="append",
+        default=[],
+        choices=sorted(ALGORITHMS),
+        help="also run this algorithm with its defaults",
+    )
+    p.add_argument("--no-denoise", action="store_true", help="skip the noise step")
+    p.add_argument(
+        "--write",
+        type=Path,
+        metavar="OUT.laz",
+        help="save the cloud classified by --algorithm (as export_las writes it)",
+    )
+    p.add_argument(
+        "--dtm-check",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also compare the TIN DTM of each run's ground with the TIN DTM of the reference ground (default: on)",
+    )
+    p.add_argument("--dtm-cell", type=float, default=1.0, metavar="METRES", help="cell of the DTM check (default 1 m)")
+    p.add_argument(
+        "--dtm-max-edge",
+        type=float,
+        default=20.0,
+        metavar="METRES",
+        help="DTM check: leave out cells inside a reference triangle with a longer edge (default 20 m; inf: none)",
+    )
+    p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    _hidden_log_args(p)
+    p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
+    p.add_argument("dtm", type=Path, help="DTM GeoTIFF")
+    ref = p.add_mutually_exclusive_group(required=True)
+    ref.add_argument("--truth", type=Path, help="reference elevation raster (resampled onto the DTM grid)")
+    ref.add_argument("--checkpoints", type=Path, help="CSV of check points: x, y, z[, land_cover]")
+    p.add_argument("--land-cover-column", default="land_cover", help="land-cover column name (default land_cover)")
+    p.add_argument("--vegetated", nargs="+", default=["vegetated"], help="land-cover values counted as vegetated")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    _hidden_log_args(p)
+
+
+def _hidden_log_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--log-format", choices=["text", "json"], default="text", help=argparse.SUPPRESS)
+    p.add_argument("-q", "--quiet", action="count", default=0, help=argparse.SUPPRESS)
+    p.add_argument("-v", "--verbose", action="count", default=0, help=argparse.SUPPRESS)
+
+
+def _run_dtm(args: argparse.Namespace) -> int:
+    from rasterio.errors import RasterioError
+
+    from dtm.common.checkpoints import checkpoint_errors, read_checkpoints
+    from dtm.stages.accuracy.vertical import truth_accuracy, truth_on_dtm_cells, vertical_accuracy
+
+    for path in (args.dtm, args.truth or args.checkpoints):
+        if not path.is_file():
+            raise ConfigError(f"{path}: file not found.")
+    try:
+        if args.truth:
+            dtm, truth = truth_on_dtm_cells(args.dtm, args.truth)
+            result = vertical_accuracy((dtm - truth).ravel())
+            result["truth"] = {"file": args.truth.name, "resampling": "bilinear", **truth_accuracy(dtm, truth)}
+        else:
+            points, cover = read_checkpoints(args.checkpoints, args.land_cover_column)
+            result = vertical_accuracy(checkpoint_errors(args.dtm, points), cover, args.vegetated)
+    except RasterioError as exc:
+        raise InputDataError(f"{args.dtm} or its reference cannot be read as a raster ({exc}).") from None
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    what = "cells" if args.truth else "check points"
+    print(
+        f"{args.dtm} against {args.truth or args.checkpoints}: {result['n']:,} {what} ({result['outside']:,} outside or nodata)"
+    )
+    for label, key in (
+        ("RMSEz (m)", "rmse_z"),
+        ("mean error (m)", "mean_error"),
+        ("NVA 95 % = 1.96 RMSEz (m)", "nva_95"),
+        ("VVA 95th percentile (m)", "vva_95"),
+    ):
+        value = result.get(key)
+        print(f"{label:<28} {'—' if value is None else f'{value:.4f}'}")
+    if args.truth:
+        t = result["truth"]
+        for label, key, scale in (
+            ("cells > 1 m off (%)", "off_1m", 100.0),
+            ("cells > 5 m off (%)", "off_5m", 100.0),
+            ("largest above truth (m)", "max_above", 1.0),
+            ("largest below truth (m)", "max_below", 1.0),
+        ):
+            value = t.get(key)
+            print(f"{label:<28} {'—' if value is None else f'{scale * value:.4f}'}")
+        for label, part in (("truth relief < 2 m", "under_2m"), ("truth relief >= 2 m", "2m_or_more")):
+            v = t["by_relief"][part]
+            share = "—" if v["off_1m"] is None else f"{100.0 * v['off_1m']:.4f}"
+            print(f"{label:<28} {share} % of {v['n']:,} cells > 1 m off")
+    return 0
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.what == "dtm":
+        return _run_dtm(args)
+    if not args.reference.is_file():
+        raise ConfigError(f"{args.reference}: file not found.")
+    if args.config is not None and not args.config.is_file():
+        raise ConfigError(f"{args.config}: configuration file not found.")
+    if args.param and args.algorithm is None and args.config is not None:
+        raise ConfigError("--param needs --algorithm with --config (which algorithm the parameters are for).")
+    if not np.isfinite(args.dtm_cell) or args.dtm_cell <= 0:
+        raise ConfigError(f"--dtm-cell {args.dtm_cell:g}: must be a positive number of metres.")
+    if not args.dtm_max_edge > 0:  # inf: no limit
+        raise ConfigError(f"--dtm-max-edge {args.dtm_max_edge:g}: must be a positive number of metres (or inf).")
+    first = None  # None: the configuration's algorithm
+    if args.algorithm is not None or (args.param and args.config is None):
+        first = _algorithm(args.algorithm or "smrf", args.param)
+    algorithms = [first]
+    algorithms += [_algorithm(n, []) for n in args.compare if first is None or n != first.name or args.param]
+    rows, _ = evaluate_ground(
+        args.reference,
+        algorithms,
+        denoise=not args.no_denoise,
+        config=args.config,
+        crs=args.crs,
+        write=args.write,
+        dtm=args.dtm_check,
+        dtm_cell=args.dtm_cell,
+        dtm_max_edge=args.dtm_max_edge,
+    )
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        print(
+            f"{args.reference}: {rows[0]['n']} points, {rows[0]['ground_as_ground'] + rows[0]['ground_as_object']} reference ground"
+        )
+        print(f"{'algorithm':<10} {'type I %':>9} {'type II %':>10} {'total %':>8} {'kappa %':>8} {'seconds':>8}")
+        for r in rows:
+            print(
+                f"{r['algorithm']:<10} {100 * r['type_1']:9.2f} {100 * r['type_2']:10.2f} "
+                f"{100 * r['total']:8.2f} {100 * r['kappa']:8.2f} {r['seconds']:8.2f}"
+            )
+        if args.dtm_check:
+            _print_dtm_check(rows)
+    if args.write:
+        print(f"classified cloud written to {args.write}", file=sys.stderr)
+    return 0
+
+
+def _print_dtm_check(rows: list[dict]) -> None:
+    """The DTM check's table (figures in metres and per cent of the cells compared)."""
+    first = rows[0]["dtm_check"]
+    print()
+    print(
+        f"DTM check: TIN of the ground on {first['cell']:g} m cells minus TIN of the reference ground, "
+        f"where no reference triangle edge exceeds {first['max_edge']:g} m "
+        f"({first['sparse_cells']:,} of {first['reference_cells']:,} reference cells left out as too sparse)"
+    )
+    print(
+        f"{'algorithm':<10} {'cells':>8} {'RMS m':>7} {'mean m':>7} {'>0.5 up %':>9} {'>2 up %':>8} "
+        f"{'>0.5 dn %':>9} {'max up m':>8} {'empty':>6}"
+    )
+
+    def cell(value, scale: float = 1.0, width: int = 7) -> str:
+        return f"{'—':>{width}}" if value is None else f"{scale * value:{width}.2f}"
+
+    for r in rows:
+        c = r["dtm_check"]
+        print(
+            f"{r['algorithm']:<10} {c['n']:8d} {cell(c['rms'])} {cell(c['mean'])} {cell(c['above_0_5'], 100, 9)} "
+            f"{cell(c['above_2'], 100, 8)} {cell(c['below_0_5'], 100, 9)} {cell(c['max_above'], 1, 8)} "
+            f"{c['missing_cells']:6d}"
+        )
+
+
+EVALUATE = Command(
+    name="evaluate", help="measure accuracy against reference data", add_arguments=_add_arguments, run=_run
+)

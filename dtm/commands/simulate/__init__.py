@@ -1,0 +1,1 @@
+"""``pipeline simulate``: a survey with known truth in every raw format."""

@@ -1,0 +1,1 @@
+"""What every stage shares: point clouds, rasters, tiles, grids, units, CRSs, geodesy."""

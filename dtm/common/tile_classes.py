@@ -1,0 +1,157 @@
+"""TODO docstring: carried out of dtm.common.tile_points."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dtm.common.clouds import cloud_info, open_las_writer
+from dtm.common.tile_points import cleanup, split_cloud, task_folder
+
+#: Values read at a time from each tile's result files while merging.
+MERGE_BLOCK = 65_536
+
+
+def classes_by_tile(
+    ctx,
+    src: Path,
+    dst: Path,
+    *,
+    buffer: float,
+    columns: Callable[[Any], dict[str, np.ndarray]],
+    task: Callable[[dict], dict],
+    extra: dict,
+    between: Callable[[list[dict], list[dict]], list[dict]] | None = None,
+    on_workers: bool = False,
+) -> list[dict]:
+    """A stage that reclassifies points, tile by tile: *src* copied to *dst* with the tiles' classes.
+
+    Cuts *src* into the run's tiles (:func:`split_cloud`; *columns* adds
+    what the task needs), runs *task* on every tile holding points of its
+    own (it writes ``idx`` and ``classification`` of its core points with
+    :func:`write_result`), optionally *between* (a second round of tasks,
+    given the first round's), then :func:`merge_classes`.  Returns the
+    tasks' results.  *on_workers*: the split runs on the run's workers
+    (*columns* then a module-level function; the task reads the tile's
+    parts, :func:`tile_parts`).
+    """
+    from pipeline.tiling import run_tiled
+
+    info = cloud_info(src)
+    work = task_folder(ctx.workdir, ctx.name)
+
+    def split(layout):
+        with ctx.progress(info.count, "tiling", unit="pt") as bar:
+            executor = ctx.executor if on_workers and len(layout) > 1 else None
+            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar, executor=executor)
+        return point_tasks(rows, work, **extra)
+
+    def merge(layout, tasks, results):
+        if between is not None:
+            results = between(tasks, results)
+        with ctx.progress(info.count, "writing", unit="pt") as bar:
+            merge_classes(src, dst, [Path(t["result"]) for t in tasks], progress=bar)
+        return results
+
+    try:
+        return run_tiled(ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge)
+    finally:
+        cleanup(work)
+
+
+def point_tasks(rows: dict[int, tuple[int, int]], work: Path, **extra) -> list[dict]:
+    """One task per tile holding points of its own (results per point): paths, weight, *extra*."""
+    return [
+        {
+            "tile": t,
+            "weight": rows[t][0],
+            "source": str(Path(work) / "in" / str(t)),
+            "result": str(Path(work) / "out" / str(t)),
+            **extra,
+        }
+        for t in sorted(rows)
+        if rows[t][1]  # a tile with no point of its own has nothing to classify
+    ]
+
+
+class _Run:
+    """One tile's results (``idx`` ascending, values), read in blocks from disk."""
+
+    def __init__(self, folder: Path, names: list[str]):
+        self.names = ["idx", *names]
+        self.files = {}
+        self.dtypes = {}
+        self.left = None
+        for name in self.names:
+            fh = open(Path(folder) / f"{name}.npy", "rb")  # noqa: SIM115 - closed in close()
+            major, minor = np.lib.format.read_magic(fh)
+            read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(fh)
+            self.files[name], self.dtypes[name] = fh, dtype
+            self.left = int(shape[0])
+        self.buf = {n: np.zeros(0, self.dtypes[n]) for n in self.names}
+
+    def take_below(self, stop: int) -> dict[str, np.ndarray]:
+        parts = []
+        while True:
+            if len(self.buf["idx"]) == 0:
+                if self.left == 0:
+                    break
+                k = min(MERGE_BLOCK, self.left)
+                self.buf = {n: np.fromfile(self.files[n], dtype=self.dtypes[n], count=k) for n in self.names}
+                self.left -= k
+            cut = int(np.searchsorted(self.buf["idx"], stop))
+            parts.append({n: a[:cut] for n, a in self.buf.items()})
+            self.buf = {n: a[cut:] for n, a in self.buf.items()}
+            if len(self.buf["idx"]):
+                break
+        if not parts:
+            return {n: np.zeros(0, self.dtypes[n]) for n in self.names}
+        return {n: np.concatenate([p[n] for p in parts]) for n in self.names}
+
+    def close(self) -> None:
+        for fh in self.files.values():
+            fh.close()
+
+
+def merge_classes(
+    src: Path,
+    dst: Path,
+    results: list[Path],
+    *,
+    chunk_size: int = 1_000_000,
+    progress=None,
+) -> None:
+    """Copy the LAS *src* to *dst* with the classes of the tiles' results.
+
+    Each result folder holds ``idx`` (ascending) and ``classification`` for
+    the core points of one tile; together they cover every point once.
+    """
+    import laspy
+
+    runs = [_Run(folder, ["classification"]) for folder in results]
+    try:
+        with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
+            start = 0
+            for chunk in reader.chunk_iterator(chunk_size):
+                n = len(chunk)
+                cls = np.asarray(chunk.classification).copy()
+                filled = np.zeros(n, dtype=bool)
+                for run in runs:
+                    got = run.take_below(start + n)
+                    where = got["idx"] - start
+                    cls[where] = got["classification"]
+                    filled[where] = True
+                if not filled.all():  # pragma: no cover - a broken layout, never a user error
+                    raise RuntimeError(f"tiling left {int((~filled).sum())} points without a result")
+                chunk.classification = cls
+                writer.write_points(chunk)
+                start += n
+                if progress is not None:
+                    progress.update(n)
+    finally:
+        for run in runs:
+            run.close()

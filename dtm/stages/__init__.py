@@ -1,0 +1,1 @@
+"""One package per stage, named as in configurations: ``stage.py`` is the driver."""

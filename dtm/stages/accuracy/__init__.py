@@ -1,0 +1,1 @@
+"""Stage ``accuracy``: the DTM against check points and a truth raster."""

@@ -1,0 +1,238 @@
+"""Grid helpers shared by the ground filters: minimum surfaces, inpainting, sampling.
+
+Grids here are internal to the algorithms: row 0 is the *lowest* y (south), so
+``row = floor((y - y0) / c)``; cell (r, k) has its centre at
+``(x0 + (k + 0.5) c, y0 + (r + 0.5) c)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def as_xyz(xyz: np.ndarray) -> np.ndarray:
+    """Check and convert the coordinates every ground filter takes: (n, 3) float64."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError("xyz must have shape (n, 3)")
+    return xyz
+
+
+@dataclass(frozen=True)
+class CellIndex:
+    """Where each point falls on an algorithm's grid."""
+
+    x0: float
+    y0: float
+    cell_size: float
+    rows: int
+    cols: int
+    row: np.ndarray
+    col: np.ndarray
+
+    @property
+    def flat(self) -> np.ndarray:
+        return self.row * self.cols + self.col
+
+
+def grid_corner(lowest, cell_size: float) -> tuple[float, float]:
+    """The corner of a grid over points whose lowest x, y are *lowest*: rounded down to whole multiples of the cell."""
+    return float(np.floor(lowest[0] / cell_size) * cell_size), float(np.floor(lowest[1] / cell_size) * cell_size)
+
+
+def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
+    """Grid the bounding box of *xy* with square cells of *cell_size*.
+
+    The grid's corner is the box's corner rounded down to a whole multiple
+    of *cell_size*, so every subset of the points (a tile) puts each point in
+    the same cell, at the same place in the cell, as the whole set does.
+    """
+    x0, y0 = grid_corner(xy.min(axis=0), cell_size)
+    col = np.floor((xy[:, 0] - x0) / cell_size)
+    row = np.floor((xy[:, 1] - y0) / cell_size)
+    small = col.max() * (row.max() + 1) + col.max() < 2**31  # int32 indices when the grid allows (memory)
+    col = col.astype(np.int32 if small else np.int64)
+    row = row.astype(np.int32 if small else np.int64)
+    return CellIndex(x0, y0, cell_size, int(row.max()) + 1, int(col.max()) + 1, row, col)
+
+
+def min_grid(z: np.ndarray, idx: CellIndex) -> np.ndarray:
+    """Lowest *z* per cell; NaN where a cell holds no point."""
+    out = np.full(idx.rows * idx.cols, np.inf)
+    np.minimum.at(out, idx.flat, z)
+    out[~np.isfinite(out)] = np.nan
+    return out.reshape(idx.rows, idx.cols)
+
+
+def inpaint(grid: np.ndarray) -> np.ndarray:
+    """Fill NaN cells with the harmonic (Laplacian) interpolant of the known cells.
+
+    Each unknown cell equals the mean of its four neighbours, known cells are
+    fixed: a sparse linear system over the unknown cells only.  This is
+    method 2 of D'Errico's ``inpaint_nans``, the family of methods Pingel et
+    al. (2013) use to fill SMRF's minimum surface; it is smooth across large
+    gaps (buildings, water) where nearest-neighbour fill makes steps.
+    """
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+
+    unknown = np.isnan(grid)
+    if not unknown.any():
+        return grid
+    if unknown.all():
+        raise ValueError("the grid has no value to fill from")
+    rows, cols = grid.shape
+    number = np.full(grid.shape, -1, dtype=np.int64)
+    n_unknown = int(unknown.sum())
+    number[unknown] = np.arange(n_unknown)
+    ur, uc = np.nonzero(unknown)
+    diag = np.zeros(n_unknown)
+    rhs = np.zeros(n_unknown)
+    i_idx, j_idx = [], []
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nr, nc = ur + dr, uc + dc
+        inside = (nr >= 0) & (nr < rows) & (nc >= 0) & (nc < cols)
+        me = number[ur[inside], uc[inside]]
+        nr, nc = nr[inside], nc[inside]
+        diag[me] += 1.0
+        other = number[nr, nc]
+        is_unknown = other >= 0
+        i_idx.append(me[is_unknown])
+        j_idx.append(other[is_unknown])
+        np.add.at(rhs, me[~is_unknown], grid[nr[~is_unknown], nc[~is_unknown]])
+    i_all = np.concatenate(i_idx + [np.arange(n_unknown)])
+    j_all = np.concatenate(j_idx + [np.arange(n_unknown)])
+    values = np.concatenate([-np.ones(sum(len(a) for a in i_idx)), diag])
+    a = sparse.csc_matrix((values, (i_all, j_all)), shape=(n_unknown, n_unknown))
+    out = grid.copy()
+    out[unknown] = spsolve(a, rhs)
+    return out
+
+
+def sample_bilinear(grid: np.ndarray, idx: CellIndex, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear interpolation of cell-centre values at points (clamped at the edges)."""
+    return sample_bilinear_all((grid,), idx, x, y)[0]
+
+
+def sample_bilinear_all(
+    grids: tuple[np.ndarray, ...], idx: CellIndex, x: np.ndarray, y: np.ndarray
+) -> list[np.ndarray]:
+    """:func:`sample_bilinear` of several grids of one shape at the same points (the weights computed once)."""
+    fx = (x - idx.x0) / idx.cell_size - 0.5
+    fy = (y - idx.y0) / idx.cell_size - 0.5
+    rows, cols = grids[0].shape
+    c0 = np.clip(np.floor(fx).astype(np.int64), 0, max(cols - 2, 0))
+    r0 = np.clip(np.floor(fy).astype(np.int64), 0, max(rows - 2, 0))
+    tx = np.clip(fx - c0, 0.0, 1.0)
+    ty = np.clip(fy - r0, 0.0, 1.0)
+    # the four corners as flat indices (the next column and row, or the same one on a grid one cell wide)
+    i00 = r0 * cols + c0
+    i01 = i00 + (1 if cols > 1 else 0)
+    i10 = i00 + (cols if rows > 1 else 0)
+    i11 = i10 + (i01 - i00)
+    ux, uy = 1 - tx, 1 - ty
+    out = []
+    for grid in grids:
+        flat = grid.ravel()
+        top = flat.take(i00) * ux + flat.take(i01) * tx
+        bottom = flat.take(i10) * ux + flat.take(i11) * tx
+        out.append(top * uy + bottom * ty)
+    return out
+
+
+def slope_grid(grid: np.ndarray, cell_size: float) -> np.ndarray:
+    """Magnitude of the gradient (rise over run) by central differences."""
+    if min(grid.shape) < 2:
+        return np.zeros_like(grid)
+    gy, gx = np.gradient(grid, cell_size)
+    return np.hypot(gx, gy)
+
+
+def pad_linear(grid: np.ndarray, width: int) -> np.ndarray:
+    """Pad a grid by *width* cells, continuing its slope across each edge from the cells near that edge.
+
+    Along every row (then every column of the result), the padding
+    continues the line that supports the last *width* cells before an edge
+    from below at the middle of that band: the edge of their lower convex
+    hull there, the line under every one of those cells that is highest at
+    the band's middle.  A planar slope thus continues exactly, an object
+    within the band (a roof, a tree) does not tilt it, and an object cut by
+    the survey's boundary is bordered by ground-level padding, so an opening
+    can still remove it.  (Until 2026-12-01 this was a least-squares line
+    lowered to its lowest residual: a roof within the band tilted it, the
+    padding dropped away from ground that rises to the edge, and the opening
+    took the last metre for an object — issue 16's band of missed ground
+    along one edge of a synthetic survey.)
+    Flat ("nearest") padding instead makes every uphill edge look like the
+    foot of an object, which an opening then lowers.
+
+    Each padded value depends only on the cells within *width* of its edge,
+    so a tile whose grid shares an edge with the survey pads it exactly as
+    the whole survey does (a plane fitted to the whole grid would depend on
+    the tile's extent).
+    """
+    if width <= 0:
+        return grid
+    return _pad_rows(_pad_rows(np.asarray(grid, dtype=np.float64), width).T, width).T
+
+
+def _pad_rows(grid: np.ndarray, width: int) -> np.ndarray:
+    """Pad the columns' ends of every row (see :func:`pad_linear`)."""
+    rows, cols = grid.shape
+    band = min(width, cols)
+    out = np.empty((rows, cols + 2 * width))
+    out[:, width : width + cols] = grid
+    ahead = np.arange(1, width + 1, dtype=np.float64)
+    # between two cells, so that one edge of the lower hull spans it (at a cell, every line under it would)
+    middle = band // 2 - 0.5 if band % 2 == 0 else band // 2 + 0.5
+    # every pair of cells (i, j) that straddles that point: the lower hull there is the lowest of their chords
+    pairs = [(i, j) for i in range(band) for j in range(i + 1, band) if i <= middle <= j]
+    i, j = (np.array([p[n] for p in pairs], dtype=np.int64) for n in (0, 1))
+    for side in ("low", "high"):
+        cells = grid[:, :band][:, ::-1] if side == "low" else grid[:, cols - band :]
+        # cells ordered towards the edge: position k = 0 .. band-1, the edge cell last
+        if band > 1:
+            slopes = (cells[:, j] - cells[:, i]) / (j - i)
+            at_middle = cells[:, i] + slopes * (middle - i)
+            best = np.argmin(at_middle, axis=1)
+            slope = slopes[np.arange(rows), best]
+            edge = at_middle[np.arange(rows), best] + slope * (band - 1 - middle)
+        else:
+            slope, edge = np.zeros(rows), cells[:, -1]
+        values = edge[:, None] + slope[:, None] * ahead
+        if side == "low":
+            out[:, :width] = values[:, ::-1]
+        else:
+            out[:, width + cols :] = values
+    return out
+
+
+def pad_plane(grid: np.ndarray, width: int) -> np.ndarray:
+    """Pad a grid by *width* cells, continuing the slope of one plane fitted to the whole grid (PMF's padding).
+
+    A least-squares plane is fitted to the whole grid; the residual from it
+    is padded with its lowest value within *width* cells of each edge, and
+    the plane is added back.  A planar slope thus continues exactly, and an
+    object cut by the survey's boundary is bordered by ground-level padding,
+    so an opening can still remove it.  Flat ("nearest") padding instead
+    makes every uphill edge look like the foot of an object, which an
+    opening then lowers.
+    """
+    if width <= 0:
+        return grid
+    rows, cols = grid.shape
+    yy, xx = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    design = np.column_stack((np.ones(grid.size), xx.ravel(), yy.ravel()))
+    coef, *_ = np.linalg.lstsq(design, grid.ravel(), rcond=None)
+    plane = coef[0] + coef[1] * xx + coef[2] * yy
+    residual = np.pad(grid - plane, width, mode="minimum", stat_length=width)
+    pyy, pxx = np.mgrid[-width : rows + width, -width : cols + width].astype(np.float64)
+    return residual + coef[0] + coef[1] * pxx + coef[2] * pyy
+
+
+def disk(radius: int) -> np.ndarray:
+    """Boolean disk structuring element of the given radius in cells."""
+    r = np.arange(-radius, radius + 1)
+    return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2 + 1e-9

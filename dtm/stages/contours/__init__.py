@@ -1,0 +1,1 @@
+"""Stage ``contours``: contour lines of the DTM."""

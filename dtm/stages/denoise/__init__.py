@@ -1,0 +1,1 @@
+"""Stage ``denoise``: isolated points and low outliers classed as noise."""

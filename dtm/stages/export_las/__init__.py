@@ -1,0 +1,1 @@
+"""Stage ``export_las``: the classified points as LAZ (and COPC)."""

@@ -1,0 +1,1 @@
+"""Stage ``export_tiles``: the DTM as COG tiles and a VRT."""

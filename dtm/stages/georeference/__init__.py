@@ -1,0 +1,1 @@
+"""Stage ``georeference``: trajectory + pulses -> georeferenced points in strips."""

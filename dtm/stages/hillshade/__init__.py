@@ -1,0 +1,1 @@
+"""Stage ``hillshade``: the shaded relief of the DTM."""

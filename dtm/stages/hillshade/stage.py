@@ -1,0 +1,66 @@
+"""Stages ``hillshade`` and ``contours``: map products derived from the DTM.
+
+- ``hillshade``: ``hillshade.tif`` (COG, Byte: shades 1-255, nodata 0, as
+  ``gdaldem hillshade`` writes it) and ``hillshade.png`` (the same bytes,
+  nodata black), Horn's method.
+- ``contours``: ``contours.gpkg``, a GeoPackage layer ``contours`` of line
+  strings with an ``elevation`` attribute, every ``interval`` metres; lines
+  and elevations in the CRS's units (:mod:`dtm.common.units`).
+
+Separate stages so that restyling them never re-grids the DTM.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from dtm.common.rasters import png_bytes, read_raster, write_cog
+from dtm.common.units import raster_units
+from pipeline.stage import Stage, StageParams
+
+#: Nodata of the Byte hillshade (shades are 1-255, as gdaldem writes them).
+HILLSHADE_NODATA = 0
+
+
+class HillshadeParams(StageParams):
+    azimuth: float = Field(
+        315.0, ge=0, lt=360, description="direction the light comes from, degrees clockwise from north"
+    )
+    altitude: float = Field(45.0, gt=0, le=90, description="light elevation above the horizon, degrees")
+    z_factor: float = Field(1.0, gt=0, description="vertical exaggeration")
+
+
+class Hillshade(Stage):
+    name = "hillshade"
+    version = "2"  # 2: Byte, shades 1-255, nodata 0
+    Params = HillshadeParams
+    description = "shaded relief of the DTM (GeoTIFF and PNG)"
+    inputs = ("dtm",)
+    outputs: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}
+    products: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}
+
+    def run(self, ctx) -> None:
+        from dtm.common.shading import hillshade
+
+        dem, transform, crs, res = read_raster(ctx.inputs["dtm"])
+        p = ctx.params
+        units = raster_units(crs)  # slopes from metres on both axes, whatever the CRS's units
+        shade = hillshade(
+            dem * units.vertical, res * units.horizontal, azimuth=p.azimuth, altitude=p.altitude, z_factor=p.z_factor
+        )
+        image = np.where(np.isnan(shade), HILLSHADE_NODATA, np.clip(np.nan_to_num(shade).round(), 1, 255))
+        image = image.astype(np.uint8)
+        write_cog(
+            ctx.outputs["hillshade"],
+            image,
+            transform=transform,
+            crs=crs,
+            nodata=HILLSHADE_NODATA,
+            dtype="uint8",
+            unit=None,
+        )
+        ctx.outputs["hillshade_png"].write_bytes(png_bytes(image))
+        ctx.metrics.update(azimuth=p.azimuth, altitude=p.altitude)

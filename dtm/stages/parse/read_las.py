@@ -1,0 +1,738 @@
+"""Format 3.D: already georeferenced LAS/LAZ (LAS 1.2 to 1.4, any point format).
+
+Files are read in chunks and normalised to LAS 1.4 in the output CRS, point
+format 6, or 7 when every input has RGB, 8 when every input also has NIR
+(:func:`point_layout`).  Every attribute the output format shares with the
+input is kept (intensity, returns, classification and its flags, scan
+angle, user data, point source id = the flight strip, GPS time, scanner
+channel, scan direction, edge of flight line, RGB, NIR), and so are the
+extra-byte dimensions every input has, and the GPS time type (global
+encoding bit 0).  What cannot be kept (waveform packets, colour or extra
+bytes only some inputs have) is named in :attr:`LasReadReport.dropped`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dtm.common.clouds import PointLayout, open_las_writer
+from dtm.common.crs import header_crs, output_crs
+from dtm.common.las_guard import las_parse_errors, open_las
+from dtm.stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
+from pipeline.errors import InputDataError
+
+#: Largest extent accepted in any axis (m): twice the Earth's diameter.
+MAX_SPAN_M = 2.6e7
+#: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
+SCAN_ANGLE_UNIT_DEG = 0.006
+#: Dimensions read apart: coordinates (scaled, transformed), the scan angle (two encodings), the GPS time.
+_APART = frozenset({"X", "Y", "Z", "scan_angle", "scan_angle_rank", "gps_time"})
+
+
+@dataclass
+class LasReadReport:
+    """Counters of one read: points per file and what was assumed."""
+
+    points: dict[str, int] = field(default_factory=dict)
+    crs_source: dict[str, str] = field(default_factory=dict)
+    gps_time_missing: list[str] = field(default_factory=list)
+    #: Per file: points whose return number was 0 (invalid in LAS), read as 1.
+    return_number_zero: dict[str, int] = field(default_factory=dict)
+    #: Per file: points outside the header's bounds, flagged withheld (they must not size a grid).
+    outside_header_bounds: dict[str, int] = field(default_factory=dict)
+    #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
+    header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: Points far from the survey's dense core (inside the header's bounds), flagged withheld.
+    far_from_survey: int = 0
+    #: Horizontal box (xmin, ymin, xmax, ymax, output CRS units) of the points not withheld as stray.
+    usable_box: list[float] | None = None
+    #: Per file: why its header CRS was not used (unreadable: input.crs used instead).
+    crs_notes: dict[str, str] = field(default_factory=dict)
+    #: Per file: how its header CRS was read (GeoKey units honoured, as GDAL reads them).
+    crs_read_as: dict[str, str] = field(default_factory=dict)
+    dropped: list[str] = field(default_factory=list)
+
+
+def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
+    """The output point records that keep what every input holds, and a note per thing dropped.
+
+    RGB is kept (format 7) when every input has it, NIR too (format 8) when
+    every input has it; an extra-byte dimension when every input has one of
+    that name, type, scale and offset.  Waveform packets are never kept (the
+    waveform data is not carried).  The GPS time type is the inputs'
+    (files without GPS time do not count); inputs that disagree are an
+    error, since week seconds cannot be turned into standard time without
+    the week.
+
+    Raises
+    ------
+    InputDataError
+        When inputs with GPS time disagree on its type.
+    """
+    from dtm.common.clouds import PointLayout
+
+    headers = []
+    for path in paths:
+        with open_las(path) as reader:
+            headers.append((path, reader.header))
+    dims = [set(h.point_format.standard_dimension_names) for _, h in headers]
+    rgb = all("red" in d for d in dims)
+    nir = rgb and all("nir" in d for d in dims)
+    point_format = 8 if nir else 7 if rgb else 6
+    import laspy
+
+    out_dims = set(laspy.PointFormat(point_format).standard_dimension_names)
+    notes = []
+    for (path, _), d in zip(headers, dims, strict=True):
+        lost = sorted(d - out_dims - _APART)
+        if lost:
+            why = "waveform data is not carried" if lost[0].startswith(("wave", "return_point", "x_t")) else ""
+            why = why or "not in every input file"
+            notes.append(f"{path}: {', '.join(lost)} dropped ({why})")
+    extra = []
+    for dim in headers[0][1].point_format.extra_dimensions:
+        same = all(
+            any(_same_dimension(dim, other) for other in h.point_format.extra_dimensions) for _, h in headers[1:]
+        )
+        params = _extra_bytes_params(dim) if same else None
+        if params is not None:
+            extra.append(params)
+    kept = {p.name for p in extra}
+    for path, h in headers:
+        lost = [dim.name for dim in h.point_format.extra_dimensions if dim.name not in kept]
+        if lost:
+            notes.append(f"{path}: extra bytes {', '.join(lost)} dropped (not in every input file with one type)")
+    with_time = [(path, h) for path, h in headers if "gps_time" in h.point_format.dimension_names]
+    adjusted = {int(h.global_encoding.gps_time_type) for _, h in with_time}
+    if len(adjusted) > 1:
+        week = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 0)
+        standard = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 1)
+        raise InputDataError(
+            f"{standard} has adjusted standard GPS time but {week} GPS week seconds (global encoding bit 0); "
+            "process them in separate runs or convert one of them."
+        )
+    records = {}
+    for kind in ("vlrs", "evlrs"):
+        own = [[v for v in (getattr(h, kind) or []) if _carried(v)] for _, h in headers]
+        shared = set.intersection(*({_vlr_key(v) for v in vs} for vs in own))
+        records[kind] = [v for v in own[0] if _vlr_key(v) in shared]
+        for (path, _), vs in zip(headers, own, strict=True):
+            lost = [f"{v.user_id} {v.record_id}" for v in vs if _vlr_key(v) not in shared]
+            if lost:
+                notes.append(
+                    f"{path}: {kind[:-1].upper()} {', '.join(lost)} dropped (not the same in every input file)"
+                )
+    layout = PointLayout(
+        point_format=point_format,
+        extra=tuple(extra),
+        gps_adjusted=adjusted == {1},
+        synthetic_returns=any(h.global_encoding.synthetic_return_numbers for _, h in headers),
+        vlrs=tuple(records["vlrs"]),
+        evlrs=tuple(records["evlrs"]),
+    )
+    return layout, notes
+
+
+def _carried(vlr) -> bool:
+    """Whether a (E)VLR of the input is carried to the output as it is.
+
+    Not: the CRS (``LASF_Projection``, liblas' WKT; the writer adds the output
+    CRS), extra-byte descriptions (``LASF_Spec`` 4; made from the layout),
+    LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354).
+    """
+    user = vlr.user_id.strip("\0 ")
+    if user in ("LASF_Projection", "laszip encoded") or (user == "liblas" and vlr.record_id == 2112):
+        return False
+    return not (user == "LASF_Spec" and (vlr.record_id == 4 or 100 <= vlr.record_id <= 354))
+
+
+def _vlr_key(vlr) -> tuple:
+    data = vlr.record_data_bytes() if hasattr(vlr, "record_data_bytes") else bytes(vlr.record_data)
+    return vlr.user_id, vlr.record_id, data
+
+
+def _same_dimension(a, b) -> bool:
+    """Whether two extra-byte dimensions have the same name, type, scale and offset."""
+
+    def arr(v):
+        return None if v is None else np.asarray(v).tolist()
+
+    return (a.name, a.type_str(), arr(a.scales), arr(a.offsets)) == (
+        b.name,
+        b.type_str(),
+        arr(b.scales),
+        arr(b.offsets),
+    )
+
+
+def _extra_bytes_params(dim):
+    """laspy's description of an extra-byte dimension to write, or None when it has no usable type."""
+    import laspy
+
+    try:
+        return laspy.ExtraBytesParams(
+            name=dim.name,
+            type=dim.type_str(),
+            description=dim.description or "",
+            offsets=dim.offsets,
+            scales=dim.scales,
+            no_data=dim.no_data,
+        )
+    except (TypeError, ValueError, laspy.LaspyException):
+        return None
+
+
+def _file_crs(path: Path, header, assign, override=None, report: LasReadReport | None = None):
+    """The CRS of one file's coordinates and where it came from, checked against them.
+
+    ``input.override_crs`` (*override*) replaces whatever the header says;
+    otherwise the header's CRS, and ``input.crs`` (*assign*) for a header
+    without one — or with one that cannot be read (an empty WKT), noted in
+    the *report*.  The coordinates the header's bounds announce must be possible
+    in that CRS (:func:`dtm.common.crs.crs_problem`), or the file is refused
+    with the key that fixes it.
+    """
+    if override is not None:
+        crs, source = override, "input.override_crs"
+    else:
+        try:
+            crs, note = header_crs(header)
+            source = "header"
+            if note is not None and report is not None:
+                report.crs_read_as[str(path)] = note
+        except Exception as exc:
+            if assign is None:
+                raise InputDataError(
+                    f"{path}: the CRS in the LAS header cannot be read ({exc}); set input.override_crs "
+                    "to the CRS of its coordinates (for example EPSG:2180)."
+                ) from None
+            crs, source = None, "input.crs"
+            if report is not None:
+                report.crs_notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
+        if crs is None:
+            if assign is None:
+                raise InputDataError(
+                    f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
+                )
+            crs, source = assign, "input.crs"
+    _check_fits(path, header, crs, source)
+    return crs, source
+
+
+def _check_fits(path: Path, header, crs, source: str) -> None:
+    """Refuse a file whose header bounds cannot be coordinates in *crs* (one sentence with the way out)."""
+    from dtm.common.crs import crs_problem
+
+    if int(header.point_count) == 0:
+        return
+    problem = crs_problem(crs, header.mins, header.maxs)
+    if problem is None:
+        return
+    if source == "header":
+        way = "the header's CRS is wrong: set input.override_crs to the CRS the coordinates are in"
+    else:
+        way = f"the CRS given in {source} does not fit them: set {source} to the CRS the coordinates are in"
+    raise InputDataError(f"{path}: {problem}; {way}.")
+
+
+def count_points(paths: list[Path]) -> int:
+    """Number of points the headers of *paths* announce (for progress only)."""
+    total = 0
+    for path in paths:
+        with open_las(path) as reader:
+            total += int(reader.header.point_count)
+    return total
+
+
+def las_chunks(
+    paths: list[Path],
+    *,
+    crs_setting: str,
+    assign_crs,
+    chunk_size: int,
+    report,
+    progress=None,
+    layout: PointLayout | None = None,
+    override_crs=None,
+):
+    """Read LAS/LAZ files chunk by chunk, in the output CRS.
+
+    Yields
+    ------
+    crs : pyproj.CRS
+        The output CRS (the same for every chunk).
+    columns : dict
+        ``x``, ``y``, ``z`` (float64, output CRS), ``scan_angle`` (degrees),
+        ``gps_time`` and the attributes of one chunk of points that the
+        output's *layout* (default: :func:`point_layout`) holds; extra
+        bytes as stored (unscaled).
+
+    The *report* (:class:`LasReadReport`) is filled as files are read.
+    What is repaired, counted in it: return number 0 (invalid) is read as 1;
+    points outside the header's horizontal bounds are flagged withheld (a
+    stray point must not size the grids); records beyond the header's point
+    count (uncompressed LAS) are read too.
+
+    Raises
+    ------
+    InputDataError
+        When a file is not LAS/LAZ, is truncated, or has no usable CRS.
+    """
+    import pyproj
+
+    if layout is None:
+        layout, report.dropped = point_layout(paths)
+    copied = _copied(layout)
+    target = None
+    for path in paths:
+        with open_las(path) as reader:
+            header = reader.header
+            src_crs, source = _file_crs(path, header, assign_crs, override_crs, report)
+            report.crs_source[str(path)] = source
+            _read_all_records(path, header, report)
+            bounds = _header_box(header)
+            if target is None:
+                centre = None
+                if not src_crs.is_projected:
+                    centre = (
+                        float((header.mins[0] + header.maxs[0]) / 2),
+                        float((header.mins[1] + header.maxs[1]) / 2),
+                    )
+                target = output_crs(crs_setting, src_crs, centre)
+            transformer = None
+            if not src_crs.equals(target):
+                transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
+            dims = set(header.point_format.dimension_names)
+            if "gps_time" not in dims:
+                report.gps_time_missing.append(str(path))
+            n_read = 0
+            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+            try:
+                for chunk in reader.chunk_iterator(chunk_size):
+                    x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+                    stray = _outside(bounds, x, y)
+                    raw_ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+                    if transformer is not None:
+                        x, y, z = transformer.transform(x, y, z)
+                    bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
+                    if bad.any():
+                        i = int(np.argmax(bad))
+                        why = (
+                            f"cannot be transformed from {src_crs.name} to {target.name} (outside the area of either?)"
+                            if raw_ok[i]
+                            else "are not finite numbers (damaged scale or offset in the header?)"
+                        )
+                        raise InputDataError(f"{path}: the coordinates of point {n_read + i} {why}.")
+                    n = len(chunk)
+                    cols = {
+                        "x": np.asarray(x, dtype=np.float64),
+                        "y": np.asarray(y, dtype=np.float64),
+                        "z": np.asarray(z, dtype=np.float64),
+                    }
+                    if n:
+                        xyz = (cols["x"], cols["y"], cols["z"])
+                        lo, hi = _extend(path, lo, hi, [v.min() for v in xyz], [v.max() for v in xyz], target)
+                    if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
+                        cols["scan_angle"] = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
+                    else:  # formats 0-5: scan angle rank, whole degrees
+                        cols["scan_angle"] = np.asarray(chunk.scan_angle_rank, dtype=np.float64)
+                    cols["gps_time"] = (
+                        np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
+                    )
+                    for name in copied:
+                        cols[name] = np.asarray(chunk[name]) if name in dims else np.zeros(n, np.uint8)
+                    for extra in layout.extra:
+                        cols[extra.name] = np.asarray(chunk.array[extra.name])
+                    _repair(path, cols, stray, report)
+                    _grow_box(report, cols["x"][~stray], cols["y"][~stray])
+                    n_read += n
+                    if progress is not None:
+                        progress.update(n)
+                    yield target, cols
+            except las_parse_errors() as exc:
+                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+            report.points[str(path)] = n_read
+
+
+#: Points farther outside their header's bounds than this share of its span (or
+#: 100 scale steps) are stray: flagged withheld so that they size no grid.
+HEADER_BOUNDS_TOLERANCE = 0.01
+
+
+def _header_box(header) -> np.ndarray | None:
+    """The horizontal box (xmin, ymin, xmax, ymax) a header announces, widened by the tolerance; None if unusable.
+
+    Bounds that are not finite, inverted, or all zero (never filled in) are
+    not a box to check points against.
+    """
+    mins, maxs = np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)
+    if int(header.point_count) == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+        return None
+    if (mins[:2] > maxs[:2]).any() or not (mins[:2].any() or maxs[:2].any()):
+        return None
+    tol = np.maximum(HEADER_BOUNDS_TOLERANCE * (maxs[:2] - mins[:2]), 100.0 * np.asarray(header.scales[:2]))
+    return np.concatenate((mins[:2] - tol, maxs[:2] + tol))
+
+
+def _outside(box: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Points outside *box* (see :func:`_header_box`), in the file's own CRS."""
+    if box is None:
+        return np.zeros(len(x), dtype=bool)
+    return (x < box[0]) | (y < box[1]) | (x > box[2]) | (y > box[3])
+
+
+def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: LasReadReport) -> bool:
+    """Return number 0 read as 1; stray points flagged withheld; both counted in *report*.  True if *cols* changed."""
+    key = str(path)
+    zero = cols["return_number"] == 0
+    if zero.any():
+        cols["return_number"] = np.where(zero, 1, cols["return_number"]).astype(cols["return_number"].dtype)
+        cols["number_of_returns"] = np.maximum(cols["number_of_returns"], 1).astype(cols["number_of_returns"].dtype)
+        report.return_number_zero[key] = report.return_number_zero.get(key, 0) + int(zero.sum())
+    if stray.any():
+        cols["withheld"] = np.asarray(cols["withheld"], dtype=bool) | stray
+        report.outside_header_bounds[key] = report.outside_header_bounds.get(key, 0) + int(stray.sum())
+    return bool(zero.any() or stray.any())
+
+
+def _grow_box(report: LasReadReport, x: np.ndarray, y: np.ndarray) -> None:
+    """Grow the report's box of usable points by a chunk's."""
+    if len(x) == 0:
+        return
+    box = [float(x.min()), float(y.min()), float(x.max()), float(y.max())]
+    old = report.usable_box
+    report.usable_box = box if old is None else [*np.minimum(old[:2], box[:2]), *np.maximum(old[2:], box[2:])]
+
+
+def _records_held(path: Path, header) -> int | None:
+    """How many point records an uncompressed LAS holds (None for LAZ: not known without decompressing).
+
+    The records are the bytes between the point data's offset and the end of
+    the file (or the first extended VLR), over the record length.
+    """
+    if header.point_format.id > 10 or header.are_points_compressed:
+        return None
+    size = path.stat().st_size
+    end = min(int(getattr(header, "start_of_first_evlr", 0) or 0) or size, size)
+    record = int(header.point_format.size)
+    return max(0, end - int(header.offset_to_point_data)) // record if record else None
+
+
+def _read_all_records(path: Path, header, report: LasReadReport) -> None:
+    """Read every record of an uncompressed LAS even when its header announces fewer (counted in *report*)."""
+    held, announced = _records_held(path, header), int(header.point_count)
+    if held is not None and held > announced:
+        report.header_count_short[str(path)] = (announced, held)
+        header.point_count = held
+
+
+def _copied(layout: PointLayout) -> list[str]:
+    """The standard dimensions of *layout*'s point format copied as they are."""
+    import laspy
+
+    return [n for n in laspy.PointFormat(layout.point_format).standard_dimension_names if n not in _APART]
+
+
+def read_las_files(
+    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
+) -> tuple[object, LasReadReport]:
+    """Read LAS/LAZ files into one LasData (format 6, LAS 1.4) in the output CRS.
+
+    Parameters
+    ----------
+    paths : list of Path
+        Input files; their points are concatenated in order.
+    crs_setting : str
+        The configured output CRS (``auto-utm`` or a pyproj user input).
+    assign_crs : pyproj.CRS or None
+        CRS for files whose header has none.
+    chunk_size : int
+        Points per read.
+    progress : Progress, optional
+        Advanced by the number of points read.
+    override_crs : pyproj.CRS or None
+        CRS of every file, replacing whatever its header says.
+
+    Raises
+    ------
+    InputDataError
+        When a file is not LAS/LAZ, is truncated, or has no usable CRS.
+    """
+    report = LasReadReport()
+    layout, report.dropped = point_layout(paths)
+    parts: list[dict[str, np.ndarray]] = []
+    target = None
+    for crs, cols in las_chunks(
+        paths,
+        crs_setting=crs_setting,
+        assign_crs=assign_crs,
+        chunk_size=chunk_size,
+        report=report,
+        progress=progress,
+        layout=layout,
+        override_crs=override_crs,
+    ):
+        target = crs
+        parts.append(cols)
+    if target is None:  # no point at all: still resolve the CRS from the first header
+        with open_las(paths[0]) as reader:
+            src_crs, _ = _file_crs(paths[0], reader.header, assign_crs, override_crs)
+            centre = None
+            if not src_crs.is_projected:
+                h = reader.header
+                centre = (float((h.mins[0] + h.maxs[0]) / 2), float((h.mins[1] + h.maxs[1]) / 2))
+            target = output_crs(crs_setting, src_crs, centre)
+    names = ("x", "y", "z", "scan_angle", "gps_time", *_copied(layout), *(e.name for e in layout.extra))
+    merged = {k: (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)) for k in names}
+    return _build(merged, target, layout), report
+
+
+def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
+
+    Horizontal bounds of a file in another CRS are transformed with the
+    edges densified (pyproj ``transform_bounds``).  Non-finite bounds (a
+    damaged header) are left out; the points are checked against the
+    writer's range as they are written (:func:`convert_las_files`).
+    """
+    import pyproj
+
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for path in paths:
+        with open_las(path) as reader:
+            h = reader.header
+            mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
+            if h.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+                continue
+            crs, _ = _file_crs(path, h, assign_crs, override_crs)
+            if not crs.equals(target):
+                t = pyproj.Transformer.from_crs(crs, target, always_xy=True)
+                x0, y0, x1, y1 = t.transform_bounds(mins[0], mins[1], maxs[0], maxs[1], densify_pts=21)
+                mins, maxs = np.array([x0, y0, mins[2]]), np.array([x1, y1, maxs[2]])
+            lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
+    return lo, hi
+
+
+def convert_las_files(
+    paths: list[Path], dst: Path, *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
+) -> tuple[object, LasReadReport, set[int]]:
+    """Convert LAS/LAZ files to one LAS 1.4 format-6 file in the output CRS, chunk by chunk.
+
+    Memory holds one chunk, whatever the survey's size.  The writer's
+    offsets and scale come from the headers' bounds (:func:`header_bounds`;
+    from the first chunk when no header has usable bounds); a point outside
+    the range they allow is an error naming the file (its header's bounds
+    are wrong).
+
+    Returns
+    -------
+    crs : pyproj.CRS
+        The output CRS.
+    report : LasReadReport
+    strips : set of int
+        The point source ids met.
+    """
+
+    from dtm.common.clouds import point_header
+
+    report = LasReadReport()
+    layout, report.dropped = point_layout(paths)
+    strips: set[int] = set()
+    same = _copyable(paths, crs_setting, assign_crs, layout, override_crs)
+    if same is not None:
+        target, grid = _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout)
+        _record_withheld(report, withhold_isolated(dst, counted=grid))
+        return target, report, strips
+    writer = None
+    target = None
+    try:
+        for target, cols in las_chunks(
+            paths,
+            crs_setting=crs_setting,
+            assign_crs=assign_crs,
+            chunk_size=chunk_size,
+            report=report,
+            progress=progress,
+            layout=layout,
+            override_crs=override_crs,
+        ):
+            n = len(cols["x"])
+            if writer is None:
+                lo, hi = header_bounds(paths, target, assign_crs, override_crs)
+                if not np.isfinite(lo).all():
+                    lo = np.array([cols[k].min() for k in "xyz"]) if n else None
+                    hi = np.array([cols[k].max() for k in "xyz"]) if n else None
+                header = point_header(target, lo, hi, layout=layout)
+                writer = open_las_writer(dst, header)
+            if not n:
+                continue
+            for k, axis in zip("xyz", range(3), strict=True):
+                units = (cols[k] - header.offsets[axis]) / header.scales[axis]
+                if units.min() < -(2.0**31) or units.max() >= 2.0**31:
+                    raise InputDataError(
+                        f"the points of {', '.join(str(p) for p in paths)} reach {k} = "
+                        f"{float(cols[k][np.argmax(np.abs(units))]):.3f}, outside the bounds their LAS headers "
+                        "announce (a damaged header: bytes 179-226)."
+                    )
+            writer.write_points(_record(cols, header))
+            strips.update(int(v) for v in np.unique(cols["point_source_id"]))
+        if writer is None:  # no point at all: an empty file with the output CRS
+            las, _ = read_las_files(
+                paths, crs_setting=crs_setting, assign_crs=assign_crs, chunk_size=chunk_size, override_crs=override_crs
+            )
+            target = las.header.parse_crs()
+            writer = open_las_writer(dst, point_header(target, layout=layout))
+    finally:
+        if writer is not None:
+            writer.close()
+    _record_withheld(report, withhold_isolated(dst))
+    return target, report, strips
+
+
+def _record_withheld(report: LasReadReport, far: Withheld | None) -> None:
+    """Count the points far from the survey in *report*, with the usable points' new box."""
+    if far is not None:
+        report.far_from_survey = report.far_from_survey + far.count
+        report.usable_box = far.usable_box
+
+
+def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray]:
+    """The running bounds *lo*, *hi* of a file's points grown by a chunk's extremes.
+
+    Extremes that are not finite (a huge scale overflows) or a span beyond
+    any survey are errors naming the file.
+    """
+    from dtm.common.units import Units
+
+    if not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+        raise InputDataError(
+            f"{path}: points have coordinates that are not finite numbers (damaged scale or offset in the header?)."
+        )
+    lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
+    span = Units.of(crs).horizontal * float(np.max(hi - lo))
+    if span > MAX_SPAN_M:
+        raise InputDataError(
+            f"{path}: the points span {span:.3g} m, more than any survey on Earth "
+            "(damaged scale or offset in the header?)."
+        )
+    return lo, hi
+
+
+def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayout, override_crs=None):
+    """The output CRS when the input can be copied record for record, else None.
+
+    That is one LAS 1.4 file whose records are those of *layout* (point
+    format 6, 7 or 8 with its extra bytes), already in the output CRS: its points, scale and offsets are kept as delivered
+    (no re-quantisation, nothing recomputed), which is also the fastest.
+    """
+    if len(paths) != 1:
+        return None
+    with open_las(paths[0]) as reader:
+        h = reader.header
+        if str(h.version) != "1.4" or h.point_format.id != layout.point_format:
+            return None
+        if [e.name for e in layout.extra] != list(h.point_format.extra_dimension_names):
+            return None
+        if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
+            return None
+        if override_crs is not None or (_records_held(paths[0], h) or 0) > h.point_count:
+            return None  # the header's CRS or count is not the file's: convert, which handles both
+        src_crs, source = _file_crs(paths[0], h, assign_crs)
+        if source != "header" or not src_crs.is_projected:
+            return None
+        target = output_crs(crs_setting, src_crs, None)
+        return target if target.equals(src_crs) else None
+
+
+def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress, layout):
+    """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`).
+
+    Returns the output CRS and the points counted on the isolation grid over
+    the input header's bounds (:class:`IsolationGrid`; None when those bounds
+    are unusable or a point lies outside them): the output's bounds are its
+    points' extremes, so when the header's were right the count is the one
+    :func:`withhold_isolated` needs, without a pass of its own.
+    """
+
+    from dtm.common.clouds import point_header
+
+    n_read = 0
+    with open_las(path) as reader:
+        h = reader.header
+        report.crs_source[str(path)] = "header"
+        box = _header_box(h)
+        header = point_header(target, layout=layout)
+        header.offsets, header.scales = h.offsets, h.scales
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        seen = np.zeros(65536, dtype=bool)
+        spans = np.asarray(h.maxs[:2], dtype=np.float64) - np.asarray(h.mins[:2], dtype=np.float64)
+        usable = box is not None and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
+        grid = IsolationGrid(h.mins, h.maxs) if usable else None
+        with open_las_writer(dst, header) as writer:
+            try:
+                for chunk in reader.chunk_iterator(chunk_size):
+                    n = len(chunk)
+                    if n:
+                        seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
+                        x, y = np.asarray(chunk.x), np.asarray(chunk.y)
+                        stray = _outside(box, x, y)
+                        cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns", "withheld")}
+                        if _repair(path, cols, stray, report):
+                            for k, v in cols.items():
+                                chunk[k] = v
+                        if stray.any():
+                            _grow_box(report, x[~stray], y[~stray])
+                        else:
+                            _grow_box(report, x, y)
+                    writer.write_points(chunk)
+                    if n:  # the writer's header holds the extremes of the points written so far
+                        lo, hi = _extend(path, lo, hi, writer.header.mins, writer.header.maxs, target)
+                        if grid is not None and grid.covers((lo[0], hi[0]), (lo[1], hi[1])):
+                            grid.add(x, y)
+                        else:
+                            grid = None
+                    n_read += n
+                    if progress is not None:
+                        progress.update(n)
+            except las_parse_errors() as exc:
+                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+    report.points[str(path)] = n_read
+    strips.update(int(v) for v in np.flatnonzero(seen))
+    return target, grid
+
+
+def _record(cols: dict[str, np.ndarray], header):
+    """A chunk of columns as a point record for *header* (format 6-8, extra bytes as stored)."""
+    import laspy
+
+    n = len(cols["x"])
+    rec = laspy.ScaleAwarePointRecord.zeros(n, header=header)
+    rec.x, rec.y, rec.z = cols["x"], cols["y"], cols["z"]
+    rec.scan_angle = np.clip(np.round(cols["scan_angle"] / SCAN_ANGLE_UNIT_DEG), -30000, 30000).astype(np.int16)
+    rec.gps_time = cols["gps_time"]
+    standard = set(header.point_format.standard_dimension_names)
+    for name, values in cols.items():
+        if name in standard and name not in _APART:
+            rec[name] = values
+        elif name not in standard and name not in ("x", "y", "z", "scan_angle", "gps_time"):
+            rec.array[name] = values  # an extra-byte dimension, unscaled
+    return rec
+
+
+def _build(cols: dict[str, np.ndarray], crs, layout: PointLayout):
+    import laspy
+
+    from dtm.common.clouds import point_header
+
+    n = len(cols["x"])
+    if n:
+        xyz = np.column_stack((cols["x"], cols["y"], cols["z"]))
+        header = point_header(crs, xyz.min(axis=0), xyz.max(axis=0), layout=layout)
+    else:
+        header = point_header(crs, layout=layout)
+    las = laspy.LasData(header)
+    las.points = _record(cols, header)
+    return las

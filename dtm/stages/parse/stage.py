@@ -1,0 +1,570 @@
+"""Stage ``parse``: read the survey's input files into the common intermediates.
+
+Its parameters are the configuration's ``input`` block; ``input.format``
+chooses the reader:
+
+- ``las`` (SPEC 3.D): georeferenced LAS/LAZ.  Output: the point cloud
+  (``points_georef``), already in the output CRS; georeferencing does not
+  apply.
+- ``ldmrs_mtig`` (3.A), ``lmsq_nmea`` (3.B) and ``lmsq_sbet`` (3.C), the raw
+  formats.  Outputs: the ``trajectory`` (time, lat, lon, h, roll, pitch,
+  yaw and, when the files give them, sigmas) and the ``pulses`` (time,
+  vector in the scanner frame, echo, channel, angle, amplitude, flags,
+  scan), folders of ``.npy`` columns with a ``meta.json`` that states the
+  conventions (time system, attitude frame, mounting); and ``qc/`` with the
+  counters of everything skipped (``debug.txt``) and the trajectory as CSV
+  (``lla_eul_vel.csv``; for 3.A also the seed-0 ``scans.txt``).  The
+  ``georeference`` stage turns them into points.
+
+Times everywhere: GPS seconds since 1980-01-06 (UTC + ``leap_seconds`` for
+the UTC-stamped formats; week x 604800 + seconds of week for the others).
+"""
+
+from __future__ import annotations
+
+from datetime import date
+from pathlib import Path
+from typing import Annotated, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field, field_validator
+
+from dtm.common.crs import check_crs_setting
+from pipeline.config import InputFile, StrictModel
+from pipeline.errors import ConfigError, InputDataError
+from pipeline.stage import Stage, StageIO, get_dotted
+
+FORMAT_HELP = "input format: las | ldmrs_mtig | lmsq_nmea | lmsq_sbet (SPEC 3.A-3.D)"
+
+
+class LasInput(StrictModel):
+    """Already georeferenced LAS/LAZ files (SPEC 3.D)."""
+
+    format: Literal["las"] = Field(description=FORMAT_HELP)
+    paths: Annotated[list[InputFile], Field(min_length=1, description="LAS/LAZ files, relative to the config file")]
+    crs: str | None = Field(
+        None,
+        description="CRS of input files whose header has none or an unreadable one (PDAL's default_srs); e.g. EPSG:25830",
+    )
+    override_crs: str | None = Field(
+        None,
+        description="CRS of every input file, replacing whatever its header says (PDAL's override_srs); e.g. EPSG:26912",
+    )
+    chunk_size: int = Field(1_000_000, ge=1000, description="points read at a time")
+
+    @field_validator("crs", "override_crs")
+    @classmethod
+    def _known_crs(cls, value: str | None) -> str | None:
+        return check_crs_setting(value)
+
+
+class LeverArm(StrictModel):
+    """A mounting not in the seed's presets: LD-MRS -> MTi-G is Ry(+90 deg), then this lever arm."""
+
+    lever_arm_m: tuple[float, float, float] = Field(description="MPOS x, y, z in MTi-G axes, metres")
+
+
+class LdmrsInput(StrictModel):
+    """The seed-0 acquisition log, LD-MRS scanner + MTi-G GPS/INS (SPEC 3.A)."""
+
+    format: Literal["ldmrs_mtig"] = Field(description=FORMAT_HELP)
+    paths: Annotated[list[InputFile], Field(min_length=1, description="acquisition logs (.log or .log.gz), in order")]
+    mounting: Literal["laboratorio", "pilatus", "cb5000"] | LeverArm = Field(
+        description="seed-0 Table 15 preset, or {lever_arm_m: [x, y, z]} (required: it is never guessed)"
+    )
+    leap_seconds: float = Field(18.0, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time")
+
+
+class _LmsqCommon(StrictModel):
+    paths: Annotated[list[InputFile], Field(min_length=1, description=".lmsq scanner streams, in time order")]
+    boresight_deg: tuple[float, float, float] = Field(
+        description="scanner -> body rotation: roll, pitch, yaw in degrees, R = Rz(yaw) Ry(pitch) Rx(roll) (required)"
+    )
+    lever_arm_m: tuple[float, float, float] = Field(
+        description="scanner origin in the body frame (x forward, y right, z down), metres, from the INS centre (required)"
+    )
+    gps_week: int | None = Field(
+        None, ge=0, description="GPS week of the seconds-of-week times (default: from the stream's first PPS record)"
+    )
+
+
+class LmsqNmeaInput(_LmsqCommon):
+    """The seed-2 design: .lmsq scanner stream + NMEA GNSS log + INS attitude CSV (SPEC 3.B)."""
+
+    format: Literal["lmsq_nmea"] = Field(description=FORMAT_HELP)
+    nmea: InputFile = Field(
+        description="NMEA log (any talker: $xxGGA or GNS, HDT, VTG, GST, ZDA, RMC; $PASHR); .gz accepted"
+    )
+    ins: InputFile | None = Field(
+        None,
+        description="INS CSV gps_sow,roll_deg,pitch_deg,heading_deg (NED); .gz accepted; "
+        "default: the NMEA log's $PASHR attitude (an error when it has none)",
+    )
+    nmea_date: date | None = Field(
+        None, description="UTC date of the first NMEA time when the log has no $xxZDA or $xxRMC (never guessed)"
+    )
+    geoid_separation_m: float | None = Field(
+        None,
+        description="geoid separation (m) of fixes whose GGA/GNS separation field is empty (default: from "
+        "stages.georeference.geoid; neither: an error, never 0)",
+    )
+    leap_seconds: float = Field(18.0, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time")
+    max_gap_s: float = Field(
+        1.0, gt=0, description="INS epochs inside a gap of GNSS positions longer than this get no position, seconds"
+    )
+
+
+class LmsqSbetInput(_LmsqCommon):
+    """The same .lmsq stream with an Applanix SBET trajectory (+ optional smrmsg) (SPEC 3.C)."""
+
+    format: Literal["lmsq_sbet"] = Field(description=FORMAT_HELP)
+    sbet: InputFile = Field(description="SBET trajectory (17 float64 per record)")
+    smrmsg: InputFile | None = Field(None, description="smrmsg accuracy file (10 float64 per record), optional")
+
+
+#: The ``input`` block: one model per format, chosen by ``format``.
+InputConfig = Annotated[LasInput | LdmrsInput | LmsqNmeaInput | LmsqSbetInput, Field(discriminator="format")]
+
+#: Columns every raw-format trajectory has (extra columns: sigmas, and for 3.A scan, velocity, status).
+TRAJECTORY_COLUMNS = ("time", "lat", "lon", "h", "roll", "pitch", "yaw")
+LDMRS_TRAJECTORY_SCHEMA = {
+    "time": "f8", "lat": "f8", "lon": "f8", "h": "f8", "roll": "f8", "pitch": "f8", "yaw": "f8",
+    "scan": "u2", "vx": "f8", "vy": "f8", "vz": "f8", "status": "u1",
+}  # fmt: skip
+#: ``flags`` bit of an .lmsq measurement dated from the us counter after a missed PPS
+RECOVERED_FLAG = 0x80
+#: The pulses of every raw format.
+PULSES_SCHEMA = {
+    "time": "f8", "x": "f8", "y": "f8", "z": "f8", "echo": "u1", "channel": "u1", "angle": "f8",
+    "amplitude": "u1", "flags": "u1", "scan": "u2",
+}  # fmt: skip
+
+
+class Parse(Stage):
+    """Read the configured input into the pipeline's intermediates."""
+
+    name = "parse"
+    # 9: LD-MRS scans in time order; LAS: override_crs, header checks, stray points withheld, return 0 read as 1,
+    # the input's GPS time type, RGB, NIR, extra bytes kept; 8: .lmsq measurements after a missed PPS dated by the
+    # us counter; NMEA dated by ZDA/RMC anywhere; angles modulo 360; 7: LAS 1.4 format 6 copied as delivered
+    version = "9"
+    Params = InputConfig
+    config_path = "input"
+    can_disable = False
+    config_keys = ("crs", "stages.georeference.geoid")  # the geoid: NMEA fixes without a geoid separation
+    description = "read the input files (format from input.format)"
+    outputs: ClassVar = {"points_georef": "points.las"}
+
+    def is_enabled(self, params, config) -> bool:
+        return True
+
+    def declare(self, params, config) -> StageIO:
+        if params.format == "las":
+            return StageIO(outputs={"points_georef": "points.las"})
+        return StageIO(outputs={"trajectory": "trajectory", "pulses": "pulses", "qc": "qc"}, products={"qc": "qc"})
+
+    def external_files(self, params, config) -> list[Path]:
+        files = list(params.paths)
+        for key in ("nmea", "ins", "sbet", "smrmsg"):
+            value = getattr(params, key, None)
+            if value is not None:
+                files.append(value)
+        geoid = get_dotted(config, "stages.georeference.geoid")
+        if params.format == "lmsq_nmea" and geoid is not None:
+            files.append(geoid)
+        return files
+
+    def run(self, ctx) -> None:
+        if ctx.params.format == "ldmrs_mtig":
+            return self._run_ldmrs(ctx)
+        if ctx.params.format in ("lmsq_nmea", "lmsq_sbet"):
+            return self._run_lmsq(ctx)
+        return self._run_las(ctx)
+
+    def _run_ldmrs(self, ctx) -> None:
+        from dtm.common.columns import NpyColumns
+        from dtm.common.rotation import rot_y
+        from dtm.stages.parse.read_ldmrs import MOUNTINGS, Counters, TimeOrder, TimeOrderError, read_ldmrs_mtig
+
+        p = ctx.params
+        counters = Counters()
+        qc = ctx.outputs["qc"]
+        qc.mkdir()
+        lever = MOUNTINGS[p.mounting] if isinstance(p.mounting, str) else p.mounting.lever_arm_m
+        conventions = {
+            "format": p.format,
+            "time": "GPS seconds since 1980-01-06 (UTC + leap_seconds)",
+            "leap_seconds": p.leap_seconds,
+        }
+        trajectory_meta = {
+            **conventions,
+            "convention": "NWU",
+            "position": "WGS 84 latitude, longitude (deg), ellipsoidal height (m)",
+            "attitude": "MTi-G body (x forward, y left, z up) vs local-level NWU: R = Rz(yaw) Ry(pitch) Rx(roll), "
+            "degrees, yaw counter-clockwise from north",
+            "velocity": "body frame, m/s",
+        }
+        pulses_meta = {
+            **conventions,
+            "frame": "LD-MRS: x optical axis, y left, z up; metres",
+            "mounting": p.mounting if isinstance(p.mounting, str) else "custom",
+            "rotation": rot_y(np.pi / 2).round(15).tolist(),
+            "lever_arm": list(lever),
+            "body_axes": "MTi-G: x forward, y left, z up",
+        }
+        with (
+            NpyColumns(ctx.outputs["trajectory"], LDMRS_TRAJECTORY_SCHEMA, trajectory_meta) as traj,
+            NpyColumns(ctx.outputs["pulses"], PULSES_SCHEMA, pulses_meta) as pulses,
+            open(qc / "scans.txt", "w", encoding="utf-8") as scans_txt,
+            open(qc / "lla_eul_vel.csv", "w", encoding="utf-8") as lla_csv,
+            ctx.progress(len(p.paths), "reading acquisition logs", unit="file") as bar,
+        ):
+            lla_csv.write("scan,time_gps,lat_deg,lon_deg,h_m,roll_deg,pitch_deg,yaw_deg,vx_ms,vy_ms,vz_ms\n")
+
+            def write(scans: list) -> None:
+                for scan in scans:
+                    lat, lon, h = scan.lla
+                    roll, pitch, yaw = scan.euler
+                    vx, vy, vz = scan.vel
+                    traj.append(
+                        scan=[scan.number], time=[scan.time_gps], lat=[lat], lon=[lon], h=[h], roll=[roll],
+                        pitch=[pitch], yaw=[yaw], vx=[vx], vy=[vy], vz=[vz], status=[scan.status],
+                    )  # fmt: skip
+                    lla_csv.write(
+                        f"{scan.number},{scan.time_gps:.6f},{lat:.10f},{lon:.10f},{h:.4f},"
+                        f"{roll:.7f},{pitch:.7f},{yaw:.7f},{vx:.3f},{vy:.3f},{vz:.3f}\n"
+                    )
+                    n = len(scan.points)
+                    if n:
+                        scans_txt.write(f"{scan.number}\n")
+                        pts = scan.points
+                        pulses.append(
+                            time=np.full(n, scan.time_gps), x=pts[:, 3], y=pts[:, 4], z=pts[:, 5], echo=pts[:, 1],
+                            channel=pts[:, 0], angle=np.degrees(np.arctan2(pts[:, 4], pts[:, 3])),
+                            amplitude=np.zeros(n), flags=pts[:, 2], scan=np.full(n, scan.number),
+                        )  # fmt: skip
+
+            order = TimeOrder(counters)  # across files: a survey's logs in time order
+            try:
+                for path in p.paths:
+                    for scan in _guard_stream(
+                        read_ldmrs_mtig(path, counters, leap_seconds=p.leap_seconds), path, counters
+                    ):
+                        write(order.feed(scan))
+                    bar.update(1)
+                write(order.flush())
+            except TimeOrderError as exc:
+                raise InputDataError(f"{exc}.") from None
+        figures = {k: v for k, v in vars(counters).items() if k != "locations"}
+        _write_debug(qc, figures, counters.locations, sum(path.stat().st_size for path in p.paths))
+        ctx.metrics.update(figures, problems=list(counters.locations))
+        skipped = counters.invalid_scans + counters.bad_gps + counters.malformed_scans
+        skipped += counters.duplicate_scans + counters.out_of_order_scans
+        ctx.log.info(
+            "%d of %d scans accepted (%d invalid UTC, %d bad GPS, %d malformed, %d repeated, %d out of time order; "
+            "%d lost, %d empty); %d valid points",
+            counters.scans_accepted, counters.scans_total, counters.invalid_scans, counters.bad_gps,
+            counters.malformed_scans, counters.duplicate_scans, counters.out_of_order_scans, counters.lost_scans,
+            counters.empty_scans, counters.points_valid,
+        )  # fmt: skip
+        if skipped:
+            ctx.log.warning("%d scans skipped; see qc/debug.txt", skipped)
+        if counters.scans_accepted == 0:
+            where = counters.locations[0] if counters.locations else ", ".join(str(x) for x in p.paths)
+            raise InputDataError(
+                f"no usable scan in the acquisition log ({counters.scans_total} scans read; first problem: {where})."
+            )
+
+    def _run_lmsq(self, ctx) -> None:
+        from dtm.common.columns import NpyColumns
+        from dtm.common.rotation import euler_matrix
+        from dtm.stages.parse.read_ins import TrajectoryCounters
+        from dtm.stages.parse.read_lmsq import LmsqCounters, first_pps_week, read_lmsq
+
+        p = ctx.params
+        qc = ctx.outputs["qc"]
+        qc.mkdir()
+        week = p.gps_week
+        if week is None:
+            week = first_pps_week(p.paths[0])
+            if week is None:
+                raise InputDataError(
+                    f"{p.paths[0]}: no PPS record at the start of the stream, so the GPS week of the "
+                    "navigation files is unknown; set input.gps_week."
+                )
+            ctx.log.info("GPS week %d (from the first PPS record of %s)", week, p.paths[0].name)
+        nav_counters = TrajectoryCounters()
+        if p.format == "lmsq_nmea":
+            geoid = get_dotted(ctx.config, "stages.georeference.geoid")
+            trajectory, extra = _nmea_ins_trajectory(p, week, nav_counters, ctx.log, geoid)
+        else:
+            trajectory, extra = _sbet_trajectory(p, week, nav_counters)
+        if len(trajectory["time"]) < 2:
+            where = nav_counters.locations[0] if nav_counters.locations else "no epoch with position and attitude"
+            files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)) if f)
+            raise InputDataError(f"{files}: fewer than two usable navigation epochs (first problem: {where}).")
+        conventions = {"format": p.format, "time": "GPS seconds since 1980-01-06", "gps_week": week}
+        traj_meta = {
+            **conventions,
+            "convention": "NED",
+            "position": "WGS 84 latitude, longitude (deg), ellipsoidal height (m)",
+            "attitude": "body (x forward, y right, z down) vs local-level NED: R = Rz(yaw) Ry(pitch) Rx(roll), degrees, "
+            "yaw = true heading, clockwise from north",
+        }
+        schema = {name: "f8" for name in trajectory}
+        with NpyColumns(ctx.outputs["trajectory"], schema, traj_meta) as traj:
+            traj.append(**trajectory)
+        _write_trajectory_csv(qc / "lla_eul_vel.csv", trajectory)
+        pulses_meta = {
+            **conventions,
+            "frame": "scanner: x forward, y starboard, z down; a pulse at mirror angle t is range x (0, sin t, cos t)",
+            "rotation": euler_matrix(*np.radians(p.boresight_deg)).tolist(),
+            "boresight_deg": list(p.boresight_deg),
+            "lever_arm": list(p.lever_arm_m),
+            "body_axes": "x forward, y right, z down",
+            "flags": "bits 0-5: the measurement's quality; bit 7 (0x80): time recovered from the us counter "
+            "after a missed PPS",
+        }
+        counters = LmsqCounters()
+        total = sum(path.stat().st_size for path in p.paths)
+        with (
+            NpyColumns(ctx.outputs["pulses"], PULSES_SCHEMA, pulses_meta) as pulses,
+            ctx.progress(total, "reading scanner streams", unit="B") as bar,
+        ):
+            for path in p.paths:
+                last = 0
+                for block in read_lmsq(path, counters):
+                    th = np.radians(block["angle_deg"])
+                    r = block["range_m"]
+                    n = len(r)
+                    pulses.append(
+                        time=block["time"], x=np.zeros(n), y=r * np.sin(th), z=r * np.cos(th), echo=block["echo"],
+                        channel=np.zeros(n), angle=block["angle_deg"], amplitude=block["amplitude"],
+                        flags=block["quality"] | np.where(block["recovered"], RECOVERED_FLAG, 0).astype(np.uint8),
+                        scan=np.zeros(n),
+                    )  # fmt: skip
+                    done = int(block["byte"][-1])
+                    bar.update(done - last)
+                    last = done
+        figures = {f"scanner_{k}": v for k, v in vars(counters).items()}
+        figures["pulses_read"] = pulses.rows
+        figures.update({f"navigation_{k}": v for k, v in vars(nav_counters).items() if k != "locations"})
+        figures.update(extra)
+        figures["trajectory_epochs"] = len(trajectory["time"])
+        _write_debug(qc, figures, nav_counters.locations, total)
+        ctx.metrics.update(figures, problems=list(nav_counters.locations), gps_week=week)
+        skipped = counters.before_first_pps + counters.pps_ambiguous + counters.invalid_quality
+        ctx.log.info(
+            "%d measurements read: %d kept, %d after a missed PPS (%d dated from the us counter and kept, "
+            "%d ambiguous), %d invalid quality, %d before the first PPS; %d trajectory epochs",
+            counters.measurements, pulses.rows, counters.missed_pps, counters.pps_recovered,
+            counters.pps_ambiguous, counters.invalid_quality, counters.before_first_pps, len(trajectory["time"]),
+        )  # fmt: skip
+        if skipped or counters.truncated_bytes:
+            ctx.log.warning("%d measurements skipped, %d bytes cut off; see qc/debug.txt", skipped,
+                            counters.truncated_bytes)  # fmt: skip
+        if pulses.rows == 0:
+            raise InputDataError(
+                f"no usable measurement in {', '.join(str(x) for x in p.paths)} "
+                f"({counters.measurements} read, {counters.pps_ambiguous} after a missed PPS and ambiguous, "
+                f"{counters.invalid_quality} invalid, {counters.before_first_pps} before the first PPS)."
+            )
+
+    def _run_las(self, ctx) -> None:
+        import pyproj
+
+        from dtm.stages.parse.read_las import convert_las_files, count_points
+
+        params = ctx.params
+        total = count_points(list(params.paths))
+        assign = pyproj.CRS.from_user_input(params.crs) if params.crs else None
+        override = pyproj.CRS.from_user_input(params.override_crs) if params.override_crs else None
+        with ctx.progress(total, "reading LAS/LAZ", unit="pt") as bar:
+            crs, report, strips = convert_las_files(
+                list(params.paths),
+                ctx.outputs["points_georef"],
+                crs_setting=ctx.config.crs,
+                assign_crs=assign,
+                chunk_size=params.chunk_size,
+                progress=bar,
+                override_crs=override,
+            )
+        _log_las_report(ctx.log, report, override)
+        if not sum(report.points.values()):
+            files = ", ".join(str(x) for x in params.paths)
+            raise InputDataError(f"{files}: no point in the file (its header announces 0 and no record follows).")
+        from dtm.common.units import Units
+
+        _check_dtm_size(ctx.config, report.usable_box, Units.of(crs), ", ".join(str(x) for x in params.paths))
+
+        ctx.metrics.update(
+            points_read=int(sum(report.points.values())),
+            points_per_file=report.points,
+            crs=crs.name,
+            crs_epsg=crs.to_epsg(),
+            crs_source=report.crs_source,
+            strips=sorted(strips),
+            units=Units.of(crs).describe(),
+            return_number_zero=report.return_number_zero,
+            outside_header_bounds=report.outside_header_bounds,
+            far_from_survey=report.far_from_survey,
+            header_count_short={k: list(v) for k, v in report.header_count_short.items()},
+            crs_notes=report.crs_notes,
+            crs_read_as=report.crs_read_as,
+            fields_dropped=report.dropped,
+        )
+        ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
+
+
+def _check_dtm_size(config, box, units, source: str) -> None:
+    """Refuse, right after reading, a survey whose DTM grid the machine cannot hold (not hours later)."""
+    raster = getattr(config.stages, "rasterize", None)
+    if box is None or raster is None or not raster.enabled:
+        return
+    from dtm.common.grid import Grid, check_grid_size
+
+    lo = units.to_metres(np.array([[box[0], box[1], 0.0]]))[0]
+    hi = units.to_metres(np.array([[box[2], box[3], 0.0]]))[0]
+    metres = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    check_grid_size(Grid.covering(*metres, raster.resolution), metres, units, source=source)
+
+
+def _log_las_report(log, report, override) -> None:
+    """Say what the LAS reader repaired or assumed: every count, never silently."""
+    if override is not None:
+        log.info("input.override_crs: %s replaces the header CRS of every input file", override.name)
+    for path, note in report.crs_read_as.items():  # GDAL's reading of the GeoKeys, not a repair
+        log.info("%s: %s", path, note)
+    for path, note in report.crs_notes.items():
+        log.warning("%s: %s", path, note)
+    for note in report.dropped:
+        log.warning("%s", note)
+    if report.gps_time_missing:
+        log.warning("no GPS time in %s: gps_time set to 0", ", ".join(report.gps_time_missing))
+    for path, n in report.return_number_zero.items():
+        log.warning("%s: %d points have return number 0 (invalid in LAS): read as 1", path, n)
+    for path, n in report.outside_header_bounds.items():
+        log.warning(
+            "%s: %d points lie outside the header's bounds: flagged withheld (kept in points.laz, "
+            "left out of every grid and filter)",
+            path,
+            n,
+        )
+    if report.far_from_survey:
+        log.warning(
+            "%d points lie far from the survey's dense core: flagged withheld (kept in points.laz, left out of every "
+            "grid and filter)",
+            report.far_from_survey,
+        )
+    for path, (announced, held) in report.header_count_short.items():
+        log.warning("%s: the header announces %d points but the file holds %d records: all read", path, announced, held)
+
+
+def _guard_stream(iterator, path: Path, counters):
+    """Iterate a reader; a damaged compressed stream ends the file with a note, not a traceback."""
+    import zlib
+
+    try:
+        yield from iterator
+    except (EOFError, zlib.error, OSError) as exc:
+        counters.malformed_scans += 1
+        counters.note(f"{path}: the compressed stream is damaged ({exc}); the rest of the file is unreadable")
+
+
+def _write_debug(qc: Path, figures: dict, locations: list[str], size: int) -> None:
+    """``qc/debug.txt``: every counter, the input size, the first problems with their locations."""
+    lines = [f"{k} {v}" for k, v in figures.items()]
+    lines += ["", f"input bytes {size}", "first problems:" if locations else "problems: none"]
+    lines += [f"  {where}" for where in locations]
+    (qc / "debug.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def _write_trajectory_csv(path: Path, traj: dict[str, np.ndarray]) -> None:
+    names = list(traj)
+    table = np.column_stack([traj[n] for n in names])
+    fmt = ["%.6f", "%.10f", "%.10f", "%.4f"] + ["%.7f"] * (len(names) - 4)
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, table, fmt=fmt, delimiter=",")
+
+
+def _nmea_ins_trajectory(p, week: int, counters, log, geoid=None) -> tuple[dict[str, np.ndarray], dict]:
+    """3.B: INS attitude epochs with positions from the GNSS log (cubic spline in time between GNSS epochs).
+
+    The attitude is the INS CSV's, or without one the NMEA log's ``$PASHR``.
+    INS epochs outside the GNSS span, or inside a gap between GNSS epochs
+    longer than ``max_gap_s``, are dropped and counted.
+    """
+    from scipy.interpolate import CubicSpline
+
+    from dtm.stages.parse.read_ins import canonical_attitude, increasing, read_ins_csv
+    from dtm.stages.parse.read_nmea import NmeaCounters, read_nmea
+
+    nmea_counters = NmeaCounters()
+    nav = read_nmea(p.nmea, nmea_counters, day=p.nmea_date, leap_seconds=p.leap_seconds,
+                    separation_m=p.geoid_separation_m, geoid=geoid)  # fmt: skip
+    counters.locations.extend(nmea_counters.locations[:10])
+    pos = nav.position
+    keep = increasing(pos["time"], counters, "GGA", lambda i: f"{p.nmea}, GGA epoch {i + 1}")
+    pos = {k: v[keep] for k, v in pos.items()}
+    if p.ins is not None:
+        ins = read_ins_csv(p.ins, week, counters)
+    else:
+        att = nav.attitude
+        if not len(att["time"]):
+            raise ConfigError(f"{p.nmea}: the log has no $PASHR attitude; set input.ins (the INS attitude CSV).")
+        keep = increasing(att["time"], counters, "PASHR", lambda i: f"{p.nmea}, PASHR epoch {i + 1}")
+        roll, pitch, heading = canonical_attitude(att["roll_deg"][keep], att["pitch_deg"][keep],
+                                                  att["heading_deg"][keep])  # fmt: skip
+        ins = {"time": att["time"][keep], "roll": roll, "pitch": pitch, "heading": heading}
+    extra = {f"nmea_{k}": v for k, v in vars(nmea_counters).items() if k not in ("locations", "unread")}
+    extra.update({f"nmea_unread_{kind}": n for kind, n in sorted(nmea_counters.unread.items())})
+    extra["gnss_epochs"] = len(pos["time"])
+    if nmea_counters.fixes_2d:
+        log.warning("%d 2-D fixes (GGA/GNS without altitude) in %s: not used as positions",
+                    nmea_counters.fixes_2d, p.nmea.name)  # fmt: skip
+    if len(pos["time"]) < 2:
+        raise InputDataError(
+            f"{p.nmea}: fewer than two usable GGA positions ({nmea_counters.sentences} sentences read)."
+        )
+    tg, ti = pos["time"], ins["time"]
+    i = np.clip(np.searchsorted(tg, ti, side="right") - 1, 0, len(tg) - 2)
+    inside = (ti >= tg[0]) & (ti <= tg[-1]) & ((tg[i + 1] - tg[i]) <= p.max_gap_s)
+    extra["ins_epochs_without_position"] = int((~inside).sum())
+    if extra["ins_epochs_without_position"]:
+        log.warning("%d INS epochs outside the GNSS positions or in gaps over %g s: dropped",
+                    extra["ins_epochs_without_position"], p.max_gap_s)  # fmt: skip
+    t = ti[inside]
+    spline = CubicSpline(tg, np.column_stack((pos["lat"], pos["lon"], pos["h"])), axis=0)
+    lla = spline(t)
+    out = {"time": t, "lat": lla[:, 0], "lon": lla[:, 1], "h": lla[:, 2], "roll": ins["roll"][inside],
+           "pitch": ins["pitch"][inside], "yaw": ins["heading"][inside]}  # fmt: skip
+    sig = nav.sigma
+    if len(sig["time"]) >= 1:
+        order = np.argsort(sig["time"], kind="stable")
+        st = sig["time"][order]
+        out["sigma_north_m"] = np.interp(t, st, sig["sigma_lat_m"][order])
+        out["sigma_east_m"] = np.interp(t, st, sig["sigma_lon_m"][order])
+        out["sigma_up_m"] = np.interp(t, st, sig["sigma_h_m"][order])
+    return out, extra
+
+
+def _sbet_trajectory(p, week: int, counters) -> tuple[dict[str, np.ndarray], dict]:
+    """3.C: the SBET as it is (true heading = platform heading - wander), sigmas from the smrmsg."""
+    from dtm.stages.parse.read_ins import read_sbet, read_smrmsg
+
+    sb = read_sbet(p.sbet, week, counters)
+    out = {"time": sb["time"], "lat": sb["lat"], "lon": sb["lon"], "h": sb["h"], "roll": sb["roll"],
+           "pitch": sb["pitch"], "yaw": sb["heading"]}  # fmt: skip
+    extra = {}
+    if p.smrmsg is not None:
+        sm = read_smrmsg(p.smrmsg, week, counters)
+        extra["smrmsg_epochs"] = len(sm["time"])
+        if not len(sm["time"]):
+            where = counters.locations[0] if counters.locations else f"{p.smrmsg.stat().st_size} bytes"
+            raise InputDataError(f"{p.smrmsg}: no usable smrmsg record ({where}); fix the file or remove input.smrmsg.")
+        for src, dst in (("sigma_north_m", "sigma_north_m"), ("sigma_east_m", "sigma_east_m"),
+                         ("sigma_down_m", "sigma_up_m"), ("sigma_roll_deg", "sigma_roll_deg"),
+                         ("sigma_pitch_deg", "sigma_pitch_deg"), ("sigma_heading_deg", "sigma_heading_deg")):  # fmt: skip
+            out[dst] = np.interp(out["time"], sm["time"], sm[src])
+    return out, extra

@@ -1,0 +1,1 @@
+"""Stage ``rasterize``: DTM, DSM, nDSM and density rasters."""

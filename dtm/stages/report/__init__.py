@@ -1,0 +1,1 @@
+"""Stage ``report``: the QC page and the acceptance verdicts."""

@@ -1,0 +1,285 @@
+"""Acceptance of a survey against a named specification: the limits as data, the verdicts.
+
+Each specification is a tuple of :class:`Limit`, each with the document,
+edition and table it comes from, so a reviewer can trace every PASS / FAIL to
+its source.  Chosen with ``stages.report.specification``; the report shows the
+verdicts and writes them to ``qc/acceptance.json``.
+
+Sources
+-------
+- U.S. Geological Survey, *Lidar Base Specification 2023 rev. A* (3DEP,
+  Techniques and Methods 11-B4 online edition): Table 1 (aggregate nominal
+  pulse spacing and density), Table 2 (relative vertical accuracy of swath
+  data: smooth surface repeatability and swath overlap difference), Table 4
+  (absolute vertical accuracy: NVA at 95 % confidence = 1.96 RMSEz, 19.6 cm
+  for QL1 and QL2; VVA = 95th percentile, 30 cm), section "Data Voids" (a
+  void is an area of at least (4 x ANPS)^2 with no first return).
+- ASPRS, *Positional Accuracy Standards for Digital Geospatial Data*, Edition
+  2, Version 1.0 (August 2023) (Edition 1, 2014: doi:10.14358/PERS.81.3.A1-A26;
+  Edition 2 is summarised in doi:10.14358/PERS.89.10.581).  Edition 2 drops the 95 %
+  figures (accuracy is RMSE) and VVA pass/fail (VVA is reported only); its
+  Table 7.2 ties the data-internal-precision limits of a vertical accuracy
+  class X (RMSEz) to X: within-swath smooth-surface precision 0.6 X,
+  swath-to-swath RMSDz 0.8 X, swath-to-swath maximum difference 1.6 X.
+
+The ``checked`` field of each source says how the figure was checked for
+this code (the standards themselves are not in the repository).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+LBS = "USGS Lidar Base Specification"
+LBS_EDITION = "2023 rev. A"
+ASPRS = "ASPRS Positional Accuracy Standards for Digital Geospatial Data"
+ASPRS_EDITION = "Edition 2, Version 1.0 (2023)"
+
+
+@dataclass(frozen=True)
+class Source:
+    """Where a limit comes from."""
+
+    document: str
+    edition: str
+    table: str
+    checked: str = ""
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One requirement: ``measure`` compared with ``value`` (``min``: at least; ``max``: at most)."""
+
+    measure: str  # key of the measured value (see MEASURES)
+    bound: str  # "min" or "max"
+    value: float | None  # None: reported only, no pass/fail
+    unit: str
+    source: Source
+
+
+#: What each measured value is, as the report and acceptance.json say it.
+MEASURES = {
+    "anpd": "aggregate nominal pulse density: first returns per m² over the covered area",
+    "nva_95": "NVA: 1.96 × RMSEz of the DTM at non-vegetated check points (95 % confidence)",
+    "rmse_z_nv": "RMSEz of the DTM at non-vegetated check points",
+    "vva_95": "VVA: 95th percentile of |DTM − check point| at vegetated check points",
+    "smooth_surface_repeatability": "smooth surface repeatability (intraswath): median height range of one "
+    "strip's ground single returns about the DTM, per DTM cell, on level cells",
+    "swath_overlap_rmsdz": "swath overlap difference RMSDz: strip-to-strip distance at planar overlap patches, "
+    "after strip adjustment",
+    "swath_overlap_max": "swath overlap difference, largest |mean difference| of a cell of strip_difference_after.tif",
+    "voids": "data voids: empty squares of side 4 × ANPS (first returns) inside the covered area",
+}
+
+_T1 = "Table 1 (aggregate nominal pulse spacing and density)"
+_T2 = "Table 2 (relative vertical accuracy for lidar swath data)"
+_T4 = "Table 4 (absolute vertical accuracy for lidar data and DEMs)"
+_VOIDS = "Collection: Data Voids ((4 × ANPS)², first returns)"
+_A72 = "Table 7.2 (vertical accuracy classes for digital elevation data), 10-cm class"
+# How each figure was checked for this code (the standards themselves are not in the repository; the search
+# tool's stored copies of public pages were searched on 2026-12-01, and neither the LBS tables nor the ASPRS
+# Edition 2 tables were among them).
+_TOC = (
+    "table numbering and titles: usgs.gov 'Lidar Base Specification v. 2.1 Table of Contents' "
+    "(https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification-v-21-table-contents)"
+)
+_SEEN_T1 = (
+    f"{_TOC}; QL2 at least 2 points/m2: USGS Open-File Report 2025-1017 (doi:10.3133/ofr20251017, "
+    "https://pubs.usgs.gov/publication/ofr20251017/full); QL1 = QL0 density: usgs.gov 'Topographic Data Quality "
+    "Levels (QLs)' (https://www.usgs.gov/3d-elevation-program/topographic-data-quality-levels-qls); 8 points/m2 "
+    "for QL1: secondary sources only"
+)
+_SEEN_T2 = (
+    f"{_TOC}; 6 cm (repeatability) and 8 cm (overlap RMSDz) for QL1/QL2: secondary source found by search; 8/16 cm: "
+    "the LBS swath separation image legend (usgs.gov); not confirmed in the table itself"
+)
+_SEEN_T4 = (
+    f"{_TOC}; QL2 RMSEz 10 cm (so NVA 1.96 x 10 = 19.6 cm): USGS Open-File Report 2025-1017 "
+    "(doi:10.3133/ofr20251017); VVA 30 cm for QL1 and QL2 (not 29.4 cm, the ASPRS 2014 10-cm class figure "
+    "earlier code used): secondary sources citing the LBS, e.g. pythonlidar.com 'Reporting NVA and VVA Accuracy' "
+    "(2026-09-18, https://www.pythonlidar.com/point-cloud-data-standards-fundamentals/vertical-accuracy-assessment/"
+    "reporting-nva-and-vva-accuracy/: QL1, QL2 RMSEz <= 10.0 cm, NVA <= 19.6 cm, VVA <= 30.0 cm); the table "
+    "itself not read"
+)
+_SEEN_VOIDS = (
+    f"{_TOC} (section Collection: Data Voids); voids are grounds for rejection: usgs.gov 'Lidar Base "
+    "Specification: Figures' (LBS 2024 rev. A online, Figures 1-3); the (4 x ANPS)^2 first-return rule: as "
+    "commonly quoted, not found by search"
+)
+_SEEN_ASPRS = (
+    "Edition 2 drops the 95 % figures and the VVA pass/fail: gpsworld.com 'ASPRS approves edition 2 of the ASPRS "
+    "Positional Accuracy Standards for Digital Geospatial Data' (2023-12-06, https://www.gpsworld.com/"
+    "asprs-approves-edition-2-of-the-asprs-positional-accuracy-standards-for-digital-geospatial-data/); the "
+    "0.6 / 0.8 / 1.6 x class limits of Table 7.2: from the standard's formulas, the table itself not found by search"
+)
+
+
+def _lbs(table: str) -> Source:
+    checked = {_T1: _SEEN_T1, _T2: _SEEN_T2, _T4: _SEEN_T4, _VOIDS: _SEEN_VOIDS}[table]
+    return Source(LBS, LBS_EDITION, table, checked)
+
+
+def _asprs(table: str) -> Source:
+    return Source(ASPRS, ASPRS_EDITION, table, _SEEN_ASPRS)
+
+
+def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
+    return (
+        Limit("anpd", "min", anpd, "pts/m²", _lbs(_T1)),
+        Limit("nva_95", "max", 0.196, "m", _lbs(_T4)),
+        Limit("vva_95", "max", 0.30, "m", _lbs(_T4)),
+        Limit("smooth_surface_repeatability", "max", 0.06, "m", _lbs(_T2)),
+        Limit("swath_overlap_rmsdz", "max", 0.08, "m", _lbs(_T2)),
+        Limit("swath_overlap_max", "max", 0.16, "m", _lbs(_T2)),
+        Limit("voids", "max", 0, "squares", _lbs(_VOIDS)),
+    )
+
+
+#: name -> (title, limits).  ``none``: measured values only, no verdict.
+SPECIFICATIONS: dict[str, tuple[str, tuple[Limit, ...]]] = {
+    "usgs-lbs-ql2": (f"{LBS} {LBS_EDITION}, quality level 2", _lbs_quality_level(2.0)),
+    "usgs-lbs-ql1": (f"{LBS} {LBS_EDITION}, quality level 1", _lbs_quality_level(8.0)),
+    "asprs-2023-10cm": (
+        f"{ASPRS}, {ASPRS_EDITION}, 10-cm vertical accuracy class",
+        (
+            Limit("rmse_z_nv", "max", 0.10, "m", _asprs(_A72)),
+            Limit("vva_95", "max", None, "m", _asprs("section 7.9: VVA is reported, without pass/fail")),
+            Limit("smooth_surface_repeatability", "max", 0.06, "m", _asprs(_A72)),
+            Limit("swath_overlap_rmsdz", "max", 0.08, "m", _asprs(_A72)),
+            Limit("swath_overlap_max", "max", 0.16, "m", _asprs(_A72)),
+        ),
+    ),
+    "none": ("no specification (measured values only)", ()),
+}
+DEFAULT_SPECIFICATION = "usgs-lbs-ql2"
+
+
+def evaluate(name: str, measured: dict[str, float | None], notes: dict[str, str] | None = None) -> dict:
+    """The verdict of every limit of specification *name* on the *measured* values.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`SPECIFICATIONS`.
+    measured : dict
+        Measure key -> value (None: not measured).
+    notes : dict, optional
+        Measure key -> why it was not measured.
+
+    Returns
+    -------
+    dict
+        ``specification``, ``title``, ``status`` (PASS when every limit with a
+        value passes, FAIL when one fails, INCOMPLETE when one could not be
+        measured and none fails, NONE without specification), ``checks`` (one
+        per limit: measure, description, bound, limit, unit, measured,
+        status, source) and ``measured`` (every value).
+
+    >>> r = evaluate("usgs-lbs-ql2", {"anpd": 1.0})
+    >>> r["checks"][0]["status"], r["status"]
+    ('FAIL', 'FAIL')
+    """
+    title, limits = SPECIFICATIONS[name]
+    notes = notes or {}
+    checks = []
+    for lim in limits:
+        value = measured.get(lim.measure)
+        if lim.value is None:
+            status = "REPORTED"
+        elif value is None or (isinstance(value, float) and not math.isfinite(value)):
+            status = "NOT MEASURED"
+        elif lim.bound == "min":
+            status = "PASS" if value >= lim.value else "FAIL"
+        else:
+            status = "PASS" if value <= lim.value else "FAIL"
+        checks.append(
+            {
+                "measure": lim.measure,
+                "description": MEASURES[lim.measure],
+                "bound": "at least" if lim.bound == "min" else "at most",
+                "limit": lim.value,
+                "unit": lim.unit,
+                "measured": value,
+                "status": status,
+                "note": notes.get(lim.measure) if status == "NOT MEASURED" else None,
+                "source": asdict(lim.source),
+            }
+        )
+    states = {c["status"] for c in checks}
+    overall = (
+        "NONE" if not limits else "FAIL" if "FAIL" in states else "INCOMPLETE" if "NOT MEASURED" in states else "PASS"
+    )
+    return {"specification": name, "title": title, "status": overall, "checks": checks, "measured": dict(measured)}
+
+
+def pulse_density(first_returns: np.ndarray, cell_m: float, block_m: float = 5.0) -> tuple[float | None, np.ndarray]:
+    """Aggregate nominal pulse density (first returns per m²) and the covered blocks.
+
+    Parameters
+    ----------
+    first_returns : ndarray (rows, cols)
+        First returns per cell of a grid of cell *cell_m* metres.
+    cell_m : float
+        Cell side, metres.
+    block_m : float
+        The covered area is counted in squares of about this side (a whole
+        number of cells, at least one): a square with a first return is
+        covered.  5 m by default, so a survey of 0.5 pulses/m² still has about
+        12 pulses a square and its gaps between scan lines are not taken for
+        uncovered ground.
+
+    Returns
+    -------
+    anpd : float or None
+        First returns / covered area (None: no first return).
+    covered : ndarray of bool
+        The covered blocks.
+
+    >>> grid = np.zeros((10, 10)); grid[:5, :] = 2.0   # 2 per 1-m cell on half the grid
+    >>> round(pulse_density(grid, 1.0, 5.0)[0], 6)
+    2.0
+    """
+    k = max(1, int(round(block_m / cell_m)))
+    blocks = block_sum(first_returns, k)
+    covered = blocks > 0
+    if not covered.any():
+        return None, covered
+    return float(first_returns.sum() / (covered.sum() * (k * cell_m) ** 2)), covered
+
+
+def voids(first_returns: np.ndarray, cell_m: float, anps_m: float) -> tuple[int, np.ndarray, float]:
+    """Empty squares of side at least 4 x ANPS inside the covered area (LBS "Data Voids").
+
+    Squares are whole numbers of cells, ``ceil(4 ANPS / cell)`` on a side, so
+    each empty one is a void by the specification's measure; the covered
+    area is the covered squares with their enclosed holes filled (a gap open
+    to the edge of the survey is outside it).
+
+    Returns
+    -------
+    count : int
+        Empty squares inside the covered area.
+    mask : ndarray of bool
+        Per cell: inside an empty square.
+    side_m : float
+        The square's side, metres.
+    """
+    from scipy import ndimage
+
+    k = max(1, int(math.ceil(4.0 * anps_m / cell_m)))
+    blocks = block_sum(first_returns, k)
+    covered = blocks > 0
+    inside = ndimage.binary_fill_holes(covered)
+    empty = inside & ~covered
+    mask = np.kron(empty, np.ones((k, k), dtype=bool))[: first_returns.shape[0], : first_returns.shape[1]]
+    return int(empty.sum()), mask, k * cell_m
+
+
+def block_sum(grid: np.ndarray, k: int) -> np.ndarray:
+    rows, cols = grid.shape
+    pad = np.zeros((-(-rows // k) * k, -(-cols // k) * k))
+    pad[:rows, :cols] = grid
+    return pad.reshape(pad.shape[0] // k, k, pad.shape[1] // k, k).sum(axis=(1, 3))

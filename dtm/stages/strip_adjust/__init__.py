@@ -1,0 +1,1 @@
+"""Stage ``strip_adjust``: overlapping flight strips made to agree."""

@@ -1,0 +1,418 @@
+"""System calibration from overlapping strips: boresight, lever arm, range offset (issue 23).
+
+Model.  Every pulse is georeferenced again through the exact equation of
+:mod:`dtm.common.georeferencing` with a corrected mounting::
+
+    p = pos(t) + R(t) . (dR . R_s^b . v_s (1 + dr / |v_s|) + a_b + da) [+ o_strip]
+
+``dR = Rz(yaw) Ry(pitch) Rx(roll)`` the boresight correction (in the body
+axes of the navigation convention: forward-right-down for NED, forward-
+left-up for NWU), ``da`` the lever-arm correction, ``dr`` a range offset
+and ``o_strip`` an optional 3-D trajectory offset per strip (local east,
+north, up).  The unknowns are found once for the whole flight from the
+overlaps, as TerraMatch and OPALS do and as Skaloud & Lichti (2006,
+"Rigorous approach to bore-sight self-calibration in airborne laser
+scanning", ISPRS J. 61(1), doi:10.1016/j.isprsjprs.2006.07.001) and Glira
+et al. (2015, "Rigorous strip adjustment of airborne laserscanning data
+based on the ICP algorithm", ISPRS Annals II-3/W5,
+doi:10.5194/isprsannals-II-3-W5-73-2015; issue 23 also cites
+doi:10.1016/j.isprsjprs.2015.06.002) formulate it; Filin (2003, "Recovery of systematic biases in laser
+altimetry data using natural surfaces", Photogramm. Eng. Remote Sens.
+69(11), doi:10.14358/PERS.69.11.1235) recovers the same biases from
+natural surfaces.
+
+Observations.  The smooth, well-sampled cells of each strip (the patches of
+:func:`dtm.stages.strip_adjust.icp.planar_patches`) are matched between strips at the
+same place (:func:`dtm.stages.strip_adjust.icp.match`).  For each matched pair the
+points of one strip are fitted with a quadratic surface and the mean signed
+distance of the other strip's points to it is one observation (point-to-
+surface, weight = its number of points); a ground control point inside a
+strip's patch is one observation of that strip's surface.  Both sides move
+with the unknowns: the surface is fitted again to the re-georeferenced
+points at every evaluation.
+
+Solution.  Gauss-Newton least squares with Huber weights (k = 2 robust
+sigmas); the Jacobian is computed numerically by central differences of
+the georeferencing function itself (each unknown moved by a small step, the
+pulses georeferenced again, the surfaces refitted), which is exact to the
+step's second order and needs no hand-derived partials.  Correspondences are
+searched again in each round (like ICP) with the current unknowns.
+
+Observability.  Before solving, the normal matrix of the first round is
+inverted; an unknown whose 1-sigma exceeds its limit, or which correlates
+beyond ``max_correlation`` with another (the one of the pair with the larger
+sigma relative to its limit), is held at its configured value, with a
+message naming the flight lines that would determine it.
+
+Departures from the references.  Skaloud & Lichti use conditions on planes
+chosen per patch and estimate plane parameters as unknowns; here each
+correspondence's surface is refitted from one strip's points at every
+evaluation (so there are no plane unknowns, and the surface noise is not
+propagated: the a-posteriori residual scale absorbs it).  Glira et al. also
+estimate time-dependent trajectory corrections; here only constant
+per-strip offsets are offered.  Filin's surface-based recovery uses a
+triangulated surface; here quadratic patches.  The estimation is done in the
+trajectory's local ENU frame (a rigid transform of ECEF: distances are
+exact); the output points go through the full equation to the output CRS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dtm.common.georeferencing import Mounting, Trajectory, georeference_local
+from dtm.common.rotation import euler_matrix
+
+NAMES = ("boresight_roll", "boresight_pitch", "boresight_yaw", "lever_arm_x", "lever_arm_y", "lever_arm_z",
+         "range_offset")  # fmt: skip
+#: which flight lines determine an unknown that the flight could not
+ADVICE = {
+    "boresight_roll": "overlapping lines flown in opposite directions (a roll error tilts the swath one way on "
+    "one line and the other way on the other)",
+    "boresight_pitch": "lines flown in opposite directions over the same ground with slopes or roofs (a pitch "
+    "error shifts the points forward on one line, backward on the other; on lines flown one way it is an "
+    "along-track offset)",
+    "boresight_yaw": "lines flown in opposite directions with overlapping swath edges, or a cross line (a yaw "
+    "error shifts the swath edges along track, in opposite senses)",
+    "lever_arm_x": "lines at two flying heights (a lever-arm error moves the points the same at any height, a "
+    "boresight error more the higher the flight), in opposite directions",
+    "lever_arm_y": "lines at two flying heights (a lever-arm error moves the points the same at any height, a "
+    "boresight error more the higher the flight), in opposite directions",
+    "lever_arm_z": "ground control points (a vertical lever-arm error lifts or lowers every strip alike)",
+    "range_offset": "ground control points, or a cross line (a range offset moves the swath edges differently "
+    "from its centre)",
+    "strip_offset": "more overlap with other strips, or ground control points in the strip",
+}
+
+
+@dataclass
+class Sample:
+    """The pulses of the estimation: trajectory interval and fraction, scanner vector, strip."""
+
+    i: np.ndarray
+    f: np.ndarray
+    v: np.ndarray  # (n, 3) scanner-frame vectors, metres
+    strip: np.ndarray  # (n,) strip id
+
+    def __post_init__(self) -> None:
+        self.range = np.linalg.norm(self.v, axis=1)
+
+    def subset(self, idx: np.ndarray) -> Sample:
+        return Sample(self.i[idx], self.f[idx], self.v[idx], self.strip[idx])
+
+
+@dataclass
+class Unknowns:
+    """The unknowns' names, finite-difference steps, sigma limits and which are estimated."""
+
+    names: list[str]
+    step: np.ndarray
+    limit: np.ndarray
+    free: list[int]
+    offset_strips: list[int] = field(default_factory=list)  # strips with an offset, in column order
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+
+def make_unknowns(*, lever_arm: bool, range_offset: bool, offset_strips: list[int], reference: int | None,
+                  limits: tuple[float, float, float, float]) -> Unknowns:  # fmt: skip
+    """Boresight (always), lever arm, range offset, per-strip offsets (not of the *reference* strip)."""
+    b, la, ro, so = limits
+    names = list(NAMES)
+    step = [1e-6] * 3 + [1e-3] * 4
+    limit = [np.radians(b)] * 3 + [la] * 3 + [ro]
+    free = [0, 1, 2] + ([3, 4, 5] if lever_arm else []) + ([6] if range_offset else [])
+    for s in offset_strips:
+        for axis in "enu":
+            names.append(f"strip_{s}_offset_{axis}")
+            step.append(1e-3)
+            limit.append(so)
+            if s != reference:
+                free.append(len(names) - 1)
+    return Unknowns(names, np.asarray(step), np.asarray(limit), free, list(offset_strips))
+
+
+def georeference_sample(traj: Trajectory, mounting: Mounting, sample: Sample, theta: np.ndarray,
+                        unknowns: Unknowns) -> np.ndarray:  # fmt: skip
+    """Local ENU points (n, 3) of *sample* under the corrections *theta* (radians and metres)."""
+    scale = 1.0 + theta[6] / np.maximum(sample.range, 1e-9)
+    corrected = Mounting(euler_matrix(*theta[:3]) @ mounting.rotation, mounting.lever_arm + theta[3:6])
+    v = sample.v * scale[:, None]
+    e, n, u = georeference_local(traj, v[:, 0], v[:, 1], v[:, 2], corrected, sample.i, sample.f)
+    xyz = np.column_stack((e, n, u))
+    if unknowns.offset_strips:
+        table = np.zeros((int(sample.strip.max(initial=0)) + 1, 3))
+        for k, s in enumerate(unknowns.offset_strips):
+            if s < len(table):
+                table[s] = theta[7 + 3 * k : 10 + 3 * k]
+        xyz += table[sample.strip]
+    return xyz
+
+
+@dataclass
+class Links:
+    """Correspondences: per link, the points fitted with a surface and the points (or one control point)
+    measured against it; indices into one :class:`Sample`."""
+
+    surf: np.ndarray
+    surf_group: np.ndarray
+    obs: np.ndarray
+    obs_group: np.ndarray
+    origin: np.ndarray  # (k, 3) the local frame of each link's surface
+    strips: np.ndarray  # (k, 2) surface strip, observed strip (0: a control point)
+    weight: np.ndarray  # (k,) base weight: points observed (a control point: 100)
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # control points, local ENU
+    fixed_group: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    @property
+    def size(self) -> int:
+        return len(self.origin)
+
+
+def _fit_quadratics(q: np.ndarray, group: np.ndarray, k: int, normals: bool = False):
+    """Least-squares z = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2 per group (coef (k, 6)); with
+    *normals*, also the regularised normal matrices (k, 6, 6)."""
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    basis = (np.ones_like(x), x, y, x * x, x * y, y * y)
+    ata = np.empty((k, 6, 6))
+    atb = np.empty((k, 6))
+    for i in range(6):
+        atb[:, i] = np.bincount(group, basis[i] * z, k)
+        for j in range(i, 6):
+            ata[:, i, j] = ata[:, j, i] = np.bincount(group, basis[i] * basis[j], k)
+    ata += 1e-9 * np.maximum(np.einsum("kii->k", ata), 1.0)[:, None, None] * np.eye(6)
+    coef = np.linalg.solve(ata, atb[:, :, None])[:, :, 0]
+    return (coef, ata) if normals else coef
+
+
+def distances(links: Links, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance of every observed point to its link's surface, and the link of each."""
+    k = links.size
+    coef = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k)
+    b = np.vstack((xyz[links.obs], links.fixed))
+    g = np.concatenate((links.obs_group, links.fixed_group))
+    q = b - links.origin[g]
+    c = coef[g]
+    x, y = q[:, 0], q[:, 1]
+    height = c[:, 0] + c[:, 1] * x + c[:, 2] * y + c[:, 3] * x * x + c[:, 4] * x * y + c[:, 5] * y * y
+    gx = c[:, 1] + 2 * c[:, 3] * x + c[:, 4] * y
+    gy = c[:, 2] + c[:, 4] * x + 2 * c[:, 5] * y
+    return (q[:, 2] - height) / np.sqrt(1.0 + gx * gx + gy * gy), g
+
+
+def link_weights(links: Links, xyz: np.ndarray) -> np.ndarray:
+    """Inverse variance of each link's residual, in units of one point's variance: 1 / (1/n + h), with n
+    the points observed (a control point counts as *weight* points) and h the variance factor of the
+    fitted surface at their mean position (x_mean' (A'A)^-1 x_mean): a surface fitted to few points
+    is uncertain, and its uncertainty enters the mean distance undiminished."""
+    k = links.size
+    _, ata = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k, normals=True)
+    b = np.vstack((xyz[links.obs], links.fixed))
+    g = np.concatenate((links.obs_group, links.fixed_group))
+    q = b - links.origin[g]
+    x, y = q[:, 0], q[:, 1]
+    cnt = np.maximum(np.bincount(g, minlength=k), 1)
+    mean = np.column_stack([np.bincount(g, v, k) / cnt for v in (np.ones_like(x), x, y, x * x, x * y, y * y)])
+    h = np.einsum("ki,ki->k", mean, np.linalg.solve(ata, mean[:, :, None])[:, :, 0])
+    return 1.0 / (1.0 / links.weight + h)
+
+
+def residuals(links: Links, xyz: np.ndarray) -> np.ndarray:
+    """Per link: the mean signed distance of its observed points to its surface."""
+    d, g = distances(links, xyz)
+    cnt = np.maximum(np.bincount(g, minlength=links.size), 1)
+    return np.bincount(g, d, links.size) / cnt
+
+
+def jacobian(traj, mounting, sample, links, theta, unknowns, cols) -> np.ndarray:
+    """d residuals / d unknowns (columns *cols*) by central differences of the georeferencing."""
+    jac = np.empty((links.size, len(cols)))
+    base = None
+    for c, j in enumerate(cols):
+        h = unknowns.step[j]
+        out = []
+        for sign in (1.0, -1.0):
+            if j >= 7:  # a strip offset: the points of that strip move; no need to georeference again
+                if base is None:
+                    base = georeference_sample(traj, mounting, sample, theta, unknowns)
+                s = unknowns.offset_strips[(j - 7) // 3]
+                xyz = base.copy()
+                xyz[sample.strip == s, (j - 7) % 3] += sign * h
+            else:
+                t = theta.copy()
+                t[j] += sign * h
+                xyz = georeference_sample(traj, mounting, sample, t, unknowns)
+            out.append(residuals(links, xyz))
+        jac[:, c] = (out[0] - out[1]) / (2 * h)
+    return jac
+
+
+def robust_weights(r: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, float]:
+    """Huber weights (k = 2) of residuals whose variances are sigma^2 / *base*, and the robust scale sigma
+    (of one point)."""
+    z = r * np.sqrt(base)
+    sigma = max(1.4826 * float(np.median(np.abs(z - np.median(z)))), 1e-4)
+    return base * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12)), sigma
+
+
+def determinability(jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, cols: list[int],
+                    max_correlation: float) -> dict[int, str]:  # fmt: skip
+    """Unknowns (column numbers of the full vector) the observations cannot determine, with the reason.
+
+    One at a time, the worst first: an unknown with no observation depending on it, then the one whose
+    1-sigma (from the inverse normal matrix) is the largest multiple of its limit among those above the
+    limit or correlated beyond *max_correlation* with another.
+    """
+    held: dict[int, str] = {}
+    while True:
+        keep = [c for c in cols if c not in held]
+        if not keep:
+            return held
+        sel = [cols.index(c) for c in keep]
+        a = jac[:, sel]
+        normal = a.T @ (a * (w / sigma**2)[:, None])
+        d = np.sqrt(np.clip(np.diag(normal), 0, None))
+        dead = [c for c, dd in zip(keep, d, strict=True) if dd <= 1e-12 * max(float(d.max()), 1e-300)]
+        if dead:
+            held[dead[0]] = "no observation depends on it"
+            continue
+        scaled = normal / np.outer(d, d)
+        vals, vecs = np.linalg.eigh(scaled)
+        inv = (vecs / np.maximum(vals, 1e-15)) @ vecs.T
+        cov = inv / np.outer(d, d)
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        corr = cov / np.outer(sd, sd)
+        ratio = sd / unknowns.limit[keep]
+        worst, why = None, ""
+        for a_i, c in enumerate(keep):
+            reason = None
+            if ratio[a_i] > 1:
+                reason = f"1-sigma {_fmt(sd[a_i], c, unknowns)} above the limit {_fmt(unknowns.limit[c], c, unknowns)}"
+            others = [b_i for b_i in range(len(keep)) if b_i != a_i and abs(corr[a_i, b_i]) > max_correlation]
+            others = [b_i for b_i in others if ratio[b_i] <= ratio[a_i]]
+            if others and reason is None:
+                b_i = max(others, key=lambda b: abs(corr[a_i, b]))
+                reason = f"correlated {corr[a_i, b_i]:+.3f} with {unknowns.names[keep[b_i]]}"
+            if reason is not None and (worst is None or ratio[a_i] > ratio[keep.index(worst)]):
+                worst, why = c, reason
+        if worst is None:
+            return held
+        held[worst] = why
+
+
+def _fmt(value: float, col: int, unknowns: Unknowns) -> str:
+    return f"{np.degrees(value):.4f} deg" if col < 3 else f"{value:.4f} m"
+
+
+@dataclass
+class Calibration:
+    """The applied corrections (radians, metres), the estimates with their sigmas and correlations, what was
+    held and why."""
+
+    theta: np.ndarray
+    unknowns: Unknowns
+    free: list[int]
+    sigma: np.ndarray  # (size,) NaN where not estimated
+    correlation: np.ndarray  # (len(free), len(free))
+    held: dict[int, str]
+    residual_sigma: float
+    iterations: int
+    links: Links
+    sample: Sample
+    estimate: np.ndarray  # (size,) the estimate of every determinable unknown, before the significance test
+    not_significant: dict[int, str]  # estimated but not applied (held at the configured value), and why
+
+
+def solve(traj: Trajectory, mounting: Mounting, sample: Sample, find_links, unknowns: Unknowns, *,
+          rounds: int = 3, max_iterations: int = 10, max_correlation: float = 0.95, min_significance: float = 3.0,
+          log=None) -> Calibration | None:  # fmt: skip
+    """Gauss-Newton over *rounds* correspondence searches (see the module notes).
+
+    *find_links(xyz)* returns the :class:`Links` of the sample's points *xyz* (local ENU) and the sample
+    indices they use.  Returns None when there is no correspondence.  After the last round, an estimate
+    within *min_significance* of its sigmas of zero is not applied: the least significant is held at
+    its configured value and the others are solved again, until every applied one is significant
+    (0: apply every estimate).
+    """
+    theta = np.zeros(unknowns.size)
+    free = list(unknowns.free)
+    held: dict[int, str] = {}
+    state = {"cov": np.zeros((0, 0)), "sigma": 0.0, "iterations": 0}
+    links = sub = None
+
+    def iterate(cols: list[int], prior_on: bool) -> None:
+        for _ in range(max_iterations):
+            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
+            r = residuals(links, xyz)
+            w, state["sigma"] = robust_weights(r, link_weights(links, xyz))
+            if not cols:
+                return
+            jac = jacobian(traj, mounting, sub, links, theta, unknowns, cols)
+            jw = jac * (w / state["sigma"] ** 2)[:, None]
+            # first round: a weak prior (1 unit: degree or metre) keeps what the flight cannot determine from
+            # wandering before the determinability check; afterwards the solution is the plain least squares
+            prior = 1.0 / np.where(np.asarray(cols) < 3, np.radians(1.0), 1.0) ** 2 if prior_on else np.zeros(len(cols))
+            normal = jac.T @ jw + np.diag(prior)
+            dx = np.linalg.solve(normal, -(jw.T @ r) - prior * theta[cols])
+            state["cov"] = np.linalg.inv(normal)
+            theta[cols] += dx
+            state["iterations"] += 1
+            if all(abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, cols, strict=True)):
+                return
+
+    for rnd in range(max(rounds, 2)):
+        found = find_links(georeference_sample(traj, mounting, sample, theta, unknowns))
+        if found is None:
+            if rnd == 0:
+                return None
+            break
+        links, used = found
+        sub = sample.subset(used)
+        iterate(free, prior_on=rnd == 0)
+        if log is not None:
+            log(rnd, theta, state["sigma"], links.size)
+        if rnd == 0:
+            # determinability at the first round's solution, with its residual scale (not that of the
+            # uncorrected flight, which the errors themselves inflate); the held unknowns go back to zero
+            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
+            base = link_weights(links, xyz)
+            _, sigma = robust_weights(residuals(links, xyz), base)
+            jac = jacobian(traj, mounting, sub, links, theta, unknowns, free)
+            # the geometry's weights, not the robust ones: what the flight can determine does not depend on
+            # how well the first round fitted
+            held = determinability(jac, base, sigma, unknowns, free, max_correlation)
+            free = [c for c in free if c not in held]
+            theta[list(held)] = 0.0
+    estimate = theta.copy()
+    sd_full = np.full(unknowns.size, np.nan)
+    corr = np.zeros((len(free), len(free)))
+    cov = state["cov"]
+    if free and cov.size:
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+        sd_full[free] = sd
+        corr = cov / np.outer(sd, sd)
+    # significance: backward elimination of the estimates that do not differ from zero
+    applied = list(free)
+    not_significant: dict[int, str] = {}
+    while min_significance > 0 and applied and state["cov"].size:
+        sd = np.sqrt(np.clip(np.diag(state["cov"]), 0, None))
+        ratio = np.abs(theta[applied]) / np.maximum(sd, 1e-300)
+        k = int(np.argmin(ratio))
+        if ratio[k] >= min_significance:
+            break
+        c = applied.pop(k)
+        not_significant[c] = f"estimate within {min_significance:g} sigma of the configured value"
+        theta[c] = 0.0
+        if applied:
+            iterate(applied, prior_on=False)
+    return Calibration(theta, unknowns, free, sd_full, corr, held, state["sigma"], state["iterations"], links, sub,
+                       estimate, not_significant)  # fmt: skip
+
+
+def corrected_mounting(mounting: Mounting, theta: np.ndarray) -> Mounting:
+    """The mounting with the boresight and lever-arm corrections applied."""
+    return Mounting(euler_matrix(*theta[:3]) @ mounting.rotation, mounting.lever_arm + theta[3:6])

@@ -44,8 +44,8 @@ from pipeline.errors import ConfigError
 ENTRY_FILE = "entry.json"
 META_SUM = "entry_sha256"  # checksum of entry.json's other fields
 _CHUNK = 1 << 20
-_UMASK = os.umask(0)
-os.umask(_UMASK)
+UMASK = os.umask(0)
+os.umask(UMASK)
 
 
 def canonical_json(value: Any) -> str:
@@ -91,7 +91,7 @@ def atomic_write_text(path: Path, text: str) -> None:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the usual mode
+        os.chmod(tmp, 0o666 & ~UMASK)  # mkstemp creates 0600; give the usual mode
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -153,7 +153,7 @@ def open_lock_file(path: Path) -> int:
     """
     for _ in range(3):
         try:
-            return os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~_UMASK)
+            return os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~UMASK)
         except PermissionError as exc:
             raise ConfigError(
                 f"cannot create the lock file {path} ({exc.strerror}); make {path.parent} writable."

@@ -340,15 +340,15 @@ def _real_location(data: Any, loc: Location) -> tuple[Location, str | None]:
     return tuple(real), missing
 
 
-def _model_types(annotation: Any) -> list[type[BaseModel]]:
+def model_types(annotation: Any) -> list[type[BaseModel]]:
     """The pydantic models an annotation may hold (through unions and Annotated)."""
     origin = typing.get_origin(annotation)
     if origin is Annotated:
-        return _model_types(typing.get_args(annotation)[0])
+        return model_types(typing.get_args(annotation)[0])
     if origin in (Union, types.UnionType):
         found: list[type[BaseModel]] = []
         for arg in typing.get_args(annotation):
-            found.extend(_model_types(arg))
+            found.extend(model_types(arg))
         return found
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return [annotation]
@@ -365,7 +365,7 @@ def _allowed_keys(model: type[BaseModel], loc: Location) -> set[str]:
         for m in models:
             field = m.model_fields.get(elem)
             if field is not None:
-                nxt.extend(_model_types(field.annotation))
+                nxt.extend(model_types(field.annotation))
         models = nxt
     return {name for m in models for name in m.model_fields}
 

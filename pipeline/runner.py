@@ -20,7 +20,7 @@ import signal
 import time
 import uuid
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,7 @@ from pydantic import BaseModel
 
 from pipeline import __version__, interrupt
 from pipeline.cache import (
-    _UMASK,
+    UMASK,
     Cache,
     Entry,
     atomic_write_text,
@@ -40,8 +40,8 @@ from pipeline.cache import (
 from pipeline.errors import ConfigError, PipelineError, PlanError
 from pipeline.executor import LocalExecutor, make_executor
 from pipeline.interrupt import Interrupted
-from pipeline.log import LOGGER_NAME, Progress, stage_logger
-from pipeline.stage import Plugin, Stage, StageIO, get_dotted
+from pipeline.log import LOGGER_NAME, stage_logger
+from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
 
 MANIFEST = "run.json"
 PRODUCTS_LOCK = ".products.lock"
@@ -104,40 +104,6 @@ class Plan:
             seen.add(artifact)
             artifact = self.aliases[artifact]
         return artifact
-
-
-@dataclass
-class StageContext:
-    """What a stage's ``run`` receives.
-
-    Attributes
-    ----------
-    inputs : dict
-        Artifact name -> path of the file (or folder) to read.
-    outputs : dict
-        Artifact name -> path to write (inside a private workspace).
-    executor : LocalExecutor or DaskExecutor
-        Runs the tasks of tiled work (:func:`pipeline.tiling.run_tiled`).
-    metrics : dict
-        JSON-serialisable figures the stage wants in the manifest and report;
-        they are cached with the outputs.
-    """
-
-    name: str
-    params: BaseModel
-    config: BaseModel
-    inputs: dict[str, Path]
-    outputs: dict[str, Path]
-    workdir: Path
-    workers: int
-    log: logging.LoggerAdapter
-    executor: Any = None
-    metrics: dict[str, Any] = field(default_factory=dict)
-    upstream_metrics: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-    def progress(self, total: float, desc: str, unit: str = "it") -> Progress:
-        """A progress reporter for *total* units of work."""
-        return Progress(total, desc, self.name, unit)
 
 
 def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, force: Iterable[str] = ()) -> Plan:
@@ -556,7 +522,7 @@ def _stage_copy(src: Path, dst: Path) -> Path:
             shutil.copytree(src, tmp)
         else:
             with open(src, "rb") as fin:
-                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666 & ~_UMASK)
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666 & ~UMASK)
                 with os.fdopen(fd, "wb") as fout:
                     shutil.copyfileobj(fin, fout, 1 << 20)
                     fout.flush()

@@ -20,23 +20,25 @@ A stage declares, in one place:
 
 The engine knows nothing else about a stage: it orders stages by their
 declared inputs, checks the graph before running anything, and calls
-:meth:`Stage.run` with a :class:`~pipeline.runner.StageContext`.
+:meth:`Stage.run` with a :class:`StageContext`.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from pydantic import BaseModel, Field, create_model
 
 from pipeline.config import ExecutorConfig, RelPath, StrictModel, TilingConfig
+from pipeline.log import Progress
 
-if TYPE_CHECKING:
-    from pipeline.runner import StageContext
+#: The parameters' model of a stage (``StageContext[RasterizeParams]``).
+P = TypeVar("P", bound=BaseModel)
 
 
 class StageParams(StrictModel):
@@ -56,6 +58,45 @@ class StageIO:
     products: dict[str, str] = field(default_factory=dict)
 
 
+@dataclass
+class StageContext(Generic[P]):
+    """What a stage's ``run`` receives; ``StageContext[MyParams]`` types ``ctx.params``.
+
+    Attributes
+    ----------
+    params : P
+        The stage's validated parameters (its ``Params`` model).
+    config : BaseModel
+        The whole configuration; a stage reads another block of it only
+        through keys it declares in ``config_keys``.
+    inputs : dict
+        Artifact name -> path of the file (or folder) to read.
+    outputs : dict
+        Artifact name -> path to write (inside a private workspace).
+    executor : LocalExecutor or DaskExecutor
+        Runs the tasks of tiled work (:func:`pipeline.tiling.run_tiled`).
+    metrics : dict
+        JSON-serialisable figures the stage wants in the manifest and report;
+        they are cached with the outputs.
+    """
+
+    name: str
+    params: P
+    config: BaseModel
+    inputs: dict[str, Path]
+    outputs: dict[str, Path]
+    workdir: Path
+    workers: int
+    log: logging.LoggerAdapter
+    executor: Any = None
+    metrics: dict[str, Any] = field(default_factory=dict)
+    upstream_metrics: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def progress(self, total: float, desc: str, unit: str = "it") -> Progress:
+        """A progress reporter for *total* units of work."""
+        return Progress(total, desc, self.name, unit)
+
+
 class Stage:
     """Base class of a stage.  Subclasses set the class attributes and ``run``."""
 
@@ -63,7 +104,6 @@ class Stage:
     version: ClassVar[str] = "1"
     Params: ClassVar[Any] = StageParams  # a model, or an Annotated union of models
     config_path: ClassVar[str | None] = None
-    can_disable: ClassVar[bool] = True
     inputs: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[dict[str, str]] = {}
     products: ClassVar[dict[str, str]] = {}
@@ -98,7 +138,7 @@ class Stage:
         """Files outside the cache that the stage reads (their content enters the key)."""
         return []
 
-    def run(self, ctx: StageContext) -> None:  # pragma: no cover - interface
+    def run(self, ctx: StageContext[Any]) -> None:  # pragma: no cover - interface
         """Do the work: read ``ctx.inputs``, write every path in ``ctx.outputs``."""
         raise NotImplementedError
 

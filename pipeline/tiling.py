@@ -257,9 +257,14 @@ def map_largest_first(ctx: Any, task: Callable[[dict[str, Any]], Any], tasks: li
     Largest first, the workers finish together instead of one waiting on
     the last big tile.
     """
-    order = sorted(range(len(tasks)), key=lambda i: -float(tasks[i].get("weight", 0)))
+    order = sorted(range(len(tasks)), key=lambda i: -float(_weight(tasks[i])))
     done = ctx.executor.map(task, [tasks[i] for i in order], log=ctx.log, what=what)
     results: list[Any] = [None] * len(tasks)
     for i, r in zip(order, done, strict=True):
         results[i] = r
     return results
+
+
+def _weight(task: Any) -> float:
+    """A task's ``weight``: a key of a dict task, an attribute of any other (0 when absent)."""
+    return task.get("weight", 0) if isinstance(task, dict) else getattr(task, "weight", 0)

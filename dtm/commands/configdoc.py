@@ -87,9 +87,9 @@ def _rows(model: type[BaseModel], prefix: str) -> list[str]:
 
 
 def _models(annotation: Any) -> list[type[BaseModel]]:
-    from pipeline.config import _model_types
+    from pipeline.config import model_types
 
-    return _model_types(annotation)
+    return model_types(annotation)
 
 
 def render() -> str:

@@ -26,7 +26,6 @@ class Load(Stage):
     name = "load"
     Params = SourceParams
     config_path = "source"
-    can_disable = False
     outputs: ClassVar = {"numbers": "numbers.json"}
 
     def external_files(self, params, config):

@@ -42,7 +42,7 @@ from dtm.common.checkpoints import checkpoint_errors, read_checkpoints
 from dtm.stages.accuracy.vertical import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells, vertical_accuracy
 from pipeline.config import InputFile
 from pipeline.errors import InputDataError
-from pipeline.stage import Stage, StageParams
+from pipeline.stage import Stage, StageContext, StageParams
 
 
 class AccuracyParams(StageParams):
@@ -71,7 +71,7 @@ class AccuracyParams(StageParams):
 
 class Accuracy(Stage):
     name = "accuracy"
-    version = "3"  # 3: truth figures by relief; 2: the DTM against a truth raster (truth_dtm)
+    version = "3"
     Params = AccuracyParams
     description = "DTM vertical accuracy at check points and against a truth raster (runs when either is set)"
     inputs = ("dtm",)
@@ -84,7 +84,7 @@ class Accuracy(Stage):
     def external_files(self, params, config) -> list[Path]:
         return [f for f in (params.checkpoints, params.truth_dtm, params.truth_land_cover) if f is not None]
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[AccuracyParams]) -> None:
         import json
 
         p = ctx.params

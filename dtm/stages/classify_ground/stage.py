@@ -36,12 +36,12 @@ from dtm.stages.classify_ground.classes import (
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from dtm.stages.classify_ground.streaming import smrf_one_grid
 from pipeline.errors import InputDataError
-from pipeline.stage import Stage
+from pipeline.stage import Stage, StageContext
 
 
 class ClassifyGround(Stage):
     name = "classify_ground"
-    version = "8"  # 8: SMRF walled plateaus (wide buildings); 7: SMRF floor of narrow objects (bridge decks); 6: SMRF low outliers as in the paper (canopy), second pass for pits, edge line under the cells; 5: SMRF edge padding from the cells near each edge; sparse surveys; 4: anchored grids; tiles
+    version = "8"
     Params = ClassifyGroundParams
     description = "ground / non-ground classification"
     inputs = ("points_denoised",)
@@ -53,7 +53,7 @@ class ClassifyGround(Stage):
     def tile_buffer(self, params) -> float:
         return reach(params.algorithm)
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[ClassifyGroundParams]) -> None:
         from dtm.common.clouds import cloud_info
         from dtm.common.tile_classes import classes_by_tile
 

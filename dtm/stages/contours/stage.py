@@ -9,7 +9,7 @@ from pydantic import Field
 from dtm.common.rasters import read_raster
 from dtm.common.units import raster_units
 from dtm.common.vectors import write_lines_gpkg
-from pipeline.stage import Stage, StageParams
+from pipeline.stage import Stage, StageContext, StageParams
 
 
 class ContoursParams(StageParams):
@@ -18,14 +18,14 @@ class ContoursParams(StageParams):
 
 class Contours(Stage):
     name = "contours"
-    version = "2"  # 2: reproducible GeoPackage bytes
+    version = "2"
     Params = ContoursParams
     description = "contour lines of the DTM (GeoPackage)"
     inputs = ("dtm",)
     outputs: ClassVar = {"contours": "contours.gpkg"}
     products: ClassVar = {"contours": "contours.gpkg"}
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[ContoursParams]) -> None:
         from dtm.stages.contours.lines import contour_lines
 
         dem, transform, crs, _ = read_raster(ctx.inputs["dtm"])

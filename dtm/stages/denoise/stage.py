@@ -22,7 +22,7 @@ from pydantic import Field
 from dtm.common import glossary
 from dtm.stages.denoise.outliers import isolated_points, low_outliers
 from pipeline.config import StrictModel
-from pipeline.stage import Stage, StageParams
+from pipeline.stage import Stage, StageContext, StageParams
 
 
 class IsolatedParams(StrictModel):
@@ -119,7 +119,7 @@ def noise_classes(points: np.ndarray, params: DenoiseParams) -> np.ndarray:
 
 class Denoise(Stage):
     name = "denoise"
-    version = "3"  # 3: isolation judged in 3-D at the local spacing, no survey statistic; ELM off
+    version = "3"
     Params = DenoiseParams
     description = "isolated points and low outliers to noise classes 18/7"
     inputs = ("points_adjusted",)
@@ -130,7 +130,7 @@ class Denoise(Stage):
     def tile_buffer(self, params) -> float:
         return reach(params)
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[DenoiseParams]) -> None:
         from dtm.common.tile_classes import classes_by_tile
 
         results = classes_by_tile(

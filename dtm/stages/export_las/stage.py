@@ -11,7 +11,7 @@ from typing import ClassVar
 
 from pydantic import Field
 
-from pipeline.stage import Stage, StageIO, StageParams
+from pipeline.stage import Stage, StageContext, StageIO, StageParams
 
 
 class ExportLasParams(StageParams):
@@ -40,7 +40,7 @@ class ExportLas(Stage):
             outputs["points_copc"] = "points.copc.laz"
         return StageIO(self.inputs, outputs, dict(outputs))
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[ExportLasParams]) -> None:
         import laspy
 
         from dtm.common.clouds import open_las_writer

@@ -34,7 +34,7 @@ from pydantic import Field
 
 from dtm.common.rasters import NODATA
 from pipeline.errors import ConfigError
-from pipeline.stage import Stage, StageIO, StageParams
+from pipeline.stage import Stage, StageContext, StageIO, StageParams
 
 #: rasters that can be tiled
 TILED = ("dtm", "dsm", "ndsm")
@@ -207,7 +207,7 @@ class ExportTiles(Stage):
         outputs = {"tiles": "tiles", **{f"{r}_vrt": f"{r}.vrt" for r in rasters}}
         return StageIO(tuple(rasters), outputs, dict(outputs))
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[ExportTilesParams]) -> None:
         p = ctx.params
         cells = tile_cells(p.tile_size, ctx.config.stages.rasterize.resolution)
         root = ctx.outputs["tiles"]

@@ -35,7 +35,7 @@ from pydantic import Field
 from dtm.common.georeferencing import LAS_GPS_OFFSET, ltp_crs, prepare_exact, prepare_ltp
 from pipeline.config import InputFile, StrictModel
 from pipeline.errors import InputDataError
-from pipeline.stage import Stage, StageParams
+from pipeline.stage import Stage, StageContext, StageParams
 
 
 class StripParams(StrictModel):
@@ -149,9 +149,8 @@ class Georeference(Stage):
     """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
 
     name = "georeference"
-    version = "6"  # 6: qc/trajectory.gpkg (flight lines); 5: heights in the units of a 2-D CRS
+    version = "6"
     Params = GeoreferenceParams
-    can_disable = False
     inputs: ClassVar = ("trajectory", "pulses")
     outputs: ClassVar = {"points_georef": "points.las", "trajectory_lines": "trajectory.gpkg"}
     products: ClassVar = {"trajectory_lines": "qc/trajectory.gpkg"}
@@ -173,7 +172,7 @@ class Georeference(Stage):
     def external_files(self, params, config):
         return [params.geoid] if params.geoid is not None else []
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[GeoreferenceParams]) -> None:
         import laspy
 
         from dtm.common.clouds import open_las_writer, point_header

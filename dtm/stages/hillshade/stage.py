@@ -19,7 +19,7 @@ from pydantic import Field
 
 from dtm.common.rasters import png_bytes, read_raster, write_cog
 from dtm.common.units import raster_units
-from pipeline.stage import Stage, StageParams
+from pipeline.stage import Stage, StageContext, StageParams
 
 #: Nodata of the Byte hillshade (shades are 1-255, as gdaldem writes them).
 HILLSHADE_NODATA = 0
@@ -35,14 +35,14 @@ class HillshadeParams(StageParams):
 
 class Hillshade(Stage):
     name = "hillshade"
-    version = "2"  # 2: Byte, shades 1-255, nodata 0
+    version = "2"
     Params = HillshadeParams
     description = "shaded relief of the DTM (GeoTIFF and PNG)"
     inputs = ("dtm",)
     outputs: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}
     products: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[HillshadeParams]) -> None:
         from dtm.common.shading import hillshade
 
         dem, transform, crs, res = read_raster(ctx.inputs["dtm"])

@@ -32,7 +32,7 @@ from pydantic import Field, field_validator
 from dtm.common.crs import check_crs_setting
 from pipeline.config import InputFile, StrictModel
 from pipeline.errors import ConfigError, InputDataError
-from pipeline.stage import Stage, StageIO, get_dotted
+from pipeline.stage import Stage, StageContext, StageIO, get_dotted
 
 FORMAT_HELP = "input format: las | ldmrs_mtig | lmsq_nmea | lmsq_sbet (SPEC 3.A-3.D)"
 
@@ -150,7 +150,6 @@ class Parse(Stage):
     version = "9"
     Params = InputConfig
     config_path = "input"
-    can_disable = False
     config_keys = ("crs", "stages.georeference.geoid")  # the geoid: NMEA fixes without a geoid separation
     description = "read the input files (format from input.format)"
     outputs: ClassVar = {"points_georef": "points.las"}
@@ -174,7 +173,7 @@ class Parse(Stage):
             files.append(geoid)
         return files
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[InputConfig]) -> None:
         if ctx.params.format == "ldmrs_mtig":
             return self._run_ldmrs(ctx)
         if ctx.params.format in ("lmsq_nmea", "lmsq_sbet"):

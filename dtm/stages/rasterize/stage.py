@@ -40,7 +40,7 @@ from dtm.common.rasters import HEIGHT, NODATA
 from dtm.stages.rasterize.interpolate import idw, nearest, tin
 from pipeline.config import StrictModel
 from pipeline.errors import InputDataError
-from pipeline.stage import Stage, StageParams
+from pipeline.stage import Stage, StageContext, StageParams
 
 
 class IdwParams(StrictModel):
@@ -82,7 +82,7 @@ def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, pro
 
 class Rasterize(Stage):
     name = "rasterize"
-    version = "5"  # 5: tiles; TIN and IDW sum in a canonical order
+    version = "5"
     Params = RasterizeParams
     description = "DTM, DSM, nDSM and density rasters"
     inputs = ("points_classified",)
@@ -103,7 +103,7 @@ class Rasterize(Stage):
     def tile_buffer(self, params) -> float:
         return reach(params)
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[RasterizeParams]) -> None:
         from dtm.common.clouds import cloud_info
         from dtm.common.mosaic import core_window
         from dtm.common.tile_points import cleanup, split_cloud, task_folder

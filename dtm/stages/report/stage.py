@@ -34,7 +34,7 @@ from pydantic import Field
 from dtm.common import glossary
 from dtm.stages.report.acceptance import DEFAULT_SPECIFICATION, MEASURES, SPECIFICATIONS
 from pipeline import __version__
-from pipeline.stage import Stage, StageIO, StageParams, get_dotted
+from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
 
 # Colour ramps: (position 0-1, RGB) - used by strip_adjust's PNG.
 TERRAIN = [
@@ -965,7 +965,7 @@ def _enabled(config, name: str) -> bool:
 
 class Report(Stage):
     name = "report"
-    version = "7"  # 7: truth figures by relief; 6: truth figures by land cover, the mounting calibration; 5: LBS VVA limit 30 cm; 4: maps with scales, acceptance, per-strip table; 3: points read in chunks
+    version = "7"
     Params = ReportParams
     description = "self-contained QC page (report.html) and acceptance (qc/acceptance.json)"
     inputs = ("dtm", "density", "points_classified")
@@ -989,7 +989,7 @@ class Report(Stage):
         acc = get_dotted(config, "stages.accuracy")
         return [acc.checkpoints] if acc is not None and acc.enabled and acc.checkpoints else []
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[ReportParams]) -> None:
         from dtm.common.rasters import read_raster
 
         dtm, transform, _, resolution = read_raster(ctx.inputs["dtm"])

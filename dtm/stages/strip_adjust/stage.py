@@ -34,7 +34,7 @@ from pydantic import Field
 from dtm.common.checkpoints import read_control
 from dtm.common.glossary import cell_size
 from pipeline.config import InputFile, StrictModel
-from pipeline.stage import Stage, StageIO, StageParams
+from pipeline.stage import Stage, StageContext, StageIO, StageParams
 
 
 class MountingParams(StrictModel):
@@ -111,7 +111,7 @@ class StripAdjustParams(StageParams):
 
 class StripAdjust(Stage):
     name = "strip_adjust"
-    version = "8"  # 8: difference maps over the overlap patches, not published when there is no overlap
+    version = "8"
     Params = StripAdjustParams
     description = "joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration"
     inputs: ClassVar = ("points_georef",)
@@ -145,7 +145,7 @@ class StripAdjust(Stage):
             return StageIO((*io.inputs, "trajectory", "pulses"), io.outputs, io.products)
         return io
 
-    def run(self, ctx) -> None:
+    def run(self, ctx: StageContext[StripAdjustParams]) -> None:
         from dtm.common.clouds import cloud_info
 
         p = ctx.params

@@ -656,6 +656,7 @@ def _execute(
             log=slog,
             executor=executor if executor is not None else LocalExecutor(1),
             upstream_metrics=upstream or {},
+            config_keys=tuple(step.stage.config_keys),
         )
         slog.info("running")
         t0 = time.perf_counter()

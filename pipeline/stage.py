@@ -67,8 +67,8 @@ class StageContext(Generic[P]):
     params : P
         The stage's validated parameters (its ``Params`` model).
     config : BaseModel
-        The whole configuration; a stage reads another block of it only
-        through keys it declares in ``config_keys``.
+        The whole configuration, for checks and messages; a value that
+        changes the stage's result is read with :meth:`setting`.
     inputs : dict
         Artifact name -> path of the file (or folder) to read.
     outputs : dict
@@ -91,6 +91,18 @@ class StageContext(Generic[P]):
     executor: Any = None
     metrics: dict[str, Any] = field(default_factory=dict)
     upstream_metrics: dict[str, dict[str, Any]] = field(default_factory=dict)
+    config_keys: tuple[str, ...] = ()
+
+    def setting(self, key: str) -> Any:
+        """The configuration value at the dotted *key*, which the stage declared in ``config_keys``.
+
+        A stage whose result depends on another block's setting reads it here,
+        so that the setting is in the stage's cache key and in the docs;
+        reading an undeclared key is a bug of the stage (``KeyError``).
+        """
+        if not any(key == k or key.startswith(k + ".") for k in self.config_keys):
+            raise KeyError(f"stage {self.name} reads '{key}' without declaring it in config_keys")
+        return get_dotted(self.config, key)
 
     def progress(self, total: float, desc: str, unit: str = "it") -> Progress:
         """A progress reporter for *total* units of work."""

@@ -319,3 +319,23 @@ def test_workspace_of_a_killed_run_is_removed_but_a_live_one_is_kept(tmp_path):
         os.close(fd)
     assert out.strip() == "1"
     assert not dead.exists() and live.exists()
+
+
+def test_a_stage_reads_another_blocks_setting_only_when_declared():
+    """ctx.setting: a declared key (or a key inside a declared block) is read; an undeclared one is a bug."""
+    import logging
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from pipeline.stage import StageContext
+
+    config = SimpleNamespace(crs="EPSG:25830", stages=SimpleNamespace(rasterize=SimpleNamespace(resolution=0.5)))
+    log = logging.LoggerAdapter(logging.getLogger("t"), {})
+    keys = ("crs", "stages.rasterize")
+    ctx = StageContext("report", None, config, {}, {}, Path("."), 1, log, config_keys=keys)
+    assert ctx.setting("crs") == "EPSG:25830"
+    assert ctx.setting("stages.rasterize.resolution") == 0.5
+    with pytest.raises(KeyError, match="reads 'stages.denoise' without declaring it"):
+        ctx.setting("stages.denoise")
+    with pytest.raises(KeyError):
+        ctx.setting("crs_other")  # a prefix of a name is not the declared key

@@ -209,7 +209,7 @@ class ExportTiles(Stage):
 
     def run(self, ctx: StageContext[ExportTilesParams]) -> None:
         p = ctx.params
-        cells = tile_cells(p.tile_size, ctx.config.stages.rasterize.resolution)
+        cells = tile_cells(p.tile_size, ctx.setting("stages.rasterize.resolution"))
         root = ctx.outputs["tiles"]
         root.mkdir(parents=True, exist_ok=True)
         counts = {}

@@ -214,7 +214,7 @@ class Georeference(Stage):
         lo = exact.position.min(axis=0) - reach
         hi = exact.position.max(axis=0) + reach
         if p.frame == "exact":
-            crs = output_crs(ctx.config.crs, None, (lon0, lat0))
+            crs = output_crs(ctx.setting("crs"), None, (lon0, lat0))
             to_map = MapTransform(frame, crs, lo, hi, geoid=p.geoid)
             traj_used, map_columns = exact, to_map.columns
             ctx.metrics.update(map_transform=to_map.method, map_transform_max_error_m=to_map.max_error_m)
@@ -242,7 +242,7 @@ class Georeference(Stage):
                 header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float32,
                                                             description=f"propagated 1-sigma {what}, m"))  # fmt: skip
             scan_axis = (0.0, 0.0, 1.0) if pmeta.get("format") == "ldmrs_mtig" else (1.0, 0.0, 0.0)
-        workers = max(1, int(getattr(ctx.config.executor, "workers", 1) or 1))
+        workers = max(1, int(ctx.workers or 1))
         written = no_traj = in_turns = 0
         sig_sum = 0.0
         per_strip: dict[int, int] = {}

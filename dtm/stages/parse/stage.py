@@ -294,7 +294,7 @@ class Parse(Stage):
             ctx.log.info("GPS week %d (from the first PPS record of %s)", week, p.paths[0].name)
         nav_counters = TrajectoryCounters()
         if p.format == "lmsq_nmea":
-            geoid = get_dotted(ctx.config, "stages.georeference.geoid")
+            geoid = ctx.setting("stages.georeference.geoid")
             trajectory, extra = _nmea_ins_trajectory(p, week, nav_counters, ctx.log, geoid)
         else:
             trajectory, extra = _sbet_trajectory(p, week, nav_counters)
@@ -382,7 +382,7 @@ class Parse(Stage):
             crs, report, strips = convert_las_files(
                 list(params.paths),
                 ctx.outputs["points_georef"],
-                crs_setting=ctx.config.crs,
+                crs_setting=ctx.setting("crs"),
                 assign_crs=assign,
                 chunk_size=params.chunk_size,
                 progress=bar,
@@ -416,7 +416,11 @@ class Parse(Stage):
 
 
 def _check_dtm_size(config, box, units, source: str) -> None:
-    """Refuse, right after reading, a survey whose DTM grid the machine cannot hold (not hours later)."""
+    """Refuse, right after reading, a survey whose DTM grid the machine cannot hold (not hours later).
+
+    It reads ``stages.rasterize`` undeclared: a refusal changes no product,
+    and declaring it would re-read the survey when the DTM's cell changes.
+    """
     raster = getattr(config.stages, "rasterize", None)
     if box is None or raster is None or not raster.enabled:
         return

@@ -972,7 +972,7 @@ class Report(Stage):
     outputs: ClassVar = {"report": "report.html", "acceptance": "acceptance.json"}
     products: ClassVar = {"report": "report.html", "acceptance": "qc/acceptance.json"}
     reads_metrics = True
-    config_keys = ("input", "stages.accuracy")
+    config_keys = ("name", "input", "stages.accuracy")
 
     def declare(self, params, config) -> StageIO:
         inputs = list(self.inputs)
@@ -1000,7 +1000,7 @@ class Report(Stage):
         )  # fmt: skip
         hu = unit_symbol(cloud.units.horizontal_name)
         frame = MapFrame(transform.c, transform.f, resolution, hu)
-        inp = ctx.config.input
+        inp = ctx.setting("input")
         files = [("scanner / point file", str(p)) for p in inp.paths]
         files += [(k, str(getattr(inp, k))) for k in ("nmea", "ins", "sbet", "smrmsg") if getattr(inp, k, None)]
         data = ReportInputs(dtm=dtm, density=density, frame=frame, cloud=cloud, input_files=files,
@@ -1016,11 +1016,11 @@ class Report(Stage):
             data.uncertainty = read_raster(ctx.inputs["dtm_uncertainty"])[0]
         if "trajectory_lines" in ctx.inputs:
             data.trajectory = read_flight_lines(ctx.inputs["trajectory_lines"])
-        acc = get_dotted(ctx.config, "stages.accuracy")
+        acc = ctx.setting("stages.accuracy")
         if acc is not None and acc.enabled and acc.checkpoints and ctx.upstream_metrics.get("accuracy"):
             data.checkpoints = checkpoint_rows(acc.checkpoints, acc.land_cover_column, ctx.inputs["dtm"])
         page, verdict = build_report(
-            name=ctx.config.name or "survey", metrics=ctx.upstream_metrics, data=data,
+            name=ctx.setting("name") or "survey", metrics=ctx.upstream_metrics, data=data,
             max_size=ctx.params.max_image_size,
         )  # fmt: skip
         ctx.outputs["report"].write_text(page, encoding="utf-8")

@@ -67,7 +67,7 @@ class _Geometry:
         from dtm.common.geodesy import MapTransform
         from dtm.common.georeferencing import prepare_exact, prepare_ltp
 
-        g = ctx.config.stages.georeference
+        g = ctx.setting("stages.georeference")
         self.max_gap_s = g.max_gap_s
         convention = tmeta["convention"]
         lat0, lon0 = float(traj["lat"][0]), float(traj["lon"][0])
@@ -78,7 +78,7 @@ class _Geometry:
             reach = max(reach, float(np.linalg.norm(v, axis=1).max(initial=0.0)))
         reach += float(np.linalg.norm(self.mounting.lever_arm)) + 11.0
         if g.frame == "exact":
-            crs = output_crs(ctx.config.crs, None, (lon0, lat0))
+            crs = output_crs(ctx.setting("crs"), None, (lon0, lat0))
             lo, hi = self.exact.position.min(axis=0) - reach, self.exact.position.max(axis=0) + reach
             self.output = self.exact
             self.to_map = MapTransform(frame, crs, lo, hi, geoid=g.geoid).columns

@@ -129,6 +129,7 @@ class StripAdjust(Stage):
         "strip_difference_png": "strip_difference.png",
     }
     passthrough: ClassVar = {"points_adjusted": "points_georef"}
+    config_keys = ("crs", "stages.georeference")  # model: mounting georeferences the pulses again
 
     def external_files(self, params, config):
         return [params.control_points] if params.control_points is not None else []

@@ -98,27 +98,6 @@ def atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
-def atomic_copy(src: Path, dst: Path) -> None:
-    """Copy a file or folder to *dst* through a temporary name and a rename."""
-    dst = Path(dst)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.parent / f".{dst.name}.{uuid.uuid4().hex[:8]}.tmp"
-    try:
-        if Path(src).is_dir():
-            shutil.copytree(src, tmp)
-            if dst.is_dir():
-                shutil.rmtree(dst)
-        else:
-            shutil.copyfile(src, tmp)
-        os.replace(tmp, dst)
-    except BaseException:
-        if tmp.is_dir():
-            shutil.rmtree(tmp, ignore_errors=True)
-        else:
-            tmp.unlink(missing_ok=True)
-        raise
-
-
 @contextlib.contextmanager
 def exclusive_lock(path: Path, on_wait: Any = None):
     """Hold an exclusive ``flock`` on *path* (created if needed) for the block.

@@ -126,32 +126,14 @@ MAX_VALUES = 100_000
 
 
 def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
-    """Read a YAML file safely and record the line of every key.
+    """Read a YAML file safely: the document and the 1-based line of every key and list item.
 
-    The file is refused, in one sentence, when it is larger than
-    :data:`MAX_CONFIG_BYTES`, nests deeper than :data:`MAX_DEPTH` levels,
-    has an alias that refers to itself, or expands (through aliases) to more
-    than :data:`MAX_VALUES` values: a "billion laughs" file is refused after
-    reading a few hundred bytes, not expanded.
-
-    Parameters
-    ----------
-    path : Path
-        The YAML file.
-
-    Returns
-    -------
-    data : Any
-        The document as plain Python values.
-    lines : dict
-        1-based line number of every key and list item, by its location
-        (tuple of keys and indices).
-
-    Raises
-    ------
-    ConfigError
-        When the file cannot be read, is not valid YAML, repeats a key, or
-        exceeds one of the limits above.
+    Lines are keyed by location (a tuple of keys and indices).  Refused in one
+    sentence (``ConfigError``): an unreadable or invalid file, a repeated
+    key, more than :data:`MAX_CONFIG_BYTES`, nesting deeper than
+    :data:`MAX_DEPTH`, an alias that refers to itself, or aliases expanding
+    to more than :data:`MAX_VALUES` values (a "billion laughs" file is
+    refused after a few hundred bytes, not expanded).
     """
     text = _read_config_text(Path(path))
     loader = None
@@ -441,26 +423,10 @@ def _describe_one(
 
 
 def load_config(path: Path, model: type[BaseModel], overrides: list[str] | None = None) -> BaseModel:
-    """Read, merge overrides into, and validate a configuration file.
+    """Read a YAML configuration, merge the ``--set`` overrides (``dotted.key=value``), validate it.
 
-    Parameters
-    ----------
-    path : Path
-        YAML configuration file.
-    model : type of BaseModel
-        The configuration model (built by :func:`pipeline.plugin.config_model`).
-    overrides : list of str, optional
-        ``dotted.key=value`` strings from ``--set``.
-
-    Returns
-    -------
-    BaseModel
-        The validated configuration.
-
-    Raises
-    ------
-    ConfigError
-        With one sentence naming the file, line and key of each problem.
+    *model* is the configuration model (:func:`pipeline.stage.config_model`).
+    Every problem is one sentence naming the file, line and key (``ConfigError``).
     """
     path = Path(path)
     data, lines = load_yaml(path)

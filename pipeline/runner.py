@@ -20,7 +20,7 @@ import signal
 import time
 import uuid
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -121,6 +121,33 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
     for name in ([until] if until else []) + list(force):
         if name not in names:
             raise ConfigError(f"unknown stage '{name}'; stages are: {', '.join(names)}.")
+    active, skipped = _steps(config, plugin)
+    plan = Plan([], skipped, _producers(active), {})
+    plan.aliases = {out: src for step in skipped for out, src in step.stage.passthrough.items()}
+    # Dependencies by producer; an input nobody produces is an error only for
+    # a stage that will run (so --until can run a prefix of an unfinished graph).
+    missing = {s.name: [a for a in s.io.inputs if plan.resolve(a) not in plan.producer] for s in active}
+    deps = {
+        s.name: {plan.producer[plan.resolve(a)].name for a in s.io.inputs if a not in missing[s.name]} for s in active
+    }
+    keep = _needed_until(until, deps, {s.name for s in active})
+    for step in active:
+        if step.name in keep and missing[step.name]:
+            _refuse_missing(step, missing[step.name][0], skipped)
+    ordered = _topological(active, deps)
+    for step in ordered:
+        if step.name not in keep:
+            step.note = f"after --until {until}"
+            skipped.append(step)
+    plan.steps = [s for s in ordered if s.name in keep]
+    for name in force:
+        if name not in {s.name for s in plan.steps}:
+            raise ConfigError(f"--force {name}: that stage does not run in this plan.")
+    return plan
+
+
+def _steps(config: BaseModel, plugin: Plugin) -> tuple[list[Step], list[Step]]:
+    """Every stage of *plugin* as a step: (enabled, skipped with the reason)."""
     active: list[Step] = []
     skipped: list[Step] = []
     for order, cls in enumerate(plugin.stages):
@@ -133,6 +160,11 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
         else:
             step.note = "disabled" if getattr(params, "enabled", True) is False else "not applicable"
             skipped.append(step)
+    return active, skipped
+
+
+def _producers(active: list[Step]) -> dict[str, Step]:
+    """Artifact -> the one enabled step that writes it."""
     producer: dict[str, Step] = {}
     for step in active:
         for artifact in step.io.outputs:
@@ -141,55 +173,49 @@ def build_plan(config: BaseModel, plugin: Plugin, until: str | None = None, forc
                     f"stages '{producer[artifact].name}' and '{step.name}' both write '{artifact}'; disable one."
                 )
             producer[artifact] = step
-    aliases = {out: src for step in skipped for out, src in step.stage.passthrough.items()}
-    plan = Plan([], skipped, producer, aliases)
-    # Dependencies by producer; an input nobody produces is an error only for
-    # a stage that will run (so --until can run a prefix of an unfinished graph).
-    missing = {s.name: [a for a in s.io.inputs if plan.resolve(a) not in producer] for s in active}
-    deps = {s.name: {producer[plan.resolve(a)].name for a in s.io.inputs if a not in missing[s.name]} for s in active}
-    by_name = {s.name: s for s in active}
-    keep = set(by_name)
-    if until:
-        if until not in by_name:
-            raise ConfigError(f"--until {until}: that stage is disabled in this configuration.")
-        keep = {until}
-        frontier = [until]
-        while frontier:
-            for dep in deps[frontier.pop()]:
-                if dep not in keep:
-                    keep.add(dep)
-                    frontier.append(dep)
-    for step in active:
-        if step.name in keep and missing[step.name]:
-            artifact = missing[step.name][0]
-            could = [s.name for s in skipped if artifact in s.io.outputs]
-            hint = (
-                f" (enable '{could[0]}' or disable '{step.name}')"
-                if could
-                else "; no stage of this version writes it from this input: run the stages before it with --until"
-            )
-            raise PlanError(f"stage '{step.name}' needs '{artifact}', which no enabled stage produces{hint}.")
-    # Kahn's algorithm, ties broken by the plugin's natural order.
+    return producer
+
+
+def _needed_until(until: str | None, deps: dict[str, set[str]], active: set[str]) -> set[str]:
+    """The stages a run ``--until`` *until* needs (every active stage without it)."""
+    if not until:
+        return set(active)
+    if until not in active:
+        raise ConfigError(f"--until {until}: that stage is disabled in this configuration.")
+    keep = {until}
+    frontier = [until]
+    while frontier:
+        for dep in deps[frontier.pop()]:
+            if dep not in keep:
+                keep.add(dep)
+                frontier.append(dep)
+    return keep
+
+
+def _refuse_missing(step: Step, artifact: str, skipped: list[Step]) -> None:
+    """Raise the PlanError for *step*'s input *artifact* that no enabled stage produces."""
+    could = [s.name for s in skipped if artifact in s.io.outputs]
+    hint = (
+        f" (enable '{could[0]}' or disable '{step.name}')"
+        if could
+        else "; no stage of this version writes it from this input: run the stages before it with --until"
+    )
+    raise PlanError(f"stage '{step.name}' needs '{artifact}', which no enabled stage produces{hint}.")
+
+
+def _topological(active: list[Step], deps: dict[str, set[str]]) -> list[Step]:
+    """Kahn's algorithm, ties broken by the plugin's natural order."""
     ordered: list[Step] = []
     done: set[str] = set()
     while len(ordered) < len(active):
         ready = [s for s in active if s.name not in done and deps[s.name] <= done]
         if not ready:
-            cycle = sorted(set(by_name) - done)
+            cycle = sorted({s.name for s in active} - done)
             raise PlanError(f"the stages {', '.join(cycle)} depend on each other in a cycle.")
         nxt = min(ready, key=lambda s: s.order)
         ordered.append(nxt)
         done.add(nxt.name)
-    for step in ordered:
-        if step.name not in keep:
-            step.note = f"after --until {until}"
-            skipped.append(step)
-    ordered = [s for s in ordered if s.name in keep]
-    for name in force:
-        if name not in {s.name for s in ordered}:
-            raise ConfigError(f"--force {name}: that stage does not run in this plan.")
-    plan.steps = ordered
-    return plan
+    return ordered
 
 
 def check_writable(folder: Path, what: str) -> None:
@@ -255,60 +281,26 @@ def run(
         ``run (upstream)`` (its key depends on outputs not yet computed).
     """
     log = logging.getLogger(LOGGER_NAME)
-    force = set(force)
-    plan = build_plan(config, plugin, until, force)
+    plan = build_plan(config, plugin, until, set(force))
     cache = Cache(cache_root(config), log)
     output = Path(config.output)
-    for step in plan.steps:  # before anything runs: every product lands inside the output folder
-        for file_name in step.io.products.values():
-            _inside(output, file_name)
-    _check_inputs_are_not_products(plan, config, output, config_path)
-    if not dry_run:
-        check_writable(output, "output")
-        check_writable(cache.root, "cache")
+    _check_before_running(plan, config, output, cache, config_path, dry_run)
     started = time.time()
-    manifest: dict[str, Any] = {
-        "name": getattr(config, "name", None) or (Path(config_path).stem if config_path else None),
-        "tool": plugin.name,
-        "version": __version__,
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "libraries": plugin.versions(),
-        "config": {
-            "path": str(config_path) if config_path else None,
-            "sha256": hash_value(config.model_dump(mode="json")),
-        },
-        "started": _utc(started),
-        "status": "running",
-        "stages": [],
-        "inputs": {},
-        "products": {},
-    }
-    artifacts: dict[str, tuple[Path, str]] = {}
-    unknown: set[str] = set()  # dry run: artifacts whose content is not known yet
-    records: dict[str, dict[str, Any]] = {}
-    executor = make_executor(config)
+    state = _Run(plan, config, cache, set(force), dry_run, _new_manifest(config, plugin, config_path, started))
+    manifest, records = state.manifest, state.records
+    executor = state.executor = make_executor(config)
     published = False
     try:
         for step in plan.steps:
-            record = _run_step(
-                step, plan, config, cache, artifacts, unknown, force, dry_run, manifest, records, executor
-            )
-            records[step.name] = record
+            records[step.name] = _run_step(step, state)
         for step in plan.skipped:
             records[step.name] = {"name": step.name, "status": step.note or "disabled"}
         manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]
         if dry_run:
             return manifest
-        products = {
-            file_name: artifacts[artifact]
-            for step in plan.steps
-            for artifact, file_name in step.io.products.items()
-            if artifact not in _unpublished(records.get(step.name))
-        }
         executor.close()
         _finish(manifest, started)
-        publish(output, products, manifest, log)
+        publish(output, _products(state), manifest, log)
         published = True
         return manifest
     except KeyboardInterrupt as exc:
@@ -335,6 +327,66 @@ def run(
                 manifest["stages"] = list(records.values())
             _finish(manifest, started)
             _record_failure(output, manifest, log)
+
+
+@dataclass
+class _Run:
+    """What the steps of one run share: the plan, the cache and what has been computed so far."""
+
+    plan: Plan
+    config: BaseModel
+    cache: Cache
+    force: set[str]
+    dry_run: bool
+    manifest: dict[str, Any]
+    artifacts: dict[str, tuple[Path, str]] = field(default_factory=dict)
+    unknown: set[str] = field(default_factory=set)  # dry run: artifacts whose content is not known yet
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+    executor: Any = None
+
+
+def _check_before_running(
+    plan: Plan, config: BaseModel, output: Path, cache: Cache, config_path: Path | None, dry_run: bool
+) -> None:
+    """Every product lands inside the output folder, no input is a product, both folders take files."""
+    for step in plan.steps:
+        for file_name in step.io.products.values():
+            _inside(output, file_name)
+    _check_inputs_are_not_products(plan, config, output, config_path)
+    if not dry_run:
+        check_writable(output, "output")
+        check_writable(cache.root, "cache")
+
+
+def _new_manifest(config: BaseModel, plugin: Plugin, config_path: Path | None, started: float) -> dict[str, Any]:
+    """The manifest of a run that starts now: what runs, with which versions and configuration."""
+    return {
+        "name": getattr(config, "name", None) or (Path(config_path).stem if config_path else None),
+        "tool": plugin.name,
+        "version": __version__,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "libraries": plugin.versions(),
+        "config": {
+            "path": str(config_path) if config_path else None,
+            "sha256": hash_value(config.model_dump(mode="json")),
+        },
+        "started": _utc(started),
+        "status": "running",
+        "stages": [],
+        "inputs": {},
+        "products": {},
+    }
+
+
+def _products(state: _Run) -> dict[str, tuple[Path, str]]:
+    """Product file name -> (cached file, SHA-256) of every product the run publishes."""
+    return {
+        file_name: state.artifacts[artifact]
+        for step in state.plan.steps
+        for artifact, file_name in step.io.products.items()
+        if artifact not in _unpublished(state.records.get(step.name))
+    }
 
 
 def _signal_name(signum: int | None) -> str:
@@ -553,76 +605,81 @@ def _remove_path(path: Path) -> None:
         path.unlink(missing_ok=True)
 
 
-def _run_step(
-    step: Step,
-    plan: Plan,
-    config: BaseModel,
-    cache: Cache,
-    artifacts: dict[str, tuple[Path, str]],
-    unknown: set[str],
-    force: set[str],
-    dry_run: bool,
-    manifest: dict[str, Any],
-    records: dict[str, dict[str, Any]],
-    executor: Any = None,
-) -> dict[str, Any]:
+def _run_step(step: Step, state: _Run) -> dict[str, Any]:
+    """Run one step, or take it from the cache; its record for the manifest."""
     slog = stage_logger(step.name)
-    resolved = {name: plan.resolve(name) for name in step.io.inputs}
+    resolved = {name: state.plan.resolve(name) for name in step.io.inputs}
     record: dict[str, Any] = {"name": step.name, "version": step.stage.version}
     buffer = step.stage.tile_buffer(step.params)
     record["tiled"] = buffer is not None
     if buffer is not None:
         record["tile_buffer"] = buffer
-    if any(r in unknown for r in resolved.values()):
-        unknown.update(step.io.outputs)
-        record["status"] = "run (upstream)"
-        return record
-    files = {}
-    for path in step.stage.external_files(step.params, config):
-        if not Path(path).is_file():
-            raise ConfigError(f"stage '{step.name}': input file not found: {path}.")
-        files[str(path)] = hash_path(path)
-    manifest["inputs"].update(files)
-    input_hashes = {name: artifacts[r][1] for name, r in resolved.items()}
+    if any(r in state.unknown for r in resolved.values()):
+        return _upstream_unknown(step, state, record)
+    files = _external_hashes(step, state.config)
+    state.manifest["inputs"].update(files)
+    input_hashes = {name: state.artifacts[r][1] for name, r in resolved.items()}
     upstream = None
     if step.stage.reads_metrics:
-        if any("metrics" not in r for r in records.values()):  # dry run: not known yet
-            unknown.update(step.io.outputs)
-            record["status"] = "run (upstream)"
-            return record
-        upstream = {name: r["metrics"] for name, r in records.items()}
-    key = _stage_key(step, config, input_hashes, files, upstream)
+        if any("metrics" not in r for r in state.records.values()):  # dry run: not known yet
+            return _upstream_unknown(step, state, record)
+        upstream = {name: r["metrics"] for name, r in state.records.items()}
+    key = _stage_key(step, state.config, input_hashes, files, upstream)
     record.update(key=key, inputs=input_hashes)
-    if dry_run:
-        entry = None if step.name in force else cache.lookup(step.name, key)
-        if entry is None:
-            unknown.update(step.io.outputs)
-            record["status"] = "run"
-        else:
-            _remember(entry, step, artifacts)
-            record["status"] = "cached"
-            record["metrics"] = entry.meta.get("metrics", {})
-        return record
+    if state.dry_run:
+        return _dry_run_record(step, state, key, record)
     # One run at a time computes an entry; a concurrent run of the same
     # configuration waits here and then finds the entry complete.
+    cache = state.cache
     with cache.lock(step.name, key, lambda: slog.info("another run is computing this stage; waiting for it")):
-        entry = None if step.name in force else cache.lookup(step.name, key)
+        entry = None if step.name in state.force else cache.lookup(step.name, key)
         if entry is not None:
             cache.sweep(step.name, key)
             slog.info("cache hit (key %s)", key[:12])
             record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
         else:
-            inputs = {n: artifacts[r][0] for n, r in resolved.items()}
+            inputs = {n: state.artifacts[r][0] for n, r in resolved.items()}
+            replace = step.name in state.force
             entry = _execute(
-                step, config, cache, key, inputs, input_hashes, slog, upstream, executor, replace=step.name in force
+                step, state.config, cache, key, inputs, input_hashes, slog, upstream, state.executor, replace
             )
             record.update(status="ran", seconds=entry.meta["seconds"])
-    _remember(entry, step, artifacts)
+    _remember(entry, step, state.artifacts)
     record["outputs"] = {
         a: {"file": str(entry.output_path(a)), "sha256": o["sha256"], "bytes": o["bytes"]}
         for a, o in entry.meta["outputs"].items()
     }
     record["metrics"] = entry.meta.get("metrics", {})
+    return record
+
+
+def _upstream_unknown(step: Step, state: _Run, record: dict[str, Any]) -> dict[str, Any]:
+    """Dry run: the step's key depends on outputs not computed yet."""
+    state.unknown.update(step.io.outputs)
+    record["status"] = "run (upstream)"
+    return record
+
+
+def _external_hashes(step: Step, config: BaseModel) -> dict[str, str]:
+    """SHA-256 of every file outside the cache the step reads; a missing one is a ConfigError."""
+    files = {}
+    for path in step.stage.external_files(step.params, config):
+        if not Path(path).is_file():
+            raise ConfigError(f"stage '{step.name}': input file not found: {path}.")
+        files[str(path)] = hash_path(path)
+    return files
+
+
+def _dry_run_record(step: Step, state: _Run, key: str, record: dict[str, Any]) -> dict[str, Any]:
+    """Dry run: whether the step would be taken from the cache or run."""
+    entry = None if step.name in state.force else state.cache.lookup(step.name, key)
+    if entry is None:
+        state.unknown.update(step.io.outputs)
+        record["status"] = "run"
+    else:
+        _remember(entry, step, state.artifacts)
+        record["status"] = "cached"
+        record["metrics"] = entry.meta.get("metrics", {})
     return record
 
 

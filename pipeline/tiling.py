@@ -197,35 +197,22 @@ def run_tiled(
     *,
     extent: Sequence[float],
     buffer: float,
-    split: Callable[[Layout], list[dict[str, Any]]],
-    task: Callable[[dict[str, Any]], Any],
-    merge: Callable[[Layout, list[dict[str, Any]], list[Any]], Any],
+    split: Callable[[Layout], list[Any]],
+    task: Callable[[Any], Any],
+    merge: Callable[[Layout, list[Any], list[Any]], Any],
     what: str = "tiles",
 ) -> Any:
-    """Run a stage's work tile by tile on the run's executor.
+    """Run a stage's work tile by tile on the run's executor; the value of *merge*.
 
-    Parameters
-    ----------
-    ctx : StageContext
-        Gives the configuration, the executor and the log.
-    extent : (xmin, ymin, xmax, ymax)
-        What the tiles must cover.
-    buffer : float
-        The margin each task needs around its tile (the reach of the
-        algorithm), unless the configuration sets ``tiling.buffer``.
-    split : callable
-        ``split(layout) -> tasks``: one dict of small arguments per tile
-        that holds something (paths, not arrays); an optional ``weight``
-        (the tile's size) makes the largest run first.
-    task : callable
-        Module-level function run on each task (in another process or on a
-        Dask worker); returns something small.
-    merge : callable
-        ``merge(layout, tasks, results)``, results in the tasks' order.
-
-    Returns
-    -------
-    The value of *merge*.
+    *ctx* gives the configuration, the executor and the log; *extent*
+    ``(xmin, ymin, xmax, ymax)`` is what the tiles cover; *buffer* is the
+    margin each task needs around its tile (its algorithm's reach) unless
+    ``tiling.buffer`` is set.  ``split(layout)`` returns one small task per
+    tile that holds something (paths and parameters, never arrays; a dict or
+    a dataclass, whose optional ``weight`` runs the largest first); *task*, a
+    module-level function, runs each one (in another process or on a Dask
+    worker); ``merge(layout, tasks, results)`` gets the results in the tasks'
+    order.
     """
     layout = layout_for(ctx.config, extent, buffer)
     ctx.metrics["tiling"] = {

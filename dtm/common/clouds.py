@@ -1,18 +1,11 @@
-"""Reading and writing the artifacts that travel between stages.
+"""Point clouds between stages: their LAS header, writer and reading helpers.
 
-- Point clouds between stages are uncompressed LAS 1.4, point format 6 (7
-  with the input's RGB, 8 with RGB and NIR, plus the input's extra bytes;
-  the input's GPS time type kept), with the CRS as a WKT VLR: an open format any LiDAR viewer opens, so every cached
-  intermediate can be inspected; uncompressed because it is read and written
-  several times per run and LAZ costs about ten times more CPU.
-- Rasters are Cloud Optimized GeoTIFF (float32, internal 256-pixel tiles,
-  DEFLATE with the floating-point predictor, overviews, explicit nodata);
-  elevation rasters name their unit (the band's unit type: the unit of the
-  CRS's vertical axis, else of its horizontal axes, :mod:`dtm.common.units`), and
-  a compound CRS is written whole (GDAL writes its vertical part as the
-  GeoTIFF's vertical CRS).  Images meant for the eye (the hillshade) are
-  Byte with nodata 0.
-- Vector products are GeoPackage 1.2 (:data:`GPKG_VERSION`).
+Clouds between stages are uncompressed LAS 1.4, point format 6 (7 with the
+input's RGB, 8 with RGB and NIR, plus the input's extra bytes and GPS time
+type), with the CRS as a WKT VLR: an open format any LiDAR viewer opens, so
+every cached intermediate can be inspected; uncompressed because it is read
+and written several times per run and LAZ costs about ten times more CPU.
+Rasters: :mod:`dtm.common.rasters`; vectors: :mod:`dtm.common.vectors`.
 """
 
 from __future__ import annotations
@@ -43,21 +36,12 @@ def generating_software() -> str:
 class PointLayout:
     """What the point records of a written cloud hold, taken from the input files.
 
-    Attributes
-    ----------
-    point_format : int
-        6 (no colour), 7 (RGB) or 8 (RGB and near infrared).
-    extra : tuple of laspy.ExtraBytesParams
-        Extra-byte dimensions carried through, in the input's order.
-    gps_adjusted : bool
-        Global encoding bit 0: GPS times are adjusted standard GPS time
-        (GPS seconds - 1e9), not seconds of the GPS week.
-    synthetic_returns : bool
-        Global encoding bit 3: the return numbers were synthesised.
-    vlrs, evlrs : tuple of laspy VLR
-        The input's own (extended) variable length records carried through
-        (not the CRS, extra-byte, LASzip or waveform records, which the
-        writer makes itself or which no longer apply).
+    ``point_format`` 6, 7 (RGB) or 8 (RGB and NIR); ``extra``: the input's
+    extra-byte dimensions, in its order; ``gps_adjusted``: global encoding
+    bit 0 (adjusted standard GPS time, not seconds of the week);
+    ``synthetic_returns``: bit 3; ``vlrs``, ``evlrs``: the input's own
+    (extended) VLRs carried through (not the CRS, extra-byte, LASzip or
+    waveform records, which the writer makes or which no longer apply).
     """
 
     point_format: int = POINT_FORMAT
@@ -103,22 +87,6 @@ def point_header(crs, lo=None, hi=None, *, layout: PointLayout | None = None):
     header.scales = np.array([scale, scale, scale])
     header.add_crs(crs)
     return header
-
-
-def read_cloud(path: Path):
-    """Read a whole LAS/LAZ file into a :class:`laspy.LasData`."""
-    import laspy
-
-    return laspy.read(path)
-
-
-def write_cloud(las, path: Path, *, compress: bool = False) -> None:
-    """Write a :class:`laspy.LasData` (LAZ when *compress*, through lazrs)."""
-    import laspy
-
-    las.update_header()
-    backend = laspy.LazBackend.Lazrs if compress else None
-    las.write(str(path), do_compress=compress, laz_backend=backend)
 
 
 def open_las_writer(path, header, **options):
@@ -171,12 +139,6 @@ def cloud_units(las):
     from dtm.common.units import Units
 
     return Units.of(cloud_crs(las))
-
-
-def xyz_metres(las) -> tuple[np.ndarray, object]:
-    """The coordinates in metres (see :mod:`dtm.common.units`) and the cloud's units."""
-    units = cloud_units(las)
-    return units.to_metres(xyz(las)), units
 
 
 def chunk_xyz_metres(chunk, units) -> np.ndarray:

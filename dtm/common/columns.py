@@ -1,4 +1,4 @@
-"""TODO docstring: carried out of dtm.common.clouds."""
+"""Columns of numbers between stages: one ``.npy`` file per column, written in chunks."""
 
 from __future__ import annotations
 

@@ -1,4 +1,12 @@
-"""TODO docstring: carried out of dtm.common.clouds, stages.report."""
+"""Rasters: Cloud Optimized GeoTIFF writing and reading, PNG images, colour ramps.
+
+COG: float32, internal 256-pixel tiles, DEFLATE with the floating-point
+predictor, overviews, explicit nodata; an elevation raster names its unit
+(the band's unit type: the unit of the CRS's vertical axis, else of its
+horizontal axes, :mod:`dtm.common.units`), and a compound CRS is written
+whole (GDAL writes its vertical part as the GeoTIFF's vertical CRS).
+Images meant for the eye (the hillshade) are Byte with nodata 0.
+"""
 
 from __future__ import annotations
 
@@ -39,26 +47,12 @@ def write_cog(
     dtype: str = "float32",
     unit: str | None = HEIGHT,
 ) -> None:
-    """Write a single-band Cloud Optimized GeoTIFF (float32 unless *dtype* says otherwise).
+    """Write a single-band Cloud Optimized GeoTIFF (float32 unless *dtype* says ``uint8``).
 
-    Parameters
-    ----------
-    path : Path
-        Destination file.
-    array : ndarray, shape (rows, cols)
-        Values, with *nodata* (not NaN) in empty cells.
-    transform : affine.Affine
-        Pixel-to-map transform (north-up).
-    crs : pyproj.CRS or str
-        Coordinate reference system, written as WKT.
-    nodata : float
-        The nodata value recorded in the file.
-    dtype : str
-        ``float32`` or ``uint8`` (an image).
-    unit : str or None
-        The band's unit type: :data:`HEIGHT` (default) for the unit of the
-        CRS's heights (:func:`height_unit`), a name, or None for values that
-        are not lengths (counts, shades).
+    *array* (rows, cols) holds *nodata* (not NaN) in empty cells; *transform*
+    is north-up; *crs* (pyproj or a string) is written as WKT.  *unit* is the
+    band's unit type: :data:`HEIGHT` for the unit of the CRS's heights
+    (:func:`height_unit`), a name, or None for counts and shades.
     """
     from rasterio.io import MemoryFile
 

@@ -1,4 +1,4 @@
-"""TODO docstring: carried out of dtm.common.clouds."""
+"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) line layers written with pyogrio."""
 
 from __future__ import annotations
 

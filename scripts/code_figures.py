@@ -7,7 +7,9 @@ top of the tree, tests left out): files per folder, the longest functions
 (lines of code, the docstring left out), the share of lines that are
 docstrings, docstrings of 20 lines or more, imports of another module's
 ``_private`` names, and the circles of the import graph (modules that import
-each other, directly or round a loop; imports inside functions count too).
+each other, directly or round a loop; imports inside functions count too),
+the imports between modules and the layers they make (the longest chain of
+imports), and imports from one stage package into another.
 """
 
 from __future__ import annotations
@@ -125,6 +127,38 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
+def layers(graph: dict[str, set[str]], circles: list[list[str]]) -> int:
+    """Floors of the import graph: the longest chain of imports, a circle counted as one module."""
+    group = {m: i for i, comp in enumerate(circles) for m in comp}
+    node = {m: group.get(m, m) for m in graph}
+    edges: dict = {}
+    for a, targets in graph.items():
+        edges.setdefault(node[a], set()).update(node[b] for b in targets if node[b] != node[a])
+    depth: dict = {}
+
+    def floor(v) -> int:
+        if v not in depth:
+            depth[v] = 0
+            depth[v] = 1 + max((floor(w) for w in edges.get(v, ())), default=0)
+        return depth[v]
+
+    return max((floor(v) for v in edges), default=0)
+
+
+def cross_stage(graph: dict[str, set[str]]) -> list[str]:
+    """Imports from one stage package into another, and of a driver by an algorithm module."""
+    out = []
+    for a, targets in graph.items():
+        for b in targets:
+            pa, pb = a.split("."), b.split(".")
+            if pa[:2] == pb[:2] == ["dtm", "stages"] and len(pa) > 3 and len(pb) > 3:
+                if pa[2] != pb[2]:
+                    out.append(f"{a} -> {b}")
+                elif pb[3] == "stage" and pa[3] != "stage":
+                    out.append(f"{a} -> {b} (an algorithm imports its driver)")
+    return sorted(out)
+
+
 def measure() -> dict:
     files = [p for pkg in packages() for p in sorted(pkg.rglob("*.py"))]
     modules = {module_name(p): p for p in files}
@@ -165,6 +199,9 @@ def measure() -> dict:
         "longest_functions": [[n, s] for s, n, _ in sizes],
         "private_imports": private,
         "import_circles": cycles(graph),
+        "import_arrows": sum(len(v) for v in graph.values()),
+        "import_layers": layers(graph, cycles(graph)),
+        "cross_stage_imports": cross_stage(graph),
     }
 
 
@@ -190,6 +227,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {size:4d}  {name}")
     print(f"imports of another module's _private names: {len(fig['private_imports'])}")
     for row in fig["private_imports"]:
+        print(f"  {row}")
+    print(f"imports between modules: {fig['import_arrows']}, in {fig['import_layers']} layers")
+    print(f"imports across stage packages (or of a driver by its algorithms): {len(fig['cross_stage_imports'])}")
+    for row in fig["cross_stage_imports"]:
         print(f"  {row}")
     print(f"import circles: {len(fig['import_circles'])}")
     for comp in fig["import_circles"]:

@@ -2,11 +2,13 @@
 
 LAS 1.4, point format 6, ASPRS classes, ``point_source_id`` = flight strip,
 GPS time, the CRS as WKT.  Copied in chunks, so memory does not grow with the
-survey.
+survey.  With ``copc: true`` also ``points.copc.laz``
+(:mod:`dtm.stages.export_las.copc`; docs/stages/export_las.md).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import ClassVar
 
 from pydantic import Field
@@ -63,7 +65,7 @@ class ExportLas(Stage):
             write_copc_product(ctx, src_path, ctx.outputs["points_copc"])
 
 
-def write_copc_product(ctx, src_path, dst_path) -> None:
+def write_copc_product(ctx: StageContext[ExportLasParams], src_path: Path, dst_path: Path) -> None:
     """``points.copc.laz`` from the classified points (:mod:`dtm.stages.export_las.copc`), its octree in the metrics."""
     from dtm.stages.export_las.copc import write_copc
     from pipeline.errors import InputDataError

@@ -14,8 +14,6 @@ from pathlib import Path
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
-C = 299_792_458.0  # speed of light, m/s
-
 
 def footprint(h: float, divergence_deg: float, aperture_m: float = 0.0) -> float:
     """Laser footprint diameter at nadir, A_L = D + 2 h tan(gamma / 2) (4.6; 4.7 with D = 0).
@@ -31,15 +29,6 @@ def footprint_on_slope(h: float, divergence_deg: float, theta_deg: float, slope_
     g, t, i = math.radians(divergence_deg), math.radians(theta_deg), math.radians(slope_deg)
     num = (math.cos(t + i) + math.sin(t + i) * math.tan(t + i + g / 2.0)) * 2.0 * h * math.sin(g / 2.0)
     return num / math.cos(t - g / 2.0)
-
-
-def swath_width(h: float, fov_deg: float) -> float:
-    """SW = 2 h tan(theta / 2), theta the full field of view (4.10).
-
-    >>> round(swath_width(300.0, 60.0), 2)
-    346.41
-    """
-    return 2.0 * h * math.tan(math.radians(fov_deg) / 2.0)
 
 
 def lx_max(h: float, half_scan_deg: float, pointing_error_deg: float, divergence_deg: float) -> float:
@@ -79,24 +68,6 @@ def total_error(
     """
     drift = ins_error(h, drift_deg_h * hours) if hours else 0.0
     return math.sqrt(lx**2 + e_ins**2 + e_gps**2 + drift**2)
-
-
-def range_precision(t_rise_s: float, snr: float) -> float:
-    """sigma_R ~ (c / 2) t_rise / sqrt(S/N) (4.4).
-
-    >>> round(range_precision(1e-9, 100.0), 4)
-    0.015
-    """
-    return C / 2.0 * t_rise_s / math.sqrt(snr)
-
-
-def max_range(pulse_interval_s: float) -> float:
-    """Largest unambiguous range, R_max = T_p c / 2 (4.3).
-
-    >>> round(max_range(1 / 10000))  # 10 kHz
-    14990
-    """
-    return pulse_interval_s * C / 2.0
 
 
 # --------------------------------------------------------------------------

@@ -127,7 +127,7 @@ mounting (configured + `faults.*_error_*`); truth points go to the output
 CRS through PROJ point by point.  The simulator's geometry is its own
 (`dtm/commands/simulate/forward.py`: scipy rotations, PROJ's geodetic and topocentric
 conversions; the 3.D LAS is georeferenced there too): it shares no code with
-`stages/georef`, so the two check each other.  Navigation errors are smooth and
+`dtm/stages/georeference`, so the two check each other.  Navigation errors are smooth and
 stationary (sums of random-phase cosines, periods 20–100 s for position,
 5–25 s for attitude by default: `navigation.error_period_s`) with the preset's sigma at every instant, plus the
 per-line biases; `noise_seed` redraws the noise alone.  Times are GPS seconds; UTC-stamped

@@ -3,7 +3,7 @@
 The simulator's truth checks georeferencing only if the two do not share
 code: these tests pin the forward model to independent references (PROJ's
 geodetic and topocentric conversions, rotations worked by hand), and check
-that nothing under stages/sim imports dtm.common.georeferencing or dtm.stages.parse.
+that nothing under dtm/commands/simulate imports dtm.common.georeferencing or dtm.stages.parse.
 """
 
 from __future__ import annotations

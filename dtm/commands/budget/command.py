@@ -7,7 +7,7 @@ Columns: ``system,laser,gps,ins,lx_max_m,gps_m,ins_drift_deg_h,ins_deg,
 total_t0_m,total_1h_m,total_2h_m``; a system whose scanner cannot reach the
 ground at that height has empty cells (CSV) or dashes (Markdown), as the
 seed's tables do.  ``--catalogue`` adds the user's equipment and systems
-(same layout as ``stages/budget/catalogue.yaml``).
+(same layout as ``dtm/commands/budget/catalogue.yaml``).
 """
 
 from __future__ import annotations

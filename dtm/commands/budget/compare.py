@@ -90,7 +90,7 @@ def render() -> str:
         "total = √(L_x² + e_SNI² + e_GPS²) (4.28), plus h·tan(drift·t) in quadrature",
         "after t hours.  Cells are `seed / ours` in metres; **bold** where they",
         f"differ by more than {TOLERANCE} m.  Range check as the seed (nadir).",
-        "Equipment values: `stages/budget/catalogue.yaml`.",
+        "Equipment values: `dtm/commands/budget/catalogue.yaml`.",
         "",
     ]
     for altitude, table in (("300", "4.1"), ("600", "4.2"), ("1200", "4.3")):

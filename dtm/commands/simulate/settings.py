@@ -2,7 +2,7 @@
 
 Sensor and navigation presets come from the seeds: the LD-MRS and MTi-G of
 seed 0, the RIEGL scanners and INS units of seed 2 (read from the budget's
-equipment catalogue, ``stages/budget/catalogue.yaml``, so there is one
+equipment catalogue, ``dtm/commands/budget/catalogue.yaml``, so there is one
 source for each figure).
 """
 

@@ -35,6 +35,17 @@ def _patch(xyz: np.ndarray, x0: float, y0: float, size: int) -> np.ndarray:
     return (xyz[:, 0] > x0) & (xyz[:, 0] < x0 + size) & (xyz[:, 1] > y0) & (xyz[:, 1] < y0 + size)
 
 
+def test_one_point_raised_in_a_lattice_lifts_its_neighbour_cells_by_half():
+    """Ground on a 1 m lattice, z = 0; the classification takes, instead of the point at (5, 5), one 1 m above
+    it.  The cell centres nearest to it lie halfway along the triangles' edges from it: 0.5 m above."""
+    xy = np.mgrid[0:11, 0:11].reshape(2, -1).T.astype(float)
+    xyz = np.vstack((np.column_stack((xy, np.zeros(121))), [[5.0, 5.0, 1.0]]))
+    reference = np.arange(122) < 121
+    predicted = np.arange(122) != 60  # xy[60] is (5, 5)
+    c = dtm_check(xyz, reference, predicted)
+    assert (c.n, c.max_above, c.above_0_5) == (100, 0.5, 0.0)
+
+
 def test_raised_and_lowered_patches_give_their_cells_and_rms():
     ground = _lattice()
     up, low, down = _patch(ground, 10, 10, 10), _patch(ground, 10, 40, 6), _patch(ground, 40, 30, 5)

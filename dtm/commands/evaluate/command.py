@@ -2,34 +2,17 @@
 
     pipeline evaluate dtm DTM.tif (--truth TRUTH.tif | --checkpoints CP.csv)
                               [--land-cover-column NAME] [--vegetated VALUE ...] [--json]
-
-prints RMSEz, mean error, NVA at 95 % and VVA (stages.accuracy); with
-``--truth``, also the share of cells more than 1 m and 5 m off and the
-largest errors (:func:`dtm.stages.accuracy.vertical.truth_accuracy`).
-
-``pipeline evaluate ground``: score a ground classification against reference labels.
-
     pipeline evaluate ground REF.laz [--config RUN.yaml] [--crs EPSG:nnnn]
                                      [--algorithm NAME] [--param k=v ...]
                                      [--no-denoise] [--compare csf] [--write OUT.laz]
                                      [--no-dtm-check] [--dtm-cell 1] [--dtm-max-edge 20] [--json]
 
-The reference file's class 2 is reference ground; every other class is an
-object.  The file is classified by the run itself: the engine runs
-``parse``, ``strip_adjust``, ``denoise`` and ``classify_ground`` on it (in a
-temporary output and cache folder), so the unit conversion (a feet CRS),
-the class rules (noise, withheld and, with ``keep_water``, water keep their
-class) and the tiling are those of ``pipeline run``.  The settings are the
-defaults of every stage, or those of ``--config`` (its ``input.paths``
-replaced by REF); ``--algorithm``/``--param`` replace its ground algorithm.
-Noise and water count as non-ground.  Prints Type I, Type II, total error
-and Cohen's kappa (per cent) for each algorithm run; ``--write`` saves the
-``export_las`` product of the first one.  Then the DTM check
-(:func:`dtm.commands.evaluate.scores.dtm_check`, on unless ``--no-dtm-check``):
-the TIN DTM of each run's ground minus the TIN DTM of the reference ground,
-on 1 m cells (``--dtm-cell``), where no reference triangle edge exceeds
-20 m (``--dtm-max-edge``): RMS, mean, share of cells more than 0.5 m and
-2 m above and 0.5 m below, the largest difference (docs/GROUND.md).
+``dtm``: RMSEz, mean error, NVA and VVA (stages.accuracy), with ``--truth``
+also the cells far off.  ``ground``: the engine itself runs ``parse`` to
+``classify_ground`` on the labelled file (class 2 = reference ground) with
+the stage defaults or ``--config``'s settings, once per algorithm; prints
+Type I, Type II, total error and kappa, then the DTM check
+(:func:`dtm.commands.evaluate.scores.dtm_check`).  How and why: docs/GROUND.md.
 """
 
 from __future__ import annotations
@@ -37,6 +20,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -133,53 +118,26 @@ def evaluate_ground(
     dtm_cell: float = 1.0,
     dtm_max_edge: float = 20.0,
 ) -> tuple[list[dict], dict[str, np.ndarray]]:
-    """Classify a labelled file with the run's stages, once per algorithm; return scores and classes.
+    """Classify a labelled file (class 2 = reference ground) with the run's stages, once per algorithm.
 
-    Parameters
-    ----------
-    path : Path
-        Labelled LAS/LAZ (class 2 = reference ground).
-    algorithms : list of ground-algorithm models, optional
-        Default: the configuration's algorithm (SMRF without *config*).
-    denoise : bool
-        Run the ``denoise`` stage (as configured) before classifying.
-    config : Path, optional
-        A run's configuration whose settings to use (see :func:`run_settings`).
-    crs : str, optional
-        ``input.crs``: the CRS of a file whose header has none.
-    write : Path, optional
-        Where to save the first algorithm's classified cloud (the
-        ``export_las`` product; LAZ when the name ends in ``.laz``).
-    dtm : bool
-        Also run the DTM check (:func:`dtm.commands.evaluate.scores.dtm_check`): the
-        TIN of each run's ground against the TIN of the reference ground, on
-        cells of *dtm_cell* metres, where no reference triangle edge is longer
-        than *dtm_max_edge* metres; the TINs use the configuration's
-        ``rasterize.nodata_distance`` and ``rasterize.tin.thin``.
-    dtm_cell, dtm_max_edge : float
-        Metres, whatever the CRS's unit.
+    *algorithms*: ground-algorithm models (default: the configuration's, SMRF
+    without *config*, see :func:`run_settings`); *denoise* runs ``denoise``
+    first; *crs* is ``input.crs``; *write* saves the first run's
+    ``export_las`` product (LAZ when it ends in ``.laz``).  With *dtm*, also
+    the DTM check (:func:`dtm.commands.evaluate.scores.dtm_check`) on cells
+    of *dtm_cell* m where no reference triangle edge exceeds *dtm_max_edge* m.
 
     Returns
     -------
-    rows : list of dict
-        Per algorithm: name, parameters, seconds (``denoise`` and
-        ``classify_ground``), the :class:`dtm.commands.evaluate.scores.GroundScore`
-        and, with *dtm*, ``dtm_check``: the :class:`dtm.commands.evaluate.scores.DtmCheck`.
-    classes : dict
-        Algorithm name -> the classes the run gave every point, in file order.
+    rows, classes : list of dict, dict
+        Per algorithm: name, parameters, seconds (``denoise`` and ``classify_ground``), the scores
+        (:class:`~dtm.commands.evaluate.scores.GroundScore`) and, with *dtm*, ``dtm_check``;
+        algorithm name -> the classes the run gave every point, in file order.
     """
-    import logging
     import shutil
     import tempfile
 
-    import laspy
-
-    from dtm.commands.evaluate.scores import dtm_check, score
-    from dtm.common.clouds import cloud_info
-    from pipeline.config import describe_validation_error
-    from pipeline.log import LOGGER_NAME
     from pipeline.plugin import load_plugin
-    from pipeline.runner import run
     from pipeline.stage import config_model
 
     reference = reference_ground(path)
@@ -193,65 +151,118 @@ def evaluate_ground(
     model = config_model(plugin)
     rows, classes = [], {}
     work = Path(tempfile.mkdtemp(prefix="pipeline-evaluate-"))
+    try:
+        with _inner_runs_quiet():
+            for i, algorithm in enumerate(algorithms or [None]):
+                saving = write if i == 0 else None
+                stages = _run_stages(data, algorithm, denoise=denoise, write=saving)
+                values = {**data, "stages": stages, "output": str(work / "out"), "cache": str(work / "cache")}
+                settings = _validated(model, values, base, config or Path(path), lines)
+                until = "export_las" if saving is not None else "classify_ground"
+                manifest = _run_until(settings, plugin, until, crs_hint=config is None and crs is None)
+                row, cls = _scored_run(manifest, settings, reference, dtm_cell if dtm else None, dtm_max_edge)
+                rows.append(row)
+                classes[row["algorithm"]] = cls
+                if saving is not None:
+                    _save_export(work / "out", stages["export_las"]["compress"], saving)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return rows, classes
+
+
+@contextmanager
+def _inner_runs_quiet() -> Iterator[None]:
+    """The inner runs' progress is not this command's output: INFO is raised to WARNING while they run."""
+    import logging
+
+    from pipeline.log import LOGGER_NAME
+
     log = logging.getLogger(LOGGER_NAME)
     level = log.level
     if log.level <= logging.INFO:
-        log.setLevel(logging.WARNING)  # the inner runs' progress is not this command's output
+        log.setLevel(logging.WARNING)
     try:
-        for i, algorithm in enumerate(algorithms or [None]):
-            stages = {key: dict(value or {}) for key, value in data["stages"].items()}
-            stages.setdefault("denoise", {})["enabled"] = denoise
-            if algorithm is not None:
-                stages.setdefault("classify_ground", {})["algorithm"] = algorithm.model_dump(mode="json")
-            saving = write is not None and i == 0
-            if saving:
-                stages["export_las"] = {**stages.get("export_las", {}), "enabled": True}
-                stages["export_las"]["compress"] = Path(write).suffix.lower() == ".laz"
-            values = {**data, "stages": stages, "output": str(work / "out"), "cache": str(work / "cache")}
-            try:
-                settings = model.model_validate(values, context={"base_dir": base})
-            except ValidationError as exc:
-                where = config or Path(path)
-                raise ConfigError(describe_validation_error(exc, values, where, lines, {}, model)) from None
-            try:
-                manifest = run(settings, plugin, until="export_las" if saving else "classify_ground")
-            except InputDataError as exc:
-                if config is None and crs is None and "input.crs" in str(exc):
-                    raise InputDataError(f"{str(exc).rstrip('.')} (for evaluate ground: --crs).") from None
-                raise
-            records = {r["name"]: r for r in manifest["stages"]}
-            classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
-            las = laspy.read(str(classified))
-            cls = np.asarray(las.classification, dtype=np.uint8)
-            if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
-                raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
-            used = settings.stages.classify_ground.algorithm
-            seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
-            s = score(reference, cls == glossary.GROUND)
-            rows.append({"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()})
-            if dtm:
-                xyz = cloud_info(classified).units.to_metres(np.column_stack((las.x, las.y, las.z)))
-                grid = settings.stages.rasterize
-                rows[-1]["dtm_check"] = dtm_check(
-                    xyz,
-                    reference,
-                    cls == glossary.GROUND,
-                    cell=dtm_cell,
-                    max_edge=dtm_max_edge,
-                    nodata_distance=grid.nodata_distance,
-                    thin=grid.tin.thin,
-                ).as_dict()
-            del las
-            classes[used.name] = cls
-            if saving:
-                name = "points.laz" if stages["export_las"]["compress"] else "points.las"
-                tmp = Path(write).with_name(f".{Path(write).name}.tmp")
-                shutil.copyfile(work / "out" / name, tmp)
-                tmp.replace(write)
+        yield
     finally:
         log.setLevel(level)
-        shutil.rmtree(work, ignore_errors=True)
-    return rows, classes
+
+
+def _run_stages(data: dict, algorithm, *, denoise: bool, write: Path | None) -> dict:
+    """The stages' settings of one run: ``denoise`` on or off, the algorithm, ``export_las`` on to *write*."""
+    stages = {key: dict(value or {}) for key, value in data["stages"].items()}
+    stages.setdefault("denoise", {})["enabled"] = denoise
+    if algorithm is not None:
+        stages.setdefault("classify_ground", {})["algorithm"] = algorithm.model_dump(mode="json")
+    if write is not None:
+        stages["export_las"] = {**stages.get("export_las", {}), "enabled": True}
+        stages["export_las"]["compress"] = Path(write).suffix.lower() == ".laz"
+    return stages
+
+
+def _validated(model, values: dict, base: Path, where: Path, lines: dict):
+    """The run's settings, or a ConfigError naming the key (and its line in *where*)."""
+    from pipeline.config import describe_validation_error
+
+    try:
+        return model.model_validate(values, context={"base_dir": base})
+    except ValidationError as exc:
+        raise ConfigError(describe_validation_error(exc, values, where, lines, {}, model)) from None
+
+
+def _run_until(settings, plugin, until: str, *, crs_hint: bool) -> dict:
+    """Run the engine's stages up to *until*; its manifest.  *crs_hint*: point to --crs when the CRS is missing."""
+    from pipeline.runner import run
+
+    try:
+        return run(settings, plugin, until=until)
+    except InputDataError as exc:
+        if crs_hint and "input.crs" in str(exc):
+            raise InputDataError(f"{str(exc).rstrip('.')} (for evaluate ground: --crs).") from None
+        raise
+
+
+def _scored_run(
+    manifest: dict, settings, reference: np.ndarray, cell: float | None, max_edge: float
+) -> tuple[dict, np.ndarray]:
+    """The row of one run (algorithm, parameters, seconds, scores; the DTM check unless *cell* is None), its classes."""
+    import laspy
+
+    from dtm.commands.evaluate.scores import dtm_check, score
+    from dtm.common.clouds import cloud_info
+
+    records = {r["name"]: r for r in manifest["stages"]}
+    classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
+    las = laspy.read(str(classified))
+    cls = np.asarray(las.classification, dtype=np.uint8)
+    if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
+        raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
+    used = settings.stages.classify_ground.algorithm
+    seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
+    s = score(reference, cls == glossary.GROUND)
+    row = {"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()}
+    if cell is not None:
+        xyz = cloud_info(classified).units.to_metres(np.column_stack((las.x, las.y, las.z)))
+        grid = settings.stages.rasterize
+        row["dtm_check"] = dtm_check(
+            xyz,
+            reference,
+            cls == glossary.GROUND,
+            cell=cell,
+            max_edge=max_edge,
+            nodata_distance=grid.nodata_distance,
+            thin=grid.tin.thin,
+        ).as_dict()
+    return row, cls
+
+
+def _save_export(out: Path, compress: bool, write: Path) -> None:
+    """Copy the run's ``points.laz`` (or ``.las``) to *write*, through a temporary name."""
+    import shutil
+
+    name = "points.laz" if compress else "points.las"
+    tmp = Path(write).with_name(f".{Path(write).name}.tmp")
+    shutil.copyfile(out / name, tmp)
+    tmp.replace(write)
 
 
 def _add_arguments(parser: argparse.ArgumentParser) -> None:

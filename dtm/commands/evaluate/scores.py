@@ -83,45 +83,25 @@ DTM_BELOW = 0.5
 
 @dataclass(frozen=True)
 class DtmCheck:
-    """The DTM of the evaluated ground against the DTM of the reference ground, cell by cell (metres).
+    """The DTM of the evaluated ground against the DTM of the reference ground, cell by cell.
 
-    Differences are evaluated - reference.  Fractions, not per cent.
-
-    Attributes
-    ----------
-    cell : float
-        Cell of both DTMs.
-    max_edge : float
-        Cells inside a reference triangle with a longer edge were left out.
-    n : int
-        Cells compared: both DTMs defined and the reference dense enough.
-    reference_cells : int
-        Cells where the reference DTM is defined.
-    sparse_cells : int
-        Of those, the cells left out because the reference triangle is too long.
-    missing_cells : int
-        Of the dense reference cells, those the evaluated DTM leaves empty.
-    rms, mean : float or None
-        Of the differences.
-    above_0_5, above_2, below_0_5 : float or None
-        Fraction of the cells more than 0.5 m / 2 m above, 0.5 m below the reference.
-    max_above, max_below : float or None
-        Largest difference above (positive) and below (negative) the reference.
+    Differences are evaluated - reference, in metres; shares are fractions, not
+    per cent; the figures are None when no cell is compared.
     """
 
-    cell: float
-    max_edge: float
-    n: int
-    reference_cells: int
-    sparse_cells: int
-    missing_cells: int
+    cell: float  # of both DTMs
+    max_edge: float  # cells inside a reference triangle with a longer edge were left out
+    n: int  # cells compared: both DTMs defined and the reference dense enough
+    reference_cells: int  # cells where the reference DTM is defined
+    sparse_cells: int  # of those, the cells left out because the reference triangle is too long
+    missing_cells: int  # of the dense reference cells, those the evaluated DTM leaves empty
     rms: float | None
     mean: float | None
-    above_0_5: float | None
-    above_2: float | None
-    below_0_5: float | None
-    max_above: float | None
-    max_below: float | None
+    above_0_5: float | None  # share of the cells more than 0.5 m above the reference
+    above_2: float | None  # ... more than 2 m above
+    below_0_5: float | None  # ... more than 0.5 m below
+    max_above: float | None  # largest difference above (positive) the reference
+    max_below: float | None  # largest difference below (negative)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -139,51 +119,18 @@ def dtm_check(
 ) -> DtmCheck:
     """Compare the DTM made from the predicted ground with the DTM made from the reference ground.
 
-    Both DTMs are the pipeline's own: a TIN (:func:`dtm.stages.rasterize.interpolate.tin`)
-    on the same cell-aligned grid covering every point, with the same
-    *nodata_distance* and thinning.  Provider labels are often a subset of
-    the true ground (under canopy, near buildings), so Type I and kappa
-    count as errors ground points that change nothing in the DTM, while a
-    few canopy points kept as ground make false hills that kappa hardly
-    sees; this check measures the DTM a user would receive.
+    Both are the pipeline's TIN (:func:`dtm.stages.rasterize.interpolate.tin`,
+    with *nodata_distance* and *thin* as the run's) on one grid of *cell*
+    metres covering every point (*xyz*, metres).  A cell is compared only when
+    the reference triangle holding its centre has no edge longer than
+    *max_edge*: under a longer one the reference DTM is a guess.  Why this
+    check beside Type I and kappa, and its figures on real surveys:
+    docs/GROUND.md, "The DTM check".
 
     Parameters
     ----------
-    xyz : ndarray, shape (n, 3)
-        Coordinates in metres.
     reference_ground, predicted_ground : ndarray of bool, shape (n,)
         Which points are ground in the reference and in the classification.
-    cell : float
-        Cell of both DTMs, metres.
-    max_edge : float
-        A cell is compared only when the reference triangle holding its
-        centre has no edge longer than this (metres): where the reference has
-        no ground over a wide area (water, a large building, a concave survey
-        boundary) its DTM is a guess, not a reference.  The triangles are the
-        Delaunay triangulation of the reference points the TIN uses (thinned
-        as it thins them).
-    nodata_distance : float
-        The TIN's: cells farther than this from every ground point are empty.
-    thin : bool
-        The TIN's thinning (one point per half cell in dense cells).
-
-    Returns
-    -------
-    DtmCheck
-
-    Examples
-    --------
-    Ground points on a 1 m lattice, z = 0; the classification takes, instead
-    of the point at (5, 5), one 1 m above it.  The cell centres nearest to
-    it lie halfway along the triangles' edges from it: 0.5 m above.
-
-    >>> xy = np.mgrid[0:11, 0:11].reshape(2, -1).T.astype(float)
-    >>> xyz = np.vstack((np.column_stack((xy, np.zeros(121))), [[5.0, 5.0, 1.0]]))
-    >>> reference = np.arange(122) < 121
-    >>> predicted = (np.arange(122) != 60)  # xy[60] is (5, 5)
-    >>> c = dtm_check(xyz, reference, predicted)
-    >>> c.n, c.max_above, c.above_0_5
-    (100, 0.5, 0.0)
     """
     from dtm.common.grid import Grid
     from dtm.stages.rasterize.interpolate import thin_points, tin

@@ -29,9 +29,16 @@ class Line:
 
 
 def plan_lines(
-    centre: tuple[float, float], n_lines: int, spacing: float, length: float, heading_deg: float, cross: bool,
-    *, one_way: bool = False, second_altitude: float | None = None,
-) -> list[Line]:  # fmt: skip
+    centre: tuple[float, float],
+    n_lines: int,
+    spacing: float,
+    length: float,
+    heading_deg: float,
+    cross: bool,
+    *,
+    one_way: bool = False,
+    second_altitude: float | None = None,
+) -> list[Line]:
     """Parallel lines (alternating direction) centred on *centre*, and a cross line through the middle.
 
     *one_way*: every parallel line is flown in the first line's direction (a turn back between lines).
@@ -112,9 +119,37 @@ class Flight:
         """(n, 3) roll, pitch, heading (radians) at times *t*."""
         return self._att(t)
 
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """(n, 3) velocity (m/s, local ENU) at times *t*: the derivative of the position spline."""
+        return self._pos(t, 1)
+
     def line_at(self, t: np.ndarray) -> np.ndarray:
-        i = np.clip(np.round(np.asarray(t) / DT).astype(np.int64), 0, len(self.t) - 1)
-        return self.line[i]
+        """The line index (0: off the lines) of the truth sample nearest to each time *t*."""
+        return self.line[sample_index(t, len(self.t))]
+
+
+def sample_index(t: np.ndarray, n: int) -> np.ndarray:
+    """The truth sample (every DT seconds) nearest to each time *t*, clipped to the *n* samples."""
+    return np.clip(np.round(np.asarray(t) / DT).astype(np.int64), 0, n - 1)
+
+
+def recorded(recording: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Whether the scanner records at each time *t* (*recording*: a flag per truth sample)."""
+    return recording[sample_index(t, len(recording))]
+
+
+def recording_mask(flight: Flight, lead_s: float | None) -> np.ndarray:
+    """The scanner records on the lines and for *lead_s* before and after each (None: all the time)."""
+    on = flight.line > 0 if lead_s is not None else np.ones(len(flight.t), bool)
+    k = int(round(lead_s / DT)) if lead_s is not None else 0
+    if k:
+        from scipy.ndimage import binary_dilation
+
+        on = binary_dilation(on, np.ones(2 * k + 1, bool))
+    edge = int(round(2.0 / DT))  # the navigation files start and end 2 s beyond the scanner's data
+    on[:edge] = False
+    on[-edge:] = False
+    return on
 
 
 def fly(
@@ -130,7 +165,28 @@ def fly(
     """Fly *lines* in order at *altitude* (local up; a line's own ``altitude`` when set) and *speed*, with
     turns between them; a change of height is flown as a steady climb or descent between the lines."""
     radius = speed**2 / (G * np.tan(np.radians(bank_deg)))
-    # segments: (duration, heading rate, line index)
+    segs, start_p, start_psi = _segments(lines, speed, radius, lead_in)
+    total = sum(s[0] for s in segs)
+    t = np.arange(0.0, total + DT / 2, DT)
+    omega, label = _turn_rates(segs, t)
+    win = max(1, int(round(smooth_s / DT)))
+    kernel = np.ones(win) / win
+    omega_s = np.convolve(np.convolve(omega, kernel, "same"), kernel, "same")
+    heading = start_psi + _integral(omega_s)
+    e = start_p[0] + _integral(speed * np.sin(heading))
+    n = start_p[1] + _integral(speed * np.cos(heading))
+    up = _heights(t, label, lines, altitude, lead_in / speed)
+    pos = np.column_stack((e, n, up))
+    roll, pitch, crab = _attitude(t, omega_s, speed, seed)
+    # a line keeps its label only where the smoothed turn rate has died away
+    label[np.abs(omega_s) > np.radians(0.05)] = 0
+    return Flight(t, pos, roll, pitch, heading + crab, label, speed)
+
+
+def _segments(
+    lines: list[Line], speed: float, radius: float, lead_in: float
+) -> tuple[list[tuple[float, float, int]], np.ndarray, float]:
+    """(duration, heading rate, line index) of every straight and turn of the flight; its start point and heading."""
     segs: list[tuple[float, float, int]] = []
     run_in = 3.0  # s of straight flight before the first lead-in and after the last (navigation only)
     p = lines[0].start - (lead_in + run_in * speed) * np.array([np.sin(lines[0].heading), np.cos(lines[0].heading)])
@@ -147,9 +203,11 @@ def fly(
         segs += [(lead_in / speed, 0.0, 0), (line.length / speed, 0.0, k), (lead_in / speed, 0.0, 0)]
         p, psi = line.start + line.length * d + lead_in * d, line.heading
     segs.append((run_in, 0.0, 0))
-    heights = [altitude if line.altitude is None else line.altitude for line in lines]
-    total = sum(s[0] for s in segs)
-    t = np.arange(0.0, total + DT / 2, DT)
+    return segs, start_p, start_psi
+
+
+def _turn_rates(segs: list[tuple[float, float, int]], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The heading rate and the line index of the segment at each time *t*."""
     omega = np.zeros_like(t)
     label = np.zeros(len(t), np.int32)
     edges = np.cumsum([0.0] + [s[0] for s in segs])
@@ -157,28 +215,33 @@ def fly(
         sel = (t >= t0) & (t < t0 + dur)
         omega[sel] = w
         label[sel] = k
-    win = max(1, int(round(smooth_s / DT)))
-    kernel = np.ones(win) / win
-    omega_s = np.convolve(np.convolve(omega, kernel, "same"), kernel, "same")
-    heading = start_psi + np.concatenate(([0.0], np.cumsum((omega_s[1:] + omega_s[:-1]) / 2 * DT)))
-    ve, vn = speed * np.sin(heading), speed * np.cos(heading)
-    e = start_p[0] + np.concatenate(([0.0], np.cumsum((ve[1:] + ve[:-1]) / 2 * DT)))
-    n = start_p[1] + np.concatenate(([0.0], np.cumsum((vn[1:] + vn[:-1]) / 2 * DT)))
-    up = np.full_like(e, altitude)
-    if any(hh != altitude for hh in heights):
-        # level from the start of each line's lead-in to the end of its lead-out, climbing in between
-        knots_t, knots_h = [], []
-        for k, hh in enumerate(heights, 1):
-            on = np.flatnonzero(label == k)
-            knots_t += [t[on[0]] - lead_in / speed, t[on[-1]] + lead_in / speed]
-            knots_h += [hh, hh]
-        up = np.interp(t, knots_t, knots_h)
-    pos = np.column_stack((e, n, up))
+    return omega, label
+
+
+def _integral(rate: np.ndarray) -> np.ndarray:
+    """The running integral of a quantity sampled every DT seconds (trapezoids), 0 at the first sample."""
+    return np.concatenate(([0.0], np.cumsum((rate[1:] + rate[:-1]) / 2 * DT)))
+
+
+def _heights(t: np.ndarray, label: np.ndarray, lines: list[Line], altitude: float, lead_s: float) -> np.ndarray:
+    """Height at each time: level from the start of each line's lead-in (*lead_s*) to the end of its lead-out,
+    climbing or descending in between."""
+    heights = [altitude if line.altitude is None else line.altitude for line in lines]
+    if all(hh == altitude for hh in heights):
+        return np.full(t.shape, altitude, dtype=np.float64)
+    knots_t, knots_h = [], []
+    for k, hh in enumerate(heights, 1):
+        on = np.flatnonzero(label == k)
+        knots_t += [t[on[0]] - lead_s, t[on[-1]] + lead_s]
+        knots_h += [hh, hh]
+    return np.interp(t, knots_t, knots_h)
+
+
+def _attitude(t: np.ndarray, omega_s: np.ndarray, speed: float, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Roll (coordinated-turn bank plus a small oscillation), pitch (oscillating) and a constant crab angle, radians."""
     rng = np.random.default_rng(seed)
     ph = rng.uniform(0, 2 * np.pi, 3)
     roll = np.arctan(speed * omega_s / G) + np.radians(0.6) * np.sin(2 * np.pi * 0.21 * t + ph[0])
     pitch = np.radians(1.5) + np.radians(0.4) * np.sin(2 * np.pi * 0.13 * t + ph[1])
     crab = np.radians(2.0) * np.sin(ph[2])
-    # a line keeps its label only where the smoothed turn rate has died away
-    label[np.abs(omega_s) > np.radians(0.05)] = 0
-    return Flight(t, pos, roll, pitch, heading + crab, label, speed)
+    return roll, pitch, crab

@@ -40,11 +40,6 @@ class Scene:
     canopy: np.ndarray
     cls: np.ndarray  # uint8
 
-    @property
-    def extent(self) -> tuple[float, float, float, float]:
-        ny, nx = self.ground.shape
-        return self.e0, self.e0 + nx * self.cell, self.n0, self.n0 + ny * self.cell
-
     def sample(self, grid: np.ndarray, e: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Bilinear value of a scene raster at local (e, n); NaN outside the grid."""
         ny, nx = grid.shape
@@ -76,15 +71,66 @@ def make_scene(extent: tuple[float, float, float, float], *, seed: int = 1, cell
     positions scale with the extent; *seed* moves buildings and trees.
     """
     rng = np.random.default_rng(seed)
-    e_min, e_max, n_min, n_max = extent
-    nx = int(np.ceil((e_max - e_min) / cell))
-    ny = int(np.ceil((n_max - n_min) / cell))
-    e = e_min + (np.arange(nx) + 0.5) * cell
-    n = n_min + (np.arange(ny) + 0.5) * cell
-    E, N = np.meshgrid(e, n)
-    w, h = e_max - e_min, n_max - n_min
+    g = _Lattice.of(extent, cell)
+    ground, river, banks, level = _river(g, _terrain(g))
+    cls = np.full(ground.shape, GROUND, np.uint8)
+    cls[river] = WATER
+    solid = ground.copy()
+    # a bridge deck crossing the river, 4 m above the water
+    bridge = banks & (np.abs(g.E - (g.e_min + 0.62 * g.w)) < 3.0)
+    solid[bridge] = level + 4.0
+    cls[bridge] = BRIDGE
+    # buildings: flat and gabled, away from the river and the slope band
+    free = ~banks
+    _add_buildings(g, rng, ground, solid, cls, free)
+    canopy = _canopy(g, rng, ground, solid, cls, free)
+    return Scene(g.e_min, g.n_min, cell, ground, solid, canopy, cls)
+
+
+@dataclass(frozen=True)
+class _Lattice:
+    """The cells of a scene: their centres (E, N: local metres) and the extent's corner and size."""
+
+    e_min: float
+    e_max: float
+    n_min: float
+    n_max: float
+    cell: float
+    E: np.ndarray
+    N: np.ndarray
+
+    @property
+    def w(self) -> float:
+        return self.e_max - self.e_min
+
+    @property
+    def h(self) -> float:
+        return self.n_max - self.n_min
+
+    @classmethod
+    def of(cls, extent: tuple[float, float, float, float], cell: float) -> _Lattice:
+        e_min, e_max, n_min, n_max = extent
+        nx = int(np.ceil((e_max - e_min) / cell))
+        ny = int(np.ceil((n_max - n_min) / cell))
+        e = e_min + (np.arange(nx) + 0.5) * cell
+        n = n_min + (np.arange(ny) + 0.5) * cell
+        E, N = np.meshgrid(e, n)
+        return cls(e_min, e_max, n_min, n_max, cell, E, N)
+
+    def window(self, cx: float, cy: float, rx: float, ry: float) -> tuple[slice, slice]:
+        """The rows and columns around the box of half-sides *rx*, *ry* centred on (*cx*, *cy*)."""
+        ny, nx = self.E.shape
+        e_min, n_min, cell = self.e_min, self.n_min, self.cell
+        i0, i1 = int(max(0, (cx - rx - e_min) / cell)), int(min(nx, (cx + rx - e_min) / cell + 2))
+        j0, j1 = int(max(0, (cy - ry - n_min) / cell)), int(min(ny, (cy + ry - n_min) / cell + 2))
+        return slice(j0, j1), slice(i0, i1)
+
+
+def _terrain(g: _Lattice) -> np.ndarray:
+    """The bare earth before the river: hills, rolling relief, a 30-degree slope and a terrace."""
+    E, N, e_min, n_min, w = g.E, g.N, g.e_min, g.n_min, g.w
     u = (E - e_min) / w  # 0..1 across the scene
-    v = (N - n_min) / h
+    v = (N - n_min) / g.h
     # smooth hills (amplitude a few metres) on a gentle regional slope
     ground = 4.0 * np.sin(2 * np.pi * u * 1.3 + 0.4) * np.cos(2 * np.pi * v * 0.9) + 0.01 * (E - e_min)
     ground += 3.0 * np.exp(-(((u - 0.75) / 0.12) ** 2 + ((v - 0.7) / 0.15) ** 2))
@@ -96,33 +142,35 @@ def make_scene(extent: tuple[float, float, float, float], *, seed: int = 1, cell
     ground += band * 12.0 * np.tan(np.radians(30.0))
     # a terrace: a 3 m step (breakline) along a north-south line in the west
     ground += np.where(E > e_min + 0.3 * w, 3.0, 0.0) * (v < 0.5)
-    # a river along the east-west direction at 55 % of the height; water is flat
-    river = np.abs(N - (n_min + 0.55 * h)) < max(6.0, 0.03 * h)
-    banks = np.abs(N - (n_min + 0.55 * h)) < max(10.0, 0.05 * h)
+    return ground
+
+
+def _river(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """A river along the east-west direction at 55 % of the height, its water flat: the ground with it,
+    the river's and its banks' cells, the water level."""
+    h, centre = g.h, g.n_min + 0.55 * g.h
+    river = np.abs(g.N - centre) < max(6.0, 0.03 * h)
+    banks = np.abs(g.N - centre) < max(10.0, 0.05 * h)
     level = float(np.percentile(ground[banks], 5)) - 1.0
     ground = np.where(banks & ~river, np.minimum(ground, level + 1.5), ground)
     ground = np.where(river, level, ground)
-    cls = np.full(ground.shape, GROUND, np.uint8)
-    cls[river] = WATER
-    solid = ground.copy()
-    # a bridge deck crossing the river, 4 m above the water
-    bridge = banks & (np.abs(E - (e_min + 0.62 * w)) < 3.0)
-    solid[bridge] = level + 4.0
-    cls[bridge] = BRIDGE
-    # buildings: flat and gabled, away from the river and the slope band
-    free = ~banks
+    return ground, river, banks, level
 
-    def window(cx: float, cy: float, rx: float, ry: float) -> tuple[slice, slice]:
-        i0, i1 = int(max(0, (cx - rx - e_min) / cell)), int(min(nx, (cx + rx - e_min) / cell + 2))
-        j0, j1 = int(max(0, (cy - ry - n_min) / cell)), int(min(ny, (cy + ry - n_min) / cell + 2))
-        return slice(j0, j1), slice(i0, i1)
 
+def _add_buildings(
+    g: _Lattice, rng: np.random.Generator, ground: np.ndarray, solid: np.ndarray, cls: np.ndarray, free: np.ndarray
+) -> None:
+    """Flat-roofed and gabled buildings on free, open ground (in *solid*, *cls* and *free*, in place)."""
+    w, h = g.w, g.h
     for k in range(max(2, int(w * h / 3000))):
         for _ in range(50):
-            cx, cy = rng.uniform(e_min + 0.1 * w, e_max - 0.1 * w), rng.uniform(n_min + 0.1 * h, n_max - 0.1 * h)
+            cx, cy = (
+                rng.uniform(g.e_min + 0.1 * w, g.e_max - 0.1 * w),
+                rng.uniform(g.n_min + 0.1 * h, g.n_max - 0.1 * h),
+            )
             bw, bh = rng.uniform(8, 20), rng.uniform(8, 16)
-            win = window(cx, cy, bw / 2 + 4, bh / 2 + 4)
-            Ew, Nw = E[win], N[win]
+            win = g.window(cx, cy, bw / 2 + 4, bh / 2 + 4)
+            Ew, Nw = g.E[win], g.N[win]
             box = (np.abs(Ew - cx) < bw / 2) & (np.abs(Nw - cy) < bh / 2)
             if box.any() and np.all(free[win]) and np.all(cls[win] == GROUND):
                 break
@@ -137,20 +185,27 @@ def make_scene(extent: tuple[float, float, float, float], *, seed: int = 1, cell
         solid[win] = np.where(box, roof, solid[win])
         cls[win][box] = BUILDING
         free[win] = False
-    # trees: half-ellipsoid crowns on open ground
+
+
+def _canopy(
+    g: _Lattice, rng: np.random.Generator, ground: np.ndarray, solid: np.ndarray, cls: np.ndarray, free: np.ndarray
+) -> np.ndarray:
+    """The solid surface with trees: half-ellipsoid crowns on open ground."""
+    ny, nx = g.E.shape
+    w, h = g.w, g.h
     canopy = solid.copy()
     for _ in range(int(w * h / 400)):
-        cx, cy = rng.uniform(e_min, e_max), rng.uniform(n_min, n_max)
+        cx, cy = rng.uniform(g.e_min, g.e_max), rng.uniform(g.n_min, g.n_max)
         r, top = rng.uniform(2, 5), rng.uniform(6, 16)
-        ix, iy = int((cx - e_min) / cell), int((cy - n_min) / cell)
+        ix, iy = int((cx - g.e_min) / g.cell), int((cy - g.n_min) / g.cell)
         if not (0 <= ix < nx and 0 <= iy < ny) or cls[iy, ix] != GROUND or not free[iy, ix]:
             continue
-        win = window(cx, cy, r, r)
-        d2 = ((E[win] - cx) ** 2 + (N[win] - cy) ** 2) / r**2
+        win = g.window(cx, cy, r, r)
+        d2 = ((g.E[win] - cx) ** 2 + (g.N[win] - cy) ** 2) / r**2
         crown = ground[iy, ix] + top * np.sqrt(np.clip(1 - d2, 0, None))
         inside = (d2 < 1) & (cls[win] == GROUND)
         canopy[win] = np.where(inside, np.maximum(canopy[win], crown), canopy[win])
-    return Scene(e_min, n_min, cell, ground, solid, canopy, cls)
+    return canopy
 
 
 def cast(

@@ -21,13 +21,13 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="simulation configuration (YAML)")
     p.add_argument("--out", type=Path, help="folder to write (default: the config's output; with surveys, DIR/<name>)")
     p.add_argument("--only", action="append", default=[], metavar="NAME", help="only this survey (repeatable)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a configuration key (repeatable)")  # fmt: skip
+    overrides = "override a configuration key (repeatable)"
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=overrides)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dtm.commands.simulate.settings import SimulateConfig, SimulateFile
-    from dtm.commands.simulate.simulator import SimConfigError, simulate
+    from dtm.commands.simulate.settings import SimConfigError, SimulateConfig, SimulateFile
+    from dtm.commands.simulate.simulator import simulate
     from pipeline.config import load_config, load_yaml
 
     if not args.config.is_file():

@@ -2,20 +2,16 @@
 
 The simulator builds the truth that georeferencing is checked against, so it
 must not build it with the code it checks (issue 19): nothing here comes from
-:mod:`dtm.common.georeferencing`.  The attitude and mounting chain is
-:class:`scipy.spatial.transform.Rotation`; ECEF, the local east-north-up frame
-and the output CRS are PROJ (pyproj: ``EPSG:4979`` <-> ``EPSG:4978``, the
-``topocentric`` conversion for the local frame).  Only the local-level axes at
-a point (north, east, down) are written out, as the two rotations
-``Rz(lon + 90 deg) Rx(90 deg - lat)`` of the textbook ENU frame (e.g.
-Hofmann-Wellenhof, Lichtenegger and Wasle 2008, *GNSS*, Springer,
-doi:10.1007/978-3-211-73017-1); a test checks them against PROJ (the
-derivatives of the geodetic-to-ECEF transform).
+:mod:`dtm.common.georeferencing`.  Rotations are scipy's ``Rotation``; ECEF,
+the local east-north-up frame and the output CRS are PROJ (``EPSG:4979`` <->
+``EPSG:4978``, the ``topocentric`` conversion).  Only the local-level axes at
+a point are written out, as ``Rz(lon + 90 deg) Rx(90 deg - lat)`` (e.g.
+Hofmann-Wellenhof et al. 2008, *GNSS*, doi:10.1007/978-3-211-73017-1); a test
+checks them against PROJ.
 
 Conventions (those of the files the simulator writes): body axes
 forward-right-down, attitude ``R_ned<-body = Rz(heading) Ry(pitch) Rx(roll)``
-(aviation; heading clockwise from north), the scanner's mounting
-``R_body<-scanner`` and lever arm in body axes.
+(aviation; heading clockwise from north), the mounting ``R_body<-scanner``.
 """
 
 from __future__ import annotations
@@ -25,6 +21,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 #: NED axes as rows of ENU: v_enu = NED_TO_ENU @ v_ned
 NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+#: NED <-> NWU and forward-right-down <-> forward-left-up
+D_FLIP = np.diag([1.0, -1.0, -1.0])
 
 
 def attitude(roll: np.ndarray, pitch: np.ndarray, heading: np.ndarray) -> Rotation:

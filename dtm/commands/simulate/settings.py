@@ -17,6 +17,10 @@ from pipeline.config import RelPath, StrictModel
 FORMATS = ("ldmrs_mtig", "lmsq_nmea", "lmsq_sbet", "las")
 
 
+class SimConfigError(ValueError):
+    """A combination of settings that cannot be simulated (the message says which)."""
+
+
 class Origin(StrictModel):
     lat: float = Field(40.4168, ge=-85, le=85, description="latitude of the scene centre, degrees (WGS 84)")
     lon: float = Field(-3.7038, ge=-180, le=180, description="longitude of the scene centre, degrees (WGS 84)")
@@ -139,6 +143,11 @@ class SimulateConfig(StrictModel):
     faults: Faults = Field(default_factory=Faults)
     truth_resolution: float = Field(1.0, gt=0, description="cell of truth/terrain.tif, metres")
     checkpoints: int = Field(40, ge=0, description="check points on the true terrain written to checkpoints.csv")
+
+    @property
+    def writes_lmsq(self) -> bool:
+        """The RIEGL stream and its navigation files are written (format 3.B or 3.C)."""
+        return any(f in self.formats for f in ("lmsq_nmea", "lmsq_sbet"))
 
 
 class SimulateFile(StrictModel):

@@ -15,8 +15,9 @@ import laspy
 import numpy as np
 import pytest
 
+from dtm.commands.simulate.faults import FAULT_CODES
 from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import FAULT_CODES, simulate
+from dtm.commands.simulate.simulator import simulate
 from dtm.common.columns import read_columns
 from pipeline.cli import main
 

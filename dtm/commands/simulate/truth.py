@@ -1,0 +1,113 @@
+"""The truth beside the points: the bare earth and its land cover on a grid of the output CRS, and check points."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dtm.commands.simulate import scene as sc
+from dtm.commands.simulate.forward import Earth
+
+
+def ground_height(world: sc.Scene, frame: Earth, crs, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Height in the output CRS where the vertical through (x, y) meets the bare earth, and the local (e, n)."""
+    import pyproj
+
+    from_crs = pyproj.Transformer.from_crs(crs, "EPSG:4978", always_xy=True)
+    h = np.full(len(x), frame.h0)
+    for _ in range(5):
+        ex, ey, ez = from_crs.transform(x, y, h)
+        local = frame.from_ecef(np.column_stack((ex, ey, ez)))
+        g = world.sample(world.ground, local[:, 0], local[:, 1])
+        h = h - (local[:, 2] - np.nan_to_num(g))
+    return np.where(np.isfinite(g), h, np.nan), local
+
+
+def write_checkpoints(
+    path: Path, world: sc.Scene, frame: Earth, crs, on_lines: np.ndarray, n: int, rng: np.random.Generator
+) -> None:
+    """GNSS-style check points on the true terrain: two thirds in the open, one third under trees.
+
+    Drawn under the flown lines (so the DTM covers them), at least 5 m from
+    buildings, water, the bridge, breaklines and slopes over 20 %, as a
+    surveyor would place them.
+    """
+    import pyproj
+
+    rows = _checkpoint_places(world, on_lines, n, rng)
+    local = np.array([[r[0], r[1], 0.0] for r in rows])
+    ecef = frame.to_ecef(local)
+    x, y, _ = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True).transform(
+        ecef[:, 0], ecef[:, 1], ecef[:, 2]
+    )
+    z, _ = ground_height(world, frame, crs, np.asarray(x), np.asarray(y))
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(f"# true terrain of the simulated survey; {crs.to_string()}, ellipsoidal heights, metres\n")
+        fh.write("id,x,y,z,land_cover\n")
+        for i, (xi, yi, zi, r) in enumerate(zip(x, y, z, rows, strict=True), 1):
+            fh.write(f"CP{i:03d},{xi:.3f},{yi:.3f},{zi:.3f},{r[2]}\n")
+
+
+def _checkpoint_places(
+    world: sc.Scene, on_lines: np.ndarray, n: int, rng: np.random.Generator
+) -> list[tuple[float, float, str]]:
+    """(e, n, land cover) of *n* check points within 20 m of the flown positions *on_lines*, every third under trees."""
+    from scipy.ndimage import binary_dilation
+
+    gy, gx = np.gradient(world.ground, world.cell)
+    steep = np.hypot(gx, gy) > 0.2  # breaklines and steep slopes: no check point within 5 m (ASPRS practice)
+    structures = binary_dilation((world.cls != sc.GROUND) | steep, iterations=int(5 / world.cell))
+    trees = world.canopy > world.solid + 0.5
+    rows = []
+    tries = 0
+    while len(rows) < n and tries < 200 * n:
+        tries += 1
+        k = int(rng.integers(len(on_lines)))
+        e, nn = on_lines[k, 0] + rng.uniform(-20, 20), on_lines[k, 1] + rng.uniform(-20, 20)
+        ix, iy = int((e - world.e0) / world.cell), int((nn - world.n0) / world.cell)
+        if not (0 <= iy < world.cls.shape[0] and 0 <= ix < world.cls.shape[1]) or structures[iy, ix]:
+            continue
+        want_tree = len(rows) % 3 == 2
+        if bool(trees[iy, ix]) != want_tree:
+            continue
+        rows.append((e, nn, "vegetated" if want_tree else "open"))
+    return rows
+
+
+def write_truth_terrain(folder: Path, world: sc.Scene, frame: Earth, crs, extent, resolution: float) -> None:
+    """The bare earth on a grid of the output CRS, and what covers it, on the same cells.
+
+    ``terrain.tif``: for each cell centre, the height where the vertical meets
+    the ground.  ``land_cover.tif`` (uint8, ASPRS class codes, 0 = outside the
+    scene): the class of the solid surface there (2 ground, 6 building,
+    9 water, 17 bridge deck), 5 where tree crowns stand more than 0.5 m above
+    it (the rule the check points' "vegetated" follows).
+    """
+    import pyproj
+    from rasterio.transform import from_origin
+
+    from dtm.common.rasters import NODATA, write_cog
+
+    e_min, e_max, n_min, n_max = extent
+    corners = np.array([[e_min, n_min, 0.0], [e_max, n_min, 0.0], [e_min, n_max, 0.0], [e_max, n_max, 0.0]])
+    to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
+    ec = frame.to_ecef(corners)
+    cx, cy, _ = to_crs.transform(ec[:, 0], ec[:, 1], ec[:, 2])
+    x0 = np.ceil(min(cx) / resolution) * resolution
+    y1 = np.floor(max(cy) / resolution) * resolution
+    nx = int((np.floor(max(cx) / resolution) * resolution - x0) / resolution)
+    ny = int((y1 - np.ceil(min(cy) / resolution) * resolution) / resolution)
+    xs = x0 + (np.arange(nx) + 0.5) * resolution
+    ys = y1 - (np.arange(ny) + 0.5) * resolution
+    X, Y = np.meshgrid(xs, ys)
+    h, local = ground_height(world, frame, crs, X.ravel(), Y.ravel())
+    z = np.where(np.isfinite(h), h, NODATA).reshape(ny, nx)
+    transform = from_origin(x0, y1, resolution, resolution)
+    write_cog(folder / "terrain.tif", z.astype(np.float32), transform=transform, crs=crs)
+    e, n = local[:, 0], local[:, 1]
+    cover = world.class_at(e, n).astype(np.uint8)
+    trees = world.sample(world.canopy, e, n) > world.sample(world.solid, e, n) + 0.5
+    cover = np.where(trees, sc.VEGETATION, cover)
+    cover = np.where(np.isfinite(h), cover, 0).reshape(ny, nx).astype(np.uint8)
+    write_cog(folder / "land_cover.tif", cover, transform=transform, crs=crs, nodata=0, dtype="uint8", unit=None)

@@ -1,11 +1,10 @@
 """A small synthetic, already georeferenced LiDAR scene with known truth.
 
-Used for the shipped sample ``data_samples/las/sample.laz`` and for tests that
-need the true terrain.  It is not the flight simulator (raw scanner and
-navigation logs come with their own issue): points are drawn uniformly over
-the area, as if from a perfectly georeferenced survey.
-
-Scene, in metres from the south-west corner of the area:
+Used for the shipped sample ``data_samples/las/sample.laz`` and for tests and
+benchmarks that need the true terrain.  Not the flight simulator
+(:mod:`dtm.commands.simulate`): points are drawn uniformly over the area, as
+if from a perfectly georeferenced survey.  In metres from the area's
+south-west corner:
 
 - terrain: a regional slope of 4 %, rolling hills (8 m amplitude) and a
   mound; all slopes below 25 degrees;
@@ -18,6 +17,7 @@ Scene, in metres from the south-west corner of the area:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import date
 
 import numpy as np
 
@@ -86,20 +86,11 @@ def make_scene(
     seed: int = 20111,
     n_trees: int = 60,
 ) -> Scene:
-    """Draw a synthetic survey.
+    """Draw a synthetic survey of *width* × *height* metres from (0, 0).
 
-    Parameters
-    ----------
-    width, height : float
-        Extent of the area (m), from (0, 0).
-    density : float
-        Pulses per square metre.
-    noise : float
-        Standard deviation of the vertical range noise (m).
-    seed : int
-        Seed of the random generator: equal seeds give equal scenes.
-    n_trees : int
-        Number of trees, placed away from buildings.
+    *density*: pulses per square metre; *noise*: standard deviation of the
+    vertical range noise (m); *seed*: equal seeds give equal scenes;
+    *n_trees*: trees, placed away from buildings.
 
     Returns
     -------
@@ -112,7 +103,18 @@ def make_scene(
     py = rng.uniform(0, height, n)
     ground_z = terrain(px, py)
     roof, in_building = _roof(px, py)
-    # Trees: away from buildings.
+    crown_h = _crown_heights(px, py, *_trees(rng, width, height, n_trees))
+    in_tree = (crown_h > 0) & ~in_building
+    strip = 1 + np.minimum((px / (width / 3.0)).astype(int), 2)
+    parts = [_open_returns(px, py, ground_z, roof, in_building, ~in_tree, strip)]
+    parts += _tree_returns(rng, px, py, ground_z, crown_h, in_tree, strip)
+    return _survey(rng, parts, noise)
+
+
+def _trees(
+    rng: np.random.Generator, width: float, height: float, n_trees: int
+) -> tuple[list[float], list[float], np.ndarray, np.ndarray]:
+    """Centres (away from buildings), crown radii and heights of *n_trees* trees."""
     tx, ty = [], []
     while len(tx) < n_trees:
         cx, cy = rng.uniform(10, width - 10), rng.uniform(10, height - 10)
@@ -121,7 +123,12 @@ def make_scene(
             ty.append(cy)
     tr = rng.uniform(3.0, 7.0, n_trees)
     th = rng.uniform(8.0, 18.0, n_trees)
-    crown_h = np.zeros(n)
+    return tx, ty, tr, th
+
+
+def _crown_heights(px: np.ndarray, py: np.ndarray, tx, ty, tr, th) -> np.ndarray:
+    """Height above the ground of the highest crown over each pulse (0: no crown)."""
+    crown_h = np.zeros(len(px))
     by_x = np.argsort(px, kind="stable")
     sorted_x = px[by_x]
     for cx, cy, r, h in zip(tx, ty, tr, th, strict=True):
@@ -131,20 +138,19 @@ def make_scene(
         inside = near[d2 < 1.0]
         d2 = d2[d2 < 1.0]
         crown_h[inside] = np.maximum(crown_h[inside], h * (0.6 + 0.4 * np.sqrt(1.0 - d2)))
-    in_tree = (crown_h > 0) & ~in_building
-    # Returns per pulse.
-    xs, ys, zs, truth, rn, nr, src = [], [], [], [], [], [], []
-    strip = 1 + np.minimum((px / (width / 3.0)).astype(int), 2)
-    # Open ground and roofs: one return.
-    single = ~in_tree
-    xs.append(px[single])
-    ys.append(py[single])
-    zs.append(np.where(in_building[single], roof[single], ground_z[single]))
-    truth.append(~in_building[single])
-    rn.append(np.ones(single.sum(), dtype=np.uint8))
-    nr.append(np.ones(single.sum(), dtype=np.uint8))
-    src.append(strip[single])
-    # Trees: canopy return, maybe a mid-crown one, then ground (60 %) or low branch.
+    return crown_h
+
+
+def _open_returns(px, py, ground_z, roof, in_building, single, strip) -> tuple[np.ndarray, ...]:
+    """One return per pulse on open ground and roofs: x, y, z, true ground, return number, returns, strip."""
+    z = np.where(in_building[single], roof[single], ground_z[single])
+    rn = np.ones(single.sum(), dtype=np.uint8)
+    nr = np.ones(single.sum(), dtype=np.uint8)
+    return px[single], py[single], z, ~in_building[single], rn, nr, strip[single]
+
+
+def _tree_returns(rng: np.random.Generator, px, py, ground_z, crown_h, in_tree, strip) -> list[tuple[np.ndarray, ...]]:
+    """Pulses in a crown: the canopy return, maybe a mid-crown one, then the ground (60 %) or a low branch."""
     idx = np.flatnonzero(in_tree)
     k = len(idx)
     reaches = rng.uniform(size=k) < 0.6
@@ -153,16 +159,19 @@ def make_scene(
     top = ground_z[idx] + crown_h[idx] - rng.uniform(0, 1.0, k)
     mid = ground_z[idx] + crown_h[idx] * rng.uniform(0.4, 0.8, k)
     low = np.where(reaches, ground_z[idx], ground_z[idx] + crown_h[idx] * rng.uniform(0.15, 0.35, k))
+    parts = []
     for order, (zz, present) in enumerate(((top, np.ones(k, bool)), (mid, has_mid), (low, np.ones(k, bool)))):
         sel = present
-        xs.append(px[idx][sel])
-        ys.append(py[idx][sel])
-        zs.append(zz[sel])
-        truth.append(reaches[sel] if order == 2 else np.zeros(sel.sum(), dtype=bool))
+        truth = reaches[sel] if order == 2 else np.zeros(sel.sum(), dtype=bool)
         number = n_ret[sel] if order == 2 else np.full(sel.sum(), order + 1)
-        rn.append(number.astype(np.uint8))
-        nr.append(n_ret[sel].astype(np.uint8))
-        src.append(strip[idx][sel])
+        rn, nr = number.astype(np.uint8), n_ret[sel].astype(np.uint8)
+        parts.append((px[idx][sel], py[idx][sel], zz[sel], truth, rn, nr, strip[idx][sel]))
+    return parts
+
+
+def _survey(rng: np.random.Generator, parts: list[tuple[np.ndarray, ...]], noise: float) -> Scene:
+    """The returns of *parts* together, with range noise, GPS times and intensities, in time order."""
+    xs, ys, zs, truth, rn, nr, src = (list(column) for column in zip(*parts, strict=True))
     x = np.concatenate(xs)
     y = np.concatenate(ys)
     z = np.concatenate(zs) + rng.normal(0.0, noise, len(x))
@@ -192,8 +201,20 @@ def _near_building(cx: float, cy: float, margin: float) -> bool:
     )
 
 
-def write_scene_las(scene: Scene, path, *, crs: str = SAMPLE_CRS, origin=SAMPLE_ORIGIN, compress: bool = True) -> None:
-    """Write a scene as an unclassified LAS 1.4 (format 6) file in *crs*."""
+def write_scene_las(
+    scene: Scene,
+    path,
+    *,
+    crs: str = SAMPLE_CRS,
+    origin=SAMPLE_ORIGIN,
+    compress: bool = True,
+    created: date | None = None,
+    software: str = "tests.synthetic.make_scene",
+) -> None:
+    """Write a scene as an unclassified LAS 1.4 (format 6) file in *crs*.
+
+    *created* and *software*: the header's creation date (default: today) and generating software.
+    """
     import laspy
     import pyproj
 
@@ -202,7 +223,9 @@ def write_scene_las(scene: Scene, path, *, crs: str = SAMPLE_CRS, origin=SAMPLE_
     header.offsets = np.array([origin[0], origin[1], 0.0])
     header.add_crs(pyproj.CRS.from_user_input(crs))
     header.system_identifier = "dtm-pipeline synthetic"
-    header.generating_software = "tests.synthetic.make_scene"
+    header.generating_software = software
+    if created is not None:
+        header.creation_date = created
     las = laspy.LasData(header)
     las.x = scene.x + origin[0]
     las.y = scene.y + origin[1]

@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.commands.budget.model import Catalogue, budget_table, ins_error, lx_max
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
 # The seed's worked example (system 1 at 300 m): e_T = 1.005 deg, alpha = 3 mrad.
 H, THETA, E_T, ALPHA = 300.0, 30.0, 1.005, math.degrees(0.003)
 
 
-def altitude_chart(ax, catalogue: Catalogue) -> None:
+def altitude_chart(ax: Axes, catalogue: Catalogue) -> None:
     """Fig. 4.11: L_xMAX grows linearly with the flying height."""
     w = lx_max(1.0, THETA, E_T, ALPHA)  # eq. 4.24-4.25: L_xMAX = h w
     h = np.linspace(0, 1500, 151)
@@ -22,7 +26,7 @@ def altitude_chart(ax, catalogue: Catalogue) -> None:
     ax.grid(alpha=0.3)
 
 
-def scan_angle_chart(ax, catalogue: Catalogue) -> None:
+def scan_angle_chart(ax: Axes, catalogue: Catalogue) -> None:
     """Fig. 4.12: L_xMAX against the maximum scan angle."""
     theta = np.linspace(0, 60, 121)
     ax.plot(theta, [lx_max(H, t, E_T, ALPHA) for t in theta])
@@ -34,7 +38,7 @@ def scan_angle_chart(ax, catalogue: Catalogue) -> None:
     ax.grid(alpha=0.3)
 
 
-def divergence_chart(ax, catalogue: Catalogue) -> None:
+def divergence_chart(ax: Axes, catalogue: Catalogue) -> None:
     """Fig. 4.13: L_xMAX against the beam divergence."""
     alpha = np.linspace(0.1, 5, 50)  # mrad
     ax.plot(alpha, [lx_max(H, THETA, E_T, math.degrees(a / 1000)) for a in alpha])
@@ -44,7 +48,7 @@ def divergence_chart(ax, catalogue: Catalogue) -> None:
     ax.grid(alpha=0.3)
 
 
-def ins_error_chart(ax, catalogue: Catalogue) -> None:
+def ins_error_chart(ax: Axes, catalogue: Catalogue) -> None:
     """Fig. 4.14: the horizontal error of an INS attitude error."""
     e = np.linspace(0, 2, 101)
     ax.plot(e, [ins_error(H, x) for x in e])
@@ -52,7 +56,7 @@ def ins_error_chart(ax, catalogue: Catalogue) -> None:
     ax.grid(alpha=0.3)
 
 
-def cost_precision_chart(ax, catalogue: Catalogue) -> None:
+def cost_precision_chart(ax: Axes, catalogue: Catalogue) -> None:
     """Total error at t = 0 against cost, for every system in range at 300, 600 and 1200 m (§4.6)."""
     for height, marker in ((300.0, "o"), (600.0, "s"), (1200.0, "^")):
         rows = [r for r in budget_table(catalogue, height) if r.in_range and r.cost_usd is not None]

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtm.commands.simulate.settings import NavigationConfig, ScannerConfig
+
 #: Seed 0: the SICK LD-MRS.  Range noise: the data sheet's 10 cm is
 #: statistical (1 sigma) error; layers and steps as configured there.
 LDMRS = {
@@ -77,7 +79,7 @@ class Scanner:
         return {"t": t, "dir": d, "channel": np.zeros(len(t), np.uint8), "angle": theta, "scan": k}
 
 
-def make_scanner(cfg) -> Scanner:
+def make_scanner(cfg: ScannerConfig) -> Scanner:
     """The configured scanner: preset values, overridden by any key set in the config."""
     if cfg.preset == "ldmrs":
         base = dict(LDMRS, kind="ldmrs", model=0, pulse_rate_hz=0.0)
@@ -102,7 +104,7 @@ def make_scanner(cfg) -> Scanner:
     return Scanner(**base)
 
 
-def navigation_sigmas(cfg) -> tuple[float, float]:
+def navigation_sigmas(cfg: NavigationConfig) -> tuple[float, float]:
     """(position sigma m, attitude sigma deg) of the configured navigation system."""
     if cfg.preset == "mtig":
         pos, att = MTIG["position_noise_m"], MTIG["attitude_noise_deg"]

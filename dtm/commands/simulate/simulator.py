@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from dtm.commands.simulate.sensors import Scanner, make_scanner, navigation_sigm
 from dtm.commands.simulate.settings import SimConfigError, SimulateConfig
 from dtm.commands.simulate.sinks import Sinks
 from dtm.commands.simulate.truth import write_checkpoints, write_truth_terrain
+
+if TYPE_CHECKING:
+    import pyproj
 
 
 @dataclass
@@ -118,7 +122,7 @@ def _scanner(cfg: SimulateConfig) -> Scanner:
     return scanner
 
 
-def truth_crs(setting: str, lon: float, lat: float):
+def truth_crs(setting: str, lon: float, lat: float) -> pyproj.CRS:
     """The projected CRS of the simulated LAS and truth files: *setting*, or the WGS 84 / UTM zone of the origin."""
     import pyproj
 
@@ -221,7 +225,7 @@ def _write_truth(
     out: Path,
     world: sc.Scene,
     frame: Earth,
-    crs,
+    crs: pyproj.CRS,
     extent: tuple[float, float, float, float],
     flight: Flight,
     rng: np.random.Generator,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,17 +21,22 @@ from dtm.commands.simulate.sensors import Scanner
 from dtm.commands.simulate.settings import SimulateConfig
 from dtm.commands.simulate.writers import LmsqWriter, create_text, utc_iso
 
+if TYPE_CHECKING:
+    import pyproj
+
 P_LINE = "P {} {} 0x{:02x} {:.4f} {:.4f} {:.4f}"
 
 
 class LasSink:
     """A LAZ written chunk by chunk (laspy + lazrs), LAS 1.4 point format 6, 0.1 mm scale."""
 
-    def __init__(self, path: Path, crs, to_map: MapProjection, *, extra_fault: bool = False):
+    def __init__(self, path: Path, crs: pyproj.CRS, to_map: MapProjection, *, extra_fault: bool = False):
         self.path, self.crs, self.to_map, self.extra_fault = path, crs, to_map, extra_fault
         self.writer = None
 
-    def add(self, xyz: np.ndarray, *, classification, fault=None, **cols) -> None:
+    def add(
+        self, xyz: np.ndarray, *, classification: np.ndarray, fault: np.ndarray | None = None, **cols: np.ndarray
+    ) -> None:
         """Points at local ENU *xyz*, with their classes, their ``fault`` codes (the truth) and columns *cols*."""
         import laspy
 
@@ -90,7 +96,16 @@ class _ScanChunk:
 class LdmrsLog:
     """The 3.A acquisition log: one record per LD-MRS scan with the MTi-G's state, and the scan faults."""
 
-    def __init__(self, path: Path, cfg: SimulateConfig, scanner: Scanner, plan: FaultPlan, start: float, nav, flight):
+    def __init__(
+        self,
+        path: Path,
+        cfg: SimulateConfig,
+        scanner: Scanner,
+        plan: FaultPlan,
+        start: float,
+        nav: Navigation,
+        flight: Flight,
+    ):
         self.plan, self.start, self.nav, self.flight = plan, start, nav, flight
         self.seed, self.leap = cfg.seed, cfg.leap_seconds
         self.period = 1.0 / scanner.scan_rate_hz

@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.commands.simulate import scene as sc
 from dtm.commands.simulate.forward import Earth
 
+if TYPE_CHECKING:
+    import pyproj
 
-def ground_height(world: sc.Scene, frame: Earth, crs, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+
+def ground_height(
+    world: sc.Scene, frame: Earth, crs: pyproj.CRS, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Height in the output CRS where the vertical through (x, y) meets the bare earth, and the local (e, n)."""
     import pyproj
 
@@ -25,7 +31,7 @@ def ground_height(world: sc.Scene, frame: Earth, crs, x: np.ndarray, y: np.ndarr
 
 
 def write_checkpoints(
-    path: Path, world: sc.Scene, frame: Earth, crs, on_lines: np.ndarray, n: int, rng: np.random.Generator
+    path: Path, world: sc.Scene, frame: Earth, crs: pyproj.CRS, on_lines: np.ndarray, n: int, rng: np.random.Generator
 ) -> None:
     """GNSS-style check points on the true terrain: two thirds in the open, one third under trees.
 
@@ -75,7 +81,14 @@ def _checkpoint_places(
     return rows
 
 
-def write_truth_terrain(folder: Path, world: sc.Scene, frame: Earth, crs, extent, resolution: float) -> None:
+def write_truth_terrain(
+    folder: Path,
+    world: sc.Scene,
+    frame: Earth,
+    crs: pyproj.CRS,
+    extent: tuple[float, float, float, float],
+    resolution: float,
+) -> None:
     """The bare earth on a grid of the output CRS, and what covers it, on the same cells.
 
     ``terrain.tif``: for each cell centre, the height where the vertical meets

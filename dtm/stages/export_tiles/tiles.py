@@ -9,12 +9,16 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 from xml.sax.saxutils import escape
 
 import numpy as np
 
 from dtm.common.rasters import NODATA
 from pipeline.errors import ConfigError
+
+if TYPE_CHECKING:
+    from affine import Affine
 
 
 def tile_cells(tile_size_m: float, resolution_m: float) -> int:
@@ -43,7 +47,7 @@ def corner_name(value: float) -> str:
     return f"{value:.3f}"
 
 
-def tile_corners(transform, width: int, height: int, side: float) -> list[tuple[float, float]]:
+def tile_corners(transform: Affine, width: int, height: int, side: float) -> list[tuple[float, float]]:
     """Lower-left corners of the tiles of *side* that touch the raster, north to south, west to east.
 
     Tiles lie on the grid of whole multiples of *side* (cells of ``dtm.tif``

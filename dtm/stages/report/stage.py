@@ -19,9 +19,7 @@ histogram and the ASPRS figures, each labelled with what it is computed on.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 import time
 from dataclasses import dataclass, field
@@ -33,19 +31,10 @@ from pydantic import Field
 
 from dtm.common import glossary
 from dtm.stages.report.acceptance import DEFAULT_SPECIFICATION, MEASURES, SPECIFICATIONS
+from dtm.stages.report.maps import RELIEF, STRIP_COLOURS, MapFrame, category_map, histogram_png, raster_map
+from dtm.stages.report.markup import figure, fmt, grid, table, unit_symbol
 from pipeline import __version__
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
-
-# Colour ramps: (position 0-1, RGB) - used by strip_adjust's PNG.
-TERRAIN = [
-    (0.0, (38, 115, 77)),
-    (0.3, (134, 179, 89)),
-    (0.55, (230, 217, 140)),
-    (0.8, (166, 120, 77)),
-    (1.0, (245, 245, 245)),
-]
-RELIEF = "relief"  # matplotlib's terrain without its blue (sea) end: registered by _new_axes
-UNIT_SYMBOLS = {"metre": "m", "foot": "ft", "US survey foot": "US ft"}
 
 
 class ReportParams(StageParams):
@@ -56,242 +45,6 @@ class ReportParams(StageParams):
         "table): usgs-lbs-ql2 (default: the 3DEP baseline most public lidar contracts cite), usgs-lbs-ql1, "
         "asprs-2023-10cm, or none (measured values only)",
     )
-
-
-def unit_symbol(name: str) -> str:
-    """'m', 'ft' or 'US ft' for a unit name of :class:`dtm.common.units.Units`."""
-    return UNIT_SYMBOLS.get(name, name)
-
-
-def _thin(array: np.ndarray, max_size: int) -> tuple[np.ndarray, int]:
-    step = max(1, int(np.ceil(max(array.shape[:2]) / max_size)))
-    return array[::step, ::step], step
-
-
-def _img(png: bytes, alt: str) -> str:
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
-
-
-def _figure(png: bytes, alt: str, caption: str) -> str:
-    return f"<figure>{_img(png, alt)}<figcaption>{caption}</figcaption></figure>"
-
-
-def _fmt(value: object) -> str:
-    if isinstance(value, bool):
-        return "yes" if value else "no"
-    if isinstance(value, float):
-        if not np.isfinite(value):
-            return "—"
-        return f"{value:,.3f}".rstrip("0").rstrip(".") if abs(value) < 1e6 else f"{value:,.0f}"
-    if isinstance(value, (int, np.integer)):
-        return f"{int(value):,}"
-    return "—" if value is None else str(value)
-
-
-def _table(rows: list[tuple[str, object]]) -> str:
-    body = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(_fmt(v))}</td></tr>" for k, v in rows)
-    return f"<table>{body}</table>"
-
-
-def _grid(header: list[str], rows: list[list[object]], cls: str = "") -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in row) + "</tr>" for row in rows)
-    return f'<table class="{cls}"><tr>{head}</tr>{body}</table>'
-
-
-# --------------------------------------------------------------------------- maps
-
-
-@dataclass
-class MapFrame:
-    """Where a raster sits: upper-left corner, cell size (CRS units) and the unit's symbol."""
-
-    x0: float
-    y1: float
-    cell: float
-    unit: str
-
-    def extent(self, shape: tuple[int, int], step: int = 1) -> tuple[float, float, float, float]:
-        rows, cols = shape
-        return (self.x0, self.x0 + cols * step * self.cell, self.y1 - rows * step * self.cell, self.y1)
-
-
-def _nice_length(span: float) -> float:
-    raw = span / 5.0
-    mag = 10 ** np.floor(np.log10(raw)) if raw > 0 else 1.0
-    return float(max(v * mag for v in (1, 2, 5) if v * mag <= raw) if raw >= mag else mag)
-
-
-def _decorate(ax, extent, unit: str) -> None:
-    """Coordinate ticks, a scale bar and a grid-north arrow."""
-    from matplotlib.patches import FancyArrow, Rectangle
-
-    x0, x1, y0, y1 = extent
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
-    ax.ticklabel_format(useOffset=False, style="plain")
-    ax.tick_params(labelsize=7)
-    for label in ax.get_xticklabels():
-        label.set_rotation(30)
-    ax.set_xlabel(f"easting ({unit})", fontsize=8)
-    ax.set_ylabel(f"northing ({unit})", fontsize=8)
-    width, height = x1 - x0, y1 - y0
-    length = _nice_length(width)
-    bx, by = x0 + 0.05 * width, y0 + 0.05 * height
-    ax.add_patch(Rectangle((bx, by), length, 0.012 * height, facecolor="black", edgecolor="black", zorder=5))
-    ax.add_patch(Rectangle((bx, by), length / 2, 0.012 * height, facecolor="white", edgecolor="black", zorder=6))
-    ax.text(bx + length / 2, by + 0.025 * height, f"{length:g} {unit}", ha="center", fontsize=7, zorder=6,
-            bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none", "pad": 1})  # fmt: skip
-    ax_x, ax_y = x1 - 0.06 * width, y1 - 0.2 * height
-    ax.add_patch(FancyArrow(ax_x, ax_y, 0, 0.1 * height, width=0.012 * width, head_width=0.035 * width,
-                            head_length=0.04 * height, length_includes_head=True, color="black", zorder=6))  # fmt: skip
-    ax.text(ax_x, ax_y + 0.115 * height, "N", ha="center", fontsize=8, weight="bold", zorder=6)
-
-
-def _render(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return buf.getvalue()
-
-
-def _new_axes(shape, max_size):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
-
-    if RELIEF not in matplotlib.colormaps:
-        matplotlib.colormaps.register(ListedColormap(plt.cm.terrain(np.linspace(0.25, 1.0, 256)), name=RELIEF))
-    rows, cols = shape
-    aspect = rows / max(cols, 1)
-    width = 6.0
-    fig, ax = plt.subplots(figsize=(width, max(2.5, min(9.0, width * aspect + 0.8))))
-    return fig, ax
-
-
-def raster_map(
-    values: np.ndarray,
-    frame: MapFrame,
-    *,
-    cmap: str,
-    label: str,
-    title: str,
-    max_size: int,
-    vmin: float | None = None,
-    vmax: float | None = None,
-    shade: np.ndarray | None = None,
-    threshold: float | None = None,
-    threshold_label: str = "",
-    points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-    lines: list[tuple[np.ndarray, np.ndarray, str]] | None = None,
-) -> bytes:
-    """A map as PNG: *values* coloured with a colour bar labelled *label*, over an optional hillshade.
-
-    *threshold* draws a line on the colour bar and the contour on the map;
-    *points* ``(x, y, value)`` are drawn as dots coloured on the same scale;
-    *lines* ``(x, y, name)`` as labelled lines.
-    """
-    fig, ax = _new_axes(values.shape, max_size)
-    thin, step = _thin(values, max_size)
-    extent = frame.extent(thin.shape, step)
-    if shade is not None:
-        ax.imshow(_thin(shade, max_size)[0], cmap="gray", extent=extent, vmin=0, vmax=255, interpolation="nearest")
-    finite = np.isfinite(thin)
-    lo = vmin if vmin is not None else (float(np.nanmin(thin)) if finite.any() else 0.0)
-    hi = vmax if vmax is not None else (float(np.nanmax(thin)) if finite.any() else 1.0)
-    hi = hi if hi > lo else lo + 1.0
-    mappable = ax.imshow(np.ma.masked_invalid(thin), cmap=cmap, vmin=lo, vmax=hi, extent=extent,
-                         alpha=0.6 if shade is not None else 1.0, interpolation="nearest")  # fmt: skip
-    if points is not None and len(points[0]):
-        mappable = ax.scatter(points[0], points[1], c=points[2], cmap=cmap, vmin=lo, vmax=hi, s=28,
-                              edgecolors="black", linewidths=0.6, zorder=4)  # fmt: skip
-    if lines:
-        from matplotlib.lines import Line2D
-
-        colours = [tuple(c / 255 for c in rgb) for rgb in STRIP_COLOURS]
-        handles = []
-        for i, (x, y, name) in enumerate(lines):
-            ax.plot(x, y, color=colours[i % len(colours)], lw=1.6, zorder=4)
-            handles.append(Line2D([0], [0], color=colours[i % len(colours)], lw=2, label=name))
-        ax.legend(handles=handles, fontsize=7, loc="lower right", framealpha=0.8)
-    bar = fig.colorbar(mappable, ax=ax, shrink=0.8)
-    bar.set_label(label, fontsize=8)
-    bar.ax.tick_params(labelsize=7)
-    if threshold is not None and lo < threshold < hi:
-        bar.ax.axhline(threshold, color="red", lw=2)
-        bar.ax.text(1.05, threshold, threshold_label, color="red", fontsize=7, transform=bar.ax.get_yaxis_transform())
-        if finite.any() and min(thin.shape) >= 2:  # a contour needs 2 x 2 cells
-            ys = np.linspace(extent[3], extent[2], thin.shape[0])
-            xs = np.linspace(extent[0], extent[1], thin.shape[1])
-            ax.contour(xs, ys, np.nan_to_num(thin, nan=hi), levels=[threshold], colors="red", linewidths=0.8)
-    ax.set_title(title, fontsize=9)
-    _decorate(ax, extent, frame.unit)
-    return _render(fig)
-
-
-def category_map(
-    classes: np.ndarray, frame: MapFrame, names: list[tuple[int, str, tuple]], *, title: str, max_size: int,
-    shade: np.ndarray | None = None,
-) -> bytes:  # fmt: skip
-    """A map of categories (-1: none) with a legend of ``(value, name, rgb 0-255)``."""
-    from matplotlib.patches import Patch
-
-    fig, ax = _new_axes(classes.shape, max_size)
-    thin, step = _thin(classes, max_size)
-    extent = frame.extent(thin.shape, step)
-    rgba = np.zeros(thin.shape + (4,))
-    for value, _, rgb in names:
-        rgba[thin == value] = (*(c / 255 for c in rgb), 1.0)
-    if shade is not None:
-        ax.imshow(_thin(shade, max_size)[0], cmap="gray", extent=extent, vmin=0, vmax=255, interpolation="nearest")
-        rgba[..., 3] = np.where(rgba[..., 3] > 0, 0.75, 0.0)
-    ax.imshow(rgba, extent=extent, interpolation="nearest")
-    ax.legend(handles=[Patch(color=tuple(c / 255 for c in rgb), label=name) for _, name, rgb in names],
-              fontsize=7, loc="upper left", framealpha=0.85)  # fmt: skip
-    ax.set_title(title, fontsize=9)
-    _decorate(ax, extent, frame.unit)
-    return _render(fig)
-
-
-def histogram_png(errors: np.ndarray, labels: np.ndarray) -> bytes:
-    """Histogram of check-point errors (metres), one colour per land cover."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.0, 2.8))
-    finite = np.isfinite(errors)
-    bins = np.linspace(float(np.min(errors[finite])), float(np.max(errors[finite])), 16) if finite.sum() > 1 else 10
-    groups = sorted(set(labels[finite].tolist()))
-    ax.hist([errors[finite & (labels == g)] for g in groups], bins=bins, stacked=True, label=groups)
-    ax.axvline(0.0, color="black", lw=0.8)
-    ax.set_xlabel("DTM − check point (m)", fontsize=8)
-    ax.set_ylabel("check points", fontsize=8)
-    ax.tick_params(labelsize=7)
-    ax.legend(fontsize=7, title="land cover", title_fontsize=7)
-    return _render(fig)
-
-
-STRIP_COLOURS = np.array(
-    [
-        (31, 119, 180),
-        (255, 127, 14),
-        (44, 160, 44),
-        (214, 39, 40),
-        (148, 103, 189),
-        (140, 86, 75),
-        (227, 119, 194),
-        (127, 127, 127),
-        (188, 189, 34),
-        (23, 190, 207),
-    ],
-    dtype=np.float64,
-)
 
 
 # --------------------------------------------------------------------------- the cloud
@@ -543,7 +296,7 @@ def _mounting_table(corrections: dict) -> str:
         lead += f"; residual σ of one point {corrections['residual_sigma_m']:.4f} m"
     if corrections.get("largest_point_move_m") is not None:
         lead += f"; largest point move {corrections['largest_point_move_m']:.4f} m"
-    return lead + ".</p>" + _grid(header, rows)
+    return lead + ".</p>" + grid(header, rows)
 
 
 def _strip_table(corrections: dict, cloud_strips: np.ndarray) -> str:
@@ -555,7 +308,7 @@ def _strip_table(corrections: dict, cloud_strips: np.ndarray) -> str:
         note = corrections.get("note")
         out = f"<p>{html.escape(note)}</p>" if note else ""
         out += _mounting_table(corrections)
-        return out + ("<h3>Overlaps (planar patches)</h3>" + _grid(header, pair_rows) if pairs else "")
+        return out + ("<h3>Overlaps (planar patches)</h3>" + grid(header, pair_rows) if pairs else "")
     datum = corrections.get("datum") or ""
     ref = int(datum.split()[1]) if datum.startswith("strip ") else None
     weak = {int(k) for k in corrections.get("not_determined", {})}
@@ -571,13 +324,13 @@ def _strip_table(corrections: dict, cloud_strips: np.ndarray) -> str:
         if s > 0 and int(s) not in listed:
             rows.append([str(int(s)), None, "no overlap with another strip: not adjusted", None, None, None])
     header = ["strip", "points", "status", "shift x / y / z (m)", "rotation x / y / z (°)", "1-σ shift (m)"]
-    table = _grid(header, rows)
+    strips_html = grid(header, rows)
     pairs = corrections.get("pairs") or []
     pair_rows = [[f"{p['strips'][0]} – {p['strips'][1]}", p["overlap_area_m2"], p["patches"], p["points"],
                   p["rms_before_m"], p["rms_after_m"]] for p in pairs]  # fmt: skip
     pair_html = (
         "<h3>Overlaps (planar patches)</h3>"
-        + _grid(["strips", "overlap (m²)", "patches", "points", "RMS before (m)", "RMS after (m)"], pair_rows)
+        + grid(["strips", "overlap (m²)", "patches", "points", "RMS before (m)", "RMS after (m)"], pair_rows)
         if pairs
         else ""
     )
@@ -587,7 +340,7 @@ def _strip_table(corrections: dict, cloud_strips: np.ndarray) -> str:
         if datum
         else f"<p>{html.escape(note or 'Strips were not adjusted.')}</p>"
     )
-    return lead + table + pair_html
+    return lead + strips_html + pair_html
 
 
 def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int) -> tuple[str, dict]:
@@ -598,7 +351,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     parse = metrics.get("parse", {})
     noise = metrics.get("denoise", {})
     ground = metrics.get("classify_ground", {})
-    grid = metrics.get("rasterize", {})
+    dtm_grid = metrics.get("rasterize", {})
     accuracy = metrics.get("accuracy")
     geo = metrics.get("georeference")
     cloud, frame = data.cloud, data.frame
@@ -620,7 +373,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     figures = []
     png = raster_map(dtm, frame, cmap=RELIEF, label=f"elevation ({vu})", title="DTM over hillshade",
                      max_size=max_size, vmin=lo, vmax=hi, shade=shade)  # fmt: skip
-    figures.append(_figure(png, "DTM colour relief over hillshade",
+    figures.append(figure(png, "DTM colour relief over hillshade",
                            f"DTM, colour relief over hillshade: {lo:,.2f} to {hi:,.2f} {vu}; nodata white."))  # fmt: skip
     if cloud.first_returns is not None:
         k = max(1, int(round(5.0 / cell_m)))
@@ -640,7 +393,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
             else ""
         )
         mean_pts = float(np.nansum(data.density)) / max(float(np.isfinite(data.density).sum()), 1.0) / cell_m**2
-        figures.append(_figure(png, "pulse density",
+        figures.append(figure(png, "pulse density",
                                f"First returns (noise and withheld excluded) per m², in squares of {k * cell_m:.1f} m"
                                f"{limit_txt}. All points: {mean_pts:.2f} per m² on average over the DTM grid."))  # fmt: skip
     # all points per m² (density.tif: points per cell, noise and withheld excluded), in the same squares
@@ -653,7 +406,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         png = raster_map(pts_m2, MapFrame(frame.x0, frame.y1, frame.cell * k, hu), cmap="viridis",
                          label="points per m²", title="point density (all returns)", max_size=max_size, vmin=0.0,
                          vmax=max(float(np.nanpercentile(pts_m2, 99)), 1.0))  # fmt: skip
-        figures.append(_figure(png, "point density",
+        figures.append(figure(png, "point density",
                                f"Points of every return (density.tif; noise and withheld excluded) per m², in "
                                f"squares of {k * cell_m:.1f} m."))  # fmt: skip
     # strip coverage
@@ -664,7 +417,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         idx[has] = np.searchsorted(np.array(unique), cloud.strip_grid[has])
         names = [(i, f"strip {s}" if s > 0 else "not a strip (0)", tuple(STRIP_COLOURS[i % 10])) for i, s in enumerate(unique)][:20]  # fmt: skip
         png = category_map(idx, frame, names, title="flight strips (point_source_id)", max_size=max_size)
-        figures.append(_figure(png, "flight strip coverage",
+        figures.append(figure(png, "flight strip coverage",
                                "Flight strips: the strip of the last point read in each DTM cell."))  # fmt: skip
     if data.differences is not None:
         before, after, dframe = data.differences
@@ -675,7 +428,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
             png = raster_map(arr, dframe, cmap="RdBu_r", label=f"strip-to-strip difference ({vu})",
                              title=f"strip differences {label} adjustment", max_size=max_size, vmin=-scale, vmax=scale,
                              shade=None)  # fmt: skip
-            figures.append(_figure(png, f"strip differences {label} adjustment",
+            figures.append(figure(png, f"strip differences {label} adjustment",
                                    f"Mean signed distance between overlapping strips at planar patches, {label} "
                                    f"adjustment (strip_difference_{label}.tif), ±{scale:.3g} {vu} (±16 cm); "
                                    "blank where no planar overlap."))  # fmt: skip
@@ -691,7 +444,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         png = category_map(cats, frame, [(0, "DTM", (200, 200, 200)), (1, "DTM nodata inside the area", (255, 170, 0)),
                                          (2, f"void ≥ {extra['void_side_m']:.1f} m square", (200, 0, 0))],
                            title="voids", max_size=max_size, shade=shade)  # fmt: skip
-        figures.append(_figure(png, "voids",
+        figures.append(figure(png, "voids",
                                f"Voids: DTM nodata cells enclosed by the DTM (orange), and squares of "
                                f"{extra['void_side_m']:.1f} m (4 × the measured pulse spacing) without a first "
                                f"return inside the covered area (red): {measured['voids']} of them. Water and other surfaces that "
@@ -705,7 +458,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         png = raster_map(np.full(dtm.shape, np.nan), frame, cmap="RdBu_r", label="DTM − check point (m)",
                          title="check-point residuals", max_size=max_size, vmin=-span, vmax=span, shade=shade,
                          points=(cp["x"][np.isfinite(err)], cp["y"][np.isfinite(err)], err[np.isfinite(err)]))  # fmt: skip
-        figures.append(_figure(png, "check-point residuals",
+        figures.append(figure(png, "check-point residuals",
                                f"Check points coloured by DTM − check point (metres, scale ±{span:.3f} m: the 95th percentile "
                                "of |error|; larger errors take the end colours), over the hillshade."))  # fmt: skip
     if data.uncertainty is not None:
@@ -713,22 +466,22 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         ulo, uhi = (float(np.nanpercentile(u, 1)), float(np.nanpercentile(u, 99))) if np.isfinite(u).any() else (0, 1)
         png = raster_map(u, frame, cmap="viridis", label=f"DTM 1-σ ({vu})", title="DTM uncertainty",
                          max_size=max_size, vmin=ulo, vmax=uhi)  # fmt: skip
-        figures.append(_figure(png, "DTM uncertainty",
+        figures.append(figure(png, "DTM uncertainty",
                                f"DTM uncertainty (dtm_uncertainty.tif), 1 σ in {vu}, propagated from the "
                                f"georeferencing errors; colours from the 1st ({ulo:.3f}) to the 99th ({uhi:.3f}) percentile."))  # fmt: skip
     if data.trajectory:
         png = raster_map(dtm, frame, cmap=RELIEF, label=f"elevation ({vu})",
                          title="flight lines", max_size=max_size, vmin=lo, vmax=hi, shade=shade,
                          lines=data.trajectory)  # fmt: skip
-        figures.append(_figure(png, "flight lines",
+        figures.append(figure(png, "flight lines",
                                "Trajectory over the survey: one colour per flight line (qc/trajectory.gpkg)."))  # fmt: skip
 
     # ---- tables
-    inputs_html = _grid(["role", "file"], [[r, p] for r, p in data.input_files]) if data.input_files else ""
+    inputs_html = grid(["role", "file"], [[r, p] for r, p in data.input_files]) if data.input_files else ""
     info_rows = [list(i.values()) for i in data.input_info] + ([list(cloud.header.values())] if cloud.header else [])
     roles = ["input"] * len(data.input_info) + (["delivered (classified)"] if cloud.header else [])
     info_html = (
-        _grid(["role", *cloud.header.keys()], [[r, *row] for r, row in zip(roles, info_rows, strict=True)], "wide")
+        grid(["role", *cloud.header.keys()], [[r, *row] for r, row in zip(roles, info_rows, strict=True)], "wide")
         if cloud.header
         else ""
     )
@@ -742,7 +495,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         ("points read", parse.get("points_read") or (geo or {}).get("points")),
         ("input files", len(data.input_files) or len(parse.get("points_per_file", {})) or None),
         ("CRS", parse.get("crs") or (geo or {}).get("crs")),
-        ("units of the products", grid.get("units") or units.describe()),
+        ("units of the products", dtm_grid.get("units") or units.describe()),
         ("flight strips", _strip_label(cloud.strips)),
         (
             "low noise (7) / high noise (18)",
@@ -753,15 +506,17 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         ("ground algorithm", (ground.get("algorithm") or {}).get("name")),
         (
             "DTM grid",
-            f"{grid.get('cols')} × {grid.get('rows')} cells of {frame.cell:g} {hu}"
+            f"{dtm_grid.get('cols')} × {dtm_grid.get('rows')} cells of {frame.cell:g} {hu}"
             + (f" ({cell_m:g} m)" if hu != "m" else "")
-            + f", {grid.get('method')}"
-            if grid
+            + f", {dtm_grid.get('method')}"
+            if dtm_grid
             else None,
         ),
         (
             "DTM nodata cells",
-            f"{grid.get('nodata_cells', 0):,} ({100 * grid.get('nodata_fraction', 0):.2f} %)" if grid else None,
+            f"{dtm_grid.get('nodata_cells', 0):,} ({100 * dtm_grid.get('nodata_fraction', 0):.2f} %)"
+            if dtm_grid
+            else None,
         ),
         ("DTM elevation range", f"{lo:,.2f} – {hi:,.2f} {vu}"),
         ("aggregate pulse density (first returns)", f"{measured['anpd']:.2f} per m²" if measured["anpd"] else None),
@@ -770,9 +525,9 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     acc_rows = []
     for c in verdict["checks"]:
         src = c["source"]
-        limit = "reported only" if c["limit"] is None else f"{c['bound']} {_fmt(c['limit'])} {c['unit']}"
+        limit = "reported only" if c["limit"] is None else f"{c['bound']} {fmt(c['limit'])} {c['unit']}"
         value = c["measured"]
-        shown = "—" if value is None else f"{_fmt(float(value))} {c['unit']}"
+        shown = "—" if value is None else f"{fmt(float(value))} {c['unit']}"
         acc_rows.append(
             f'<tr class="{c["status"].split()[0].lower()}"><td>{html.escape(c["description"])}</td><td>{html.escape(limit)}</td>'
             f"<td>{html.escape(shown)}</td><td><b>{html.escape(c['status'])}</b>"
@@ -790,7 +545,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     else:
         acceptance_html = (
             "<p>No specification chosen (<code>stages.report.specification: none</code>): measured values only.</p>"
-            + _table([(MEASURES[k], v) for k, v in measured.items()])
+            + table([(MEASURES[k], v) for k, v in measured.items()])
         )
     if geo:
         counters = [
@@ -811,16 +566,14 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
              f"over {geo.get('ltp_vs_exact_extent_m', 0):,.0f} m (geometry predicts "
              f"{geo.get('ltp_predicted_max_horizontal_m', 0):.3f} / {geo.get('ltp_predicted_max_vertical_m', 0):.3f})"),
         ]  # fmt: skip
-        raw_html = (
-            f"<h3>Read and skipped (qc/debug.txt)</h3>{_table(counters)}<h3>Georeferencing</h3>{_table(geo_rows)}"
-        )
+        raw_html = f"<h3>Read and skipped (qc/debug.txt)</h3>{table(counters)}<h3>Georeferencing</h3>{table(geo_rows)}"
     else:
         raw_html = "<p>Georeferenced input (LAS/LAZ): no raw flight to report on.</p>"
     if data.corrections is not None:
         adjust_html = _strip_table(data.corrections, cloud.strips)
         adj = metrics.get("strip_adjust") or {}
         if adj.get("overlap_rms_before_m") is not None:
-            adjust_html += _table(
+            adjust_html += table(
                 [
                     ("overlap RMS before adjustment (m)", adj.get("overlap_rms_before_m")),
                     ("overlap RMS after adjustment (m)", adj.get("overlap_rms_after_m")),
@@ -844,12 +597,12 @@ tr.pass td:nth-child(4){{background:#e6f4ea}} tr.fail td:nth-child(4){{backgroun
 <h1>QC report: {html.escape(name)}</h1>
 <p class="sub">dtm-pipeline {__version__} · made {made} · lengths in {html.escape(units.describe())} unless a heading says m</p>
 <section id="acceptance"><h2>Acceptance</h2>{acceptance_html}</section>
-<section id="summary"><h2>Summary</h2>{_table(summary)}</section>
+<section id="summary"><h2>Summary</h2>{table(summary)}</section>
 <section id="inputs"><h2>Input files</h2>{inputs_html}{info_html}</section>
 <section id="maps"><h2>Maps</h2><div class="maps">
 {"".join(figures)}
 </div></section>
-<section id="classes"><h2>Classification</h2>{_grid(["class", "name", "points", "share"], class_rows)}</section>
+<section id="classes"><h2>Classification</h2>{grid(["class", "name", "points", "share"], class_rows)}</section>
 <section id="raw"><h2>Raw flight</h2>{raw_html}</section>
 <section id="strips"><h2>Strip adjustment</h2>{adjust_html}</section>
 <section id="accuracy"><h2>Vertical accuracy</h2>{accuracy_html}</section>
@@ -875,7 +628,7 @@ def _accuracy_html(accuracy: dict | None, cp: dict | None) -> str:
         (f"VVA = 95th percentile of |error|, vegetated ({n_v} check points) (m)", accuracy.get("vva_95")),
         ("outside the DTM or on nodata", accuracy.get("outside")),
     ]
-    out = _table(rows) + truth
+    out = table(rows) + truth
     if cp is not None:
         table_rows = [
             [i, lc, f"{x:.3f}", f"{y:.3f}", f"{z:.3f}", f"{d:.3f}", f"{e:+.3f}" if np.isfinite(e) else "off the DTM"]
@@ -885,9 +638,9 @@ def _accuracy_html(accuracy: dict | None, cp: dict | None) -> str:
         ]
         err = cp["error"]
         if np.isfinite(err).any():
-            out += _figure(histogram_png(err, np.asarray(cp["land_cover"], dtype=object)), "check-point error histogram",
+            out += figure(histogram_png(err, np.asarray(cp["land_cover"], dtype=object)), "check-point error histogram",
                            "Errors DTM − check point (metres), stacked by land cover.")  # fmt: skip
-        out += "<h3>Check points</h3>" + _grid(
+        out += "<h3>Check points</h3>" + grid(
             ["id", "land cover", "x", "y", "measured z", "DTM z", "error (m)"], table_rows
         )
     return out
@@ -906,11 +659,11 @@ def _truth_html(truth: dict | None) -> str:
     ]
     out = (
         f"<h3>DTM against the true terrain ({html.escape(str(truth['file']))}, resampled {truth['resampling']} onto "
-        f"the DTM's cells; DTM − truth)</h3>" + _table(rows)
+        f"the DTM's cells; DTM − truth)</h3>" + table(rows)
     )
     by_relief = truth.get("by_relief") or {}
     if by_relief:
-        table = [
+        relief_rows = [
             [
                 label,
                 f"{v['n']:,}",
@@ -926,7 +679,7 @@ def _truth_html(truth: dict | None) -> str:
         out += (
             "<p>Where the truth itself is steep, a shift of one cell (the truth raster's own resampling "
             "across a wall) is already more than 1 m:</p>"
-            + _grid(["where", "cells", "RMS (m)", "> 1 m off (%)", "> 5 m off (%)"], table)
+            + grid(["where", "cells", "RMS (m)", "> 1 m off (%)", "> 5 m off (%)"], relief_rows)
         )
     by_cover = truth.get("by_land_cover") or {}
     if by_cover:
@@ -939,7 +692,7 @@ def _truth_html(truth: dict | None) -> str:
             "> 5 m off (%)",
             "max above / below (m)",
         ]
-        table = [
+        cover_rows = [
             [
                 f"{code} {v['name']}",
                 f"{v['n']:,}",
@@ -953,7 +706,7 @@ def _truth_html(truth: dict | None) -> str:
         ]
         out += (
             f"<p>By what covers the ground ({html.escape(str(truth.get('land_cover_file', '')))}, nearest cell):</p>"
-            + _grid(header, table)
+            + grid(header, cover_rows)
         )
     return out
 

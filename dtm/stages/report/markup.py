@@ -1,0 +1,55 @@
+"""The report's HTML pieces: values as the page prints them, tables, embedded figures, sections."""
+
+from __future__ import annotations
+
+import base64
+import html
+
+import numpy as np
+
+UNIT_SYMBOLS = {"metre": "m", "foot": "ft", "US survey foot": "US ft"}
+
+
+def unit_symbol(name: str) -> str:
+    """'m', 'ft' or 'US ft' for a unit name of :class:`dtm.common.units.Units`."""
+    return UNIT_SYMBOLS.get(name, name)
+
+
+def fmt(value: object) -> str:
+    """A value as a table cell shows it: yes/no, up to 3 decimals, thousands separated, '—' for none."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        if not np.isfinite(value):
+            return "—"
+        return f"{value:,.3f}".rstrip("0").rstrip(".") if abs(value) < 1e6 else f"{value:,.0f}"
+    if isinstance(value, (int, np.integer)):
+        return f"{int(value):,}"
+    return "—" if value is None else str(value)
+
+
+def _img(png: bytes, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
+
+
+def figure(png: bytes, alt: str, caption: str) -> str:
+    """A PNG embedded as base64 in a ``<figure>`` with its caption (HTML, not escaped)."""
+    return f"<figure>{_img(png, alt)}<figcaption>{caption}</figcaption></figure>"
+
+
+def table(rows: list[tuple[str, object]]) -> str:
+    """A two-column table: one ``(heading, value)`` a row."""
+    body = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(fmt(v))}</td></tr>" for k, v in rows)
+    return f"<table>{body}</table>"
+
+
+def grid(header: list[str], rows: list[list[object]], cls: str = "") -> str:
+    """A table with a header row, one list of values a row, of CSS class *cls*."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(fmt(v))}</td>" for v in row) + "</tr>" for row in rows)
+    return f'<table class="{cls}"><tr>{head}</tr>{body}</table>'
+
+
+def section(key: str, title: str, body: str) -> str:
+    """One section of the page: its anchor *key*, its heading, its HTML."""
+    return f'<section id="{key}"><h2>{title}</h2>{body}</section>'

@@ -22,7 +22,6 @@ from __future__ import annotations
 import html
 import json
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -31,8 +30,11 @@ from pydantic import Field
 
 from dtm.common import glossary
 from dtm.stages.report.acceptance import DEFAULT_SPECIFICATION, MEASURES, SPECIFICATIONS
+from dtm.stages.report.cloud import las_info, summarise_cloud
+from dtm.stages.report.inputs import ReportInputs, checkpoint_rows, read_flight_lines
 from dtm.stages.report.maps import RELIEF, STRIP_COLOURS, MapFrame, category_map, histogram_png, raster_map
 from dtm.stages.report.markup import figure, fmt, grid, table, unit_symbol
+from dtm.stages.report.measures import measure
 from pipeline import __version__
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
 
@@ -47,219 +49,7 @@ class ReportParams(StageParams):
     )
 
 
-# --------------------------------------------------------------------------- the cloud
-
-
-@dataclass
-class CloudSummary:
-    """What the report shows of the classified points, gathered chunk by chunk."""
-
-    units: object
-    strip_grid: np.ndarray  # point_source_id of the last point seen in each DTM cell (-1: none)
-    strips: np.ndarray  # every point_source_id met, ascending
-    class_counts: np.ndarray  # points per ASPRS class (256 bins)
-    points: int
-    first_returns: np.ndarray | None = None  # first returns (not noise, not withheld) per DTM cell
-    repeatability_m: float | None = None  # smooth surface repeatability (see MEASURES), metres
-    repeatability_cells: int = 0
-    header: dict = field(default_factory=dict)  # lasinfo-like figures of the file
-
-
-def las_info(path, gps_range: tuple[float, float] | None = None) -> dict:
-    """One row of the report's per-file table, from :func:`dtm.common.las_summary.summary` (``pipeline info``).
-
-    *gps_range*: the GPS time range when the caller has already read it (the
-    header is then all that is read); otherwise one pass over the points.
-    """
-    from dtm.common.las_summary import summary
-
-    s = summary(path, points=gps_range is None)
-    if gps_range is None:
-        gps = s.get("gps_time") or {}
-        gps_range = (gps.get("min"), gps.get("max"))
-    tmin, tmax = (np.nan if v is None else v for v in gps_range)
-    adjusted = bool(s["global_encoding"] & 1)
-    by_return = list(s["points_by_return_header"])
-    while by_return and by_return[-1] == 0:
-        by_return.pop()
-    lo, hi = s["bounds_header"]["min"], s["bounds_header"]["max"]
-    return {
-        "file": Path(path).name,
-        "LAS version": s["version"],
-        "point format": s["point_format"],
-        "points": s["points"],
-        "bounds x": f"{lo[0]:,.2f} – {hi[0]:,.2f}",
-        "bounds y": f"{lo[1]:,.2f} – {hi[1]:,.2f}",
-        "bounds z": f"{lo[2]:,.2f} – {hi[2]:,.2f}",
-        "CRS": s["crs"]["name"] or "none in the header",
-        "GPS time": f"{tmin:,.3f} – {tmax:,.3f} ({'adjusted standard' if adjusted else 'GPS week'} time)"
-        if np.isfinite(tmin)
-        else "none",
-        "points by return": ", ".join(f"{i + 1}: {v:,}" for i, v in enumerate(by_return)) or "—",
-    }
-
-
-def summarise_cloud(
-    path, *, origin: tuple[float, float], resolution: float, shape: tuple[int, int], dtm: np.ndarray | None = None
-) -> CloudSummary:
-    """Strip coverage, class counts, first returns per cell and the intraswath figure, read in chunks.
-
-    Memory does not grow with the number of points: every figure is a grid
-    of the DTM's shape (the repeatability grids, one per strip, are kept on a
-    lattice of cells when strips x cells would exceed 20 million).
-    """
-    import laspy
-
-    from dtm.common.checkpoints import sample_dtm
-    from dtm.common.clouds import cloud_crs
-    from dtm.common.units import Units
-
-    rows, cols = shape
-    x0, y1 = origin
-    strip_grid = np.full((rows, cols), -1, dtype=np.int64)
-    first = np.zeros(rows * cols, dtype=np.int64)
-    seen: set[int] = set()
-    counts = np.zeros(256, dtype=np.int64)
-    n = 0
-    ranges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    lattice = 1
-    tmin, tmax = np.inf, -np.inf
-    with laspy.open(str(path)) as reader:
-        crs = cloud_crs(reader)
-        units = Units.of(crs)
-        from affine import Affine
-
-        transform = Affine(resolution, 0, x0, 0, -resolution, y1)
-        for chunk in reader.chunk_iterator(1_000_000):
-            x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-            c = np.clip(((x - x0) / resolution).astype(int), 0, cols - 1)
-            r = np.clip(((y1 - y) / resolution).astype(int), 0, rows - 1)
-            sid = np.asarray(chunk.point_source_id).astype(np.int64)
-            strip_grid[r, c] = sid  # in file order: the last point seen wins
-            seen.update(int(v) for v in np.unique(sid))
-            cls = np.asarray(chunk.classification)
-            counts += np.bincount(cls, minlength=256)
-            n += len(chunk)
-            usable = glossary.usable(cls, chunk.withheld)
-            t = np.asarray(chunk.gps_time)
-            t = t[np.isfinite(t)]
-            if len(t):
-                tmin, tmax = min(tmin, float(t.min())), max(tmax, float(t.max()))
-            ret = np.asarray(chunk.return_number)
-            one = usable & (ret <= 1)
-            first += np.bincount((r * cols + c)[one], minlength=rows * cols)
-            if dtm is None:
-                continue
-            # one strip's ground single returns about the DTM, per cell: their height range
-            single = one & (cls == 2) & (np.asarray(chunk.number_of_returns) <= 1) & (sid > 0)
-            if not single.any():
-                continue
-            if len(seen) * rows * cols > 20_000_000:
-                lattice = max(lattice, int(np.ceil(np.sqrt(len(seen) * rows * cols / 20_000_000))))
-            sel = single & (r % lattice == 0) & (c % lattice == 0)
-            res = (z[sel] - sample_dtm(dtm, transform, np.column_stack((x[sel], y[sel])))) * units.vertical
-            key = (r[sel] // lattice) * (-(-cols // lattice)) + c[sel] // lattice
-            size = (-(-rows // lattice)) * (-(-cols // lattice))
-            ok = np.isfinite(res)
-            for s in np.unique(sid[sel][ok]):
-                m = ok & (sid[sel] == s)
-                lo, hi, cnt = ranges.get(int(s)) or (
-                    np.full(size, np.inf, np.float32),
-                    np.full(size, -np.inf, np.float32),
-                    np.zeros(size, np.int32),
-                )
-                if len(lo) != size:  # the lattice grew: this strip's cells are dropped
-                    continue
-                np.minimum.at(lo, key[m], res[m])
-                np.maximum.at(hi, key[m], res[m])
-                np.add.at(cnt, key[m], 1)
-                ranges[int(s)] = (lo, hi, cnt)
-    repeat, cells = None, 0
-    if dtm is not None and ranges:
-        if min(dtm.shape) >= 2:
-            gy, gx = np.gradient(dtm * units.vertical, resolution * units.horizontal)
-            level = np.hypot(gx, gy) <= 0.05  # level cells only: slope 5 % at most (NaN: not level)
-        else:
-            level = np.zeros(dtm.shape, dtype=bool)  # one row or column: no slope, so no level cell
-        level = level[::lattice, ::lattice].ravel()
-        spans = [np.zeros(0, np.float32)]
-        for lo, hi, cnt in ranges.values():
-            if len(cnt) != len(level):
-                continue  # allocated before the lattice grew: another geometry of cells
-            good = (cnt >= 4) & level
-            spans.append(hi[good] - lo[good])
-        spans = np.concatenate(spans)
-        cells = int(len(spans))
-        repeat = float(np.median(spans)) if cells else None
-    return CloudSummary(
-        units, strip_grid, np.array(sorted(seen), dtype=np.int64), counts, n,
-        first.reshape(rows, cols), repeat, cells, las_info(path, (tmin, tmax)),
-    )  # fmt: skip
-
-
 # --------------------------------------------------------------------------- the page
-
-
-@dataclass
-class ReportInputs:
-    """Everything :func:`build_report` draws, besides the metrics."""
-
-    dtm: np.ndarray
-    density: np.ndarray  # points per cell
-    frame: MapFrame  # of the DTM
-    cloud: CloudSummary
-    input_files: list[tuple[str, str]] = field(default_factory=list)  # (role, path)
-    input_info: list[dict] = field(default_factory=list)  # las_info of LAS inputs
-    corrections: dict | None = None  # strip_corrections.json
-    differences: tuple | None = None  # (before, after, MapFrame) in CRS units
-    uncertainty: np.ndarray | None = None  # DTM 1-sigma, CRS units
-    checkpoints: dict | None = None  # id, x, y, z, land_cover, dtm, error (m)
-    trajectory: list[tuple[np.ndarray, np.ndarray, str]] | None = None  # flight lines in map coordinates
-    specification: str = DEFAULT_SPECIFICATION
-
-
-def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
-    """Measured values for :func:`dtm.stages.report.acceptance.evaluate`, the reasons of those missing, and the void mask."""
-    from dtm.stages.report.acceptance import pulse_density, voids
-
-    units = data.cloud.units
-    cell_m = data.frame.cell * units.horizontal
-    out: dict = dict.fromkeys(MEASURES)
-    why: dict = {}
-    extra: dict = {}
-    anpd, _ = pulse_density(data.cloud.first_returns, cell_m) if data.cloud.first_returns is not None else (None, None)
-    out["anpd"] = anpd
-    if anpd:
-        count, mask, side = voids(data.cloud.first_returns, cell_m, 1.0 / np.sqrt(anpd))
-        out["voids"] = count
-        extra.update(void_mask=mask, void_side_m=side)
-    acc = {k: v for k, v in (metrics.get("accuracy") or {}).items() if k != "truth"}  # check points only
-    if acc:
-        out["nva_95"] = acc.get("nva_95")
-        out["rmse_z_nv"] = acc["nva_95"] / 1.96 if acc.get("nva_95") is not None else None
-        out["vva_95"] = acc.get("vva_95")
-        if acc.get("nva_95") is None:
-            why["nva_95"] = why["rmse_z_nv"] = "no non-vegetated check point on the DTM"
-        if acc.get("vva_95") is None:
-            why["vva_95"] = "no vegetated check point (land cover column and stages.accuracy.vegetated)"
-    else:
-        why["nva_95"] = why["rmse_z_nv"] = why["vva_95"] = "no check points (stages.accuracy.checkpoints)"
-    out["smooth_surface_repeatability"] = data.cloud.repeatability_m
-    if data.cloud.repeatability_m is None:
-        why["smooth_surface_repeatability"] = "no level cell with 4 ground single returns of one strip"
-    adjust = metrics.get("strip_adjust") or {}
-    out["swath_overlap_rmsdz"] = adjust.get("overlap_rms_after_m")
-    if data.differences is not None:
-        after = data.differences[1]
-        if np.isfinite(after).any():
-            out["swath_overlap_max"] = float(np.nanmax(np.abs(after))) * units.vertical
-    if out["swath_overlap_rmsdz"] is None:
-        why["swath_overlap_rmsdz"] = why["swath_overlap_max"] = (
-            adjust.get("note") or "strip adjustment did not run (stages.strip_adjust)"
-        )
-    if out["anpd"] is None:
-        why["anpd"] = why["voids"] = "no first return"
-    return out, why, extra
 
 
 def _strip_label(ids: np.ndarray) -> str:
@@ -780,55 +570,3 @@ class Report(Stage):
         ctx.outputs["acceptance"].write_text(json.dumps(verdict, indent=2, default=float) + "\n")
         ctx.metrics.update(bytes=len(page), images=page.count("<img"), acceptance=verdict["status"])
         ctx.log.info("acceptance against %s: %s", verdict["title"], verdict["status"])
-
-
-def checkpoint_rows(path, land_cover_column: str, dtm_path) -> dict:
-    """The check points with the DTM's height and the error (DTM − check point, metres)."""
-    import csv
-
-    from dtm.common.checkpoints import checkpoint_errors, read_checkpoints
-
-    xyz, cover = read_checkpoints(path, land_cover_column)
-    errors = checkpoint_errors(dtm_path, xyz)
-    ids = [str(i + 1) for i in range(len(xyz))]
-    lines = [
-        ln
-        for ln in Path(path).read_text(encoding="utf-8").splitlines()
-        if ln.strip() and not ln.lstrip().startswith("#")
-    ]
-    names = [h.strip().lower() for h in next(csv.reader([lines[0]]))]
-    if "id" in names:
-        col = names.index("id")
-        ids = [row[col] if col < len(row) else "" for row in csv.reader(lines[1:])]
-    from dtm.common.rasters import read_raster
-    from dtm.common.units import raster_units
-
-    crs = read_raster(dtm_path)[2]
-    metres = raster_units(crs).vertical
-    return {
-        "id": ids,
-        "land_cover": list(cover) if cover is not None else [""] * len(xyz),
-        "x": xyz[:, 0],
-        "y": xyz[:, 1],
-        "z": xyz[:, 2],
-        "dtm": xyz[:, 2] + errors / metres,
-        "error": errors,
-    }
-
-
-def read_flight_lines(path) -> list[tuple[np.ndarray, np.ndarray, str]]:
-    """The flight lines of ``trajectory.gpkg`` (:func:`dtm.stages.georeference.stage.write_flight_lines`): (x, y, 'strip N')."""
-    import pyogrio
-
-    meta, _, geometry, fields = pyogrio.raw.read(str(path))
-    strips = fields[list(meta["fields"]).index("strip")]
-    out = []
-    for strip, wkb in zip(strips, geometry, strict=True):
-        xy = np.frombuffer(bytes(wkb), dtype="<f8", offset=9).reshape(-1, 3 if _has_z(wkb) else 2)
-        out.append((xy[:, 0], xy[:, 1], f"strip {int(strip)}"))
-    return out
-
-
-def _has_z(wkb: bytes) -> bool:
-    kind = int.from_bytes(bytes(wkb)[1:5], "little")
-    return kind in (1002, 0x80000002)

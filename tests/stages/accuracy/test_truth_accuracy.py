@@ -176,7 +176,7 @@ def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
 
 
 def test_report_splits_the_truth_figures_by_land_cover():
-    from dtm.stages.report.stage import _accuracy_html
+    from dtm.stages.report.sections import accuracy_section
 
     truth = {"file": "terrain.tif", "resampling": "bilinear", "n": 1000, "rmse": 0.7, "mean": -0.06}
     truth |= {"off_1m": 0.046, "off_5m": 0.0033, "max_above": 10.4, "max_below": -14.4}
@@ -187,20 +187,20 @@ def test_report_splits_the_truth_figures_by_land_cover():
     }
     flat = {"n": 900, "rmse": 0.2, "off_1m": 0.01, "off_5m": 0.0}
     truth |= {"by_relief": {"under_2m": flat, "2m_or_more": {"n": 100, "rmse": 2.0, "off_1m": 0.37, "off_5m": 0.0}}}
-    page = _accuracy_html({"truth": truth}, None)
+    page = accuracy_section({"truth": truth}, None)
     assert "2 m or more (walls, banks, steps)</td><td>100</td><td>2</td><td>37</td>" in page
     assert "By what covers the ground (land_cover.tif" in page
     assert "17 bridge deck" in page and "<td>672</td>" in page and "<td>47</td>" in page and "+9.070 / -2.700" in page
 
 
 def test_report_shows_the_truth_figures_apart_from_the_check_points():
-    from dtm.stages.report.stage import _accuracy_html
+    from dtm.stages.report.sections import accuracy_section
 
     truth = {"file": "terrain.tif", "resampling": "bilinear", "n": 1000, "rmse": 0.7, "mean": -0.06}
     truth |= {"off_1m": 0.046, "off_5m": 0.0033, "max_above": 10.4, "max_below": -14.4}
-    alone = _accuracy_html({"truth": truth}, None)
+    alone = accuracy_section({"truth": truth}, None)
     assert "DTM against the true terrain (terrain.tif" in alone and "4.6" in alone and "+10.400 / -14.400" in alone
     assert "No check points were configured" in alone and "RMSEz" not in alone
-    assert "DTM against the true terrain" not in _accuracy_html({"n": 3, "rmse_z": 0.1}, None)
-    both = _accuracy_html({"n": 3, "rmse_z": 0.1, "truth": truth}, None)
+    assert "DTM against the true terrain" not in accuracy_section({"n": 3, "rmse_z": 0.1}, None)
+    both = accuracy_section({"n": 3, "rmse_z": 0.1, "truth": truth}, None)
     assert "RMSEz, all 3 check points" in both and "DTM against the true terrain" in both

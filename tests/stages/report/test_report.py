@@ -17,7 +17,11 @@ import pytest
 from dtm.common.checkpoints import sample_dtm
 from dtm.stages.accuracy.vertical import vertical_accuracy
 from dtm.stages.report.acceptance import SPECIFICATIONS, evaluate
-from dtm.stages.report.stage import MapFrame, ReportInputs, build_report, measure, summarise_cloud
+from dtm.stages.report.cloud import summarise_cloud
+from dtm.stages.report.inputs import ReportInputs
+from dtm.stages.report.maps import MapFrame
+from dtm.stages.report.measures import measure
+from dtm.stages.report.page import build_report
 
 SIZE = 60.0  # survey side, CRS units
 
@@ -231,7 +235,7 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     import pyogrio
 
     from dtm.stages.georeference.stage import write_flight_lines
-    from dtm.stages.report.stage import read_flight_lines
+    from dtm.stages.report.inputs import read_flight_lines
 
     t = np.arange(0.0, 30.0, 1.0)
     strip = np.repeat([1, 0, 2], 10)

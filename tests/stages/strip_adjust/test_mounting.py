@@ -123,9 +123,9 @@ def test_lines_flown_one_way_cannot_determine_pitch(tmp_path, capfd):
     assert abs(u["boresight_roll"]["correction"] - BORESIGHT[0]) <= 0.005
     assert abs(u["boresight_yaw"]["correction"] - BORESIGHT[2]) <= 0.01
     # the report's strip-adjustment section is the calibration: each unknown with its estimate and fate
-    from dtm.stages.report.stage import _strip_table
+    from dtm.stages.report.sections import strip_table
 
-    page = _strip_table(corr, np.array([]))
+    page = strip_table(corr, np.array([]))
     assert "strip_adjust.model: mounting" in page
     row = page.split("<td>boresight_pitch</td>")[1].split("</tr>")[0]
     assert "not determined" in row and "opposite directions" in row

@@ -1,34 +1,12 @@
-"""DTM vertical accuracy against check points or a truth raster (ASPRS 2014/2023).
+"""Stage ``accuracy``: the DTM against check points and a truth raster, in ``accuracy.json``.
 
-ASPRS Positional Accuracy Standards for Digital Geospatial Data (2014;
-Edition 2, 2023): non-vegetated vertical accuracy at 95 % confidence
-NVA = 1.96 x RMSEz; vegetated vertical accuracy VVA = the 95th percentile of
-the absolute errors in vegetated land cover.  Errors are DTM - reference.
-
-Check points: a CSV file with a header, comma-separated, ``#`` starts a
-comment; columns ``x``, ``y``, ``z`` (or ``easting``, ``northing``,
-``elevation``), in the DTM's CRS, height system and units (feet for a CRS in
-feet: :mod:`dtm.common.units`); optionally a land-cover column (default name
-``land_cover``).  Errors are reported in metres whatever the CRS.  The DTM is interpolated
-bilinearly at each check point; points outside the DTM or on nodata cells
-are counted and left out.
-
-Truth raster (``stages.accuracy.truth_dtm``, e.g. a simulated survey's
-``truth/terrain.tif``): resampled bilinearly onto the DTM's cells (GDAL's
-warper, from cell centres), then every DTM cell with a value is compared
-(:func:`truth_accuracy`): RMS, mean, the share of cells more than 1 m and
-5 m off, the largest errors; with ``truth_land_cover`` (a raster of ASPRS
-class codes, nearest cell), the same by land cover; and the same apart
-where the truth itself is steep (``by_relief``: it varies by 2 m or more
-over the 3 x 3 DTM cells around a cell, so that a shift of one cell, such
-as the truth raster's own resampling across a wall, is already more than
-the 1 m threshold) and elsewhere.  Check points say how well the DTM fits open
-ground; the truth raster shows what they miss (a building or a bridge deck
-left as ground, channel banks).
-
-Stage ``accuracy`` runs when ``stages.accuracy.checkpoints`` or
-``stages.accuracy.truth_dtm`` names a file; ``pipeline evaluate dtm`` does
-the same from the command line.
+Runs when ``stages.accuracy.checkpoints`` (a CSV of surveyed points) or
+``stages.accuracy.truth_dtm`` (a raster of the true terrain) names a file;
+``pipeline evaluate dtm`` does the same from the command line.  The figures
+are :mod:`dtm.stages.accuracy.vertical`'s (ASPRS NVA and VVA at the check
+points; RMS and the share of cells far off against the truth, by relief and
+land cover).  The check-point format and the reasons for each figure:
+``docs/stages/accuracy.md``.
 """
 
 from __future__ import annotations

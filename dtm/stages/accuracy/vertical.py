@@ -1,13 +1,24 @@
-"""TODO docstring: carried out of stages.accuracy."""
+"""DTM vertical accuracy: NVA and VVA at check points (ASPRS), and the DTM against a truth raster cell by cell.
+
+ASPRS Positional Accuracy Standards for Digital Geospatial Data (Edition 1,
+2014, doi:10.14358/PERS.81.3.A1-A26; Edition 2, 2023): NVA = 1.96 RMSEz at
+non-vegetated check points, VVA = the 95th percentile of |error| at vegetated
+ones.  Errors are DTM - reference, in metres whatever the CRS.  The truth
+raster is resampled onto the DTM's cells and every cell compared; why the
+figures are split by relief and land cover: ``docs/stages/accuracy.md``.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 
-def vertical_accuracy(errors: np.ndarray, land_cover: np.ndarray | None = None, vegetated=("vegetated",)) -> dict:
+def vertical_accuracy(
+    errors: np.ndarray, land_cover: np.ndarray | None = None, vegetated: Sequence[str] = ("vegetated",)
+) -> dict:
     """RMSEz, mean, NVA (1.96 RMSEz, non-vegetated) and VVA (95th percentile |e|, vegetated).
 
     >>> r = vertical_accuracy(np.array([0.1, -0.1, 0.1, -0.1]))
@@ -108,18 +119,15 @@ TRUTH_STEEP_M = 2.0
 def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | None = None) -> dict:
     """The DTM against a truth raster over every DTM cell with a value (metres; errors are DTM - truth).
 
-    Keys: ``cells`` (DTM cells with a value), ``no_truth`` (of those, where
-    the truth has none), ``n`` (cells compared), ``rmse``, ``mean``,
-    ``off_1m`` and ``off_5m`` (fractions of the cells more than 1 m / 5 m
-    off, either way), ``max_abs``, ``max_above``, ``max_below``.  With
-    *land_cover* (integer codes per cell, -1 = none), ``by_land_cover``: per
-    code, its ASPRS class name and the same figures over its cells.
-    ``by_relief``: the same figures where the truth's relief over the 3 x 3
-    cells around a cell is under :data:`TRUTH_STEEP_M` (``under_2m``) and
-    where it is not (``2m_or_more``).
+    Keys: ``cells`` (DTM cells with a value), ``no_truth`` (of those, without
+    truth), ``n`` (cells compared), ``rmse``, ``mean``, ``off_1m`` and
+    ``off_5m`` (fractions more than 1 m / 5 m off), ``max_abs``, ``max_above``,
+    ``max_below``; the same figures in ``by_relief`` (``under_2m`` and
+    ``2m_or_more``: the truth's relief over 3 x 3 cells against
+    :data:`TRUTH_STEEP_M`) and, with *land_cover* (codes per cell, -1 none),
+    per code in ``by_land_cover`` with its ASPRS class name.
 
-    >>> dtm = np.array([[10.0, 10.0], [10.0, np.nan]])
-    >>> r = truth_accuracy(dtm, np.array([[10.0, 8.0], [np.nan, 10.0]]))
+    >>> r = truth_accuracy(np.array([[10.0, 10.0], [10.0, np.nan]]), np.array([[10.0, 8.0], [np.nan, 10.0]]))
     >>> r["cells"], r["no_truth"], r["n"], r["rmse"], r["off_1m"], r["max_above"]
     (3, 1, 2, 1.4142135623730951, 0.5, 2.0)
     """

@@ -3,27 +3,12 @@
 Each specification is a tuple of :class:`Limit`, each with the document,
 edition and table it comes from, so a reviewer can trace every PASS / FAIL to
 its source.  Chosen with ``stages.report.specification``; the report shows the
-verdicts and writes them to ``qc/acceptance.json``.
-
-Sources
--------
-- U.S. Geological Survey, *Lidar Base Specification 2023 rev. A* (3DEP,
-  Techniques and Methods 11-B4 online edition): Table 1 (aggregate nominal
-  pulse spacing and density), Table 2 (relative vertical accuracy of swath
-  data: smooth surface repeatability and swath overlap difference), Table 4
-  (absolute vertical accuracy: NVA at 95 % confidence = 1.96 RMSEz, 19.6 cm
-  for QL1 and QL2; VVA = 95th percentile, 30 cm), section "Data Voids" (a
-  void is an area of at least (4 x ANPS)^2 with no first return).
-- ASPRS, *Positional Accuracy Standards for Digital Geospatial Data*, Edition
-  2, Version 1.0 (August 2023) (Edition 1, 2014: doi:10.14358/PERS.81.3.A1-A26;
-  Edition 2 is summarised in doi:10.14358/PERS.89.10.581).  Edition 2 drops the 95 %
-  figures (accuracy is RMSE) and VVA pass/fail (VVA is reported only); its
-  Table 7.2 ties the data-internal-precision limits of a vertical accuracy
-  class X (RMSEz) to X: within-swath smooth-surface precision 0.6 X,
-  swath-to-swath RMSDz 0.8 X, swath-to-swath maximum difference 1.6 X.
-
-The ``checked`` field of each source says how the figure was checked for
-this code (the standards themselves are not in the repository).
+verdicts and writes them to ``qc/acceptance.json``.  Sources: the USGS Lidar
+Base Specification 2023 rev. A (Tables 1, 2 and 4, "Data Voids") and the ASPRS
+Positional Accuracy Standards for Digital Geospatial Data, Edition 2 (2023;
+doi:10.14358/PERS.89.10.581; Edition 1: doi:10.14358/PERS.81.3.A1-A26).  What
+each table says, and how each figure was checked (the ``checked`` field of a
+:class:`Source`): ``docs/stages/report.md``.
 """
 
 from __future__ import annotations
@@ -158,25 +143,14 @@ DEFAULT_SPECIFICATION = "usgs-lbs-ql2"
 
 
 def evaluate(name: str, measured: dict[str, float | None], notes: dict[str, str] | None = None) -> dict:
-    """The verdict of every limit of specification *name* on the *measured* values.
+    """The verdict of every limit of specification *name* (a key of :data:`SPECIFICATIONS`).
 
-    Parameters
-    ----------
-    name : str
-        A key of :data:`SPECIFICATIONS`.
-    measured : dict
-        Measure key -> value (None: not measured).
-    notes : dict, optional
-        Measure key -> why it was not measured.
-
-    Returns
-    -------
-    dict
-        ``specification``, ``title``, ``status`` (PASS when every limit with a
-        value passes, FAIL when one fails, INCOMPLETE when one could not be
-        measured and none fails, NONE without specification), ``checks`` (one
-        per limit: measure, description, bound, limit, unit, measured,
-        status, source) and ``measured`` (every value).
+    *measured*: measure key -> value (None: not measured); *notes*: measure
+    key -> why it was not.  Returns a dict: ``specification``, ``title``,
+    ``status`` (PASS; FAIL when a limit fails; INCOMPLETE when one could not
+    be measured and none fails; NONE without specification), ``checks`` (one
+    per limit: measure, description, bound, limit, unit, measured, status,
+    note, source) and ``measured``.
 
     >>> r = evaluate("usgs-lbs-ql2", {"anpd": 1.0})
     >>> r["checks"][0]["status"], r["status"]
@@ -218,25 +192,11 @@ def evaluate(name: str, measured: dict[str, float | None], notes: dict[str, str]
 def pulse_density(first_returns: np.ndarray, cell_m: float, block_m: float = 5.0) -> tuple[float | None, np.ndarray]:
     """Aggregate nominal pulse density (first returns per m²) and the covered blocks.
 
-    Parameters
-    ----------
-    first_returns : ndarray (rows, cols)
-        First returns per cell of a grid of cell *cell_m* metres.
-    cell_m : float
-        Cell side, metres.
-    block_m : float
-        The covered area is counted in squares of about this side (a whole
-        number of cells, at least one): a square with a first return is
-        covered.  5 m by default, so a survey of 0.5 pulses/m² still has about
-        12 pulses a square and its gaps between scan lines are not taken for
-        uncovered ground.
-
-    Returns
-    -------
-    anpd : float or None
-        First returns / covered area (None: no first return).
-    covered : ndarray of bool
-        The covered blocks.
+    *first_returns*: first returns per cell of a grid of *cell_m* metres.  The
+    covered area is counted in squares of about *block_m* metres (a whole
+    number of cells, at least one) that hold a first return; why 5 m:
+    ``docs/stages/report.md``.  Returns the density (None: no first return)
+    and the covered squares (bool).
 
     >>> grid = np.zeros((10, 10)); grid[:5, :] = 2.0   # 2 per 1-m cell on half the grid
     >>> round(pulse_density(grid, 1.0, 5.0)[0], 6)
@@ -253,19 +213,11 @@ def pulse_density(first_returns: np.ndarray, cell_m: float, block_m: float = 5.0
 def voids(first_returns: np.ndarray, cell_m: float, anps_m: float) -> tuple[int, np.ndarray, float]:
     """Empty squares of side at least 4 x ANPS inside the covered area (LBS "Data Voids").
 
-    Squares are whole numbers of cells, ``ceil(4 ANPS / cell)`` on a side, so
-    each empty one is a void by the specification's measure; the covered
-    area is the covered squares with their enclosed holes filled (a gap open
-    to the edge of the survey is outside it).
-
-    Returns
-    -------
-    count : int
-        Empty squares inside the covered area.
-    mask : ndarray of bool
-        Per cell: inside an empty square.
-    side_m : float
-        The square's side, metres.
+    Squares are ``ceil(4 ANPS / cell)`` cells on a side, so each empty one is a
+    void by the specification's measure; the covered area is the covered
+    squares with their enclosed holes filled (a gap open to the edge of the
+    survey is outside it).  Returns the count, the mask of the cells inside an
+    empty square, and the square's side in metres.
     """
     from scipy import ndimage
 
@@ -279,6 +231,7 @@ def voids(first_returns: np.ndarray, cell_m: float, anps_m: float) -> tuple[int,
 
 
 def block_sum(grid: np.ndarray, k: int) -> np.ndarray:
+    """Sums of *grid* over squares of *k* x *k* cells (the last row and column of squares padded with 0)."""
     rows, cols = grid.shape
     pad = np.zeros((-(-rows // k) * k, -(-cols // k) * k))
     pad[:rows, :cols] = grid

@@ -1,4 +1,9 @@
-"""TODO docstring: carried out of stages.accuracy, stages.strip_adjust."""
+"""Surveyed points in a CSV (check points, ground control), and the DTM's bilinear height at them.
+
+Shared by ``accuracy`` (and ``pipeline evaluate dtm``), ``report`` and
+``strip_adjust``'s ground control.  The file's format:
+``docs/stages/accuracy.md``.
+"""
 
 from __future__ import annotations
 
@@ -77,7 +82,6 @@ def sample_dtm(band: np.ndarray, transform, xy: np.ndarray) -> np.ndarray:
 
 
 def read_control(path) -> np.ndarray:
-    from dtm.common.checkpoints import read_checkpoints
-
+    """Ground control points: the (n, 3) coordinates of a check-point CSV, float64."""
     xyz, _ = read_checkpoints(path)
     return np.asarray(xyz, dtype=np.float64).reshape(-1, 3)

@@ -1,7 +1,13 @@
-"""TODO docstring: carried out of dtm.commands.info."""
+"""One LAS/LAZ file summarised as plain values: ``pipeline info``'s figures and the report's per-file table.
+
+The header's figures (version, point format, counts, scales, CRS, VLRs) are
+read alone; with the points, one pass over them in chunks adds the bounds,
+the classes, the returns and the GPS time range.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -64,79 +70,108 @@ def summary(path: Path, points: bool = True) -> dict:
 
     path = Path(path)
     with open_las(path) as reader:
-        h = reader.header
-        crs_info, crs = _crs(h)
-        dims = list(h.point_format.dimension_names)
-        out: dict = {
-            "file": str(path),
-            "bytes": path.stat().st_size,
-            "version": str(h.version),
-            "point_format": h.point_format.id,
-            "compressed": bool(path.suffix.lower() == ".laz" or getattr(reader, "laszip_vlr", None)),
-            "points": int(h.point_count),
-            "points_by_return_header": [int(v) for v in h.number_of_points_by_return],
-            "system_identifier": h.system_identifier,
-            "generating_software": h.generating_software,
-            "creation_date": h.creation_date.isoformat() if h.creation_date else None,
-            "global_encoding": int(h.global_encoding.value),
-            "gps_time_type": gps_time_type(h),
-            "scale": [float(v) for v in h.scales],
-            "offset": [float(v) for v in h.offsets],
-            "bounds_header": {"min": [float(v) for v in h.mins], "max": [float(v) for v in h.maxs]},
-            "crs": crs_info,
-            "crs_fits": None,  # True / False from the run's CRS check (crs_fit); None: not checked
-            "crs_problem": None,
-            "dimensions": dims,
-            "extra_bytes": [
-                {"name": d.name, "type": d.type_str(), "description": d.description}
-                for d in h.point_format.extra_dimensions
-            ],
-            "vlrs": [_vlr(v) for v in h.vlrs],
-            "evlrs": [_vlr(v) for v in (h.evlrs or [])],
-        }
+        out, crs = header_summary(path, reader)
         if not points:
             return out
-        n = 0
-        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-        classes = np.zeros(256, dtype=np.int64)
-        returns = np.zeros((16, 16), dtype=np.int64)  # return number x number of returns
-        t_lo, t_hi, t_bad = np.inf, -np.inf, 0
+        tally = PointTally(gps="gps_time" in out["dimensions"])
         try:
             for chunk in reader.chunk_iterator(CHUNK):
-                if not len(chunk):
-                    continue
-                n += len(chunk)
-                for axis, values in enumerate((chunk.x, chunk.y, chunk.z)):
-                    v = np.asarray(values)
-                    lo[axis], hi[axis] = min(lo[axis], float(v.min())), max(hi[axis], float(v.max()))
-                classes += np.bincount(np.asarray(chunk.classification, dtype=np.int64), minlength=256)[:256]
-                r = np.clip(np.asarray(chunk.return_number, dtype=np.int64), 0, 15)
-                k = np.clip(np.asarray(chunk.number_of_returns, dtype=np.int64), 0, 15)
-                returns += np.bincount(r * 16 + k, minlength=256).reshape(16, 16)
-                if "gps_time" in dims:
-                    t = np.asarray(chunk.gps_time, dtype=np.float64)
-                    ok = np.isfinite(t)
-                    t_bad += int((~ok).sum())
-                    if ok.any():
-                        t_lo, t_hi = min(t_lo, float(t[ok].min())), max(t_hi, float(t[ok].max()))
+                if len(chunk):
+                    tally.add(chunk)
         except las_parse_errors() as exc:
-            raise InputDataError(f"{path}: unreadable after point {n:,} ({exc}).") from None
-    out["points_read"] = n
-    out["bounds"] = {"min": lo.tolist(), "max": hi.tolist()} if n else None
-    out["returns"] = {
-        "return_number": {str(i): int(c) for i, c in enumerate(returns.sum(axis=1)) if c},
-        "number_of_returns": {str(i): int(c) for i, c in enumerate(returns.sum(axis=0)) if c},
-    }
-    out["classes"] = {
-        str(c): {"name": glossary.class_name(int(c)), "points": int(classes[c])} for c in np.flatnonzero(classes)
-    }
-    if "gps_time" in dims:
-        out["gps_time"] = {"min": t_lo if n > t_bad else None, "max": t_hi if n > t_bad else None, "not_finite": t_bad}
-    else:
-        out["gps_time"] = None
-    if crs is not None and n:
-        out["crs_fits"], out["crs_problem"] = crs_fit(crs, lo[:2], hi[:2])
+            raise InputDataError(f"{path}: unreadable after point {tally.n:,} ({exc}).") from None
+    out.update(tally.figures())
+    if crs is not None and tally.n:
+        out["crs_fits"], out["crs_problem"] = crs_fit(crs, tally.lo[:2], tally.hi[:2])
     return out
+
+
+def header_summary(path: Path, reader) -> tuple[dict, object]:
+    """What the header of an open file says, as plain values, and its CRS (pyproj; None when it has none)."""
+    h = reader.header
+    crs_info, crs = _crs(h)
+    out: dict = {
+        "file": str(path),
+        "bytes": path.stat().st_size,
+        "version": str(h.version),
+        "point_format": h.point_format.id,
+        "compressed": bool(path.suffix.lower() == ".laz" or getattr(reader, "laszip_vlr", None)),
+        "points": int(h.point_count),
+        "points_by_return_header": [int(v) for v in h.number_of_points_by_return],
+        "system_identifier": h.system_identifier,
+        "generating_software": h.generating_software,
+        "creation_date": h.creation_date.isoformat() if h.creation_date else None,
+        "global_encoding": int(h.global_encoding.value),
+        "gps_time_type": gps_time_type(h),
+        "scale": [float(v) for v in h.scales],
+        "offset": [float(v) for v in h.offsets],
+        "bounds_header": {"min": [float(v) for v in h.mins], "max": [float(v) for v in h.maxs]},
+        "crs": crs_info,
+        "crs_fits": None,  # True / False from the run's CRS check (crs_fit); None: not checked
+        "crs_problem": None,
+        "dimensions": list(h.point_format.dimension_names),
+        "extra_bytes": [
+            {"name": d.name, "type": d.type_str(), "description": d.description}
+            for d in h.point_format.extra_dimensions
+        ],
+        "vlrs": [_vlr(v) for v in h.vlrs],
+        "evlrs": [_vlr(v) for v in (h.evlrs or [])],
+    }
+    return out, crs
+
+
+@dataclass
+class PointTally:
+    """The figures of one pass over the points, added up chunk by chunk."""
+
+    gps: bool  # the point format has GPS time
+    n: int = 0
+    lo: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
+    hi: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf))
+    classes: np.ndarray = field(default_factory=lambda: np.zeros(256, dtype=np.int64))
+    returns: np.ndarray = field(default_factory=lambda: np.zeros((16, 16), dtype=np.int64))  # return x of returns
+    t_lo: float = np.inf
+    t_hi: float = -np.inf
+    t_bad: int = 0
+
+    def add(self, chunk) -> None:
+        """Count one chunk of points."""
+        self.n += len(chunk)
+        for axis, values in enumerate((chunk.x, chunk.y, chunk.z)):
+            v = np.asarray(values)
+            self.lo[axis], self.hi[axis] = min(self.lo[axis], float(v.min())), max(self.hi[axis], float(v.max()))
+        self.classes += np.bincount(np.asarray(chunk.classification, dtype=np.int64), minlength=256)[:256]
+        r = np.clip(np.asarray(chunk.return_number, dtype=np.int64), 0, 15)
+        k = np.clip(np.asarray(chunk.number_of_returns, dtype=np.int64), 0, 15)
+        self.returns += np.bincount(r * 16 + k, minlength=256).reshape(16, 16)
+        if self.gps:
+            t = np.asarray(chunk.gps_time, dtype=np.float64)
+            ok = np.isfinite(t)
+            self.t_bad += int((~ok).sum())
+            if ok.any():
+                self.t_lo, self.t_hi = min(self.t_lo, float(t[ok].min())), max(self.t_hi, float(t[ok].max()))
+
+    def figures(self) -> dict:
+        """``points_read``, ``bounds``, ``returns``, ``classes`` and ``gps_time`` as plain values."""
+        n, classes, returns = self.n, self.classes, self.returns
+        out: dict = {"points_read": n, "bounds": {"min": self.lo.tolist(), "max": self.hi.tolist()} if n else None}
+        out["returns"] = {
+            "return_number": {str(i): int(c) for i, c in enumerate(returns.sum(axis=1)) if c},
+            "number_of_returns": {str(i): int(c) for i, c in enumerate(returns.sum(axis=0)) if c},
+        }
+        out["classes"] = {
+            str(c): {"name": glossary.class_name(int(c)), "points": int(classes[c])} for c in np.flatnonzero(classes)
+        }
+        if self.gps:
+            some = n > self.t_bad
+            out["gps_time"] = {
+                "min": self.t_lo if some else None,
+                "max": self.t_hi if some else None,
+                "not_finite": self.t_bad,
+            }
+        else:
+            out["gps_time"] = None
+        return out
 
 
 def _vlr(v) -> dict:

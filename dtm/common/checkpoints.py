@@ -81,7 +81,7 @@ def sample_dtm(band: np.ndarray, transform, xy: np.ndarray) -> np.ndarray:
     return out
 
 
-def read_control(path) -> np.ndarray:
+def read_control(path: Path) -> np.ndarray:
     """Ground control points: the (n, 3) coordinates of a check-point CSV, float64."""
     xyz, _ = read_checkpoints(path)
     return np.asarray(xyz, dtype=np.float64).reshape(-1, 3)

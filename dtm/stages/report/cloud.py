@@ -10,11 +10,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.common import glossary
 from dtm.common.checkpoints import sample_dtm
+
+if TYPE_CHECKING:
+    from affine import Affine
+
+    from dtm.common.units import Units
 
 #: Strips x cells above which the repeatability grids are kept on a lattice of cells.
 MAX_SPAN_CELLS = 20_000_000
@@ -24,7 +30,7 @@ MAX_SPAN_CELLS = 20_000_000
 class CloudSummary:
     """What the report shows of the classified points, gathered chunk by chunk."""
 
-    units: object
+    units: Units
     strip_grid: np.ndarray  # point_source_id of the last point seen in each DTM cell (-1: none)
     strips: np.ndarray  # every point_source_id met, ascending
     class_counts: np.ndarray  # points per ASPRS class (256 bins)
@@ -35,7 +41,7 @@ class CloudSummary:
     header: dict = field(default_factory=dict)  # lasinfo-like figures of the file
 
 
-def las_info(path, gps_range: tuple[float, float] | None = None) -> dict:
+def las_info(path: str | Path, gps_range: tuple[float, float] | None = None) -> dict:
     """One row of the report's per-file table, from :func:`dtm.common.las_summary.summary` (``pipeline info``).
 
     *gps_range*: the GPS time range when the caller has already read it (the
@@ -115,13 +121,23 @@ class StripSpans:
     made on a finer lattice is left out from then on).
     """
 
-    def __init__(self, dtm: np.ndarray, transform, shape: tuple[int, int], units) -> None:
+    def __init__(self, dtm: np.ndarray, transform: Affine, shape: tuple[int, int], units: Units) -> None:
         self.dtm, self.transform, self.units = dtm, transform, units
         self.rows, self.cols = shape
         self.lattice = 1
         self.ranges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def add(self, x, y, z, r, c, sid: np.ndarray, single: np.ndarray, strips_seen: int) -> None:
+    def add(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        z: np.ndarray,
+        r: np.ndarray,
+        c: np.ndarray,
+        sid: np.ndarray,
+        single: np.ndarray,
+        strips_seen: int,
+    ) -> None:
         """Add the points *single* of a chunk (cells *r*, *c*; strips *sid*), *strips_seen* strips met so far."""
         if not single.any():
             return
@@ -162,7 +178,7 @@ class StripSpans:
         return (float(np.median(spans)) if cells else None), cells
 
 
-def level_cells(dtm: np.ndarray, resolution: float, units) -> np.ndarray:
+def level_cells(dtm: np.ndarray, resolution: float, units: Units) -> np.ndarray:
     """The DTM's level cells: slope 5 % at most (NaN: not level; one row or column: none)."""
     if min(dtm.shape) >= 2:
         gy, gx = np.gradient(dtm * units.vertical, resolution * units.horizontal)
@@ -171,7 +187,12 @@ def level_cells(dtm: np.ndarray, resolution: float, units) -> np.ndarray:
 
 
 def summarise_cloud(
-    path, *, origin: tuple[float, float], resolution: float, shape: tuple[int, int], dtm: np.ndarray | None = None
+    path: str | Path,
+    *,
+    origin: tuple[float, float],
+    resolution: float,
+    shape: tuple[int, int],
+    dtm: np.ndarray | None = None,
 ) -> CloudSummary:
     """Strip coverage, class counts, first returns per cell and the intraswath figure, read in chunks.
 

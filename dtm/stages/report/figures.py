@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,6 +13,9 @@ from dtm.stages.report.inputs import ReportInputs
 from dtm.stages.report.maps import RELIEF, STRIP_COLOURS, MapFrame, category_map, raster_map
 from dtm.stages.report.markup import figure, unit_symbol
 
+if TYPE_CHECKING:
+    from dtm.common.units import Units
+
 
 @dataclass(frozen=True)
 class Canvas:
@@ -19,7 +23,7 @@ class Canvas:
 
     dtm: np.ndarray
     frame: MapFrame
-    units: object
+    units: Units
     max_size: int
     valid: np.ndarray  # DTM cells with a value
     lo: float  # DTM range (0, 1 when it has no value)
@@ -27,7 +31,7 @@ class Canvas:
     shade: np.ndarray  # hillshade 0-255, nodata white
 
     @classmethod
-    def of(cls, dtm: np.ndarray, frame: MapFrame, units, max_size: int) -> Canvas:
+    def of(cls, dtm: np.ndarray, frame: MapFrame, units: Units, max_size: int) -> Canvas:
         from dtm.common.shading import hillshade
 
         valid = np.isfinite(dtm)

@@ -30,7 +30,7 @@ class ReportInputs:
     specification: str = DEFAULT_SPECIFICATION
 
 
-def checkpoint_rows(path, land_cover_column: str, dtm_path) -> dict:
+def checkpoint_rows(path: str | Path, land_cover_column: str, dtm_path: str | Path) -> dict:
     """The check points with the DTM's height and the error (DTM − check point, metres).
 
     Returns
@@ -59,7 +59,7 @@ def checkpoint_rows(path, land_cover_column: str, dtm_path) -> dict:
     }
 
 
-def checkpoint_ids(path, count: int) -> list[str]:
+def checkpoint_ids(path: str | Path, count: int) -> list[str]:
     """The ``id`` column of a check-point CSV, or 1 to *count* when it has none."""
     import csv
 
@@ -75,7 +75,7 @@ def checkpoint_ids(path, count: int) -> list[str]:
     return [row[col] if col < len(row) else "" for row in csv.reader(lines[1:])]
 
 
-def read_flight_lines(path) -> list[tuple[np.ndarray, np.ndarray, str]]:
+def read_flight_lines(path: str | Path) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """The flight lines of ``trajectory.gpkg`` (:func:`dtm.stages.georeference.stage.write_flight_lines`): (x, y, 'strip N')."""
     import pyogrio
 

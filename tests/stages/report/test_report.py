@@ -134,8 +134,16 @@ def test_strip_table_says_which_strips_were_adjusted(tmp_path):
 
 def test_nva_is_labelled_with_the_open_ground_rmse_it_comes_from(tmp_path):
     """The issue's figures: RMSEz 0.134 on all points, NVA 0.099 = 1.96 x 0.0505 (open ground)."""
-    acc = {"n": 29, "rmse_z": 0.134, "mean_error": -0.02, "n_non_vegetated": 19, "nva_95": 0.099,
-           "n_vegetated": 10, "vva_95": 0.4, "outside": 1}  # fmt: skip
+    acc = {
+        "n": 29,
+        "rmse_z": 0.134,
+        "mean_error": -0.02,
+        "n_non_vegetated": 19,
+        "nva_95": 0.099,
+        "n_vegetated": 10,
+        "vva_95": 0.4,
+        "outside": 1,
+    }
     page, *_ = _report(tmp_path, _survey(tmp_path), _dtm(), metrics={"accuracy": acc})
     text = _text(page)
     assert "RMSEz, all 29 check points on the DTM (m) 0.134" in text
@@ -198,17 +206,36 @@ def test_every_limit_names_its_source():
 
 
 def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
-    acc = {"n": 3, "rmse_z": 0.02, "mean_error": 0.0, "n_non_vegetated": 3, "nva_95": 0.04, "n_vegetated": 0,
-           "vva_95": None, "outside": 0}  # fmt: skip
-    cp = {"id": ["A", "B", "C"], "land_cover": ["open"] * 3, "x": np.array([1010.0, 1030.0, 1050.0]),
-          "y": np.array([2010.0, 2030.0, 2050.0]), "z": np.array([650.1, 650.3, 650.5]),
-          "dtm": np.array([650.12, 650.28, 650.5]), "error": np.array([0.02, -0.02, 0.0])}  # fmt: skip
+    acc = {
+        "n": 3,
+        "rmse_z": 0.02,
+        "mean_error": 0.0,
+        "n_non_vegetated": 3,
+        "nva_95": 0.04,
+        "n_vegetated": 0,
+        "vva_95": None,
+        "outside": 0,
+    }
+    cp = {
+        "id": ["A", "B", "C"],
+        "land_cover": ["open"] * 3,
+        "x": np.array([1010.0, 1030.0, 1050.0]),
+        "y": np.array([2010.0, 2030.0, 2050.0]),
+        "z": np.array([650.1, 650.3, 650.5]),
+        "dtm": np.array([650.12, 650.28, 650.5]),
+        "error": np.array([0.02, -0.02, 0.0]),
+    }
     diff = np.full((10, 10), 0.01)
     page, *_ = _report(
-        tmp_path, _survey(tmp_path, strips=(1, 2)), _dtm(), metrics={"accuracy": acc}, checkpoints=cp,
-        differences=(diff, diff / 2, MapFrame(1000.0, 2060.0, 6.0, "m")), uncertainty=np.full((60, 60), 0.05),
+        tmp_path,
+        _survey(tmp_path, strips=(1, 2)),
+        _dtm(),
+        metrics={"accuracy": acc},
+        checkpoints=cp,
+        differences=(diff, diff / 2, MapFrame(1000.0, 2060.0, 6.0, "m")),
+        uncertainty=np.full((60, 60), 0.05),
         trajectory=[(np.array([1000.0, 1060.0]), np.array([2030.0, 2030.0]), "strip 1")],
-    )  # fmt: skip
+    )
     for section in ("acceptance", "summary", "inputs", "maps", "classes", "raw", "strips", "accuracy"):
         assert f'<section id="{section}">' in page
     figures = re.findall(r"<figure>(.*?)</figure>", page, flags=re.S)

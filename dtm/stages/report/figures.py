@@ -83,21 +83,26 @@ def map_figures(cv: Canvas, data: ReportInputs, measured: dict, voids: dict, anp
 
 def relief_figure(cv: Canvas) -> str:
     """The DTM in colour relief over its hillshade."""
-    png = raster_map(
+    return figure(
+        relief_map(cv, "DTM over hillshade"),
+        "DTM colour relief over hillshade",
+        f"DTM, colour relief over hillshade: {cv.lo:,.2f} to {cv.hi:,.2f} {cv.vu}; nodata white.",
+    )
+
+
+def relief_map(cv: Canvas, title: str, lines: list[tuple[np.ndarray, np.ndarray, str]] | None = None) -> bytes:
+    """The DTM in colour relief over its hillshade as PNG, with *lines* ``(x, y, name)`` drawn on it."""
+    return raster_map(
         cv.dtm,
         cv.frame,
         cmap=RELIEF,
         label=f"elevation ({cv.vu})",
-        title="DTM over hillshade",
+        title=title,
         max_size=cv.max_size,
         vmin=cv.lo,
         vmax=cv.hi,
         shade=cv.shade,
-    )
-    return figure(
-        png,
-        "DTM colour relief over hillshade",
-        f"DTM, colour relief over hillshade: {cv.lo:,.2f} to {cv.hi:,.2f} {cv.vu}; nodata white.",
+        lines=lines,
     )
 
 
@@ -105,15 +110,13 @@ def pulse_density_figure(cv: Canvas, first_returns: np.ndarray, density: np.ndar
     """First returns per m² in squares of about 5 m, with the specification's *limit* drawn (contour and bar)."""
     per_m2, k, frame = cv.per_square_m(first_returns.astype(float))
     vmax = float(np.nanpercentile(per_m2, 99)) if np.isfinite(per_m2).any() else 1.0
-    png = raster_map(
+    png = density_map(
+        cv,
         per_m2,
         frame,
-        cmap="viridis",
-        label="first returns (pulses) per m²",
-        title="pulse density",
-        max_size=cv.max_size,
-        vmin=0.0,
-        vmax=max(vmax, (limit or 0) * 1.2, 1.0),
+        "first returns (pulses) per m²",
+        "pulse density",
+        max(vmax, (limit or 0) * 1.2, 1.0),
         threshold=limit,
         threshold_label=f"{limit:g}/m²" if limit else "",
     )
@@ -136,21 +139,38 @@ def point_density_figure(cv: Canvas, density: np.ndarray) -> str:
     pts_m2, k, frame = cv.per_square_m(np.nan_to_num(density))
     if not np.isfinite(pts_m2).any():
         return ""
-    png = raster_map(
-        pts_m2,
-        frame,
-        cmap="viridis",
-        label="points per m²",
-        title="point density (all returns)",
-        max_size=cv.max_size,
-        vmin=0.0,
-        vmax=max(float(np.nanpercentile(pts_m2, 99)), 1.0),
-    )
+    vmax = max(float(np.nanpercentile(pts_m2, 99)), 1.0)
+    png = density_map(cv, pts_m2, frame, "points per m²", "point density (all returns)", vmax)
     return figure(
         png,
         "point density",
         f"Points of every return (density.tif; noise and withheld excluded) per m², in "
         f"squares of {k * cv.cell_m:.1f} m.",
+    )
+
+
+def density_map(
+    cv: Canvas,
+    per_m2: np.ndarray,
+    frame: MapFrame,
+    label: str,
+    title: str,
+    vmax: float,
+    threshold: float | None = None,
+    threshold_label: str = "",
+) -> bytes:
+    """A density per m² as PNG, coloured from 0 to *vmax*, with the *threshold* drawn when one is given."""
+    return raster_map(
+        per_m2,
+        frame,
+        cmap="viridis",
+        label=label,
+        title=title,
+        max_size=cv.max_size,
+        vmin=0.0,
+        vmax=vmax,
+        threshold=threshold,
+        threshold_label=threshold_label,
     )
 
 
@@ -272,16 +292,5 @@ def uncertainty_figure(cv: Canvas, u: np.ndarray) -> str:
 
 def flight_lines_figure(cv: Canvas, lines: list[tuple[np.ndarray, np.ndarray, str]]) -> str:
     """The flight lines over the DTM's relief, one colour a line."""
-    png = raster_map(
-        cv.dtm,
-        cv.frame,
-        cmap=RELIEF,
-        label=f"elevation ({cv.vu})",
-        title="flight lines",
-        max_size=cv.max_size,
-        vmin=cv.lo,
-        vmax=cv.hi,
-        shade=cv.shade,
-        lines=lines,
-    )
+    png = relief_map(cv, "flight lines", lines)
     return figure(png, "flight lines", "Trajectory over the survey: one colour per flight line (qc/trajectory.gpkg).")

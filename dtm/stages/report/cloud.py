@@ -198,9 +198,12 @@ def summarise_cloud(
 
     Parameters
     ----------
-    path : path of a LAS/LAZ file
-    origin, resolution, shape : the DTM's upper-left corner, cell size (CRS units) and rows x cols
-    dtm : the DTM, for the repeatability (none: not measured)
+    path : str or Path
+        The classified LAS/LAZ file.
+    origin, resolution, shape
+        The DTM's upper-left corner and cell size (CRS units), rows x cols.
+    dtm : ndarray, optional
+        The DTM, for the repeatability (None: not measured).
     """
     import laspy
     from affine import Affine

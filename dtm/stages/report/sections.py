@@ -67,12 +67,13 @@ def summary_section(
     geo = metrics.get("georeference")
     noise = metrics.get("denoise", {})
     ground = metrics.get("classify_ground", {})
+    raster = metrics.get("rasterize", {})
     rows = [
         ("specification", f"{verdict['title']}: {verdict['status']}"),
         ("points read", parse.get("points_read") or (geo or {}).get("points")),
         ("input files", input_files or len(parse.get("points_per_file", {})) or None),
         ("CRS", parse.get("crs") or (geo or {}).get("crs")),
-        ("units of the products", metrics.get("rasterize", {}).get("units") or cv.units.describe()),
+        ("units of the products", raster.get("units") or cv.units.describe()),
         ("flight strips", strip_label(strips)),
         (
             "low noise (7) / high noise (18)",
@@ -81,15 +82,14 @@ def summary_section(
         ("ground points", ground.get("ground")),
         ("ground fraction", ground.get("ground_fraction")),
         ("ground algorithm", (ground.get("algorithm") or {}).get("name")),
-        *_dtm_rows(metrics.get("rasterize", {}), cv),
+        *_dtm_rows(raster, cv),
         ("aggregate pulse density (first returns)", f"{anpd:.2f} per m²" if anpd else None),
     ]
     return section("summary", "Summary", table(rows))
 
 
-def _dtm_rows(grid_metrics: dict, cv: Canvas) -> list[tuple[str, object]]:
-    """The summary's DTM rows: its grid (metrics of ``rasterize``), nodata cells and elevation range."""
-    g = grid_metrics
+def _dtm_rows(g: dict, cv: Canvas) -> list[tuple[str, object]]:
+    """The summary's DTM rows: its grid and nodata cells (*g*: metrics of ``rasterize``), its elevation range."""
     hu = cv.hu
     return [
         (

@@ -28,7 +28,7 @@ from typing import ClassVar
 import numpy as np
 
 from dtm.stages.parse.params import InputConfig
-from pipeline.errors import ConfigError, InputDataError
+from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO, get_dotted
 
 LDMRS_TRAJECTORY_SCHEMA = {
@@ -183,6 +183,7 @@ class Parse(Stage):
         from dtm.common.rotation import euler_matrix
         from dtm.stages.parse.read_ins import TrajectoryCounters
         from dtm.stages.parse.read_lmsq import LmsqCounters, first_pps_week, read_lmsq
+        from dtm.stages.parse.trajectory import nmea_ins_trajectory, sbet_trajectory
 
         p = ctx.params
         qc = ctx.outputs["qc"]
@@ -199,9 +200,9 @@ class Parse(Stage):
         nav_counters = TrajectoryCounters()
         if p.format == "lmsq_nmea":
             geoid = ctx.setting("stages.georeference.geoid")
-            trajectory, extra = _nmea_ins_trajectory(p, week, nav_counters, ctx.log, geoid)
+            trajectory, extra = nmea_ins_trajectory(p, week, nav_counters, ctx.log, geoid)
         else:
-            trajectory, extra = _sbet_trajectory(p, week, nav_counters)
+            trajectory, extra = sbet_trajectory(p, week, nav_counters)
         if len(trajectory["time"]) < 2:
             where = nav_counters.locations[0] if nav_counters.locations else "no epoch with position and attitude"
             files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)) if f)
@@ -393,85 +394,3 @@ def _write_trajectory_csv(path: Path, traj: dict[str, np.ndarray]) -> None:
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(",".join(names) + "\n")
         np.savetxt(fh, table, fmt=fmt, delimiter=",")
-
-
-def _nmea_ins_trajectory(p, week: int, counters, log, geoid=None) -> tuple[dict[str, np.ndarray], dict]:
-    """3.B: INS attitude epochs with positions from the GNSS log (cubic spline in time between GNSS epochs).
-
-    The attitude is the INS CSV's, or without one the NMEA log's ``$PASHR``.
-    INS epochs outside the GNSS span, or inside a gap between GNSS epochs
-    longer than ``max_gap_s``, are dropped and counted.
-    """
-    from scipy.interpolate import CubicSpline
-
-    from dtm.stages.parse.read_ins import canonical_attitude, increasing, read_ins_csv
-    from dtm.stages.parse.read_nmea import NmeaCounters, read_nmea
-
-    nmea_counters = NmeaCounters()
-    nav = read_nmea(p.nmea, nmea_counters, day=p.nmea_date, leap_seconds=p.leap_seconds,
-                    separation_m=p.geoid_separation_m, geoid=geoid)  # fmt: skip
-    counters.locations.extend(nmea_counters.locations[:10])
-    pos = nav.position
-    keep = increasing(pos["time"], counters, "GGA", lambda i: f"{p.nmea}, GGA epoch {i + 1}")
-    pos = {k: v[keep] for k, v in pos.items()}
-    if p.ins is not None:
-        ins = read_ins_csv(p.ins, week, counters)
-    else:
-        att = nav.attitude
-        if not len(att["time"]):
-            raise ConfigError(f"{p.nmea}: the log has no $PASHR attitude; set input.ins (the INS attitude CSV).")
-        keep = increasing(att["time"], counters, "PASHR", lambda i: f"{p.nmea}, PASHR epoch {i + 1}")
-        roll, pitch, heading = canonical_attitude(att["roll_deg"][keep], att["pitch_deg"][keep],
-                                                  att["heading_deg"][keep])  # fmt: skip
-        ins = {"time": att["time"][keep], "roll": roll, "pitch": pitch, "heading": heading}
-    extra = {f"nmea_{k}": v for k, v in vars(nmea_counters).items() if k not in ("locations", "unread")}
-    extra.update({f"nmea_unread_{kind}": n for kind, n in sorted(nmea_counters.unread.items())})
-    extra["gnss_epochs"] = len(pos["time"])
-    if nmea_counters.fixes_2d:
-        log.warning("%d 2-D fixes (GGA/GNS without altitude) in %s: not used as positions",
-                    nmea_counters.fixes_2d, p.nmea.name)  # fmt: skip
-    if len(pos["time"]) < 2:
-        raise InputDataError(
-            f"{p.nmea}: fewer than two usable GGA positions ({nmea_counters.sentences} sentences read)."
-        )
-    tg, ti = pos["time"], ins["time"]
-    i = np.clip(np.searchsorted(tg, ti, side="right") - 1, 0, len(tg) - 2)
-    inside = (ti >= tg[0]) & (ti <= tg[-1]) & ((tg[i + 1] - tg[i]) <= p.max_gap_s)
-    extra["ins_epochs_without_position"] = int((~inside).sum())
-    if extra["ins_epochs_without_position"]:
-        log.warning("%d INS epochs outside the GNSS positions or in gaps over %g s: dropped",
-                    extra["ins_epochs_without_position"], p.max_gap_s)  # fmt: skip
-    t = ti[inside]
-    spline = CubicSpline(tg, np.column_stack((pos["lat"], pos["lon"], pos["h"])), axis=0)
-    lla = spline(t)
-    out = {"time": t, "lat": lla[:, 0], "lon": lla[:, 1], "h": lla[:, 2], "roll": ins["roll"][inside],
-           "pitch": ins["pitch"][inside], "yaw": ins["heading"][inside]}  # fmt: skip
-    sig = nav.sigma
-    if len(sig["time"]) >= 1:
-        order = np.argsort(sig["time"], kind="stable")
-        st = sig["time"][order]
-        out["sigma_north_m"] = np.interp(t, st, sig["sigma_lat_m"][order])
-        out["sigma_east_m"] = np.interp(t, st, sig["sigma_lon_m"][order])
-        out["sigma_up_m"] = np.interp(t, st, sig["sigma_h_m"][order])
-    return out, extra
-
-
-def _sbet_trajectory(p, week: int, counters) -> tuple[dict[str, np.ndarray], dict]:
-    """3.C: the SBET as it is (true heading = platform heading - wander), sigmas from the smrmsg."""
-    from dtm.stages.parse.read_ins import read_sbet, read_smrmsg
-
-    sb = read_sbet(p.sbet, week, counters)
-    out = {"time": sb["time"], "lat": sb["lat"], "lon": sb["lon"], "h": sb["h"], "roll": sb["roll"],
-           "pitch": sb["pitch"], "yaw": sb["heading"]}  # fmt: skip
-    extra = {}
-    if p.smrmsg is not None:
-        sm = read_smrmsg(p.smrmsg, week, counters)
-        extra["smrmsg_epochs"] = len(sm["time"])
-        if not len(sm["time"]):
-            where = counters.locations[0] if counters.locations else f"{p.smrmsg.stat().st_size} bytes"
-            raise InputDataError(f"{p.smrmsg}: no usable smrmsg record ({where}); fix the file or remove input.smrmsg.")
-        for src, dst in (("sigma_north_m", "sigma_north_m"), ("sigma_east_m", "sigma_east_m"),
-                         ("sigma_down_m", "sigma_up_m"), ("sigma_roll_deg", "sigma_roll_deg"),
-                         ("sigma_pitch_deg", "sigma_pitch_deg"), ("sigma_heading_deg", "sigma_heading_deg")):  # fmt: skip
-            out[dst] = np.interp(out["time"], sm["time"], sm[src])
-    return out, extra

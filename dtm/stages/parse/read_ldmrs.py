@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from dtm.stages.parse.skiplog import SkipLog, open_text
+from pipeline.errors import InputDataError
 
 #: Seed 0, Table 15: lever arm MPOS (m, MTi-G axes) of each mounting; LD-MRS -> MTi-G is Ry(+90 deg) first.
 MOUNTINGS = {
@@ -236,6 +237,40 @@ def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = 18.
     if scan is not None:
         counters.malformed_scans += 1
         counters.note(f"{scan['where']}: the file ends inside this scan")
+
+
+def read_survey(paths: list[Path], counters: Counters, *, leap_seconds: float = 18.0, progress=None) -> Iterator[Scan]:
+    """Yield the accepted scans of a survey's logs in time order (:class:`TimeOrder`, across the files).
+
+    *progress* (optional) advances by one a file.  A damaged compressed
+    stream ends its file with a note (``malformed_scans``), not a traceback.
+
+    Raises
+    ------
+    InputDataError
+        When the time goes backwards in a way that cannot be repaired.
+    """
+    order = TimeOrder(counters)
+    try:
+        for path in paths:
+            for scan in _guard_stream(read_ldmrs_mtig(path, counters, leap_seconds=leap_seconds), path, counters):
+                yield from order.feed(scan)
+            if progress is not None:
+                progress.update(1)
+        yield from order.flush()
+    except TimeOrderError as exc:
+        raise InputDataError(f"{exc}.") from None
+
+
+def _guard_stream(iterator: Iterator[Scan], path: Path, counters: Counters) -> Iterator[Scan]:
+    """Iterate a reader; a damaged compressed stream ends the file with a note, not a traceback."""
+    import zlib
+
+    try:
+        yield from iterator
+    except (EOFError, zlib.error, OSError) as exc:
+        counters.malformed_scans += 1
+        counters.note(f"{path}: the compressed stream is damaged ({exc}); the rest of the file is unreadable")
 
 
 def _finish(scan: dict, counters: Counters, leap_seconds: float, where: str) -> Scan | None:

@@ -156,6 +156,18 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
     yield from timer.flush()
 
 
+def read_streams(paths: list[Path], counters: LmsqCounters, progress=None) -> Iterator[dict[str, np.ndarray]]:
+    """Yield the blocks of :func:`read_lmsq` of a survey's streams in turn; *progress* advances by the bytes read."""
+    for path in paths:
+        last = 0
+        for block in read_lmsq(path, counters):
+            yield block
+            done = int(block["byte"][-1])
+            if progress is not None:
+                progress.update(done - last)
+            last = done
+
+
 class _Timer:
     """Dates measurements from the last PPS; holds those after a missed PPS until the next PPS confirms them."""
 

@@ -4,44 +4,34 @@ Its parameters are the configuration's ``input`` block; ``input.format``
 chooses the reader:
 
 - ``las`` (SPEC 3.D): georeferenced LAS/LAZ.  Output: the point cloud
-  (``points_georef``), already in the output CRS; georeferencing does not
-  apply.
+  (``points_georef``), already in the output CRS; georeferencing does not apply.
 - ``ldmrs_mtig`` (3.A), ``lmsq_nmea`` (3.B) and ``lmsq_sbet`` (3.C), the raw
-  formats.  Outputs: the ``trajectory`` (time, lat, lon, h, roll, pitch,
-  yaw and, when the files give them, sigmas) and the ``pulses`` (time,
-  vector in the scanner frame, echo, channel, angle, amplitude, flags,
-  scan), folders of ``.npy`` columns with a ``meta.json`` that states the
-  conventions (time system, attitude frame, mounting); and ``qc/`` with the
-  counters of everything skipped (``debug.txt``) and the trajectory as CSV
-  (``lla_eul_vel.csv``; for 3.A also the seed-0 ``scans.txt``).  The
-  ``georeference`` stage turns them into points.
+  formats.  Outputs: the ``trajectory`` and the ``pulses``
+  (:mod:`dtm.stages.parse.intermediates`), which the ``georeference`` stage
+  turns into points, and ``qc/`` (:mod:`dtm.stages.parse.qc`).
 
 Times everywhere: GPS seconds since 1980-01-06 (UTC + ``leap_seconds`` for
 the UTC-stamped formats; week x 604800 + seconds of week for the others).
+The readers' conventions: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from dtm.stages.parse.params import InputConfig
+from dtm.stages.parse.params import InputConfig, LasInput, LdmrsInput, LmsqNmeaInput, LmsqSbetInput
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO, get_dotted
 
-LDMRS_TRAJECTORY_SCHEMA = {
-    "time": "f8", "lat": "f8", "lon": "f8", "h": "f8", "roll": "f8", "pitch": "f8", "yaw": "f8",
-    "scan": "u2", "vx": "f8", "vy": "f8", "vz": "f8", "status": "u1",
-}  # fmt: skip
-#: ``flags`` bit of an .lmsq measurement dated from the us counter after a missed PPS
-RECOVERED_FLAG = 0x80
-#: The pulses of every raw format.
-PULSES_SCHEMA = {
-    "time": "f8", "x": "f8", "y": "f8", "z": "f8", "echo": "u1", "channel": "u1", "angle": "f8",
-    "amplitude": "u1", "flags": "u1", "scan": "u2",
-}  # fmt: skip
+if TYPE_CHECKING:
+    from dtm.stages.parse.read_ins import TrajectoryCounters
+    from dtm.stages.parse.read_las import LasReadReport
+    from dtm.stages.parse.read_ldmrs import Counters
+    from dtm.stages.parse.read_lmsq import LmsqCounters
 
 
 class Parse(Stage):
@@ -84,189 +74,75 @@ class Parse(Stage):
             return self._run_lmsq(ctx)
         return self._run_las(ctx)
 
-    def _run_ldmrs(self, ctx) -> None:
+    def _run_ldmrs(self, ctx: StageContext[LdmrsInput]) -> None:
+        """3.A: the logs' scans, in time order, into the trajectory, the pulses and ``qc/``."""
         from dtm.common.columns import NpyColumns
-        from dtm.common.rotation import rot_y
-        from dtm.stages.parse.read_ldmrs import MOUNTINGS, Counters, TimeOrder, TimeOrderError, read_ldmrs_mtig
+        from dtm.stages.parse.intermediates import (
+            LDMRS_TRAJECTORY_SCHEMA,
+            PULSES_SCHEMA,
+            ldmrs_conventions,
+            scan_pose,
+            scan_pulses,
+        )
+        from dtm.stages.parse.qc import ScanQc, ldmrs_figures, write_debug
+        from dtm.stages.parse.read_ldmrs import Counters, read_survey
 
         p = ctx.params
         counters = Counters()
         qc = ctx.outputs["qc"]
         qc.mkdir()
-        lever = MOUNTINGS[p.mounting] if isinstance(p.mounting, str) else p.mounting.lever_arm_m
-        conventions = {
-            "format": p.format,
-            "time": "GPS seconds since 1980-01-06 (UTC + leap_seconds)",
-            "leap_seconds": p.leap_seconds,
-        }
-        trajectory_meta = {
-            **conventions,
-            "convention": "NWU",
-            "position": "WGS 84 latitude, longitude (deg), ellipsoidal height (m)",
-            "attitude": "MTi-G body (x forward, y left, z up) vs local-level NWU: R = Rz(yaw) Ry(pitch) Rx(roll), "
-            "degrees, yaw counter-clockwise from north",
-            "velocity": "body frame, m/s",
-        }
-        pulses_meta = {
-            **conventions,
-            "frame": "LD-MRS: x optical axis, y left, z up; metres",
-            "mounting": p.mounting if isinstance(p.mounting, str) else "custom",
-            "rotation": rot_y(np.pi / 2).round(15).tolist(),
-            "lever_arm": list(lever),
-            "body_axes": "MTi-G: x forward, y left, z up",
-        }
+        trajectory_meta, pulses_meta = ldmrs_conventions(p)
         with (
-            NpyColumns(ctx.outputs["trajectory"], LDMRS_TRAJECTORY_SCHEMA, trajectory_meta) as traj,
+            NpyColumns(ctx.outputs["trajectory"], LDMRS_TRAJECTORY_SCHEMA, trajectory_meta) as trajectory,
             NpyColumns(ctx.outputs["pulses"], PULSES_SCHEMA, pulses_meta) as pulses,
-            open(qc / "scans.txt", "w", encoding="utf-8") as scans_txt,
-            open(qc / "lla_eul_vel.csv", "w", encoding="utf-8") as lla_csv,
+            ScanQc(qc) as scan_qc,
             ctx.progress(len(p.paths), "reading acquisition logs", unit="file") as bar,
         ):
-            lla_csv.write("scan,time_gps,lat_deg,lon_deg,h_m,roll_deg,pitch_deg,yaw_deg,vx_ms,vy_ms,vz_ms\n")
-
-            def write(scans: list) -> None:
-                for scan in scans:
-                    lat, lon, h = scan.lla
-                    roll, pitch, yaw = scan.euler
-                    vx, vy, vz = scan.vel
-                    traj.append(
-                        scan=[scan.number], time=[scan.time_gps], lat=[lat], lon=[lon], h=[h], roll=[roll],
-                        pitch=[pitch], yaw=[yaw], vx=[vx], vy=[vy], vz=[vz], status=[scan.status],
-                    )  # fmt: skip
-                    lla_csv.write(
-                        f"{scan.number},{scan.time_gps:.6f},{lat:.10f},{lon:.10f},{h:.4f},"
-                        f"{roll:.7f},{pitch:.7f},{yaw:.7f},{vx:.3f},{vy:.3f},{vz:.3f}\n"
-                    )
-                    n = len(scan.points)
-                    if n:
-                        scans_txt.write(f"{scan.number}\n")
-                        pts = scan.points
-                        pulses.append(
-                            time=np.full(n, scan.time_gps), x=pts[:, 3], y=pts[:, 4], z=pts[:, 5], echo=pts[:, 1],
-                            channel=pts[:, 0], angle=np.degrees(np.arctan2(pts[:, 4], pts[:, 3])),
-                            amplitude=np.zeros(n), flags=pts[:, 2], scan=np.full(n, scan.number),
-                        )  # fmt: skip
-
-            order = TimeOrder(counters)  # across files: a survey's logs in time order
-            try:
-                for path in p.paths:
-                    for scan in _guard_stream(
-                        read_ldmrs_mtig(path, counters, leap_seconds=p.leap_seconds), path, counters
-                    ):
-                        write(order.feed(scan))
-                    bar.update(1)
-                write(order.flush())
-            except TimeOrderError as exc:
-                raise InputDataError(f"{exc}.") from None
-        figures = {k: v for k, v in vars(counters).items() if k != "locations"}
-        _write_debug(qc, figures, counters.locations, sum(path.stat().st_size for path in p.paths))
+            for scan in read_survey(p.paths, counters, leap_seconds=p.leap_seconds, progress=bar):
+                trajectory.append(**scan_pose(scan))
+                scan_qc.write(scan)
+                if len(scan.points):
+                    pulses.append(**scan_pulses(scan))
+        figures = ldmrs_figures(counters)
+        write_debug(qc, figures, counters.locations, sum(path.stat().st_size for path in p.paths))
         ctx.metrics.update(figures, problems=list(counters.locations))
-        skipped = counters.invalid_scans + counters.bad_gps + counters.malformed_scans
-        skipped += counters.duplicate_scans + counters.out_of_order_scans
-        ctx.log.info(
-            "%d of %d scans accepted (%d invalid UTC, %d bad GPS, %d malformed, %d repeated, %d out of time order; "
-            "%d lost, %d empty); %d valid points",
-            counters.scans_accepted, counters.scans_total, counters.invalid_scans, counters.bad_gps,
-            counters.malformed_scans, counters.duplicate_scans, counters.out_of_order_scans, counters.lost_scans,
-            counters.empty_scans, counters.points_valid,
-        )  # fmt: skip
-        if skipped:
-            ctx.log.warning("%d scans skipped; see qc/debug.txt", skipped)
+        _log_ldmrs_counts(ctx.log, counters)
         if counters.scans_accepted == 0:
             where = counters.locations[0] if counters.locations else ", ".join(str(x) for x in p.paths)
             raise InputDataError(
                 f"no usable scan in the acquisition log ({counters.scans_total} scans read; first problem: {where})."
             )
 
-    def _run_lmsq(self, ctx) -> None:
+    def _run_lmsq(self, ctx: StageContext[LmsqNmeaInput | LmsqSbetInput]) -> None:
+        """3.B, 3.C: the navigation files into the trajectory, the scanner streams into the pulses; ``qc/``."""
         from dtm.common.columns import NpyColumns
-        from dtm.common.rotation import euler_matrix
+        from dtm.stages.parse.intermediates import PULSES_SCHEMA, lmsq_conventions, lmsq_pulses, write_trajectory
+        from dtm.stages.parse.qc import lmsq_figures, write_debug, write_trajectory_csv
         from dtm.stages.parse.read_ins import TrajectoryCounters
-        from dtm.stages.parse.read_lmsq import LmsqCounters, first_pps_week, read_lmsq
-        from dtm.stages.parse.trajectory import nmea_ins_trajectory, sbet_trajectory
+        from dtm.stages.parse.read_lmsq import LmsqCounters, read_streams
 
         p = ctx.params
         qc = ctx.outputs["qc"]
         qc.mkdir()
-        week = p.gps_week
-        if week is None:
-            week = first_pps_week(p.paths[0])
-            if week is None:
-                raise InputDataError(
-                    f"{p.paths[0]}: no PPS record at the start of the stream, so the GPS week of the "
-                    "navigation files is unknown; set input.gps_week."
-                )
-            ctx.log.info("GPS week %d (from the first PPS record of %s)", week, p.paths[0].name)
+        week = _gps_week(p, ctx.log)
         nav_counters = TrajectoryCounters()
-        if p.format == "lmsq_nmea":
-            geoid = ctx.setting("stages.georeference.geoid")
-            trajectory, extra = nmea_ins_trajectory(p, week, nav_counters, ctx.log, geoid)
-        else:
-            trajectory, extra = sbet_trajectory(p, week, nav_counters)
-        if len(trajectory["time"]) < 2:
-            where = nav_counters.locations[0] if nav_counters.locations else "no epoch with position and attitude"
-            files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)) if f)
-            raise InputDataError(f"{files}: fewer than two usable navigation epochs (first problem: {where}).")
-        conventions = {"format": p.format, "time": "GPS seconds since 1980-01-06", "gps_week": week}
-        traj_meta = {
-            **conventions,
-            "convention": "NED",
-            "position": "WGS 84 latitude, longitude (deg), ellipsoidal height (m)",
-            "attitude": "body (x forward, y right, z down) vs local-level NED: R = Rz(yaw) Ry(pitch) Rx(roll), degrees, "
-            "yaw = true heading, clockwise from north",
-        }
-        schema = {name: "f8" for name in trajectory}
-        with NpyColumns(ctx.outputs["trajectory"], schema, traj_meta) as traj:
-            traj.append(**trajectory)
-        _write_trajectory_csv(qc / "lla_eul_vel.csv", trajectory)
-        pulses_meta = {
-            **conventions,
-            "frame": "scanner: x forward, y starboard, z down; a pulse at mirror angle t is range x (0, sin t, cos t)",
-            "rotation": euler_matrix(*np.radians(p.boresight_deg)).tolist(),
-            "boresight_deg": list(p.boresight_deg),
-            "lever_arm": list(p.lever_arm_m),
-            "body_axes": "x forward, y right, z down",
-            "flags": "bits 0-5: the measurement's quality; bit 7 (0x80): time recovered from the us counter "
-            "after a missed PPS",
-        }
+        trajectory, extra = _navigation(ctx, week, nav_counters)
+        trajectory_meta, pulses_meta = lmsq_conventions(p, week)
+        write_trajectory(ctx.outputs["trajectory"], trajectory, trajectory_meta)
+        write_trajectory_csv(qc / "lla_eul_vel.csv", trajectory)
         counters = LmsqCounters()
         total = sum(path.stat().st_size for path in p.paths)
         with (
             NpyColumns(ctx.outputs["pulses"], PULSES_SCHEMA, pulses_meta) as pulses,
             ctx.progress(total, "reading scanner streams", unit="B") as bar,
         ):
-            for path in p.paths:
-                last = 0
-                for block in read_lmsq(path, counters):
-                    th = np.radians(block["angle_deg"])
-                    r = block["range_m"]
-                    n = len(r)
-                    pulses.append(
-                        time=block["time"], x=np.zeros(n), y=r * np.sin(th), z=r * np.cos(th), echo=block["echo"],
-                        channel=np.zeros(n), angle=block["angle_deg"], amplitude=block["amplitude"],
-                        flags=block["quality"] | np.where(block["recovered"], RECOVERED_FLAG, 0).astype(np.uint8),
-                        scan=np.zeros(n),
-                    )  # fmt: skip
-                    done = int(block["byte"][-1])
-                    bar.update(done - last)
-                    last = done
-        figures = {f"scanner_{k}": v for k, v in vars(counters).items()}
-        figures["pulses_read"] = pulses.rows
-        figures.update({f"navigation_{k}": v for k, v in vars(nav_counters).items() if k != "locations"})
-        figures.update(extra)
-        figures["trajectory_epochs"] = len(trajectory["time"])
-        _write_debug(qc, figures, nav_counters.locations, total)
+            for block in read_streams(p.paths, counters, bar):
+                pulses.append(**lmsq_pulses(block))
+        epochs = len(trajectory["time"])
+        figures = lmsq_figures(counters, pulses.rows, nav_counters, extra, epochs)
+        write_debug(qc, figures, nav_counters.locations, total)
         ctx.metrics.update(figures, problems=list(nav_counters.locations), gps_week=week)
-        skipped = counters.before_first_pps + counters.pps_ambiguous + counters.invalid_quality
-        ctx.log.info(
-            "%d measurements read: %d kept, %d after a missed PPS (%d dated from the us counter and kept, "
-            "%d ambiguous), %d invalid quality, %d before the first PPS; %d trajectory epochs",
-            counters.measurements, pulses.rows, counters.missed_pps, counters.pps_recovered,
-            counters.pps_ambiguous, counters.invalid_quality, counters.before_first_pps, len(trajectory["time"]),
-        )  # fmt: skip
-        if skipped or counters.truncated_bytes:
-            ctx.log.warning("%d measurements skipped, %d bytes cut off; see qc/debug.txt", skipped,
-                            counters.truncated_bytes)  # fmt: skip
+        _log_lmsq_counts(ctx.log, counters, pulses.rows, epochs)
         if pulses.rows == 0:
             raise InputDataError(
                 f"no usable measurement in {', '.join(str(x) for x in p.paths)} "
@@ -274,9 +150,11 @@ class Parse(Stage):
                 f"{counters.invalid_quality} invalid, {counters.before_first_pps} before the first PPS)."
             )
 
-    def _run_las(self, ctx) -> None:
+    def _run_las(self, ctx: StageContext[LasInput]) -> None:
+        """3.D: the LAS/LAZ files into one LAS 1.4 file in the output CRS."""
         import pyproj
 
+        from dtm.common.units import Units
         from dtm.stages.parse.read_las import convert_las_files, count_points
 
         params = ctx.params
@@ -297,10 +175,7 @@ class Parse(Stage):
         if not sum(report.points.values()):
             files = ", ".join(str(x) for x in params.paths)
             raise InputDataError(f"{files}: no point in the file (its header announces 0 and no record follows).")
-        from dtm.common.units import Units
-
         _check_dtm_size(ctx.config, report.usable_box, Units.of(crs), ", ".join(str(x) for x in params.paths))
-
         ctx.metrics.update(
             points_read=int(sum(report.points.values())),
             points_per_file=report.points,
@@ -320,6 +195,82 @@ class Parse(Stage):
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
 
 
+def _gps_week(p: LmsqNmeaInput | LmsqSbetInput, log: logging.LoggerAdapter) -> int:
+    """The GPS week of the navigation files: ``input.gps_week``, else the first PPS record's."""
+    from dtm.stages.parse.read_lmsq import first_pps_week
+
+    if p.gps_week is not None:
+        return p.gps_week
+    week = first_pps_week(p.paths[0])
+    if week is None:
+        raise InputDataError(
+            f"{p.paths[0]}: no PPS record at the start of the stream, so the GPS week of the "
+            "navigation files is unknown; set input.gps_week."
+        )
+    log.info("GPS week %d (from the first PPS record of %s)", week, p.paths[0].name)
+    return week
+
+
+def _navigation(
+    ctx: StageContext[LmsqNmeaInput | LmsqSbetInput], week: int, counters: TrajectoryCounters
+) -> tuple[dict, dict]:
+    """The trajectory of 3.B (NMEA + INS) or 3.C (SBET) and its figures; fewer than two epochs is an error."""
+    from dtm.stages.parse.trajectory import nmea_ins_trajectory, sbet_trajectory
+
+    p = ctx.params
+    if p.format == "lmsq_nmea":
+        geoid = ctx.setting("stages.georeference.geoid")
+        trajectory, extra = nmea_ins_trajectory(p, week, counters, ctx.log, geoid)
+    else:
+        trajectory, extra = sbet_trajectory(p, week, counters)
+    if len(trajectory["time"]) < 2:
+        where = counters.locations[0] if counters.locations else "no epoch with position and attitude"
+        files = ", ".join(str(f) for f in ((p.nmea, p.ins) if p.format == "lmsq_nmea" else (p.sbet,)) if f)
+        raise InputDataError(f"{files}: fewer than two usable navigation epochs (first problem: {where}).")
+    return trajectory, extra
+
+
+def _log_ldmrs_counts(log: logging.LoggerAdapter, counters: Counters) -> None:
+    """Say how many scans were accepted and why the others were not."""
+    log.info(
+        "%d of %d scans accepted (%d invalid UTC, %d bad GPS, %d malformed, %d repeated, %d out of time order; "
+        "%d lost, %d empty); %d valid points",
+        counters.scans_accepted,
+        counters.scans_total,
+        counters.invalid_scans,
+        counters.bad_gps,
+        counters.malformed_scans,
+        counters.duplicate_scans,
+        counters.out_of_order_scans,
+        counters.lost_scans,
+        counters.empty_scans,
+        counters.points_valid,
+    )
+    skipped = counters.invalid_scans + counters.bad_gps + counters.malformed_scans
+    skipped += counters.duplicate_scans + counters.out_of_order_scans
+    if skipped:
+        log.warning("%d scans skipped; see qc/debug.txt", skipped)
+
+
+def _log_lmsq_counts(log: logging.LoggerAdapter, counters: LmsqCounters, kept: int, epochs: int) -> None:
+    """Say what became of the scanner's measurements."""
+    log.info(
+        "%d measurements read: %d kept, %d after a missed PPS (%d dated from the us counter and kept, "
+        "%d ambiguous), %d invalid quality, %d before the first PPS; %d trajectory epochs",
+        counters.measurements,
+        kept,
+        counters.missed_pps,
+        counters.pps_recovered,
+        counters.pps_ambiguous,
+        counters.invalid_quality,
+        counters.before_first_pps,
+        epochs,
+    )
+    skipped = counters.before_first_pps + counters.pps_ambiguous + counters.invalid_quality
+    if skipped or counters.truncated_bytes:
+        log.warning("%d measurements skipped, %d bytes cut off; see qc/debug.txt", skipped, counters.truncated_bytes)
+
+
 def _check_dtm_size(config, box, units, source: str) -> None:
     """Refuse, right after reading, a survey whose DTM grid the machine cannot hold (not hours later).
 
@@ -337,7 +288,7 @@ def _check_dtm_size(config, box, units, source: str) -> None:
     check_grid_size(Grid.covering(*metres, raster.resolution), metres, units, source=source)
 
 
-def _log_las_report(log, report, override) -> None:
+def _log_las_report(log: logging.LoggerAdapter, report: LasReadReport, override) -> None:
     """Say what the LAS reader repaired or assumed: every count, never silently."""
     if override is not None:
         log.info("input.override_crs: %s replaces the header CRS of every input file", override.name)
@@ -366,31 +317,3 @@ def _log_las_report(log, report, override) -> None:
         )
     for path, (announced, held) in report.header_count_short.items():
         log.warning("%s: the header announces %d points but the file holds %d records: all read", path, announced, held)
-
-
-def _guard_stream(iterator, path: Path, counters):
-    """Iterate a reader; a damaged compressed stream ends the file with a note, not a traceback."""
-    import zlib
-
-    try:
-        yield from iterator
-    except (EOFError, zlib.error, OSError) as exc:
-        counters.malformed_scans += 1
-        counters.note(f"{path}: the compressed stream is damaged ({exc}); the rest of the file is unreadable")
-
-
-def _write_debug(qc: Path, figures: dict, locations: list[str], size: int) -> None:
-    """``qc/debug.txt``: every counter, the input size, the first problems with their locations."""
-    lines = [f"{k} {v}" for k, v in figures.items()]
-    lines += ["", f"input bytes {size}", "first problems:" if locations else "problems: none"]
-    lines += [f"  {where}" for where in locations]
-    (qc / "debug.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
-
-
-def _write_trajectory_csv(path: Path, traj: dict[str, np.ndarray]) -> None:
-    names = list(traj)
-    table = np.column_stack([traj[n] for n in names])
-    fmt = ["%.6f", "%.10f", "%.10f", "%.4f"] + ["%.7f"] * (len(names) - 4)
-    with open(path, "w", encoding="utf-8") as fh:
-        fh.write(",".join(names) + "\n")
-        np.savetxt(fh, table, fmt=fmt, delimiter=",")

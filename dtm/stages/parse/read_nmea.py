@@ -199,13 +199,43 @@ def read_nmea(
         The log has no date and none is configured, or a fix has no geoid separation and neither
         *separation_m* nor *geoid* is given.
     """
-    # Each timed row: (values, time of day, index of the last anchor before it, line number)
-    rows: dict[str, list] = {"gga": [], "gns": [], "sigma": [], "attitude": []}
-    # HDT, VTG: (values, index of the last GGA, of the last GNS) -- they take that fix's time
-    untimed: dict[str, list] = {"heading": [], "course": []}
-    anchors: list[tuple[float, float]] = []  # (time of day, UTC seconds since the GPS epoch of that instant)
-    first_timed: int | None = None
+    log = _read_sentences(path, counters)
+    source = "gga" if log.rows["gga"] else "gns"
+    fixes = log.rows[source]
+    if source == "gns":
+        counters.gns_positions += len(fixes)
+    gps = _gps_times(log, fixes, day, leap_seconds, path)
+    out = {"position": _position_columns(fixes, gps["position"], separation_m, geoid, path, counters)}
+    for key in ("sigma", "attitude"):
+        table = np.array([r[0] for r in log.rows[key]], dtype=np.float64).reshape(-1, len(NAMES[key]) - 1)
+        out[key] = dict(zip(NAMES[key], (gps[key], *table.T), strict=True))
+    counters.attitude_epochs += len(log.rows["attitude"])
+    column = 1 if source == "gga" else 2
+    for key in ("heading", "course"):
+        out[key] = _untimed_columns(key, log.untimed[key], column, gps["position"])
+    return NmeaLog(**out)
 
+
+@dataclass
+class _Sentences:
+    """The sentences of a log as read, before they are dated."""
+
+    #: Each timed row: (values, time of day, index of the last anchor before it, line number)
+    rows: dict[str, list] = field(default_factory=lambda: {"gga": [], "gns": [], "sigma": [], "attitude": []})
+    #: HDT, VTG: (values, index of the last GGA, of the last GNS) -- they take that fix's time
+    untimed: dict[str, list] = field(default_factory=lambda: {"heading": [], "course": []})
+    #: ZDA, RMC: (time of day, UTC seconds since the GPS epoch of that instant)
+    anchors: list[tuple[float, float]] = field(default_factory=list)
+    first_timed: int | None = None  # line of the first timed sentence
+
+    def timed(self, key: str, values: tuple, tod: float, lineno: int) -> None:
+        self.rows[key].append((values, tod, len(self.anchors) - 1, lineno))
+        self.first_timed = self.first_timed or lineno
+
+
+def _read_sentences(path: Path, counters: NmeaCounters) -> _Sentences:
+    """Every sentence of the log with a good checksum, parsed; the others counted."""
+    log = _Sentences()
     with open_text(path, "ascii") as fh:
         for lineno, raw in enumerate(fh, 1):
             line = raw.strip()
@@ -220,92 +250,123 @@ def read_nmea(
             fields = line[1:].rpartition("*")[0].split(",")
             address = fields[0]
             kind = address if address.startswith("P") else address[2:]
-            f = fields[1:]
             try:
-                if kind in ("GGA", "GNS"):
-                    if kind == "GGA":
-                        quality = int(f[5] or 0)
-                    else:
-                        ranks = [_GNS_RANK.index(c) for c in f[5].strip().upper() if c in _GNS_RANK]
-                        quality = GNS_QUALITY[_GNS_RANK[min(ranks)]] if ranks else 0
-                    if quality == 0:  # receivers write it with empty fields before their first fix
-                        counters.no_fix += 1
-                        continue
-                    tod = _time_of_day(f[0])
-                    lat, lon, msl, sep = _position(f, 1, 8, 10 if kind == "GGA" else 9)
-                    sats = int(f[6]) if f[6].strip() else 0
-                    hdop = float(f[7]) if f[7].strip() else math.nan  # empty: not given (NaN)
-                    if f[7].strip():
-                        _finite(hdop)
-                    if msl is None:
-                        counters.fixes_2d += 1
-                        counters.note(f"{where}: 2-D fix ({kind} without altitude); not a 3-D position")
-                        continue
-                    sep = math.nan if sep is None else sep
-                    rows[kind.lower()].append(
-                        ((lat, lon, msl, sep, quality, sats, hdop), tod, len(anchors) - 1, lineno)
-                    )
-                    first_timed = first_timed or lineno
-                elif kind in ("HDT", "VTG"):
-                    if kind == "HDT":
-                        key, values = "heading", (_angle(f[0]),)
-                    else:
-                        knots = float(f[4])
-                        if not (0.0 <= knots < 1e4):  # also rejects NaN
-                            raise ValueError("speed out of range")
-                        key, values = "course", (_angle(f[0]), knots * 1852.0 / 3600.0)
-                    untimed[key].append((values, len(rows["gga"]) - 1, len(rows["gns"]) - 1))
-                elif kind == "GST":
-                    tod = _time_of_day(f[0])
-                    sl, so, sh = float(f[5]), float(f[6]), float(f[7])
-                    if not all(0.0 <= v <= 1e4 for v in (sl, so, sh)):  # also rejects NaN
-                        raise ValueError("sigma out of range")
-                    rows["sigma"].append(((sl, so, sh), tod, len(anchors) - 1, lineno))
-                    first_timed = first_timed or lineno
-                elif kind == "PASHR":
-                    tod = _time_of_day(f[0])
-                    heading, roll, pitch = _angle(f[1]), float(f[3]), float(f[4])
-                    _finite(roll, pitch)
-                    rows["attitude"].append(((roll, pitch, heading), tod, len(anchors) - 1, lineno))
-                    first_timed = first_timed or lineno
-                elif kind in ("ZDA", "RMC") and not (f[0].strip() and f[8 if kind == "RMC" else 3].strip()):
-                    counters.no_fix += 1  # no time or date yet (receivers write it before their first fix)
-                elif kind in ("ZDA", "RMC"):
-                    tod = _time_of_day(f[0])
-                    if kind == "ZDA":
-                        the_day = date(int(f[3]), int(f[2]), int(f[1]))
-                    else:
-                        ddmmyy = f[8].strip()
-                        if len(ddmmyy) != 6:
-                            raise ValueError("bad RMC date")
-                        yy = int(ddmmyy[4:6])  # GPS began in 1980: 80-99 are 19yy
-                        the_day = date(2000 + yy if yy < 80 else 1900 + yy, int(ddmmyy[2:4]), int(ddmmyy[0:2]))
-                    midnight = datetime(the_day.year, the_day.month, the_day.day, tzinfo=UTC)
-                    anchors.append((tod, (midnight - GPS_EPOCH).total_seconds() + tod))
-                else:
-                    counters.unknown += 1
-                    counters.unread[kind] = counters.unread.get(kind, 0) + 1
+                _read_sentence(kind, fields[1:], log, counters, where, lineno)
             except (ValueError, IndexError, OverflowError):  # OverflowError: a 20-digit year
                 counters.malformed += 1
                 counters.note(f"{where}: malformed {kind} sentence")
+    return log
 
-    source = "gga" if rows["gga"] else "gns"
-    fixes = rows[source]
-    if source == "gns":
-        counters.gns_positions += len(fixes)
-    timed = {"position": fixes, "sigma": rows["sigma"], "attitude": rows["attitude"]}
-    if anchors:
-        a = np.array(anchors, dtype=np.float64)
-        utc = {}
-        for key, items in timed.items():
-            tod = np.array([r[1] for r in items], dtype=np.float64)
-            k = np.maximum(np.array([r[2] for r in items], dtype=np.int64), 0)  # none before: the first after
-            utc[key] = a[k, 1] + np.mod(tod - a[k, 0] + DAY / 2, DAY) - DAY / 2 if len(items) else np.zeros(0)
+
+def _read_sentence(kind: str, f: list[str], log: _Sentences, counters: NmeaCounters, where: str, lineno: int) -> None:
+    """Add one sentence's fields *f* to *log*; raises ValueError or IndexError when it is malformed."""
+    if kind in ("GGA", "GNS"):
+        _read_fix(kind, f, log, counters, where, lineno)
+    elif kind in ("HDT", "VTG"):
+        key, values = ("heading", (_angle(f[0]),)) if kind == "HDT" else ("course", _course(f))
+        log.untimed[key].append((values, len(log.rows["gga"]) - 1, len(log.rows["gns"]) - 1))
+    elif kind == "GST":
+        tod = _time_of_day(f[0])
+        log.timed("sigma", _sigmas(f), tod, lineno)
+    elif kind == "PASHR":
+        tod = _time_of_day(f[0])
+        log.timed("attitude", _pashr(f), tod, lineno)
+    elif kind in ("ZDA", "RMC") and not (f[0].strip() and f[8 if kind == "RMC" else 3].strip()):
+        counters.no_fix += 1  # no time or date yet (receivers write it before their first fix)
+    elif kind in ("ZDA", "RMC"):
+        log.anchors.append(_anchor(kind, f))
     else:
-        utc = _chain_dates(timed, day, f"{path}, line {first_timed}")
-    gps = {k: v + leap_seconds for k, v in utc.items()}
+        counters.unknown += 1
+        counters.unread[kind] = counters.unread.get(kind, 0) + 1
 
-    # positions: ellipsoidal height = MSL + separation (from the sentence, the configuration or the geoid)
+
+def _read_fix(kind: str, f: list[str], log: _Sentences, counters: NmeaCounters, where: str, lineno: int) -> None:
+    """A GGA or GNS: a 3-D fix added to *log*; no fix and 2-D fixes counted."""
+    if kind == "GGA":
+        quality = int(f[5] or 0)
+    else:
+        ranks = [_GNS_RANK.index(c) for c in f[5].strip().upper() if c in _GNS_RANK]
+        quality = GNS_QUALITY[_GNS_RANK[min(ranks)]] if ranks else 0
+    if quality == 0:  # receivers write it with empty fields before their first fix
+        counters.no_fix += 1
+        return
+    tod = _time_of_day(f[0])
+    lat, lon, msl, sep = _position(f, 1, 8, 10 if kind == "GGA" else 9)
+    sats = int(f[6]) if f[6].strip() else 0
+    hdop = float(f[7]) if f[7].strip() else math.nan  # empty: not given (NaN)
+    if f[7].strip():
+        _finite(hdop)
+    if msl is None:
+        counters.fixes_2d += 1
+        counters.note(f"{where}: 2-D fix ({kind} without altitude); not a 3-D position")
+        return
+    sep = math.nan if sep is None else sep
+    log.timed(kind.lower(), (lat, lon, msl, sep, quality, sats, hdop), tod, lineno)
+
+
+def _course(f: list[str]) -> tuple[float, float]:
+    """VTG: course over ground (degrees) and speed (m/s, from knots)."""
+    knots = float(f[4])
+    if not (0.0 <= knots < 1e4):  # also rejects NaN
+        raise ValueError("speed out of range")
+    return _angle(f[0]), knots * 1852.0 / 3600.0
+
+
+def _sigmas(f: list[str]) -> tuple[float, float, float]:
+    """GST: sigma of latitude, longitude and height (metres)."""
+    sl, so, sh = float(f[5]), float(f[6]), float(f[7])
+    if not all(0.0 <= v <= 1e4 for v in (sl, so, sh)):  # also rejects NaN
+        raise ValueError("sigma out of range")
+    return sl, so, sh
+
+
+def _pashr(f: list[str]) -> tuple[float, float, float]:
+    """$PASHR: roll, pitch and true heading (degrees)."""
+    heading, roll, pitch = _angle(f[1]), float(f[3]), float(f[4])
+    _finite(roll, pitch)
+    return roll, pitch, heading
+
+
+def _anchor(kind: str, f: list[str]) -> tuple[float, float]:
+    """ZDA or RMC: the time of day and the UTC seconds since the GPS epoch of that instant."""
+    tod = _time_of_day(f[0])
+    if kind == "ZDA":
+        the_day = date(int(f[3]), int(f[2]), int(f[1]))
+    else:
+        ddmmyy = f[8].strip()
+        if len(ddmmyy) != 6:
+            raise ValueError("bad RMC date")
+        yy = int(ddmmyy[4:6])  # GPS began in 1980: 80-99 are 19yy
+        the_day = date(2000 + yy if yy < 80 else 1900 + yy, int(ddmmyy[2:4]), int(ddmmyy[0:2]))
+    midnight = datetime(the_day.year, the_day.month, the_day.day, tzinfo=UTC)
+    return tod, (midnight - GPS_EPOCH).total_seconds() + tod
+
+
+def _gps_times(log: _Sentences, fixes: list, day: date | None, leap_seconds: float, path: Path) -> dict:
+    """GPS times of the fixes, sigmas and attitudes: dated by the anchors, else by the configured *day*."""
+    timed = {"position": fixes, "sigma": log.rows["sigma"], "attitude": log.rows["attitude"]}
+    if log.anchors:
+        utc = _anchored(timed, log.anchors)
+    else:
+        utc = _chain_dates(timed, day, f"{path}, line {log.first_timed}")
+    return {k: v + leap_seconds for k, v in utc.items()}
+
+
+def _anchored(timed: dict[str, list], anchors: list[tuple[float, float]]) -> dict[str, np.ndarray]:
+    """Each time of day dated by the last anchor before it (the first one when none precedes), within 12 hours."""
+    a = np.array(anchors, dtype=np.float64)
+    utc = {}
+    for key, items in timed.items():
+        tod = np.array([r[1] for r in items], dtype=np.float64)
+        k = np.maximum(np.array([r[2] for r in items], dtype=np.int64), 0)  # none before: the first after
+        utc[key] = a[k, 1] + np.mod(tod - a[k, 0] + DAY / 2, DAY) - DAY / 2 if len(items) else np.zeros(0)
+    return utc
+
+
+def _position_columns(
+    fixes: list, times: np.ndarray, separation_m: float | None, geoid: Path | None, path: Path, counters: NmeaCounters
+) -> dict[str, np.ndarray]:
+    """The fixes' columns; ellipsoidal height = MSL + separation (from the sentence, the configuration or the geoid)."""
     pos = np.array([r[0] for r in fixes], dtype=np.float64).reshape(-1, 7)
     sep = pos[:, 3]
     missing = np.isnan(sep)
@@ -322,19 +383,16 @@ def read_nmea(
                 "input.geoid_separation_m (metres)."
             )
     counters.rtk_fixes += int(np.isin(pos[:, 4], (4, 5)).sum())
-    columns = (gps["position"], pos[:, 0], pos[:, 1], pos[:, 2] + sep, pos[:, 2], pos[:, 4], pos[:, 5], pos[:, 6])
-    out = {"position": dict(zip(NAMES["position"], columns, strict=True))}
-    for key in ("sigma", "attitude"):
-        table = np.array([r[0] for r in rows[key]], dtype=np.float64).reshape(-1, len(NAMES[key]) - 1)
-        out[key] = dict(zip(NAMES[key], (gps[key], *table.T), strict=True))
-    counters.attitude_epochs += len(rows["attitude"])
-    column = 1 if source == "gga" else 2
-    for key in ("heading", "course"):
-        items = [r for r in untimed[key] if r[column] >= 0]
-        idx = np.array([r[column] for r in items], dtype=np.int64)
-        table = np.array([r[0] for r in items], dtype=np.float64).reshape(-1, len(NAMES[key]) - 1)
-        out[key] = dict(zip(NAMES[key], (gps["position"][idx], *table.T), strict=True))
-    return NmeaLog(**out)
+    columns = (times, pos[:, 0], pos[:, 1], pos[:, 2] + sep, pos[:, 2], pos[:, 4], pos[:, 5], pos[:, 6])
+    return dict(zip(NAMES["position"], columns, strict=True))
+
+
+def _untimed_columns(key: str, items: list, column: int, fix_times: np.ndarray) -> dict[str, np.ndarray]:
+    """HDT or VTG columns, timed by the fix before them (*column*: 1 for GGA, 2 for GNS); none before the first fix."""
+    items = [r for r in items if r[column] >= 0]
+    idx = np.array([r[column] for r in items], dtype=np.int64)
+    table = np.array([r[0] for r in items], dtype=np.float64).reshape(-1, len(NAMES[key]) - 1)
+    return dict(zip(NAMES[key], (fix_times[idx], *table.T), strict=True))
 
 
 def _chain_dates(timed: dict[str, list], day: date | None, first: str) -> dict[str, np.ndarray]:

@@ -162,81 +162,91 @@ def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = 18.
                 if scan is not None:  # the previous scan never ended
                     counters.malformed_scans += 1
                     counters.note(f"{scan['where']}: scan {scan.get('number')} has no END")
-                counters.scans_total += 1
-                scan = {"where": where, "line": lineno, "points": [], "error": None}
-                try:
-                    number = int(parts[1]) if len(parts) == 2 else -1
-                except ValueError:
-                    number = -1
-                if not 0 <= number <= 65535:
-                    scan["error"] = f"{where}: SCAN needs a counter from 0 to 65535"
-                    continue
-                scan["number"] = number
-                scan["lost"] = 0
-                if previous is not None:
-                    jump = (number - previous) % 65536
-                    if jump > 1:
-                        counters.lost_scans += jump - 1
-                        scan["lost"] = jump - 1
-                previous = number
-                continue
-            if scan is None:
+                scan = _start_scan(parts, where, lineno, previous, counters)
+                previous = scan.get("number", previous)
+            elif scan is None:
                 counters.note(f"{where}: '{key}' outside a scan, line skipped")
-                continue
-            if scan["error"]:
+            elif scan["error"]:
                 if key == "END":
                     counters.malformed_scans += 1
                     counters.note(scan["error"])
                     scan = None
-                continue
-            try:
-                if key == "UTC":
-                    scan["utc"] = parts[1] if len(parts) == 2 else None
-                elif key == "STATUS":
-                    try:
-                        scan["status"] = int(parts[1], 16) if len(parts) == 2 else None
-                    except ValueError:
-                        raise _Bad(f"{where}: STATUS is not a hexadecimal byte") from None
-                elif key == "VALID":
-                    if len(parts) != 2 or parts[1] not in ("0", "1"):
-                        raise _Bad(f"{where}: VALID must be 0 or 1")
-                    scan["valid"] = parts[1] == "1"
-                elif key == "LLA":
-                    scan["lla"] = _floats(parts, 3, "LLA", where)
-                elif key == "EULER":
-                    scan["euler"] = _floats(parts, 3, "EULER", where)
-                elif key == "VEL":
-                    scan["vel"] = _floats(parts, 3, "VEL", where)
-                elif key == "NPOINTS":
-                    try:
-                        scan["npoints"] = int(parts[1]) if len(parts) == 2 else None
-                    except ValueError:
-                        raise _Bad(f"{where}: NPOINTS is not a whole number") from None
-                elif key == "P":
-                    if len(parts) != 7:
-                        raise _Bad(f"{where}: P needs layer, echo, flags, x, y, z")
-                    try:
-                        layer, echo, flags = int(parts[1]), int(parts[2]), int(parts[3], 16)
-                        x, y, z = float(parts[4]), float(parts[5]), float(parts[6])
-                    except ValueError:
-                        raise _Bad(f"{where}: a field of P does not parse") from None
-                    if not (0 <= layer <= 3 and 0 <= echo <= 2 and 0 <= flags <= 255):
-                        raise _Bad(f"{where}: P layer 0-3, echo 0-2 and flags 0x00-0xff expected")
-                    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-                        raise _Bad(f"{where}: P coordinates must be finite")
-                    scan["points"].append((layer, echo, flags, x, y, z))
-                elif key == "END":
-                    accepted = _finish(scan, counters, leap_seconds, where)
-                    scan = None
-                    if accepted is not None:
-                        yield accepted
-                else:
-                    raise _Bad(f"{where}: unknown field '{key}'")
-            except _Bad as exc:
-                scan["error"] = str(exc)
+            elif key == "END":
+                accepted = _finish(scan, counters, leap_seconds, where)
+                scan = None
+                if accepted is not None:
+                    yield accepted
+            else:
+                try:
+                    _read_field(scan, key, parts, where)
+                except _Bad as exc:
+                    scan["error"] = str(exc)
     if scan is not None:
         counters.malformed_scans += 1
         counters.note(f"{scan['where']}: the file ends inside this scan")
+
+
+def _start_scan(parts: list[str], where: str, lineno: int, previous: int | None, counters: Counters) -> dict:
+    """A new scan from its ``SCAN n`` line; the scan numbers skipped since *previous* are counted lost."""
+    counters.scans_total += 1
+    scan = {"where": where, "line": lineno, "points": [], "error": None}
+    try:
+        number = int(parts[1]) if len(parts) == 2 else -1
+    except ValueError:
+        number = -1
+    if not 0 <= number <= 65535:
+        scan["error"] = f"{where}: SCAN needs a counter from 0 to 65535"
+        return scan
+    scan["number"] = number
+    scan["lost"] = 0
+    if previous is not None:
+        jump = (number - previous) % 65536
+        if jump > 1:
+            counters.lost_scans += jump - 1
+            scan["lost"] = jump - 1
+    return scan
+
+
+def _read_field(scan: dict, key: str, parts: list[str], where: str) -> None:
+    """Store one line's field in *scan*; :class:`_Bad` names what does not parse."""
+    if key == "UTC":
+        scan["utc"] = parts[1] if len(parts) == 2 else None
+    elif key == "STATUS":
+        try:
+            scan["status"] = int(parts[1], 16) if len(parts) == 2 else None
+        except ValueError:
+            raise _Bad(f"{where}: STATUS is not a hexadecimal byte") from None
+    elif key == "VALID":
+        if len(parts) != 2 or parts[1] not in ("0", "1"):
+            raise _Bad(f"{where}: VALID must be 0 or 1")
+        scan["valid"] = parts[1] == "1"
+    elif key in ("LLA", "EULER", "VEL"):
+        scan[key.lower()] = _floats(parts, 3, key, where)
+    elif key == "NPOINTS":
+        try:
+            scan["npoints"] = int(parts[1]) if len(parts) == 2 else None
+        except ValueError:
+            raise _Bad(f"{where}: NPOINTS is not a whole number") from None
+    elif key == "P":
+        scan["points"].append(_point(parts, where))
+    else:
+        raise _Bad(f"{where}: unknown field '{key}'")
+
+
+def _point(parts: list[str], where: str) -> tuple[int, int, int, float, float, float]:
+    """A ``P layer echo flags x y z`` line."""
+    if len(parts) != 7:
+        raise _Bad(f"{where}: P needs layer, echo, flags, x, y, z")
+    try:
+        layer, echo, flags = int(parts[1]), int(parts[2]), int(parts[3], 16)
+        x, y, z = float(parts[4]), float(parts[5]), float(parts[6])
+    except ValueError:
+        raise _Bad(f"{where}: a field of P does not parse") from None
+    if not (0 <= layer <= 3 and 0 <= echo <= 2 and 0 <= flags <= 255):
+        raise _Bad(f"{where}: P layer 0-3, echo 0-2 and flags 0x00-0xff expected")
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise _Bad(f"{where}: P coordinates must be finite")
+    return layer, echo, flags, x, y, z
 
 
 def read_survey(paths: list[Path], counters: Counters, *, leap_seconds: float = 18.0, progress=None) -> Iterator[Scan]:
@@ -274,6 +284,7 @@ def _guard_stream(iterator: Iterator[Scan], path: Path, counters: Counters) -> I
 
 
 def _finish(scan: dict, counters: Counters, leap_seconds: float, where: str) -> Scan | None:
+    """The scan ended at *where*, if it is complete, valid and has a GPS fix (else counted, None)."""
     missing = [k for k in ("utc", "status", "valid", "lla", "euler", "vel", "npoints") if scan.get(k) is None]
     if missing:
         counters.malformed_scans += 1
@@ -297,16 +308,7 @@ def _finish(scan: dict, counters: Counters, leap_seconds: float, where: str) -> 
         counters.bad_gps += 1
         return None
     pts = np.array(scan["points"], dtype=np.float64).reshape(-1, 6)
-    counters.points_total += len(pts)
-    flags = pts[:, 2].astype(np.int64)
-    clutter = (flags & FLAG_CLUTTER) != 0
-    dirt = ((flags & FLAG_DIRT) != 0) & ~clutter
-    zero = ~clutter & ~dirt & np.all(pts[:, 3:6] == 0.0, axis=1)
-    counters.rejected_clutter += int(clutter.sum())
-    counters.rejected_dirt += int(dirt.sum())
-    counters.rejected_zero += int(zero.sum())
-    keep = ~(clutter | dirt | zero)
-    counters.points_valid += int(keep.sum())
+    keep = _valid_points(pts, counters)
     if not keep.any():
         counters.empty_scans += 1
     counters.scans_accepted += 1
@@ -322,6 +324,21 @@ def _finish(scan: dict, counters: Counters, leap_seconds: float, where: str) -> 
         lost=scan.get("lost", 0),
         where=scan["where"],
     )
+
+
+def _valid_points(pts: np.ndarray, counters: Counters) -> np.ndarray:
+    """Mask of the points kept: not clutter, not dirt, not at (0, 0, 0); the others counted by reason."""
+    counters.points_total += len(pts)
+    flags = pts[:, 2].astype(np.int64)
+    clutter = (flags & FLAG_CLUTTER) != 0
+    dirt = ((flags & FLAG_DIRT) != 0) & ~clutter
+    zero = ~clutter & ~dirt & np.all(pts[:, 3:6] == 0.0, axis=1)
+    counters.rejected_clutter += int(clutter.sum())
+    counters.rejected_dirt += int(dirt.sum())
+    counters.rejected_zero += int(zero.sum())
+    keep = ~(clutter | dirt | zero)
+    counters.points_valid += int(keep.sum())
+    return keep
 
 
 class TimeOrder:

@@ -89,7 +89,7 @@ def withhold_isolated(path: Path, block: int = 1 << 20, counted: IsolationGrid |
     map of the records' X, Y and flag bytes.
 
     *counted*, the file's points already counted while it was written
-    (:func:`_copy`), saves the pass that counts them; it is used only when
+    (:func:`dtm.stages.parse.read_las.copy_records`), saves the pass that counts them; it is used only when
     its grid is the one over the file's header bounds and it holds every
     point, else the points are counted here.
 

@@ -13,6 +13,7 @@ bytes only some inputs have) is named in :attr:`LasReadReport.dropped`.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,14 +23,13 @@ from dtm.common.clouds import PointLayout, open_las_writer
 from dtm.common.crs import header_crs, output_crs
 from dtm.common.las_guard import las_parse_errors, open_las
 from dtm.stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
+from dtm.stages.parse.las_layout import READ_APART, copied_dimensions, point_layout
 from pipeline.errors import InputDataError
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
 SCAN_ANGLE_UNIT_DEG = 0.006
-#: Dimensions read apart: coordinates (scaled, transformed), the scan angle (two encodings), the GPS time.
-_APART = frozenset({"X", "Y", "Z", "scan_angle", "scan_angle_rank", "gps_time"})
 
 
 @dataclass
@@ -56,136 +56,7 @@ class LasReadReport:
     dropped: list[str] = field(default_factory=list)
 
 
-def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
-    """The output point records that keep what every input holds, and a note per thing dropped.
-
-    RGB is kept (format 7) when every input has it, NIR too (format 8) when
-    every input has it; an extra-byte dimension when every input has one of
-    that name, type, scale and offset.  Waveform packets are never kept (the
-    waveform data is not carried).  The GPS time type is the inputs'
-    (files without GPS time do not count); inputs that disagree are an
-    error, since week seconds cannot be turned into standard time without
-    the week.
-
-    Raises
-    ------
-    InputDataError
-        When inputs with GPS time disagree on its type.
-    """
-    from dtm.common.clouds import PointLayout
-
-    headers = []
-    for path in paths:
-        with open_las(path) as reader:
-            headers.append((path, reader.header))
-    dims = [set(h.point_format.standard_dimension_names) for _, h in headers]
-    rgb = all("red" in d for d in dims)
-    nir = rgb and all("nir" in d for d in dims)
-    point_format = 8 if nir else 7 if rgb else 6
-    import laspy
-
-    out_dims = set(laspy.PointFormat(point_format).standard_dimension_names)
-    notes = []
-    for (path, _), d in zip(headers, dims, strict=True):
-        lost = sorted(d - out_dims - _APART)
-        if lost:
-            why = "waveform data is not carried" if lost[0].startswith(("wave", "return_point", "x_t")) else ""
-            why = why or "not in every input file"
-            notes.append(f"{path}: {', '.join(lost)} dropped ({why})")
-    extra = []
-    for dim in headers[0][1].point_format.extra_dimensions:
-        same = all(
-            any(_same_dimension(dim, other) for other in h.point_format.extra_dimensions) for _, h in headers[1:]
-        )
-        params = _extra_bytes_params(dim) if same else None
-        if params is not None:
-            extra.append(params)
-    kept = {p.name for p in extra}
-    for path, h in headers:
-        lost = [dim.name for dim in h.point_format.extra_dimensions if dim.name not in kept]
-        if lost:
-            notes.append(f"{path}: extra bytes {', '.join(lost)} dropped (not in every input file with one type)")
-    with_time = [(path, h) for path, h in headers if "gps_time" in h.point_format.dimension_names]
-    adjusted = {int(h.global_encoding.gps_time_type) for _, h in with_time}
-    if len(adjusted) > 1:
-        week = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 0)
-        standard = next(path for path, h in with_time if int(h.global_encoding.gps_time_type) == 1)
-        raise InputDataError(
-            f"{standard} has adjusted standard GPS time but {week} GPS week seconds (global encoding bit 0); "
-            "process them in separate runs or convert one of them."
-        )
-    records = {}
-    for kind in ("vlrs", "evlrs"):
-        own = [[v for v in (getattr(h, kind) or []) if _carried(v)] for _, h in headers]
-        shared = set.intersection(*({_vlr_key(v) for v in vs} for vs in own))
-        records[kind] = [v for v in own[0] if _vlr_key(v) in shared]
-        for (path, _), vs in zip(headers, own, strict=True):
-            lost = [f"{v.user_id} {v.record_id}" for v in vs if _vlr_key(v) not in shared]
-            if lost:
-                notes.append(
-                    f"{path}: {kind[:-1].upper()} {', '.join(lost)} dropped (not the same in every input file)"
-                )
-    layout = PointLayout(
-        point_format=point_format,
-        extra=tuple(extra),
-        gps_adjusted=adjusted == {1},
-        synthetic_returns=any(h.global_encoding.synthetic_return_numbers for _, h in headers),
-        vlrs=tuple(records["vlrs"]),
-        evlrs=tuple(records["evlrs"]),
-    )
-    return layout, notes
-
-
-def _carried(vlr) -> bool:
-    """Whether a (E)VLR of the input is carried to the output as it is.
-
-    Not: the CRS (``LASF_Projection``, liblas' WKT; the writer adds the output
-    CRS), extra-byte descriptions (``LASF_Spec`` 4; made from the layout),
-    LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354).
-    """
-    user = vlr.user_id.strip("\0 ")
-    if user in ("LASF_Projection", "laszip encoded") or (user == "liblas" and vlr.record_id == 2112):
-        return False
-    return not (user == "LASF_Spec" and (vlr.record_id == 4 or 100 <= vlr.record_id <= 354))
-
-
-def _vlr_key(vlr) -> tuple:
-    data = vlr.record_data_bytes() if hasattr(vlr, "record_data_bytes") else bytes(vlr.record_data)
-    return vlr.user_id, vlr.record_id, data
-
-
-def _same_dimension(a, b) -> bool:
-    """Whether two extra-byte dimensions have the same name, type, scale and offset."""
-
-    def arr(v):
-        return None if v is None else np.asarray(v).tolist()
-
-    return (a.name, a.type_str(), arr(a.scales), arr(a.offsets)) == (
-        b.name,
-        b.type_str(),
-        arr(b.scales),
-        arr(b.offsets),
-    )
-
-
-def _extra_bytes_params(dim):
-    """laspy's description of an extra-byte dimension to write, or None when it has no usable type."""
-    import laspy
-
-    try:
-        return laspy.ExtraBytesParams(
-            name=dim.name,
-            type=dim.type_str(),
-            description=dim.description or "",
-            offsets=dim.offsets,
-            scales=dim.scales,
-            no_data=dim.no_data,
-        )
-    except (TypeError, ValueError, laspy.LaspyException):
-        return None
-
-
-def _file_crs(path: Path, header, assign, override=None, report: LasReadReport | None = None):
+def file_crs(path: Path, header, assign, override=None, report: LasReadReport | None = None):
     """The CRS of one file's coordinates and where it came from, checked against them.
 
     ``input.override_crs`` (*override*) replaces whatever the header says;
@@ -253,11 +124,11 @@ def las_chunks(
     crs_setting: str,
     assign_crs,
     chunk_size: int,
-    report,
+    report: LasReadReport,
     progress=None,
     layout: PointLayout | None = None,
     override_crs=None,
-):
+) -> Iterator[tuple[object, dict[str, np.ndarray]]]:
     """Read LAS/LAZ files chunk by chunk, in the output CRS.
 
     Yields
@@ -270,91 +141,114 @@ def las_chunks(
         output's *layout* (default: :func:`point_layout`) holds; extra
         bytes as stored (unscaled).
 
-    The *report* (:class:`LasReadReport`) is filled as files are read.
-    What is repaired, counted in it: return number 0 (invalid) is read as 1;
-    points outside the header's horizontal bounds are flagged withheld (a
-    stray point must not size the grids); records beyond the header's point
-    count (uncompressed LAS) are read too.
+    The *report* is filled as files are read, with what is repaired
+    (:func:`_repair`; records beyond the header's count are read too).
 
     Raises
     ------
     InputDataError
         When a file is not LAS/LAZ, is truncated, or has no usable CRS.
     """
-    import pyproj
-
     if layout is None:
         layout, report.dropped = point_layout(paths)
-    copied = _copied(layout)
     target = None
     for path in paths:
         with open_las(path) as reader:
             header = reader.header
-            src_crs, source = _file_crs(path, header, assign_crs, override_crs, report)
+            src_crs, source = file_crs(path, header, assign_crs, override_crs, report)
             report.crs_source[str(path)] = source
             _read_all_records(path, header, report)
-            bounds = _header_box(header)
             if target is None:
-                centre = None
-                if not src_crs.is_projected:
-                    centre = (
-                        float((header.mins[0] + header.maxs[0]) / 2),
-                        float((header.mins[1] + header.maxs[1]) / 2),
-                    )
-                target = output_crs(crs_setting, src_crs, centre)
-            transformer = None
-            if not src_crs.equals(target):
-                transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
-            dims = set(header.point_format.dimension_names)
-            if "gps_time" not in dims:
-                report.gps_time_missing.append(str(path))
-            n_read = 0
-            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-            try:
-                for chunk in reader.chunk_iterator(chunk_size):
-                    x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-                    stray = _outside(bounds, x, y)
-                    raw_ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-                    if transformer is not None:
-                        x, y, z = transformer.transform(x, y, z)
-                    bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
-                    if bad.any():
-                        i = int(np.argmax(bad))
-                        why = (
-                            f"cannot be transformed from {src_crs.name} to {target.name} (outside the area of either?)"
-                            if raw_ok[i]
-                            else "are not finite numbers (damaged scale or offset in the header?)"
-                        )
-                        raise InputDataError(f"{path}: the coordinates of point {n_read + i} {why}.")
-                    n = len(chunk)
-                    cols = {
-                        "x": np.asarray(x, dtype=np.float64),
-                        "y": np.asarray(y, dtype=np.float64),
-                        "z": np.asarray(z, dtype=np.float64),
-                    }
-                    if n:
-                        xyz = (cols["x"], cols["y"], cols["z"])
-                        lo, hi = _extend(path, lo, hi, [v.min() for v in xyz], [v.max() for v in xyz], target)
-                    if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
-                        cols["scan_angle"] = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
-                    else:  # formats 0-5: scan angle rank, whole degrees
-                        cols["scan_angle"] = np.asarray(chunk.scan_angle_rank, dtype=np.float64)
-                    cols["gps_time"] = (
-                        np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
-                    )
-                    for name in copied:
-                        cols[name] = np.asarray(chunk[name]) if name in dims else np.zeros(n, np.uint8)
-                    for extra in layout.extra:
-                        cols[extra.name] = np.asarray(chunk.array[extra.name])
-                    _repair(path, cols, stray, report)
-                    _grow_box(report, cols["x"][~stray], cols["y"][~stray])
-                    n_read += n
-                    if progress is not None:
-                        progress.update(n)
-                    yield target, cols
-            except las_parse_errors() as exc:
-                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
-            report.points[str(path)] = n_read
+                target = _output_crs_of(crs_setting, src_crs, header)
+            for cols in _file_chunks(path, reader, src_crs, target, layout, chunk_size, report, progress):
+                yield target, cols
+
+
+def _output_crs_of(crs_setting: str, src_crs, header):
+    """The output CRS for a first file in *src_crs* (the centre of its bounds picks a UTM zone)."""
+    centre = None
+    if not src_crs.is_projected:
+        centre = (float((header.mins[0] + header.maxs[0]) / 2), float((header.mins[1] + header.maxs[1]) / 2))
+    return output_crs(crs_setting, src_crs, centre)
+
+
+def _file_chunks(
+    path: Path, reader, src_crs, target, layout: PointLayout, chunk_size: int, report: LasReadReport, progress
+) -> Iterator[dict[str, np.ndarray]]:
+    """The columns of one file's chunks (see :func:`las_chunks`), repaired; its points counted in *report*."""
+    import pyproj
+
+    header = reader.header
+    bounds = _header_box(header)
+    transformer = None
+    if not src_crs.equals(target):
+        transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
+    dims = set(header.point_format.dimension_names)
+    if "gps_time" not in dims:
+        report.gps_time_missing.append(str(path))
+    copied = copied_dimensions(layout)
+    n_read = 0
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    try:
+        for chunk in reader.chunk_iterator(chunk_size):
+            x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+            stray = _outside(bounds, x, y)
+            cols = _coordinates(path, (x, y, z), transformer, n_read, src_crs, target)
+            n = len(chunk)
+            if n:
+                xyz = (cols["x"], cols["y"], cols["z"])
+                lo, hi = _extend(path, lo, hi, [v.min() for v in xyz], [v.max() for v in xyz], target)
+            cols.update(_attributes(chunk, dims, copied, layout))
+            _repair(path, cols, stray, report)
+            _grow_box(report, cols["x"][~stray], cols["y"][~stray])
+            n_read += n
+            if progress is not None:
+                progress.update(n)
+            yield cols
+    except las_parse_errors() as exc:
+        raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+    report.points[str(path)] = n_read
+
+
+def _coordinates(path: Path, xyz: tuple, transformer, first: int, src_crs, target) -> dict[str, np.ndarray]:
+    """A chunk's coordinates in the output CRS (float64); one that is not finite there is an error.
+
+    *first* is the number of the chunk's first point in the file, for the message.
+    """
+    x, y, z = xyz
+    raw_ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    if transformer is not None:
+        x, y, z = transformer.transform(x, y, z)
+    bad = ~(np.isfinite(x) & np.isfinite(y) & np.isfinite(z))
+    if bad.any():
+        i = int(np.argmax(bad))
+        why = (
+            f"cannot be transformed from {src_crs.name} to {target.name} (outside the area of either?)"
+            if raw_ok[i]
+            else "are not finite numbers (damaged scale or offset in the header?)"
+        )
+        raise InputDataError(f"{path}: the coordinates of point {first + i} {why}.")
+    return {
+        "x": np.asarray(x, dtype=np.float64),
+        "y": np.asarray(y, dtype=np.float64),
+        "z": np.asarray(z, dtype=np.float64),
+    }
+
+
+def _attributes(chunk, dims: set[str], copied: list[str], layout: PointLayout) -> dict[str, np.ndarray]:
+    """A chunk's scan angle (degrees), GPS time (0 when the file has none), copied dimensions and extra bytes."""
+    n = len(chunk)
+    cols = {}
+    if "scan_angle" in dims:  # formats 6-10: int16 in 0.006 degree
+        cols["scan_angle"] = np.asarray(chunk.scan_angle, dtype=np.float64) * SCAN_ANGLE_UNIT_DEG
+    else:  # formats 0-5: scan angle rank, whole degrees
+        cols["scan_angle"] = np.asarray(chunk.scan_angle_rank, dtype=np.float64)
+    cols["gps_time"] = np.asarray(chunk.gps_time, dtype=np.float64) if "gps_time" in dims else np.zeros(n)
+    for name in copied:
+        cols[name] = np.asarray(chunk[name]) if name in dims else np.zeros(n, np.uint8)
+    for extra in layout.extra:
+        cols[extra.name] = np.asarray(chunk.array[extra.name])
+    return cols
 
 
 #: Points farther outside their header's bounds than this share of its span (or
@@ -429,13 +323,6 @@ def _read_all_records(path: Path, header, report: LasReadReport) -> None:
         header.point_count = held
 
 
-def _copied(layout: PointLayout) -> list[str]:
-    """The standard dimensions of *layout*'s point format copied as they are."""
-    import laspy
-
-    return [n for n in laspy.PointFormat(layout.point_format).standard_dimension_names if n not in _APART]
-
-
 def read_las_files(
     paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
 ) -> tuple[object, LasReadReport]:
@@ -479,13 +366,9 @@ def read_las_files(
         parts.append(cols)
     if target is None:  # no point at all: still resolve the CRS from the first header
         with open_las(paths[0]) as reader:
-            src_crs, _ = _file_crs(paths[0], reader.header, assign_crs, override_crs)
-            centre = None
-            if not src_crs.is_projected:
-                h = reader.header
-                centre = (float((h.mins[0] + h.maxs[0]) / 2), float((h.mins[1] + h.maxs[1]) / 2))
-            target = output_crs(crs_setting, src_crs, centre)
-    names = ("x", "y", "z", "scan_angle", "gps_time", *_copied(layout), *(e.name for e in layout.extra))
+            src_crs, _ = file_crs(paths[0], reader.header, assign_crs, override_crs)
+            target = _output_crs_of(crs_setting, src_crs, reader.header)
+    names = ("x", "y", "z", "scan_angle", "gps_time", *copied_dimensions(layout), *(e.name for e in layout.extra))
     merged = {k: (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)) for k in names}
     return _build(merged, target, layout), report
 
@@ -507,7 +390,7 @@ def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> t
             mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
             if h.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
                 continue
-            crs, _ = _file_crs(path, h, assign_crs, override_crs)
+            crs, _ = file_crs(path, h, assign_crs, override_crs)
             if not crs.equals(target):
                 t = pyproj.Transformer.from_crs(crs, target, always_xy=True)
                 x0, y0, x1, y1 = t.transform_bounds(mins[0], mins[1], maxs[0], maxs[1], densify_pts=21)
@@ -543,7 +426,7 @@ def convert_las_files(
     strips: set[int] = set()
     same = _copyable(paths, crs_setting, assign_crs, layout, override_crs)
     if same is not None:
-        target, grid = _copy(paths[0], dst, same, report, strips, chunk_size, progress, layout)
+        target, grid = copy_records(paths[0], dst, same, report, strips, chunk_size, progress, layout)
         _record_withheld(report, withhold_isolated(dst, counted=grid))
         return target, report, strips
     writer = None
@@ -559,24 +442,12 @@ def convert_las_files(
             layout=layout,
             override_crs=override_crs,
         ):
-            n = len(cols["x"])
             if writer is None:
-                lo, hi = header_bounds(paths, target, assign_crs, override_crs)
-                if not np.isfinite(lo).all():
-                    lo = np.array([cols[k].min() for k in "xyz"]) if n else None
-                    hi = np.array([cols[k].max() for k in "xyz"]) if n else None
-                header = point_header(target, lo, hi, layout=layout)
+                header = _output_header(paths, target, cols, layout, assign_crs, override_crs)
                 writer = open_las_writer(dst, header)
-            if not n:
+            if not len(cols["x"]):
                 continue
-            for k, axis in zip("xyz", range(3), strict=True):
-                units = (cols[k] - header.offsets[axis]) / header.scales[axis]
-                if units.min() < -(2.0**31) or units.max() >= 2.0**31:
-                    raise InputDataError(
-                        f"the points of {', '.join(str(p) for p in paths)} reach {k} = "
-                        f"{float(cols[k][np.argmax(np.abs(units))]):.3f}, outside the bounds their LAS headers "
-                        "announce (a damaged header: bytes 179-226)."
-                    )
+            _check_range(cols, header, paths)
             writer.write_points(_record(cols, header))
             strips.update(int(v) for v in np.unique(cols["point_source_id"]))
         if writer is None:  # no point at all: an empty file with the output CRS
@@ -590,6 +461,32 @@ def convert_las_files(
             writer.close()
     _record_withheld(report, withhold_isolated(dst))
     return target, report, strips
+
+
+def _output_header(
+    paths: list[Path], target, cols: dict[str, np.ndarray], layout: PointLayout, assign_crs, override_crs
+):
+    """The converted file's header: offsets and scale from the inputs' header bounds, else from the first chunk."""
+    from dtm.common.clouds import point_header
+
+    n = len(cols["x"])
+    lo, hi = header_bounds(paths, target, assign_crs, override_crs)
+    if not np.isfinite(lo).all():
+        lo = np.array([cols[k].min() for k in "xyz"]) if n else None
+        hi = np.array([cols[k].max() for k in "xyz"]) if n else None
+    return point_header(target, lo, hi, layout=layout)
+
+
+def _check_range(cols: dict[str, np.ndarray], header, paths: list[Path]) -> None:
+    """Refuse points the header's scale and offsets cannot store (int32): the input headers' bounds are wrong."""
+    for k, axis in zip("xyz", range(3), strict=True):
+        units = (cols[k] - header.offsets[axis]) / header.scales[axis]
+        if units.min() < -(2.0**31) or units.max() >= 2.0**31:
+            raise InputDataError(
+                f"the points of {', '.join(str(p) for p in paths)} reach {k} = "
+                f"{float(cols[k][np.argmax(np.abs(units))]):.3f}, outside the bounds their LAS headers "
+                "announce (a damaged header: bytes 179-226)."
+            )
 
 
 def _record_withheld(report: LasReadReport, far: Withheld | None) -> None:
@@ -640,14 +537,14 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayo
             return None
         if override_crs is not None or (_records_held(paths[0], h) or 0) > h.point_count:
             return None  # the header's CRS or count is not the file's: convert, which handles both
-        src_crs, source = _file_crs(paths[0], h, assign_crs)
+        src_crs, source = file_crs(paths[0], h, assign_crs)
         if source != "header" or not src_crs.is_projected:
             return None
         target = output_crs(crs_setting, src_crs, None)
         return target if target.equals(src_crs) else None
 
 
-def _copy(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress, layout):
+def copy_records(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress, layout):
     """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`).
 
     Returns the output CRS and the points counted on the isolation grid over
@@ -715,7 +612,7 @@ def _record(cols: dict[str, np.ndarray], header):
     rec.gps_time = cols["gps_time"]
     standard = set(header.point_format.standard_dimension_names)
     for name, values in cols.items():
-        if name in standard and name not in _APART:
+        if name in standard and name not in READ_APART:
             rec[name] = values
         elif name not in standard and name not in ("x", "y", "z", "scan_angle", "gps_time"):
             rec.array[name] = values  # an extra-byte dimension, unscaled

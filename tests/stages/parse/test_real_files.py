@@ -62,9 +62,9 @@ def test_header_crs_that_contradicts_the_coordinates_names_the_override():
     assert "damaged" not in msg
     with laspy.open(path) as reader:  # the override is taken before any point is read
         header = reader.header
-    from dtm.stages.parse.read_las import _file_crs
+    from dtm.stages.parse.read_las import file_crs
 
-    crs, source = _file_crs(path, header, None, pyproj.CRS.from_epsg(26912))
+    crs, source = file_crs(path, header, None, pyproj.CRS.from_epsg(26912))
     assert crs.to_epsg() == 26912 and source == "input.override_crs"
 
 
@@ -150,11 +150,11 @@ def test_the_copy_counts_the_isolation_grid_of_the_file_it_writes(tmp_path):
     """A LAS 1.4 copied as delivered: the points counted while copying are those of the file written, cell by cell."""
     from dtm.common.clouds import PointLayout
     from dtm.stages.parse.isolated import IsolationGrid
-    from dtm.stages.parse.read_las import LasReadReport, _copy
+    from dtm.stages.parse.read_las import LasReadReport, copy_records
 
     src = _survey_with_a_far_point(tmp_path)
     target, layout = pyproj.CRS.from_epsg(25830), PointLayout(point_format=6)
-    _, grid = _copy(src, tmp_path / "out.las", target, LasReadReport(), set(), 10_000, None, layout)
+    _, grid = copy_records(src, tmp_path / "out.las", target, LasReadReport(), set(), 10_000, None, layout)
     out = laspy.read(tmp_path / "out.las")
     expected = IsolationGrid(out.header.mins, out.header.maxs)
     expected.add(np.asarray(out.x), np.asarray(out.y))

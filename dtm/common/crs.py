@@ -1,21 +1,11 @@
-"""Do a file's coordinates fit the CRS it claims?  Checked before anything is read.
+"""The CRS of LAS headers and of the output: read as GDAL reads them, checked, resolved.
 
-A LAS header's CRS is often wrong: a CRS written by software that defaulted
-to WGS 84 while the coordinates are UTM metres (PDAL's ``lone-star.laz``), a
-geographic CRS on a file in a local grid, a projected CRS on longitudes and
-latitudes.  Transforming such a file gives infinite or absurd coordinates
-and, later, a wrong error ("damaged scale or offset").  The test here is
-deliberately generous — it must never refuse a valid survey:
-
-- geographic CRS: |x| <= 360 (longitude; some software writes 0..360)
-  and |y| <= 90 degrees (latitude);
-- projected CRS with an area of use: the bounds lie within that area
-  transformed to the CRS and widened on every side by its own width and
-  height (a survey may run far past a UTM zone's edge, never by a zone's
-  whole width), and they do not look like degrees (within ±180/±90 and
-  under one unit across, when the area of use is far from the CRS's
-  origin);
-- a CRS without an area of use (a custom WKT) is not checked.
+:func:`header_crs` reads a header's CRS with the GeoKeys laspy leaves out
+(the linear unit, the vertical CRS); :func:`crs_problem` tells whether a
+file's coordinates can be in the CRS it claims (a LAS header's CRS is often
+wrong), generously: it must never refuse a valid survey; :func:`output_crs`
+resolves the configured output CRS.  The rules and why:
+``docs/stages/parse.md``.
 """
 
 from __future__ import annotations
@@ -36,21 +26,11 @@ def _extent(lo, hi) -> str:
 def crs_problem(crs, mins, maxs) -> str | None:
     """Why the horizontal bounds *mins*..*maxs* cannot be coordinates in *crs* (None when they can).
 
-    Parameters
-    ----------
-    crs : pyproj.CRS
-        The CRS the file claims (a compound CRS is checked by its horizontal part).
-    mins, maxs : sequence of float
-        The file's lowest and highest x, y (z ignored), in the CRS's own units.
+    *crs* is the CRS the file claims (a compound CRS is checked by its
+    horizontal part); *mins*, *maxs* the file's lowest and highest x, y (z
+    ignored).  The answer is a phrase for a message ("its coordinates (x ... )
+    are not longitudes and latitudes, which WGS 84 (EPSG:4326) needs").
 
-    Returns
-    -------
-    str or None
-        A phrase for a message ("its coordinates (x ... ) are not longitudes
-        and latitudes, which WGS 84 (EPSG:4326) needs"), or None.
-
-    Examples
-    --------
     >>> import pyproj
     >>> crs_problem(pyproj.CRS("EPSG:4326"), (515368.6, 4918340.4), (515401.0, 4918381.1)) is not None
     True
@@ -171,12 +151,10 @@ def _in_unit(crs, unit, code: int) -> dict:
 def honour_linear_units(crs, geo_keys):
     """The projected *crs* with its axes in the unit ``ProjLinearUnitsGeoKey`` names, when that differs.
 
-    A GeoKeyDirectory may give an EPSG projected CRS (``ProjectedCSTypeGeoKey``)
-    defined in metres and, beside it, ``ProjLinearUnitsGeoKey`` = 9003 (US
-    survey foot): the coordinates are then in that unit, and GDAL (so PDAL
-    and QGIS) reads the CRS with its axes in it; laspy keeps the EPSG code's
-    metres, which puts every point 3.28 times too far from the origin.  The
-    projection's parameters keep their own units.
+    GDAL (so PDAL and QGIS) reads an EPSG projected CRS beside
+    ``ProjLinearUnitsGeoKey`` = 9003 with its axes in US survey feet; laspy
+    keeps the EPSG code's metres (why it matters: ``docs/stages/parse.md``).
+    The projection's parameters keep their own units.
 
     Parameters
     ----------
@@ -185,11 +163,7 @@ def honour_linear_units(crs, geo_keys):
     geo_keys : iterable
         The GeoKeyDirectory's keys (objects with ``id`` and ``value_offset``), or empty.
 
-    Returns
-    -------
-    crs : pyproj.CRS or None
-    note : str or None
-        What was changed, for the log.
+    Returns the CRS and what was changed, for the log (or None).
     """
     import pyproj
 
@@ -211,17 +185,10 @@ def honour_linear_units(crs, geo_keys):
 def honour_vertical_keys(crs, geo_keys):
     """The CRS with the vertical CRS ``VerticalCSTypeGeoKey`` names added, as GDAL reads a LAS header.
 
-    laspy builds the CRS from the projected or geographic key alone, so a
-    GeoKeyDirectory that also gives ``VerticalCSTypeGeoKey`` = 5703 (NAVD88
-    height) lost its vertical datum, and with it the heights' meaning, on the
-    way to every product.  GDAL (so PDAL and QGIS) reads the same keys as the
-    compound CRS horizontal + vertical, with the vertical axis in
-    ``VerticalUnitsGeoKey``'s unit when that key is given.
-
-    Without ``VerticalCSTypeGeoKey`` the heights are in the horizontal unit
-    (:mod:`dtm.common.units`); a ``VerticalUnitsGeoKey`` that says otherwise is
-    not silently obeyed or ignored: the note says which unit was used and
-    how to state the other.
+    GDAL (so PDAL and QGIS) reads the compound CRS horizontal + vertical, the
+    vertical axis in ``VerticalUnitsGeoKey``'s unit when given; laspy drops the
+    vertical datum.  Without the key the heights are in the horizontal unit,
+    and a contradicting ``VerticalUnitsGeoKey`` gets a note (``docs/stages/parse.md``).
 
     Parameters
     ----------
@@ -230,11 +197,7 @@ def honour_vertical_keys(crs, geo_keys):
     geo_keys : iterable
         The GeoKeyDirectory's keys (objects with ``id`` and ``value_offset``), or empty.
 
-    Returns
-    -------
-    crs : pyproj.CRS or None
-    note : str or None
-        What was read or assumed, for the log.
+    Returns the CRS and what was read or assumed, for the log (or None).
     """
     import pyproj
 
@@ -326,6 +289,7 @@ def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | No
 
 
 def check_crs_setting(value: str | None) -> str | None:
+    """A configured CRS (``auto-utm`` or what pyproj reads), unchanged; ValueError for one pyproj does not know."""
     if value is None or value == "auto-utm":
         return value
     import pyproj

@@ -1,4 +1,10 @@
-"""TODO docstring: carried out of dtm.stages.parse.read_las."""
+"""Opening a LAS/LAZ file safely: a damaged header is one sentence, not gigabytes of memory.
+
+:func:`open_las` checks the header's sizes against the file
+(:func:`check_header_sizes`) before laspy allocates anything, and turns
+whatever laspy raises on a damaged file (:func:`las_parse_errors`) into an
+:class:`~pipeline.errors.InputDataError` naming the file.
+"""
 
 from __future__ import annotations
 
@@ -41,7 +47,8 @@ def check_header_sizes(path: Path) -> None:
     Read before laspy allocates anything: the offset to the point data, the
     point count times the record length (LAZ: a generous lower bound per
     point), the VLRs' 54-byte headers before the point data, and the extended
-    VLRs' start and lengths must fit in the file.  A damaged header then costs one sentence, not gigabytes of memory.
+    VLRs' start and lengths must fit in the file; the scales and offsets must
+    be usable.  A damaged header then costs one sentence, not gigabytes of memory.
     """
     size = path.stat().st_size
     with open(path, "rb") as fh:
@@ -125,6 +132,7 @@ def _check_chunk_table(path: Path, offset_points: int, size: int) -> None:
 
 
 def open_las(path: Path):
+    """``laspy.open`` of a checked file (:func:`check_header_sizes`); InputDataError when it is unreadable."""
     import laspy
 
     check_header_sizes(path)

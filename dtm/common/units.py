@@ -1,22 +1,11 @@
 """Linear units of the output CRS, and the metric view every algorithm works in.
 
-Products are written in the output CRS as it is, in its own units: a survey in
-a State Plane CRS in US survey feet gets its DTM, points and contours in US
-survey feet.  Every parameter of the pipeline is stated in metres (cell sizes,
-thresholds, resolution, contour interval ...), whatever the CRS.  So each
-stage converts the coordinates it reads to metres, runs its algorithm there,
-and converts what it writes back to the CRS's units: a parameter means the
-same distance on the ground in every CRS, and the algorithms never see feet.
-
-Heights are in the unit of the CRS's vertical axis when the CRS has one (a
-compound CRS such as ``EPSG:2263+6360``, NAVD88 height in US survey feet, or
-a LAS header whose GeoKeys give ``VerticalCSTypeGeoKey``: see
-:func:`dtm.common.crs.honour_vertical_keys`);
-otherwise in the unit of its horizontal axes, as is the practice for LAS
-deliveries in a feet CRS.  This rule is logged with the units of every run
-(stage ``parse`` or ``georeference``) and written in the report; a survey with
-heights in another unit needs a compound CRS that says so (``input.crs`` or
-``crs``).
+Products are written in the output CRS as it is, in its own units; every
+parameter is stated in metres.  So each stage converts the coordinates it
+reads to metres, runs its algorithm there, and converts what it writes back
+to the CRS's units.  Heights are in the unit of the CRS's vertical axis when
+it has one (:func:`dtm.common.crs.honour_vertical_keys`), else in the unit of
+its horizontal axes.  The rule and why: ``docs/stages/parse.md``.
 
 >>> import pyproj
 >>> round(Units.of(pyproj.CRS.from_epsg(2263)).horizontal, 10)  # NAD83 / New York Long Island (ftUS)

@@ -79,13 +79,9 @@ def withhold_isolated(path: Path, block: int = 1 << 20, counted: IsolationGrid |
     pipeline writes) are changed, through a memory map of their records.
     *counted*, the points already counted while the file was written
     (:func:`dtm.stages.parse.read_las.copy_records`), saves a pass when it is
-    the grid over the file's header bounds and holds every point.  Why:
-    ``docs/stages/parse.md``.
-
-    Returns
-    -------
-    Withheld or None
-        The points withheld and the usable points' box; None when no group of cells is far from the survey.
+    the grid over the file's header bounds and holds every point.  Returns
+    the points withheld and the usable points' box, or None when no group of
+    cells is far from the survey.  Why: ``docs/stages/parse.md``.
     """
     records = _Records.of(path)
     if records is None:

@@ -1,22 +1,13 @@
 """INS attitude log of format 3.B, and the SBET / smrmsg trajectory files of format 3.C.
 
-INS CSV: header ``gps_sow,roll_deg,pitch_deg,heading_deg``; attitude of the
-body relative to local-level NED, heading clockwise from north.  SBET:
-records of 17 little-endian float64 (136 bytes); smrmsg: 10 float64 (80
-bytes).  Times are GPS seconds of week; the week comes from the scanner
-stream (its PPS records carry it) or from the configuration, never from a
-guess, and a week rollover inside the file (seconds of week falling by more
-than half a week) adds a week.
-
-Angles are valid modulo 360 degrees (2 pi): a heading of 14 rad, as an
-unwrapped solution writes it, is a heading (SPEC 3.C).  Only non-finite
-values, |latitude| > 90 degrees (pi/2) and times outside the week are
-impossible.  Attitudes come out canonical (:func:`canonical_attitude`): roll
-in (-180, 180], pitch in [-90, 90], heading in [0, 360), the same rotation.
-
-Counted and skipped, never guessed: lines or records that do not parse or
-hold impossible values, and epochs whose time does not increase (duplicates
-and time going backwards).  A cut-off last SBET record is counted in bytes.
+INS CSV: ``gps_sow,roll_deg,pitch_deg,heading_deg`` (body vs local-level
+NED, heading clockwise from north).  SBET: records of 17 little-endian
+float64; smrmsg: 10 float64.  Times are GPS seconds of week: the week is
+given (never guessed), a rollover inside the file adds one.  Angles are
+valid modulo 360 degrees and come out canonical (:func:`canonical_attitude`).
+Lines or records that do not parse or hold impossible values, and epochs
+whose time does not increase, are counted and skipped
+(:class:`TrajectoryCounters`).  The rules in full: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations

@@ -1,14 +1,13 @@
 """Format 3.D: already georeferenced LAS/LAZ (LAS 1.2 to 1.4, any point format).
 
-Files are read in chunks and normalised to LAS 1.4 in the output CRS, point
-format 6, or 7 when every input has RGB, 8 when every input also has NIR
-(:func:`point_layout`).  Every attribute the output format shares with the
-input is kept (intensity, returns, classification and its flags, scan
-angle, user data, point source id = the flight strip, GPS time, scanner
-channel, scan direction, edge of flight line, RGB, NIR), and so are the
-extra-byte dimensions every input has, and the GPS time type (global
-encoding bit 0).  What cannot be kept (waveform packets, colour or extra
-bytes only some inputs have) is named in :attr:`LasReadReport.dropped`.
+Files are read in chunks and normalised to LAS 1.4 in the output CRS, in
+the point records of :func:`dtm.stages.parse.las_layout.point_layout`
+(format 6, 7 or 8, the extra bytes every input has).  The CRS of each file
+(:func:`file_crs`) is checked against its coordinates; what is repaired or
+assumed is counted in a :class:`LasReadReport` (what cannot be kept is
+named in :attr:`LasReadReport.dropped`).  :func:`convert_las_files` writes
+the stage's ``points.las``, copying one file already in the output's form
+record for record (:func:`copy_records`).  The rules: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations
@@ -129,20 +128,15 @@ def las_chunks(
     layout: PointLayout | None = None,
     override_crs=None,
 ) -> Iterator[tuple[object, dict[str, np.ndarray]]]:
-    """Read LAS/LAZ files chunk by chunk, in the output CRS.
+    """Read LAS/LAZ files chunk by chunk, in the output CRS; the *report* is filled as they are read.
 
     Yields
     ------
     crs : pyproj.CRS
         The output CRS (the same for every chunk).
     columns : dict
-        ``x``, ``y``, ``z`` (float64, output CRS), ``scan_angle`` (degrees),
-        ``gps_time`` and the attributes of one chunk of points that the
-        output's *layout* (default: :func:`point_layout`) holds; extra
-        bytes as stored (unscaled).
-
-    The *report* is filled as files are read, with what is repaired
-    (:func:`_repair`; records beyond the header's count are read too).
+        ``x``, ``y``, ``z`` (float64, output CRS), ``scan_angle`` (degrees), ``gps_time`` and the attributes
+        the *layout* (default: :func:`point_layout`) holds, repaired (:func:`_repair`); extra bytes unscaled.
 
     Raises
     ------
@@ -326,7 +320,7 @@ def _read_all_records(path: Path, header, report: LasReadReport) -> None:
 def read_las_files(
     paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
 ) -> tuple[object, LasReadReport]:
-    """Read LAS/LAZ files into one LasData (format 6, LAS 1.4) in the output CRS.
+    """Read LAS/LAZ files into one LasData (LAS 1.4, the layout's point format) in the output CRS.
 
     Parameters
     ----------
@@ -334,19 +328,12 @@ def read_las_files(
         Input files; their points are concatenated in order.
     crs_setting : str
         The configured output CRS (``auto-utm`` or a pyproj user input).
-    assign_crs : pyproj.CRS or None
-        CRS for files whose header has none.
-    chunk_size : int
-        Points per read.
-    progress : Progress, optional
-        Advanced by the number of points read.
-    override_crs : pyproj.CRS or None
-        CRS of every file, replacing whatever its header says.
+    assign_crs, override_crs : pyproj.CRS or None
+        CRS of files whose header has none; CRS of every file, replacing whatever its header says.
+    chunk_size, progress
+        Points per read; a Progress advanced by the number of points read (optional).
 
-    Raises
-    ------
-    InputDataError
-        When a file is not LAS/LAZ, is truncated, or has no usable CRS.
+    Returns the LasData and its :class:`LasReadReport`; InputDataError as :func:`las_chunks`.
     """
     report = LasReadReport()
     layout, report.dropped = point_layout(paths)
@@ -402,21 +389,19 @@ def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> t
 def convert_las_files(
     paths: list[Path], dst: Path, *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
 ) -> tuple[object, LasReadReport, set[int]]:
-    """Convert LAS/LAZ files to one LAS 1.4 format-6 file in the output CRS, chunk by chunk.
+    """Convert LAS/LAZ files to one uncompressed LAS 1.4 file in the output CRS, chunk by chunk.
 
-    Memory holds one chunk, whatever the survey's size.  The writer's
-    offsets and scale come from the headers' bounds (:func:`header_bounds`;
-    from the first chunk when no header has usable bounds); a point outside
-    the range they allow is an error naming the file (its header's bounds
-    are wrong).
+    Memory holds one chunk, whatever the survey's size.  The writer's offsets
+    and scale come from the headers' bounds (:func:`header_bounds`; from the
+    first chunk when no header has usable bounds); a point outside the range
+    they allow is an error naming the file.  One file already in the
+    output's form is copied record for record (:func:`copy_records`).  The
+    points far from the survey are then withheld (:func:`withhold_isolated`).
 
     Returns
     -------
-    crs : pyproj.CRS
-        The output CRS.
-    report : LasReadReport
-    strips : set of int
-        The point source ids met.
+    crs, report, strips
+        The output CRS, the :class:`LasReadReport`, the point source ids met.
     """
 
     from dtm.common.clouds import point_header

@@ -1,43 +1,14 @@
 """Format 3.A: the acquisition log of the seed-0 system (SICK LD-MRS + Xsens MTi-G).
 
-One text file, scan after scan::
-
-    SCAN 125
-    UTC 2011-06-21T10:32:15.250000Z
-    STATUS 0x07
-    VALID 1
-    LLA 40.4168123 -3.7038456 652.31
-    EULER 1.204 -0.512 87.330
-    VEL 12.10 0.31 -0.12
-    NPOINTS 2
-    P 0 0 0x00 12.345 0.512 -0.034
-    P 2 1 0x02 3.100 -0.200 0.050
-    END
-
-Validity rules (SPEC 3.A and seed 0, Table 16), each with its counter:
-
-- ``lost_scans``: the scan counter (uint16, wrapping 65535 -> 0) jumps by
-  more than one; the missing numbers are counted.
-- ``invalid_scans``: ``UTC`` does not parse, or ``VALID 0``.  Skipped.
-- ``bad_gps``: ``STATUS`` lacks bit 1 (Kalman filter valid) or bit 2 (GPS
-  fix).  Skipped.
-- ``malformed_scans``: a line or field that does not parse, a missing
-  field, ``NPOINTS`` not matching the ``P`` lines, or a scan cut off at the
-  end of the file.  Skipped; the first locations are kept for the report.
-- points flagged clutter (bit 1), dirt (bit 3) or at (0, 0, 0) are rejected
-  (``rejected_clutter``, ``rejected_dirt``, ``rejected_zero``);
-- ``empty_scans``: no valid point left.  Their pose is kept in the
-  trajectory (it is valid navigation), they give no pulses.
-
-Time must go forward from scan to scan (:class:`TimeOrder`, across the files
-of a survey).  Where the fault is unambiguous the scans are skipped and
-counted: ``duplicate_scans``, a scan identical to one already read (a log,
-or a block of it, written twice); ``out_of_order_scans``, a single scan
-whose time does not fit between its neighbours (one stamp far in the
-future, or one from the past).  Any other backward step (a run of scans
-moved earlier, files given out of order) is exit 3 naming the file and line.
-
-The file is read line by line: memory does not grow with its length.
+One text file, scan after scan (``SCAN n``, then ``UTC``, ``STATUS``,
+``VALID``, ``LLA``, ``EULER``, ``VEL``, ``NPOINTS`` and ``P`` lines, then
+``END``), read line by line: memory does not grow with its length.
+:func:`read_ldmrs_mtig` yields a file's accepted scans and counts the others
+(:class:`Counters`: lost, invalid, bad-GPS, malformed and empty scans;
+clutter, dirt and zero points); :class:`TimeOrder` keeps a survey's scans in
+time order, skipping and counting the unambiguous faults (repeated scans, a
+single scan out of line); :func:`read_survey` does both across the files of
+a survey.  The validity rules and an example: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations

@@ -1,32 +1,15 @@
 """The ``.lmsq`` scanner stream of the seed-2 design (SPEC 3.B and 3.C), read in chunks.
 
-Layout (little-endian): a 16-byte header — ``b"LMSQ"``, uint16 version (1),
-uint16 model (140 or 280), 8 reserved bytes — then records, each starting
-with a uint8 type:
-
-- type 1, measurement, 18 bytes: range uint24 (mm), amplitude uint8, mirror
-  angle int24 (1e-4 degree, 0 = nadir, positive to starboard), quality uint8
-  (bits 0-5 quality, 0 = invalid; bits 6-7 echo index), time uint24
-  (microseconds since the last PPS), RGB 3 x uint16;
-- type 2, PPS, 11 bytes: float64 GPS seconds of week of the PPS edge, uint16
-  GPS week.
-
-A measurement belongs to the last PPS before it.  After a missed PPS the
-microsecond counter keeps counting from the last PPS the scanner saw, so it
-still dates the measurement exactly up to 2^24 us (16.78 s): such
-measurements are kept, flagged (``recovered``) and counted
-(``pps_recovered``).  Dropped as ambiguous (``pps_ambiguous``) is only what
-the counter cannot date: a counter that wrapped (it falls back without a new
-PPS) or saturated (0xFFFFFF), and measurements that the next PPS contradicts
-(dated at or after it, or PPS records not a whole number of seconds apart).
-Counted, never guessed: measurements before the first PPS (no time), the
-missed-PPS measurements (``missed_pps`` = recovered + ambiguous), quality 0
-(invalid), and a cut-off last record.  An unknown record type means the
-stream is corrupt: reading stops with the byte offset.
-
-Records are located with NumPy: runs of 18-byte measurements are decoded
-as whole blocks; Python only steps from one PPS record to the next (one per
-second of flight), so a file of millions of pulses reads at array speed.
+A 16-byte header (``b"LMSQ"``, version 1, model 140 or 280), then records:
+type 1, an 18-byte measurement (range, amplitude, mirror angle, quality and
+echo, microseconds since the last PPS, RGB); type 2, an 11-byte PPS (GPS
+seconds of week, GPS week).  A measurement belongs to the last PPS before
+it; after a missed PPS the microsecond counter still dates it (kept, flagged
+``recovered``) unless the counter wrapped or saturated or the next PPS
+contradicts it (dropped, ``pps_ambiguous``).  Everything skipped is counted
+(:class:`LmsqCounters`).  Runs of measurements are decoded as NumPy blocks,
+so a file of millions of pulses reads at array speed.  The layout and the
+rules in full: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations

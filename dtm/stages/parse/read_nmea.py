@@ -1,43 +1,14 @@
 """NMEA 0183 navigation log of the seed-2 design (SPEC 3.B), as receivers write it.
 
-Sentences read, from any talker (``IN`` in the seed, ``GP``, ``GN``, ``GL``,
-``GB``, ``GA``, ...): ``GGA`` (time, position, fix quality, satellites,
-HDOP, height above mean sea level and geoid separation: ellipsoidal height
-= MSL + separation), ``GNS`` (the same, with a mode character per
-constellation; used only when the log has no GGA), ``HDT`` (true heading),
-``VTG`` (course over ground, speed), ``GST`` (sigma of latitude, longitude,
-height in metres), ``ZDA`` and ``RMC`` (date), and the proprietary
-``$PASHR`` (time, true heading, roll, pitch: attitude).  Every checksum is
-verified.
-
-Fixes: every quality but 0 (no fix) is a fix, RTK fixed (4) and float (5)
-included.  A GGA without an altitude is a 2-D fix: counted (``fixes_2d``),
-not a 3-D position.  A GGA with an empty geoid-separation field is a valid
-fix whose ellipsoidal height needs the separation from elsewhere: a stated
-``separation_m`` or a geoid grid (``geoid``, PROJ ``vgridshift``); with
-neither, reading stops with one sentence naming the line and both ways out
-(a separation of 0 is never assumed).
-
-Times: NMEA gives the UTC time of day.  The date comes from ``ZDA`` and
-``RMC`` (ddmmyy) sentences anywhere in the log: each is an anchor (a time
-of day with its date), and every timed sentence is dated from the last
-anchor before it, or the first one after it when none precedes (receivers
-often write ZDA after the first GGA of the second), taking the time of day
-within 12 hours of the anchor's (so midnight passes either way).  A log
-with no anchor uses the configured date for its first time and steps a day
-whenever the time of day falls back by more than 12 hours; with neither,
-reading stops with an error (never guessed).  UTC becomes GPS time (seconds
-since 1980-01-06) with the configured leap seconds.  ``HDT`` and ``VTG``
-carry no time: they take the time of the last ``GGA`` (or ``GNS``) before
-them.
-
-Angles (heading, course, roll, pitch) are valid modulo 360 degrees; they
-come out in [0, 360) for headings and courses.
-
-Counted and skipped, never raised: bad or missing checksums, malformed
-sentences, fixes of quality 0 and ZDA/RMC without a time or date (written
-before a receiver's first fix: ``no_fix``), 2-D fixes; sentences of other
-types are counted by type (``unread``).
+Sentences from any talker: ``GGA`` positions (``GNS`` when the log has no
+GGA), ``HDT`` headings, ``VTG`` courses, ``GST`` sigmas, ``ZDA`` and ``RMC``
+dates, ``$PASHR`` attitudes; every checksum is verified.  Times of day are
+dated by the ZDA/RMC anchors anywhere in the log (else from a configured
+date, never guessed) and become GPS time with the leap seconds; ellipsoidal
+height = MSL + geoid separation (from the sentence, the configuration or a
+geoid grid, never 0).  Angles are valid modulo 360 degrees.  What cannot be
+read is counted and skipped (:class:`NmeaCounters`), never raised.  The
+rules in full: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations
@@ -171,33 +142,21 @@ def read_nmea(
     separation_m: float | None = None,
     geoid: Path | None = None,
 ) -> NmeaLog:
-    """Read an NMEA log (see the module's notes for the rules).
+    """Read an NMEA log: positions (GGA, or GNS without GGA), headings, courses, sigmas, attitudes.
 
     Parameters
     ----------
     path : Path
-        The log (``.gz`` is decompressed on the fly).
-    counters : NmeaCounters
-        Updated with everything counted and skipped.
+        The log (``.gz`` is decompressed on the fly); *counters* get everything counted and skipped.
     day : date, optional
-        UTC date of the first time of a log without ZDA or RMC.
-    leap_seconds : float
-        GPS - UTC, seconds.
-    separation_m : float, optional
-        Geoid separation (metres) of GGA/GNS sentences whose separation field is empty.
-    geoid : Path, optional
-        Geoid grid giving that separation instead (PROJ ``vgridshift``: GeoTIFF, GTX).
-
-    Returns
-    -------
-    NmeaLog
-        Positions (GGA, or GNS without GGA), headings, courses, sigmas and attitudes.
+        UTC date of the first time of a log without ZDA or RMC; *leap_seconds*: GPS - UTC, seconds.
+    separation_m, geoid : float or Path, optional
+        Geoid separation (metres) of fixes whose field is empty, or a PROJ ``vgridshift`` grid giving it.
 
     Raises
     ------
     ConfigError
-        The log has no date and none is configured, or a fix has no geoid separation and neither
-        *separation_m* nor *geoid* is given.
+        The log has no date and none is configured, or a fix has no separation and neither way is given.
     """
     log = _read_sentences(path, counters)
     source = "gga" if log.rows["gga"] else "gns"

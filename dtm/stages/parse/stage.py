@@ -10,9 +10,8 @@ chooses the reader:
   (:mod:`dtm.stages.parse.intermediates`), which the ``georeference`` stage
   turns into points, and ``qc/`` (:mod:`dtm.stages.parse.qc`).
 
-Times everywhere: GPS seconds since 1980-01-06 (UTC + ``leap_seconds`` for
-the UTC-stamped formats; week x 604800 + seconds of week for the others).
-The readers' conventions: ``docs/stages/parse.md``.
+Times everywhere: GPS seconds since 1980-01-06.  The readers' conventions
+and departures: ``docs/stages/parse.md``.
 """
 
 from __future__ import annotations

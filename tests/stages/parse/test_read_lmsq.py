@@ -99,8 +99,16 @@ def _times(tmp_path, records, chunk=1 << 20):
 @pytest.mark.parametrize("chunk", [1 << 20, 37])
 def test_one_missed_pps_is_dated_by_the_counter(tmp_path, chunk):
     """PPS 1001 missed: the counter keeps counting from PPS 1000, so 1.25 s and 1.999999 s are exact."""
-    recs = [("pps", 1000.0, WEEK), _m(0), _m(500_000), _m(1_250_000), _m(1_999_999, quality=0), _m(1_999_999),
-            ("pps", 1002.0, WEEK), _m(10)]  # fmt: skip
+    recs = [
+        ("pps", 1000.0, WEEK),
+        _m(0),
+        _m(500_000),
+        _m(1_250_000),
+        _m(1_999_999, quality=0),
+        _m(1_999_999),
+        ("pps", 1002.0, WEEK),
+        _m(10),
+    ]
     t, flag, c = _times(tmp_path, recs, chunk)
     np.testing.assert_allclose(t, [0.0, 0.5, 1.25, 1.999999, 2.00001], atol=5e-7)  # float64 at 1.3e9 s: 0.24 us
     assert flag.tolist() == [False, False, True, True, False]
@@ -110,11 +118,23 @@ def test_one_missed_pps_is_dated_by_the_counter(tmp_path, chunk):
 def test_what_the_counter_cannot_date_is_dropped(tmp_path):
     """Ambiguous only: a counter that falls back (wrapped), one at 0xFFFFFF (saturated), times the next PPS
     contradicts, and everything after a PPS that is not a whole number of seconds later."""
-    recs = [("pps", 1000.0, WEEK), _m(900_000), _m(16_000_000), _m(3_000), _m(4_000),  # wrapped: 2 dropped
-            ("pps", 1017.0, WEEK), _m(1_100_000), _m(0xFFFFFF),  # 1018.1 is before PPS 1019; saturated: dropped
-            ("pps", 1019.0, WEEK), _m(1_100_000),  # 1020.1, but the next PPS is 1020: contradicted, dropped
-            ("pps", 1020.0, WEEK), _m(1_200_000),  # the next PPS is 1.5 s later: which edge was missed? dropped
-            ("pps", 1021.5, WEEK), _m(0), _m(2_000_000)]  # at the end nothing contradicts 1023.5  # fmt: skip
+    recs = [
+        ("pps", 1000.0, WEEK),
+        _m(900_000),
+        _m(16_000_000),
+        _m(3_000),
+        _m(4_000),  # wrapped: 2 dropped
+        ("pps", 1017.0, WEEK),
+        _m(1_100_000),
+        _m(0xFFFFFF),  # 1018.1 is before PPS 1019; saturated: dropped
+        ("pps", 1019.0, WEEK),
+        _m(1_100_000),  # 1020.1, but the next PPS is 1020: contradicted, dropped
+        ("pps", 1020.0, WEEK),
+        _m(1_200_000),  # the next PPS is 1.5 s later: which edge was missed? dropped
+        ("pps", 1021.5, WEEK),
+        _m(0),
+        _m(2_000_000),  # at the end nothing contradicts 1023.5
+    ]
     t, flag, c = _times(tmp_path, recs)
     np.testing.assert_allclose(t, [0.9, 16.0, 18.1, 21.5, 23.5], atol=5e-7)
     assert flag.tolist() == [False, True, True, False, True]

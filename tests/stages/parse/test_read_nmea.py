@@ -75,10 +75,17 @@ def _read(tmp_path, lines: list[str], **kwargs):
 
 def test_zda_after_the_first_gga_dates_it(tmp_path):
     """Many receivers write the second's ZDA after its GGA: the first GGA is dated by the ZDA after it."""
-    log, c = _read(tmp_path, [
-        gga("103215.00"), with_checksum("GPHDT,87.33,T"), with_checksum("GPZDA,103215.00,21,06,2011,00,00"),
-        gga("103216.00"), with_checksum("GPZDA,103216.00,21,06,2011,00,00"),
-    ], leap_seconds=15)  # fmt: skip
+    log, c = _read(
+        tmp_path,
+        [
+            gga("103215.00"),
+            with_checksum("GPHDT,87.33,T"),
+            with_checksum("GPZDA,103215.00,21,06,2011,00,00"),
+            gga("103216.00"),
+            with_checksum("GPZDA,103216.00,21,06,2011,00,00"),
+        ],
+        leap_seconds=15,
+    )
     t0 = utc_to_gps("2011-06-21T10:32:15Z", 15)
     np.testing.assert_allclose(log.position["time"], [t0, t0 + 1])
     assert log.heading["time"].tolist() == [t0]
@@ -98,36 +105,62 @@ def test_date_from_rmc_alone(tmp_path):
 
 def test_midnight_with_zda_after_gga(tmp_path):
     """A GGA at 00:00:00 after the 23:59:59 ZDA is the next day; one before the next day's ZDA too."""
-    log, _ = _read(tmp_path, [
-        gga("235959.00"), with_checksum("INZDA,235959.00,30,06,2026,00,00"), gga("235959.50"),
-        gga("000000.00"), with_checksum("INZDA,000000.00,01,07,2026,00,00"), gga("000000.50"),
-    ], leap_seconds=18)  # fmt: skip
+    log, _ = _read(
+        tmp_path,
+        [
+            gga("235959.00"),
+            with_checksum("INZDA,235959.00,30,06,2026,00,00"),
+            gga("235959.50"),
+            gga("000000.00"),
+            with_checksum("INZDA,000000.00,01,07,2026,00,00"),
+            gga("000000.50"),
+        ],
+        leap_seconds=18,
+    )
     t = utc_to_gps("2026-06-30T23:59:59Z", 18)
     np.testing.assert_allclose(log.position["time"], t + np.array([0.0, 0.5, 1.0, 1.5]))
     # ZDA first, then a fix after midnight before the next day's ZDA
-    log, _ = _read(tmp_path, [
-        with_checksum("INZDA,235959.00,30,06,2026,00,00"), gga("235959.50"), gga("000000.00"),
-    ], leap_seconds=18)  # fmt: skip
+    log, _ = _read(
+        tmp_path,
+        [
+            with_checksum("INZDA,235959.00,30,06,2026,00,00"),
+            gga("235959.50"),
+            gga("000000.00"),
+        ],
+        leap_seconds=18,
+    )
     np.testing.assert_allclose(log.position["time"], t + np.array([0.5, 1.0]))
     # a ZDA that comes after the first fix of a new day, and a log whose first ZDA is late
-    log, _ = _read(tmp_path, [
-        gga("235959.50"), gga("000000.00"), with_checksum("INZDA,000000.00,01,07,2026,00,00"),
-    ], leap_seconds=18)  # fmt: skip
+    log, _ = _read(
+        tmp_path,
+        [
+            gga("235959.50"),
+            gga("000000.00"),
+            with_checksum("INZDA,000000.00,01,07,2026,00,00"),
+        ],
+        leap_seconds=18,
+    )
     np.testing.assert_allclose(log.position["time"], t + np.array([0.5, 1.0]))
 
 
 def test_talkers_gns_rtk_and_other_sentences(tmp_path):
     """GN/GP talkers; GNS positions where the log has no GGA (modes R/F are RTK); the rest counted by type."""
     gns = "GNGNS,{},4025.0087,N,00342.2307,W,{},14,0.7,598.20,51.30,1.0,0100,V"
-    log, c = _read(tmp_path, [
-        with_checksum("GNZDA,103215.00,21,06,2011,00,00"),
-        with_checksum(gns.format("103215.00", "RRN")), with_checksum("GPHDT,87.33,T"),
-        with_checksum("GPGSV,3,1,12,01,40,083,46,02,17,308,41,12,07,344,39,14,22,228,45"),
-        with_checksum(gns.format("103215.50", "FAN")), with_checksum("GNVTG,87.10,T,85.00,M,23.5,N,43.5,K,D"),
-        with_checksum(gns.format("103216.00", "NNN")),  # no fix
-        with_checksum("GLGSA,A,3,65,66,,,,,,,,,,,1.5,0.7,1.3,2"),
-        with_checksum("PASHR,103215.50,87.40,T,-1.25,2.50,0.01,0.02,0.02,0.10,1,0"),
-    ], leap_seconds=15)  # fmt: skip
+    log, c = _read(
+        tmp_path,
+        [
+            with_checksum("GNZDA,103215.00,21,06,2011,00,00"),
+            with_checksum(gns.format("103215.00", "RRN")),
+            with_checksum("GPHDT,87.33,T"),
+            with_checksum("GPGSV,3,1,12,01,40,083,46,02,17,308,41,12,07,344,39,14,22,228,45"),
+            with_checksum(gns.format("103215.50", "FAN")),
+            with_checksum("GNVTG,87.10,T,85.00,M,23.5,N,43.5,K,D"),
+            with_checksum(gns.format("103216.00", "NNN")),  # no fix
+            with_checksum("GLGSA,A,3,65,66,,,,,,,,,,,1.5,0.7,1.3,2"),
+            with_checksum("PASHR,103215.50,87.40,T,-1.25,2.50,0.01,0.02,0.02,0.10,1,0"),
+        ],
+        leap_seconds=15,
+    )
     t0 = utc_to_gps("2011-06-21T10:32:15Z", 15)
     np.testing.assert_allclose(log.position["time"], [t0, t0 + 0.5])
     np.testing.assert_allclose(log.position["h"], [598.2 + 51.3] * 2)
@@ -136,21 +169,29 @@ def test_talkers_gns_rtk_and_other_sentences(tmp_path):
     assert log.heading["time"].tolist() == [t0] and log.course["time"].tolist() == [t0 + 0.5]
     assert c.no_fix == 1 and c.unread == {"GSV": 1, "GSA": 1} and c.unknown == 2
     assert log.attitude["time"].tolist() == [t0 + 0.5] and c.attitude_epochs == 1
-    np.testing.assert_allclose([log.attitude[k][0] for k in ("roll_deg", "pitch_deg", "heading_deg")],
-                               [-1.25, 2.5, 87.4])  # fmt: skip
+    np.testing.assert_allclose(
+        [log.attitude[k][0] for k in ("roll_deg", "pitch_deg", "heading_deg")], [-1.25, 2.5, 87.4]
+    )
     # with GGA in the log, GNS epochs are the same fixes again: GGA is used, GNS not
-    log, c = _read(tmp_path, [
-        with_checksum("GNZDA,103215.00,21,06,2011,00,00"), gga("103215.00", quality=4),
-        with_checksum(gns.format("103215.00", "RR")),
-    ])  # fmt: skip
+    log, c = _read(
+        tmp_path,
+        [
+            with_checksum("GNZDA,103215.00,21,06,2011,00,00"),
+            gga("103215.00", quality=4),
+            with_checksum(gns.format("103215.00", "RR")),
+        ],
+    )
     assert len(log.position["time"]) == 1 and c.gns_positions == 0 and c.rtk_fixes == 1
 
 
 def test_empty_geoid_separation_needs_a_geoid(tmp_path):
     """An empty separation field is a valid fix: h = MSL + a stated separation or the geoid's; never 0."""
     lines = [with_checksum("GPZDA,103215.00,21,06,2011,00,00"), gga("103215.00", sep=""), gga("103216.00")]
-    with pytest.raises(ConfigError, match=r"nav.nmea, line 2: 1 fixes have an empty geoid-separation.*"
-                       r"stages.georeference.geoid.*input.geoid_separation_m"):  # fmt: skip
+    with pytest.raises(
+        ConfigError,
+        match=r"nav.nmea, line 2: 1 fixes have an empty geoid-separation.*"
+        r"stages.georeference.geoid.*input.geoid_separation_m",
+    ):
         _read(tmp_path, lines)
     log, _ = _read(tmp_path, lines, separation_m=49.0)
     np.testing.assert_allclose(log.position["h"], [598.2 + 49.0, 598.2 + 51.3])  # the sentence's own wins
@@ -158,8 +199,17 @@ def test_empty_geoid_separation_needs_a_geoid(tmp_path):
     from rasterio.transform import from_origin
 
     grid = tmp_path / "geoid.tif"
-    with rasterio.open(grid, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32", crs="EPSG:4326",
-                       transform=from_origin(-4.0, 41.0, 0.05, 0.05)) as ds:  # fmt: skip
+    with rasterio.open(
+        grid,
+        "w",
+        driver="GTiff",
+        width=20,
+        height=20,
+        count=1,
+        dtype="float32",
+        crs="EPSG:4326",
+        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
+    ) as ds:
         ds.write(np.full((1, 20, 20), 50.5, np.float32))
     log, _ = _read(tmp_path, lines, geoid=grid)
     np.testing.assert_allclose(log.position["h"], [598.2 + 50.5, 598.2 + 51.3], atol=1e-6)
@@ -169,11 +219,19 @@ def test_empty_geoid_separation_needs_a_geoid(tmp_path):
 def test_2d_fix_and_any_finite_heading(tmp_path):
     """A GGA without altitude is a 2-D fix, counted; a heading of 361 or -90 degrees is a heading; the empty
     sentences a receiver writes before its first fix are no fix, not malformed."""
-    log, c = _read(tmp_path, [
-        "$GPRMC,,V,,,,,,,,,,N*53", "$GPGGA,,,,,,0,00,99.99,,,,,,*48", "$GPZDA,,,,,00,00*48",
-        with_checksum("GPZDA,103215.00,21,06,2011,00,00"), gga("103215.00", msl="", sep=""),
-        gga("103216.00"), with_checksum("GPHDT,361.5,T"), with_checksum("GPHDT,-90.0,T"),
-    ])  # fmt: skip
+    log, c = _read(
+        tmp_path,
+        [
+            "$GPRMC,,V,,,,,,,,,,N*53",
+            "$GPGGA,,,,,,0,00,99.99,,,,,,*48",
+            "$GPZDA,,,,,00,00*48",
+            with_checksum("GPZDA,103215.00,21,06,2011,00,00"),
+            gga("103215.00", msl="", sep=""),
+            gga("103216.00"),
+            with_checksum("GPHDT,361.5,T"),
+            with_checksum("GPHDT,-90.0,T"),
+        ],
+    )
     assert c.fixes_2d == 1 and c.malformed == 0 and c.bad_checksum == 0 and c.no_fix == 3
     assert len(log.position["time"]) == 1
     np.testing.assert_allclose(log.heading["heading_deg"], [1.5, 270.0])
@@ -196,11 +254,27 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
     emptied = [with_checksum(s[1:].split("*")[0].replace(",M,50.0000,M,", ",M,,M,")) for s in lines[:400]]
     (tmp_path / "nav.nmea").write_text("\r\n".join(emptied) + "\r\n")
     grid = tmp_path / "geoid.tif"
-    with rasterio.open(grid, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32", crs="EPSG:4326",
-                       transform=from_origin(-4.0, 41.0, 0.05, 0.05)) as ds:  # fmt: skip
+    with rasterio.open(
+        grid,
+        "w",
+        driver="GTiff",
+        width=20,
+        height=20,
+        count=1,
+        dtype="float32",
+        crs="EPSG:4326",
+        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
+    ) as ds:
         ds.write(np.full((1, 20, 20), 50.0, np.float32))
-    base = ["run", str(root / "configs" / "flight_nmea.yaml"), "-q", "--until", "parse", "--set",
-            f"cache={tmp_path / 'cache'}"]  # fmt: skip
+    base = [
+        "run",
+        str(root / "configs" / "flight_nmea.yaml"),
+        "-q",
+        "--until",
+        "parse",
+        "--set",
+        f"cache={tmp_path / 'cache'}",
+    ]
     assert main([*base, "--set", f"output={tmp_path / 'a'}"]) == 0
     capsys.readouterr()
     nmea = f"input.nmea={tmp_path / 'nav.nmea'}"

@@ -33,9 +33,12 @@ AUTZEN = REAL / "pdal" / "autzen_trim.las"
 
 def _convert(path: Path, dst: Path, assign=None):
     return convert_las_files(
-        [path], dst, crs_setting="auto-utm", assign_crs=pyproj.CRS.from_user_input(assign) if assign else None,
+        [path],
+        dst,
+        crs_setting="auto-utm",
+        assign_crs=pyproj.CRS.from_user_input(assign) if assign else None,
         chunk_size=20_000,
-    )  # fmt: skip
+    )
 
 
 def test_adjusted_standard_gps_time_is_kept_in_the_intermediate(tmp_path):
@@ -175,9 +178,15 @@ def test_elevation_rasters_name_their_unit_and_vertical_crs(tmp_path):
         crs = pyproj.CRS.from_user_input(code)
         for name, kind in (("dtm", "height"), ("density", None)):
             m = RasterMosaic(
-                tmp_path / f"{name}.tif", rows=4, cols=4, transform=transform, crs=crs, nodata=-9999.0, fill=0.0,
+                tmp_path / f"{name}.tif",
+                rows=4,
+                cols=4,
+                transform=transform,
+                crs=crs,
+                nodata=-9999.0,
+                fill=0.0,
                 **({} if kind else {"unit": None}),
-            )  # fmt: skip
+            )
             m.write_fill(0, 4, 0, 4)
             m.finish()
             with rasterio.open(tmp_path / f"{name}.tif") as ds:

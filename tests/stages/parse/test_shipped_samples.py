@@ -37,24 +37,42 @@ def _expected(config: str, faults: dict) -> tuple[dict[str, int], set[str]]:
     if config == "flight.yaml":
         f = faults["ldmrs_mtig"]
         counters = {
-            "scans_total": f["scans_written"], "scans_accepted": f["scans_written"] - f["invalid_scans"] - f["bad_gps"],
-            "lost_scans": f["lost_scans"], "invalid_scans": f["invalid_scans"], "bad_gps": f["bad_gps"],
-            "malformed_scans": 0, "empty_scans": f["empty_scans"], "rejected_clutter": f["rejected_clutter"],
-            "rejected_dirt": f["rejected_dirt"], "rejected_zero": 0,
-        }  # fmt: skip
+            "scans_total": f["scans_written"],
+            "scans_accepted": f["scans_written"] - f["invalid_scans"] - f["bad_gps"],
+            "lost_scans": f["lost_scans"],
+            "invalid_scans": f["invalid_scans"],
+            "bad_gps": f["bad_gps"],
+            "malformed_scans": 0,
+            "empty_scans": f["empty_scans"],
+            "rejected_clutter": f["rejected_clutter"],
+            "rejected_dirt": f["rejected_dirt"],
+            "rejected_zero": 0,
+        }
         skipped = f["invalid_scans"] + f["bad_gps"]
         return counters, {f"[parse] {skipped} scans skipped; see qc/debug.txt"} if skipped else set()
     f = faults["lmsq"]
     counters = {
-        "scanner_measurements": faults["echoes"], "scanner_before_first_pps": 0, "scanner_missed_pps": f["missed_pps"],
-        "scanner_pps_recovered": f["pps_recovered"], "scanner_pps_ambiguous": f["missed_pps"] - f["pps_recovered"],
-        "scanner_invalid_quality": f["invalid_quality"], "scanner_truncated_bytes": 0,
+        "scanner_measurements": faults["echoes"],
+        "scanner_before_first_pps": 0,
+        "scanner_missed_pps": f["missed_pps"],
+        "scanner_pps_recovered": f["pps_recovered"],
+        "scanner_pps_ambiguous": f["missed_pps"] - f["pps_recovered"],
+        "scanner_invalid_quality": f["invalid_quality"],
+        "scanner_truncated_bytes": 0,
         "pulses_read": faults["echoes"] - f["invalid_quality"] - (f["missed_pps"] - f["pps_recovered"]),
-        "navigation_malformed": 0, "navigation_not_increasing": 0, "navigation_truncated_bytes": 0,
-    }  # fmt: skip
+        "navigation_malformed": 0,
+        "navigation_not_increasing": 0,
+        "navigation_truncated_bytes": 0,
+    }
     if config == "flight_nmea.yaml":
-        counters.update(nmea_bad_checksum=f["nmea_bad_checksums"], nmea_malformed=0, nmea_no_fix=0, nmea_fixes_2d=0,
-                        nmea_unknown=0, ins_epochs_without_position=0)  # fmt: skip
+        counters.update(
+            nmea_bad_checksum=f["nmea_bad_checksums"],
+            nmea_malformed=0,
+            nmea_no_fix=0,
+            nmea_fixes_2d=0,
+            nmea_unknown=0,
+            ins_epochs_without_position=0,
+        )
     skipped = f["invalid_quality"] + f["missed_pps"] - f["pps_recovered"]
     return counters, {
         f"[parse] {skipped} measurements skipped, 0 bytes cut off; see qc/debug.txt"

@@ -29,10 +29,23 @@ from pipeline.errors import InputDataError
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     root = tmp_path_factory.mktemp("timeorder")
-    simulate(SimulateConfig(output=root / "ld", seed=5, formats=["ldmrs_mtig"], checkpoints=0,
-                            scanner={"preset": "ldmrs", "angle_step_deg": 4.0},
-                            flight={"altitude_m": 40, "speed_ms": 8, "lines": 1, "line_length_m": 40,
-                                    "cross_line": False, "lead_in_m": 5}))  # fmt: skip
+    simulate(
+        SimulateConfig(
+            output=root / "ld",
+            seed=5,
+            formats=["ldmrs_mtig"],
+            checkpoints=0,
+            scanner={"preset": "ldmrs", "angle_step_deg": 4.0},
+            flight={
+                "altitude_m": 40,
+                "speed_ms": 8,
+                "lines": 1,
+                "line_length_m": 40,
+                "cross_line": False,
+                "lead_in_m": 5,
+            },
+        )
+    )
     text = gzip.decompress((root / "ld" / "ldmrs" / "acquisition.log.gz").read_bytes()).decode()
     return root, text
 

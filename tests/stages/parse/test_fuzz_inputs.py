@@ -162,27 +162,19 @@ def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
 
 @pytest.fixture(scope="module")
 def raw_flight(tmp_path_factory):
-    from dtm.commands.simulate.settings import SimulateConfig
-    from dtm.commands.simulate.simulator import simulate
+    from tests.stages.parse.flights import simulate_line
 
     root = tmp_path_factory.mktemp("fuzz_raw")
-    simulate(
-        SimulateConfig(
-            output=root,
-            seed=9,
-            formats=["lmsq_nmea", "lmsq_sbet"],
-            checkpoints=0,
-            scanner={"preset": "q140", "pulse_rate_hz": 1000},
-            navigation={"preset": "pos-av-410", "ins_rate_hz": 50},
-            flight={
-                "altitude_m": 100,
-                "speed_ms": 40,
-                "lines": 1,
-                "line_length_m": 80,
-                "cross_line": False,
-                "lead_in_m": 0,
-            },
-        )
+    simulate_line(
+        root,
+        seed=9,
+        formats=["lmsq_nmea", "lmsq_sbet"],
+        scanner={"preset": "q140", "pulse_rate_hz": 1000},
+        navigation={"preset": "pos-av-410", "ins_rate_hz": 50},
+        altitude_m=100,
+        speed_ms=40,
+        line_length_m=80,
+        lead_in_m=0,
     )
     return root / "lmsq"
 

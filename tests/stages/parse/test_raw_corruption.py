@@ -14,47 +14,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
 from pipeline.cli import main
+from tests.stages.parse.flights import simulate_ldmrs_line, simulate_line
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     root = tmp_path_factory.mktemp("corrupt")
-    simulate(
-        SimulateConfig(
-            output=root / "ld",
-            seed=5,
-            formats=["ldmrs_mtig"],
-            checkpoints=0,
-            scanner={"preset": "ldmrs", "angle_step_deg": 4.0},
-            flight={
-                "altitude_m": 40,
-                "speed_ms": 8,
-                "lines": 1,
-                "line_length_m": 40,
-                "cross_line": False,
-                "lead_in_m": 5,
-            },
-        )
-    )
-    simulate(
-        SimulateConfig(
-            output=root / "rg",
-            seed=5,
-            formats=["lmsq_nmea", "lmsq_sbet"],
-            checkpoints=0,
-            scanner={"preset": "q140", "pulse_rate_hz": 2000},
-            flight={
-                "altitude_m": 100,
-                "speed_ms": 40,
-                "lines": 1,
-                "line_length_m": 100,
-                "cross_line": False,
-                "lead_in_m": 10,
-            },
-        )
+    simulate_ldmrs_line(root / "ld")
+    simulate_line(
+        root / "rg",
+        seed=5,
+        formats=["lmsq_nmea", "lmsq_sbet"],
+        scanner={"preset": "q140", "pulse_rate_hz": 2000},
+        altitude_m=100,
+        speed_ms=40,
+        line_length_m=100,
+        lead_in_m=10,
     )
     return root
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import date
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,28 +120,13 @@ def test_midnight_with_zda_after_gga(tmp_path):
     )
     t = utc_to_gps("2026-06-30T23:59:59Z", 18)
     np.testing.assert_allclose(log.position["time"], t + np.array([0.0, 0.5, 1.0, 1.5]))
-    # ZDA first, then a fix after midnight before the next day's ZDA
-    log, _ = _read(
-        tmp_path,
-        [
-            with_checksum("INZDA,235959.00,30,06,2026,00,00"),
-            gga("235959.50"),
-            gga("000000.00"),
-        ],
-        leap_seconds=18,
-    )
-    np.testing.assert_allclose(log.position["time"], t + np.array([0.5, 1.0]))
+    before = with_checksum("INZDA,235959.00,30,06,2026,00,00")
+    after = with_checksum("INZDA,000000.00,01,07,2026,00,00")
+    # ZDA first, then a fix after midnight before the next day's ZDA;
     # a ZDA that comes after the first fix of a new day, and a log whose first ZDA is late
-    log, _ = _read(
-        tmp_path,
-        [
-            gga("235959.50"),
-            gga("000000.00"),
-            with_checksum("INZDA,000000.00,01,07,2026,00,00"),
-        ],
-        leap_seconds=18,
-    )
-    np.testing.assert_allclose(log.position["time"], t + np.array([0.5, 1.0]))
+    for lines in ([before, gga("235959.50"), gga("000000.00")], [gga("235959.50"), gga("000000.00"), after]):
+        log, _ = _read(tmp_path, lines, leap_seconds=18)
+        np.testing.assert_allclose(log.position["time"], t + np.array([0.5, 1.0]))
 
 
 def test_talkers_gns_rtk_and_other_sentences(tmp_path):
@@ -195,22 +181,7 @@ def test_empty_geoid_separation_needs_a_geoid(tmp_path):
         _read(tmp_path, lines)
     log, _ = _read(tmp_path, lines, separation_m=49.0)
     np.testing.assert_allclose(log.position["h"], [598.2 + 49.0, 598.2 + 51.3])  # the sentence's own wins
-    import rasterio
-    from rasterio.transform import from_origin
-
-    grid = tmp_path / "geoid.tif"
-    with rasterio.open(
-        grid,
-        "w",
-        driver="GTiff",
-        width=20,
-        height=20,
-        count=1,
-        dtype="float32",
-        crs="EPSG:4326",
-        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
-    ) as ds:
-        ds.write(np.full((1, 20, 20), 50.5, np.float32))
+    grid = _constant_geoid(tmp_path / "geoid.tif", 50.5)
     log, _ = _read(tmp_path, lines, geoid=grid)
     np.testing.assert_allclose(log.position["h"], [598.2 + 50.5, 598.2 + 51.3], atol=1e-6)
     np.testing.assert_allclose(log.position["msl"], [598.2, 598.2])
@@ -241,10 +212,6 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
     """The 3.B sample with every separation field emptied: exit 2 with one sentence; with
     stages.georeference.geoid (N = 50 m here) or input.geoid_separation_m the trajectory is the original's."""
     import json
-    from pathlib import Path
-
-    import rasterio
-    from rasterio.transform import from_origin
 
     from dtm.common.columns import read_columns
     from pipeline.cli import main
@@ -253,19 +220,7 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
     lines = (root / "data_samples" / "flight_lmsq" / "lmsq" / "nav.nmea").read_text().splitlines()
     emptied = [with_checksum(s[1:].split("*")[0].replace(",M,50.0000,M,", ",M,,M,")) for s in lines[:400]]
     (tmp_path / "nav.nmea").write_text("\r\n".join(emptied) + "\r\n")
-    grid = tmp_path / "geoid.tif"
-    with rasterio.open(
-        grid,
-        "w",
-        driver="GTiff",
-        width=20,
-        height=20,
-        count=1,
-        dtype="float32",
-        crs="EPSG:4326",
-        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
-    ) as ds:
-        ds.write(np.full((1, 20, 20), 50.0, np.float32))
+    grid = _constant_geoid(tmp_path / "geoid.tif", 50.0)
     base = [
         "run",
         str(root / "configs" / "flight_nmea.yaml"),
@@ -294,3 +249,23 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
         h = heights(name)
         np.testing.assert_allclose(h, a[: len(h)], atol=1e-6)
         assert len(h) > 100
+
+
+def _constant_geoid(grid: Path, separation: float) -> Path:
+    """A GeoTIFF geoid grid of one separation (metres) over 40-41 N, 4-3 W (the samples' area)."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    with rasterio.open(
+        grid,
+        "w",
+        driver="GTiff",
+        width=20,
+        height=20,
+        count=1,
+        dtype="float32",
+        crs="EPSG:4326",
+        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
+    ) as ds:
+        ds.write(np.full((1, 20, 20), separation, np.float32))
+    return grid

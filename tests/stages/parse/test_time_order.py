@@ -19,33 +19,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
 from dtm.common.georeferencing import prepare_trajectory
 from pipeline.cli import main
 from pipeline.errors import InputDataError
+from tests.stages.parse.flights import simulate_ldmrs_line
 
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
     root = tmp_path_factory.mktemp("timeorder")
-    simulate(
-        SimulateConfig(
-            output=root / "ld",
-            seed=5,
-            formats=["ldmrs_mtig"],
-            checkpoints=0,
-            scanner={"preset": "ldmrs", "angle_step_deg": 4.0},
-            flight={
-                "altitude_m": 40,
-                "speed_ms": 8,
-                "lines": 1,
-                "line_length_m": 40,
-                "cross_line": False,
-                "lead_in_m": 5,
-            },
-        )
-    )
+    simulate_ldmrs_line(root / "ld")
     text = gzip.decompress((root / "ld" / "ldmrs" / "acquisition.log.gz").read_bytes()).decode()
     return root, text
 

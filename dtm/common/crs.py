@@ -10,9 +10,16 @@ resolves the configured output CRS.  The rules and why:
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    import laspy
+    import pyproj
 
 #: Longitudes accepted by the geographic test (degrees): some software writes 0..360.
 MAX_LONGITUDE = 360.0
@@ -23,7 +30,7 @@ def _extent(lo, hi) -> str:
     return f"x {lo[0]:,.6g} to {hi[0]:,.6g}, y {lo[1]:,.6g} to {hi[1]:,.6g}"
 
 
-def crs_problem(crs, mins, maxs) -> str | None:
+def crs_problem(crs: pyproj.CRS, mins: Sequence[float], maxs: Sequence[float]) -> str | None:
     """Why the horizontal bounds *mins*..*maxs* cannot be coordinates in *crs* (None when they can).
 
     *crs* is the CRS the file claims (a compound CRS is checked by its
@@ -105,7 +112,7 @@ _VERTICAL_CS_KEY = 4096
 _VERTICAL_UNITS_KEY = 4099
 
 
-def geo_keys(header) -> list:
+def geo_keys(header: laspy.LasHeader) -> list:
     """The keys of the header's GeoKeyDirectory VLR (empty when it has none)."""
     for vlr in header.vlrs:
         if type(vlr).__name__ == "GeoKeyDirectoryVlr":
@@ -148,7 +155,7 @@ def _in_unit(crs, unit, code: int) -> dict:
     return data
 
 
-def honour_linear_units(crs, geo_keys):
+def honour_linear_units(crs: pyproj.CRS | None, geo_keys: Iterable) -> tuple[pyproj.CRS | None, str | None]:
     """The projected *crs* with its axes in the unit ``ProjLinearUnitsGeoKey`` names, when that differs.
 
     GDAL (so PDAL and QGIS) reads an EPSG projected CRS beside
@@ -182,7 +189,7 @@ def honour_linear_units(crs, geo_keys):
     )
 
 
-def honour_vertical_keys(crs, geo_keys):
+def honour_vertical_keys(crs: pyproj.CRS | None, geo_keys: Iterable) -> tuple[pyproj.CRS | None, str | None]:
     """The CRS with the vertical CRS ``VerticalCSTypeGeoKey`` names added, as GDAL reads a LAS header.
 
     GDAL (so PDAL and QGIS) reads the compound CRS horizontal + vertical, the
@@ -242,7 +249,7 @@ def honour_vertical_keys(crs, geo_keys):
     )
 
 
-def header_crs(header):
+def header_crs(header: laspy.LasHeader) -> tuple[pyproj.CRS | None, str | None]:
     """The CRS of a LAS header as GDAL reads it, and what was read beyond laspy (notes for the log).
 
     laspy's ``parse_crs``, then the GeoKeys it does not read:
@@ -257,7 +264,7 @@ def header_crs(header):
     return crs, ("; ".join(notes) or None)
 
 
-def output_crs(setting: str, first_crs, lon_lat_centre: tuple[float, float] | None):
+def output_crs(setting: str, first_crs: pyproj.CRS | None, lon_lat_centre: tuple[float, float] | None) -> pyproj.CRS:
     """Resolve the configured output CRS.
 
     ``auto-utm`` keeps a projected input CRS and otherwise picks the WGS 84 /

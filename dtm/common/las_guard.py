@@ -9,13 +9,17 @@ whatever laspy raises on a damaged file (:func:`las_parse_errors`) into an
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.errors import InputDataError
 
+if TYPE_CHECKING:
+    import laspy
 
-def las_parse_errors():
+
+def las_parse_errors() -> tuple[type[BaseException], ...]:
     """What laspy raises on damaged files (found by fuzzing): all mean "unreadable"."""
     import struct
 
@@ -131,7 +135,7 @@ def _check_chunk_table(path: Path, offset_points: int, size: int) -> None:
         )
 
 
-def open_las(path: Path):
+def open_las(path: Path) -> laspy.LasReader:
     """``laspy.open`` of a checked file (:func:`check_header_sizes`); InputDataError when it is unreadable."""
     import laspy
 

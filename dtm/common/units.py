@@ -17,8 +17,14 @@ True
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pyproj
+    import rasterio.crs
+    from affine import Affine
 
 
 @dataclass(frozen=True)
@@ -31,7 +37,7 @@ class Units:
     vertical_name: str = "metre"
 
     @classmethod
-    def of(cls, crs) -> Units:
+    def of(cls, crs: pyproj.CRS | None) -> Units:
         """The units of a pyproj CRS (None: metres).
 
         Raises
@@ -71,7 +77,7 @@ class Units:
             return xyz
         return np.asarray(xyz, dtype=np.float64) / np.array([self.horizontal, self.horizontal, self.vertical])
 
-    def transform_from_metres(self, transform):
+    def transform_from_metres(self, transform: Affine) -> Affine:
         """A raster's affine transform built in metres -> the same grid in CRS units."""
         from affine import Affine
 
@@ -79,7 +85,7 @@ class Units:
             return transform
         return Affine.scale(1.0 / self.horizontal) @ transform
 
-    def transform_to_metres(self, transform):
+    def transform_to_metres(self, transform: Affine) -> Affine:
         """A raster's affine transform in CRS units -> metres."""
         from affine import Affine
 
@@ -105,7 +111,7 @@ def _name(unit: str) -> str:
 METRE = Units()
 
 
-def raster_units(crs) -> Units:
+def raster_units(crs: rasterio.crs.CRS | str | None) -> Units:
     """Units of a rasterio CRS (through pyproj)."""
     if crs is None:
         return METRE

@@ -51,12 +51,12 @@ class IsolationGrid:
         """Count points (inside the box)."""
         self.counts += np.bincount(self.index(x, y), minlength=self.counts.size)
 
-    def covers(self, x_range, y_range) -> bool:
+    def covers(self, x_range: tuple[float, float], y_range: tuple[float, float]) -> bool:
         """Whether points spanning *x_range* and *y_range* (min, max) lie inside the box."""
         in_x = self.mins[0] <= x_range[0] and x_range[1] <= self.maxs[0]
         return bool(in_x and self.mins[1] <= y_range[0] and y_range[1] <= self.maxs[1])
 
-    def is_over(self, mins, maxs) -> bool:
+    def is_over(self, mins: np.ndarray, maxs: np.ndarray) -> bool:
         """Whether this grid is the one over the box *mins*, *maxs* (bit for bit)."""
         return bool(np.array_equal(self.mins, np.asarray(mins)[:2]) and np.array_equal(self.maxs, np.asarray(maxs)[:2]))
 

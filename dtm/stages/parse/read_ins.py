@@ -13,6 +13,7 @@ whose time does not increase, are counted and skipped
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +50,9 @@ def wrap_degrees(angle: np.ndarray, low: float = -180.0) -> np.ndarray:
     return np.mod(np.asarray(angle, dtype=np.float64) - low, 360.0) + low
 
 
-def canonical_attitude(roll, pitch, heading) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def canonical_attitude(
+    roll: np.ndarray, pitch: np.ndarray, heading: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The same rotation Rz(heading) Ry(pitch) Rx(roll) with roll in (-180, 180], pitch in [-90, 90],
     heading in [0, 360) (degrees; any finite input).
 
@@ -66,7 +69,7 @@ def canonical_attitude(roll, pitch, heading) -> tuple[np.ndarray, np.ndarray, np
     return roll, pitch, np.where(heading >= 360.0, 0.0, heading)
 
 
-def increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where) -> np.ndarray:
+def increasing(t: np.ndarray, counters: TrajectoryCounters, what: str, where: Callable[[int], str]) -> np.ndarray:
     """Mask of epochs kept: each strictly later than the last kept one."""
     keep = np.ones(len(t), bool)
     if len(t) < 2:

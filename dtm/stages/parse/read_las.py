@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,11 @@ from dtm.common.las_guard import las_parse_errors, open_las
 from dtm.stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
 from dtm.stages.parse.las_layout import READ_APART, copied_dimensions, point_layout
 from pipeline.errors import InputDataError
+from pipeline.log import Progress
+
+if TYPE_CHECKING:
+    import laspy
+    import pyproj
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
@@ -55,7 +61,13 @@ class LasReadReport:
     dropped: list[str] = field(default_factory=list)
 
 
-def file_crs(path: Path, header, assign, override=None, report: LasReadReport | None = None):
+def file_crs(
+    path: Path,
+    header: laspy.LasHeader,
+    assign: pyproj.CRS | None,
+    override: pyproj.CRS | None = None,
+    report: LasReadReport | None = None,
+) -> tuple[pyproj.CRS, str]:
     """The CRS of one file's coordinates and where it came from, checked against them.
 
     ``input.override_crs`` (*override*) replaces whatever the header says;
@@ -121,13 +133,13 @@ def las_chunks(
     paths: list[Path],
     *,
     crs_setting: str,
-    assign_crs,
+    assign_crs: pyproj.CRS | None,
     chunk_size: int,
     report: LasReadReport,
-    progress=None,
+    progress: Progress | None = None,
     layout: PointLayout | None = None,
-    override_crs=None,
-) -> Iterator[tuple[object, dict[str, np.ndarray]]]:
+    override_crs: pyproj.CRS | None = None,
+) -> Iterator[tuple[pyproj.CRS, dict[str, np.ndarray]]]:
     """Read LAS/LAZ files chunk by chunk, in the output CRS; the *report* is filled as they are read.
 
     Yields
@@ -318,8 +330,14 @@ def _read_all_records(path: Path, header, report: LasReadReport) -> None:
 
 
 def read_las_files(
-    paths: list[Path], *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
-) -> tuple[object, LasReadReport]:
+    paths: list[Path],
+    *,
+    crs_setting: str,
+    assign_crs: pyproj.CRS | None,
+    chunk_size: int,
+    progress: Progress | None = None,
+    override_crs: pyproj.CRS | None = None,
+) -> tuple[laspy.LasData, LasReadReport]:
     """Read LAS/LAZ files into one LasData (LAS 1.4, the layout's point format) in the output CRS.
 
     Parameters
@@ -360,7 +378,9 @@ def read_las_files(
     return _build(merged, target, layout), report
 
 
-def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> tuple[np.ndarray, np.ndarray]:
+def header_bounds(
+    paths: list[Path], target: pyproj.CRS, assign_crs: pyproj.CRS | None, override_crs: pyproj.CRS | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
 
     Horizontal bounds of a file in another CRS are transformed with the
@@ -387,8 +407,15 @@ def header_bounds(paths: list[Path], target, assign_crs, override_crs=None) -> t
 
 
 def convert_las_files(
-    paths: list[Path], dst: Path, *, crs_setting: str, assign_crs, chunk_size: int, progress=None, override_crs=None
-) -> tuple[object, LasReadReport, set[int]]:
+    paths: list[Path],
+    dst: Path,
+    *,
+    crs_setting: str,
+    assign_crs: pyproj.CRS | None,
+    chunk_size: int,
+    progress: Progress | None = None,
+    override_crs: pyproj.CRS | None = None,
+) -> tuple[pyproj.CRS, LasReadReport, set[int]]:
     """Convert LAS/LAZ files to one uncompressed LAS 1.4 file in the output CRS, chunk by chunk.
 
     Memory holds one chunk, whatever the survey's size.  The writer's offsets
@@ -529,7 +556,16 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayo
         return target if target.equals(src_crs) else None
 
 
-def copy_records(path: Path, dst: Path, target, report, strips: set[int], chunk_size: int, progress, layout):
+def copy_records(
+    path: Path,
+    dst: Path,
+    target: pyproj.CRS,
+    report: LasReadReport,
+    strips: set[int],
+    chunk_size: int,
+    progress: Progress | None,
+    layout: PointLayout,
+) -> tuple[pyproj.CRS, IsolationGrid | None]:
     """Copy one LAS/LAZ file's records as they are to an uncompressed LAS (see :func:`_copyable`).
 
     Returns the output CRS and the points counted on the isolation grid over

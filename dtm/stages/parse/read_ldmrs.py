@@ -23,6 +23,7 @@ import numpy as np
 
 from dtm.stages.parse.skiplog import SkipLog, open_text
 from pipeline.errors import InputDataError
+from pipeline.log import Progress
 
 #: Seed 0, Table 15: lever arm MPOS (m, MTi-G axes) of each mounting; LD-MRS -> MTi-G is Ry(+90 deg) first.
 MOUNTINGS = {
@@ -220,7 +221,9 @@ def _point(parts: list[str], where: str) -> tuple[int, int, int, float, float, f
     return layer, echo, flags, x, y, z
 
 
-def read_survey(paths: list[Path], counters: Counters, *, leap_seconds: float = 18.0, progress=None) -> Iterator[Scan]:
+def read_survey(
+    paths: list[Path], counters: Counters, *, leap_seconds: float = 18.0, progress: Progress | None = None
+) -> Iterator[Scan]:
     """Yield the accepted scans of a survey's logs in time order (:class:`TimeOrder`, across the files).
 
     *progress* (optional) advances by one a file.  A damaged compressed

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputDataError
+from pipeline.log import Progress
 
 HEADER = 16
 MEASUREMENT = 18
@@ -139,7 +140,9 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
     yield from timer.flush()
 
 
-def read_streams(paths: list[Path], counters: LmsqCounters, progress=None) -> Iterator[dict[str, np.ndarray]]:
+def read_streams(
+    paths: list[Path], counters: LmsqCounters, progress: Progress | None = None
+) -> Iterator[dict[str, np.ndarray]]:
     """Yield the blocks of :func:`read_lmsq` of a survey's streams in turn; *progress* advances by the bytes read."""
     for path in paths:
         last = 0

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TextIO
 
 MAX_LOCATIONS = 20
 
@@ -18,10 +20,8 @@ class SkipLog:
             self.locations.append(where)
 
 
-def open_text(path, encoding: str = "utf-8"):
+def open_text(path: str | Path, encoding: str = "utf-8") -> TextIO:
     """Open a text input for reading; ``.gz`` files are decompressed on the fly (streamed)."""
-    from pathlib import Path
-
     if Path(path).suffix == ".gz":
         import gzip
 

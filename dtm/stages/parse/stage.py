@@ -27,6 +27,8 @@ from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO, get_dotted
 
 if TYPE_CHECKING:
+    from pydantic import BaseModel
+
     from dtm.stages.parse.read_ins import TrajectoryCounters
     from dtm.stages.parse.read_las import LasReadReport
     from dtm.stages.parse.read_ldmrs import Counters
@@ -47,15 +49,15 @@ class Parse(Stage):
     description = "read the input files (format from input.format)"
     outputs: ClassVar = {"points_georef": "points.las"}
 
-    def is_enabled(self, params, config) -> bool:
+    def is_enabled(self, params: InputConfig, config: BaseModel) -> bool:
         return True
 
-    def declare(self, params, config) -> StageIO:
+    def declare(self, params: InputConfig, config: BaseModel) -> StageIO:
         if params.format == "las":
             return StageIO(outputs={"points_georef": "points.las"})
         return StageIO(outputs={"trajectory": "trajectory", "pulses": "pulses", "qc": "qc"}, products={"qc": "qc"})
 
-    def external_files(self, params, config) -> list[Path]:
+    def external_files(self, params: InputConfig, config: BaseModel) -> list[Path]:
         files = list(params.paths)
         for key in ("nmea", "ins", "sbet", "smrmsg"):
             value = getattr(params, key, None)

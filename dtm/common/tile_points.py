@@ -1,22 +1,12 @@
-"""Point clouds and rasters cut into the engine's tiles, and put back together.
+"""Point clouds cut into the engine's tiles, streaming: memory follows the tile size, not the survey.
 
-The engine (:mod:`pipeline.tiling`) cuts a plane into tiles; this module
-does the LiDAR side, streaming, so that memory depends on the tile size and
-not on the survey:
-
-- :func:`split_cloud` reads a LAS file chunk by chunk and writes, for every
-  tile, the columns its task needs (coordinates in metres, classes, ...) of
-  the points inside the tile plus its buffer, in file order, with each
-  point's index in the file (``idx``) and whether it lies in the tile's core
-  (``core``); given the run's executor, its workers split ranges of the
-  file's records side by side, each into parts of the tiles
-  (:func:`tile_parts`).
-- :func:`merge_classes` writes the input file again, chunk by chunk, with
-  the classes the tiles computed for their core points: every point is in
-  exactly one core, so the output has the input's points in the input's
-  order, byte for byte what an untiled run writes.
-- :class:`RasterMosaic` assembles rasters from windows (a tiled GeoTIFF on
-  disk) and converts them to Cloud Optimized GeoTIFF.
+The engine (:mod:`pipeline.tiling`) cuts a plane into tiles; :func:`split_cloud`
+reads a LAS file chunk by chunk and writes, for every tile, the columns its
+task needs of the points inside the tile plus its buffer, in file order, with
+each point's index in the file (``idx``) and whether it lies in its core
+(``core``); :func:`read_tile` reads them back.  The tiles' classes go back into
+one file with :func:`dtm.common.tile_classes.merge_classes`, their rasters into
+one with :class:`dtm.common.mosaic.RasterMosaic`.
 
 Why tiled and untiled results are identical: every algorithm the tiles run
 computes on grids anchored at whole multiples of their cell size (not at the
@@ -28,6 +18,7 @@ from __future__ import annotations
 
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +26,7 @@ import numpy as np
 
 from dtm.common.clouds import chunk_xyz_metres
 from dtm.common.columns import NpyColumns, npy_header
+from pipeline.tiling import Layout
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -87,9 +79,31 @@ class _Spill:
         return dict(self.rows)
 
 
+@dataclass(frozen=True)
+class SplitTask:
+    """Records ``start:stop`` of the LAS file *path*, to split into the tiles' part *part* (:func:`split_range`).
+
+    The other fields are :func:`split_cloud`'s; *spill*: the bytes of
+    columns held before they are appended to disk; *part* None: the tiles'
+    own folders (the whole file in one process).
+    """
+
+    path: str
+    start: int
+    stop: int
+    layout: Layout
+    folder: str
+    columns: Callable[[Any], dict[str, np.ndarray]]
+    count: Callable[[dict[str, np.ndarray]], Any] | None
+    index: bool
+    chunk_size: int
+    spill: int = SPILL_BYTES
+    part: str | None = None
+
+
 def split_cloud(
     path: Path,
-    layout,
+    layout: Layout,
     folder: Path,
     columns: Callable[[Any], dict[str, np.ndarray]],
     *,
@@ -99,77 +113,43 @@ def split_cloud(
     index: bool = True,
     executor=None,
 ) -> tuple[dict[int, tuple[int, int]], Any]:
-    """Write each tile's points (core plus buffer) as ``.npy`` columns under ``folder/<tile>/``.
+    """Write each tile's points (core plus buffer) of the LAS file *path* as ``.npy`` columns under ``folder/<tile>/``.
 
-    Every tile gets ``x``, ``y``, ``z`` in metres and ``core``; the rest is
-    the caller's.  Read a tile back with :func:`tile_parts` (or
-    :func:`read_tile`): in one process the columns are in the tile's
-    folder; split on an executor's workers they are in one sub-folder per
-    range of records (``0``, ``1``, ...), which read in turn give the same
-    points in the same order.
+    Every tile gets ``x``, ``y``, ``z`` in metres, ``core`` and, with
+    *index*, ``idx`` (each point's index in the file); ``columns(chunk) ->
+    {name: array}`` adds what the tasks need.  ``count(cols)`` is summed
+    (``+``) over the chunks; *progress* is advanced by the points read.
+    With an *executor* of more than one worker, the records are cut into
+    ranges (two per worker, a chunk at least) that the workers split at
+    once (:func:`split_range`), each into a part of the tiles' folders;
+    *columns* and *count* then travel to them (module-level functions, or
+    ``functools.partial`` of one).  Read a tile back with :func:`read_tile`.
 
-    Parameters
-    ----------
-    path : Path
-        The LAS file.
-    layout : pipeline.tiling.Layout
-        Tiles and buffer, in metres.
-    folder : Path
-        Where the tiles' folders go.
-    columns : callable
-        ``columns(chunk) -> {name: array}``: what else the tasks need of a
-        chunk of points (laspy record), one value per point.
-    chunk_size : int
-        Points read at a time.
-    progress : Progress, optional
-        Advanced by the points read.
-    count : callable, optional
-        ``count(cols) -> value``, summed (``+``) over the chunks (totals the
-        caller checks before running the tasks).
-    index : bool
-        Write ``idx``, each point's index in the file (for results per
-        point; not needed for results per cell).
-    executor : LocalExecutor or DaskExecutor, optional
-        With more than one worker, the file's records are cut into ranges
-        (two per worker, at least *chunk_size* each) that the workers split
-        at once, each reading chunks and buffering columns of its share of
-        what one process would (memory); *columns* and *count* then travel
-        to them, so they must be module-level functions (or
-        ``functools.partial`` of one).
-
-    Returns
-    -------
-    rows : dict
-        Tile index -> (points written, of which in the core); tiles with
-        none are absent.
-    counted : object or None
-        The sum of *count* over the chunks.
+    Returns ``(rows, counted)``: tile index -> (points written, of which in
+    the core), tiles with none absent; the sum of *count* (None without).
     """
-    from dtm.common.clouds import cloud_crs
-
     workers = int(getattr(executor, "workers", 1)) if executor is not None else 1
     with _open_las(path) as reader:
         total = int(reader.header.point_count)
         pieces = min(2 * workers, total // chunk_size) if workers > 1 else 1  # ranges of a chunk at least
         if pieces < 2:
-            return _split_records(
-                reader, cloud_crs(reader), 0, total, layout, folder, columns, chunk_size, count, index, None, progress
-            )
+            whole = SplitTask(str(path), 0, total, layout, str(folder), columns, count, index, chunk_size)
+            return _split_records(reader, whole, progress)
     bounds = [total * k // pieces for k in range(pieces + 1)]
     tasks = [
-        {
-            "path": str(path),
-            "start": bounds[k],
-            "stop": bounds[k + 1],
-            "layout": layout,
-            "folder": str(folder),
-            "columns": columns,
-            "count": count,
-            "index": index,
-            "chunk_size": max(chunk_size // workers, 1),  # the workers' chunks and buffers together: one process's
-            "spill": SPILL_BYTES // workers,
-            "part": str(k),
-        }
+        SplitTask(
+            path=str(path),
+            start=bounds[k],
+            stop=bounds[k + 1],
+            layout=layout,
+            folder=str(folder),
+            columns=columns,
+            count=count,
+            index=index,
+            chunk_size=max(chunk_size // workers, 1),  # the workers' chunks and buffers together: one process's
+            spill=SPILL_BYTES // workers,
+            part=str(k),
+        )
         for k in range(pieces)
     ]
     rows: dict[int, tuple[int, int]] = {}
@@ -185,29 +165,10 @@ def split_cloud(
     return dict(sorted(rows.items())), counted
 
 
-def split_range(task: dict) -> tuple[dict[int, tuple[int, int]], Any]:
-    """Split records ``start:stop`` of a LAS file into the tiles' part ``task["part"]`` (runs in a worker).
-
-    The task is :func:`split_cloud`'s; returns its rows and count for these records.
-    """
-    from dtm.common.clouds import cloud_crs
-
-    with _open_las(Path(task["path"])) as reader:
-        return _split_records(
-            reader,
-            cloud_crs(reader),
-            task["start"],
-            task["stop"],
-            task["layout"],
-            Path(task["folder"]),
-            task["columns"],
-            task["chunk_size"],
-            task["count"],
-            task["index"],
-            task["part"],
-            None,
-            spill=task["spill"],
-        )
+def split_range(task: SplitTask) -> tuple[dict[int, tuple[int, int]], Any]:
+    """Split one range of records into the tiles' part (runs in a worker); its rows and count, as :func:`split_cloud`."""
+    with _open_las(Path(task.path)) as reader:
+        return _split_records(reader, task)
 
 
 def _open_las(path: Path):
@@ -216,25 +177,26 @@ def _open_las(path: Path):
     return laspy.open(str(path))
 
 
-def _split_records(
-    reader, crs, start, stop, layout, folder, columns, chunk_size, count, index, part, progress, spill=SPILL_BYTES
-):
-    """Split records ``start:stop`` of an open LAS *reader* into the tiles (the work of :func:`split_cloud`)."""
+def _split_records(reader, task: SplitTask, progress=None) -> tuple[dict[int, tuple[int, int]], Any]:
+    """Split the records of *task* from an open LAS *reader* into the tiles (the work of :func:`split_cloud`)."""
+    from dtm.common.clouds import cloud_crs
     from dtm.common.units import Units
 
-    units = Units.of(crs)
-    spill = _Spill(folder, spill, part=part)
+    units = Units.of(cloud_crs(reader))
+    spill = _Spill(Path(task.folder), task.spill, part=task.part)
+    layout = task.layout
     core_rows: dict[int, int] = {}
     counted = None
-    for chunk in record_chunks(reader, start, stop, chunk_size):
+    start = task.start
+    for chunk in record_chunks(reader, task.start, task.stop, task.chunk_size):
         n = len(chunk)
         xyz = chunk_xyz_metres(chunk, units)
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        cols = {"x": x, "y": y, "z": z, **columns(chunk)}
-        if index:
+        cols = {"x": x, "y": y, "z": z, **task.columns(chunk)}
+        if task.index:
             cols["idx"] = np.arange(start, start + n, dtype=np.int64)
-        if count is not None:
-            counted = count(cols) if counted is None else counted + count(cols)
+        if task.count is not None:
+            counted = task.count(cols) if counted is None else counted + task.count(cols)
         home = layout.locate(x, y)
         point, tile = layout.memberships(x, y)
         cuts = np.flatnonzero(np.diff(tile)) + 1

@@ -1,8 +1,14 @@
-"""TODO docstring: carried out of dtm.common.tile_points."""
+"""Stages that reclassify points, tile by tile: the tasks, and the classes merged back into one file.
+
+:func:`classes_by_tile` is the whole flow (split, one :class:`PointTask` per
+tile, merge); :func:`merge_classes` writes the input again with the classes
+the tiles computed for their core points, in the input's order.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -10,33 +16,31 @@ import numpy as np
 
 from dtm.common.clouds import cloud_info, open_las_writer
 from dtm.common.tile_points import cleanup, split_cloud, task_folder
+from pipeline.stage import StageContext
 
 #: Values read at a time from each tile's result files while merging.
 MERGE_BLOCK = 65_536
 
 
 def classes_by_tile(
-    ctx,
+    ctx: StageContext,
     src: Path,
     dst: Path,
     *,
     buffer: float,
     columns: Callable[[Any], dict[str, np.ndarray]],
-    task: Callable[[dict], dict],
-    extra: dict,
-    between: Callable[[list[dict], list[dict]], list[dict]] | None = None,
-    on_workers: bool = False,
+    task: Callable[[PointTask], dict],
+    params: dict,
 ) -> list[dict]:
     """A stage that reclassifies points, tile by tile: *src* copied to *dst* with the tiles' classes.
 
     Cuts *src* into the run's tiles (:func:`split_cloud`; *columns* adds
-    what the task needs), runs *task* on every tile holding points of its
-    own (it writes ``idx`` and ``classification`` of its core points with
-    :func:`write_result`), optionally *between* (a second round of tasks,
-    given the first round's), then :func:`merge_classes`.  Returns the
-    tasks' results.  *on_workers*: the split runs on the run's workers
-    (*columns* then a module-level function; the task reads the tile's
-    parts, :func:`tile_parts`).
+    what the task needs), runs *task* on a :class:`PointTask` of every tile
+    holding points of its own (with *params*, the stage's ``model_dump``; it
+    writes ``idx`` and ``classification`` of its core points with
+    :func:`write_result`), then :func:`merge_classes`.  Returns the tasks'
+    results.  The split runs on the run's workers (*columns* is a
+    module-level function; the task reads the tile's parts, :func:`tile_parts`).
     """
     from pipeline.tiling import run_tiled
 
@@ -45,15 +49,13 @@ def classes_by_tile(
 
     def split(layout):
         with ctx.progress(info.count, "tiling", unit="pt") as bar:
-            executor = ctx.executor if on_workers and len(layout) > 1 else None
+            executor = ctx.executor if len(layout) > 1 else None
             rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar, executor=executor)
-        return point_tasks(rows, work, **extra)
+        return point_tasks(rows, work, params)
 
     def merge(layout, tasks, results):
-        if between is not None:
-            results = between(tasks, results)
         with ctx.progress(info.count, "writing", unit="pt") as bar:
-            merge_classes(src, dst, [Path(t["result"]) for t in tasks], progress=bar)
+            merge_classes(src, dst, [Path(t.result) for t in tasks], progress=bar)
         return results
 
     try:
@@ -62,16 +64,33 @@ def classes_by_tile(
         cleanup(work)
 
 
-def point_tasks(rows: dict[int, tuple[int, int]], work: Path, **extra) -> list[dict]:
-    """One task per tile holding points of its own (results per point): paths, weight, *extra*."""
+@dataclass(frozen=True)
+class PointTask:
+    """One tile's task of a stage that reclassifies points (runs in a worker process or on Dask).
+
+    ``source``: the tile's columns (:func:`split_cloud`); ``result``: where
+    the task writes ``idx`` and ``classification`` of its core points;
+    ``weight``: the tile's points (the largest run first); ``params``: the
+    stage's parameters as ``model_dump(mode="json")``.
+    """
+
+    tile: int
+    weight: int
+    source: str
+    result: str
+    params: dict
+
+
+def point_tasks(rows: dict[int, tuple[int, int]], work: Path, params: dict) -> list[PointTask]:
+    """One task per tile holding points of its own (results per point)."""
     return [
-        {
-            "tile": t,
-            "weight": rows[t][0],
-            "source": str(Path(work) / "in" / str(t)),
-            "result": str(Path(work) / "out" / str(t)),
-            **extra,
-        }
+        PointTask(
+            tile=t,
+            weight=rows[t][0],
+            source=str(Path(work) / "in" / str(t)),
+            result=str(Path(work) / "out" / str(t)),
+            params=params,
+        )
         for t in sorted(rows)
         if rows[t][1]  # a tile with no point of its own has nothing to classify
     ]

@@ -153,15 +153,14 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
 
 
 def test_a_tile_split_on_two_workers_gives_the_same_noise_classes(split, tmp_path):
+    from dtm.common.tile_classes import PointTask
     from dtm.stages.denoise.stage import DenoiseParams, denoise_tile
 
     _, _, tmp, (rows, _), _ = split
     params = DenoiseParams().model_dump(mode="json")
     for t in rows:
         results = [
-            denoise_tile(
-                {"tile": t, "source": str(tmp / run / str(t)), "result": str(tmp_path / run / str(t)), "params": params}
-            )
+            denoise_tile(PointTask(t, rows[t][0], str(tmp / run / str(t)), str(tmp_path / run / str(t)), params))
             for run in ("one", "two")
         ]
         assert results[0] == results[1]

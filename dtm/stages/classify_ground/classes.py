@@ -1,4 +1,9 @@
-"""TODO docstring: carried out of dtm.stages.classify_ground.stage."""
+"""The driver's shared work: which points may be ground, their new classes, grid cell and tile buffer.
+
+:func:`classify` runs the configured algorithm (:func:`ground_mask`) on the
+candidates of a set of points (:func:`candidates_of`) and gives every point
+its new class; :func:`classify_tile` does it for one tile in a worker.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from dtm.common import glossary
+from dtm.common.tile_classes import PointTask
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from pipeline.config import StrictModel
 
@@ -48,17 +54,11 @@ def grid_cell(algorithm: StrictModel) -> float:
 def for_spacing(algorithm: StrictModel, spacing: float | None) -> StrictModel:
     """The algorithm with its grid cell raised to the point spacing of a sparse survey (SMRF, PMF).
 
-    A morphological filter's minimum surface is meaningful only when most of
-    its cells hold points.  Where the points lie more than
-    ``SPARSE_SPACINGS`` cells apart on average (under 0.11 points/m² with
-    1 m cells), the grid would be almost all interpolated — a surface of
-    spikes through isolated points — and its cost would follow the area, not
-    the points.  The cell is then the nominal spacing, rounded up to a whole
-    multiple of the configured cell; windows, slopes and thresholds stay in
-    metres.  Surveys denser than that are filtered exactly as configured, and
-    CSF always is (its cloth particles need no point in their cell; measured:
-    samp51, points 2.5 m apart, went from 12.2 to 50.3 % total error on a
-    cloth of 2.5 m instead of 0.5 m).
+    Where the points lie more than ``SPARSE_SPACINGS`` cells apart on
+    average, a minimum surface would be almost all interpolated: the cell is
+    then the nominal *spacing*, rounded up to a whole multiple of the
+    configured cell; windows, slopes and thresholds stay in metres.  Denser
+    surveys, and CSF always, run as configured (docs/stages/classify_ground.md).
 
     >>> from dtm.stages.classify_ground.params import SmrfParams
     >>> for_spacing(SmrfParams(name="smrf"), 19.4).cell_size
@@ -174,26 +174,26 @@ def classify_columns(chunk) -> dict[str, np.ndarray]:
     }
 
 
-def classify_tile(task: dict) -> dict:
-    """Classify one tile's points (core plus buffer); write the classes of its core points.
+def classify_tile(task: PointTask) -> dict:
+    """Classify one tile's points (core plus buffer) in a worker process; write the classes of its core points.
 
-    Runs in a worker process: reads ``task["source"]`` (columns written by
-    :func:`dtm.common.tile_points.split_cloud`), writes ``idx`` and ``classification``
-    of the core points to ``task["result"]``, returns counts.
+    Reads the tile's columns (:func:`dtm.common.tile_points.split_cloud`),
+    writes ``idx`` and ``classification`` of the core points to
+    ``task.result`` and returns counts.
     """
     from dtm.common.tile_points import read_tile, write_result
 
-    cols = read_tile(Path(task["source"]))
-    params = ClassifyGroundParams.model_validate(task["params"])
+    cols = read_tile(Path(task.source))
+    params = ClassifyGroundParams.model_validate(task.params)
     cls = classify(
         cols["xyz"], cols["classification"], cols["return_number"], cols["number_of_returns"], cols["withheld"], params
     )
     core = cols["core"]
-    write_result(Path(task["result"]), idx=cols["idx"][core], classification=cls[core])
+    write_result(Path(task.result), idx=cols["idx"][core], classification=cls[core])
     kept = cls[core]
     last = cols["return_number"][core] >= cols["number_of_returns"][core]
     return {
-        "tile": task["tile"],
+        "tile": task.tile,
         "points": int(core.sum()),
         "last_returns": int(last.sum()),
         "ground": int((kept == glossary.GROUND).sum()),

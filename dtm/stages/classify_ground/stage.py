@@ -102,8 +102,7 @@ class ClassifyGround(Stage):
                 buffer=self.tile_buffer(params),
                 columns=classify_columns,
                 task=classify_tile,
-                extra={"params": params.model_dump(mode="json")},
-                on_workers=True,
+                params=params.model_dump(mode="json"),
             )
         counts = {k: sum(r[k] for r in results) for k in ("points", "ground", "non_ground", "last_returns")}
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]

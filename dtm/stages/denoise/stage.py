@@ -20,6 +20,7 @@ import numpy as np
 from pydantic import Field
 
 from dtm.common import glossary
+from dtm.common.tile_classes import PointTask
 from dtm.stages.denoise.outliers import isolated_points, low_outliers
 from pipeline.config import StrictModel
 from pipeline.stage import Stage, StageContext, StageParams
@@ -140,8 +141,7 @@ class Denoise(Stage):
             buffer=self.tile_buffer(ctx.params),
             columns=denoise_columns,
             task=denoise_tile,
-            extra={"params": ctx.params.model_dump(mode="json")},
-            on_workers=True,
+            params=ctx.params.model_dump(mode="json"),
         )
         counts = {k: sum(r[k] for r in results) for k in ("points", "low", "high", "done")}
         ctx.metrics.update(
@@ -161,15 +161,15 @@ def denoise_columns(chunk) -> dict[str, np.ndarray]:
     }
 
 
-def denoise_tile(task: dict) -> dict:
+def denoise_tile(task: PointTask) -> dict:
     """One tile of the noise tests (runs in a worker process).
 
     Writes ``idx`` and ``classification`` of the core points and returns counts.
     """
     from dtm.common.tile_points import read_column, read_xyz, write_result
 
-    source = Path(task["source"])
-    params = DenoiseParams.model_validate(task["params"])
+    source = Path(task.source)
+    params = DenoiseParams.model_validate(task.params)
     points = read_xyz(source)  # the columns mapped and stacked: no second copy of the coordinates in memory
     cls = read_column(source, "classification")
     done = ~glossary.usable(cls, read_column(source, "withheld"))
@@ -181,9 +181,9 @@ def denoise_tile(task: dict) -> dict:
     else:  # no copy of the points
         found = noise_classes(points, params)
     cls[found > 0] = found[found > 0]
-    write_result(Path(task["result"]), idx=idx[core], classification=cls[core])
+    write_result(Path(task.result), idx=idx[core], classification=cls[core])
     return {
-        "tile": task["tile"],
+        "tile": task.tile,
         "points": int(core.sum()),
         "low": int((found[core] == glossary.LOW_NOISE).sum()),
         "high": int((found[core] == glossary.HIGH_NOISE).sum()),

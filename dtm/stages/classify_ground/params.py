@@ -1,4 +1,8 @@
-"""TODO docstring: carried out of dtm.stages.classify_ground.stage."""
+"""Parameters of ``classify_ground``: the stage's and each ground algorithm's (SMRF, PMF, CSF).
+
+The algorithm is a discriminated union on ``algorithm.name``; the models live
+here so that the algorithm modules and the driver share them.
+"""
 
 from __future__ import annotations
 

@@ -1,14 +1,25 @@
-"""TODO docstring: carried out of dtm.stages.classify_ground.stage."""
+"""SMRF on one grid of the whole survey, in passes over its points: no tile, no buffer.
+
+SMRF's grid steps (:func:`dtm.stages.classify_ground.smrf.provisional_dem`)
+need no point, and a survey's grid is small next to its points (8 bytes a
+cell against 30 or more a point): :func:`smrf_one_grid` makes the grid of the
+lowest candidates a chunk of points at a time, filters it whole, then tests
+and writes each chunk's points, in this process or on the workers
+(:func:`classes_range`).  The classes are those of SMRF on all the points at
+once (docs/stages/classify_ground.md).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from dtm.common import glossary
 from dtm.stages.classify_ground.classes import candidates_of, classify_columns, new_classes
-from dtm.stages.classify_ground.params import ClassifyGroundParams
+from dtm.stages.classify_ground.params import ClassifyGroundParams, SmrfParams
+from dtm.stages.classify_ground.surface import CellIndex, grid_corner
 from pipeline.errors import InputDataError
 
 
@@ -33,8 +44,6 @@ def _chunks(path: Path, work, *, chunk_size: int = 1_000_000):
 
 def _anchored(lo, hi, cell: float) -> tuple[float, float, int, int]:
     """``(x0, y0, rows, cols)`` of the grid of cells of *cell* over a box, anchored as :func:`dtm.stages.classify_ground.surface.index_points`."""
-    from dtm.stages.classify_ground.surface import grid_corner
-
     x0, y0 = grid_corner(lo, cell)
     return x0, y0, int(np.floor((hi[1] - y0) / cell)) + 1, int(np.floor((hi[0] - x0) / cell)) + 1
 
@@ -88,6 +97,10 @@ def _lowest(src: Path, params: ClassifyGroundParams, anchor, progress=None, chun
     return zmin.reshape(rows, cols), (tuple(int(b) for b in box) if box[1] >= 0 else None)
 
 
+#: What step 3 counts, in this order: points, ground, non-ground, last (or single) returns.
+COUNTS = ("points", "ground", "non_ground", "last_returns")
+
+
 def smrf_one_grid(
     src: Path,
     dst: Path,
@@ -101,43 +114,54 @@ def smrf_one_grid(
 ) -> dict | None:
     """SMRF on one grid of the whole survey: *src* copied to *dst* with the new classes; None when too big.
 
-    SMRF's grid steps (:func:`dtm.stages.classify_ground.smrf.provisional_dem`) need no
-    point, and a survey's grid is small next to its points (8 bytes a cell
-    against 30 or more a point), so the survey is filtered whole, in
-    passes over the points a chunk at a time:
+    1. the lowest candidate per cell (:func:`lowest_grid`);
+    2. the grid cut to the cells the candidates occupy, filtered whole on
+       *threads* bands of rows (:func:`survey_surfaces`);
+    3. each chunk's point test and classes, written as it is read; with an
+       *executor* of more than one worker (and a *workdir* for the grids),
+       on the workers, a range of records each (:func:`classes_range`).
 
-    1. the lowest candidate per cell, on the grid of the file header's
-       bounds (when a candidate lies off it, or that grid has more than
-       ``one_grid_cells`` cells, the candidates' bounds are read first);
-    2. the grid cut to the cells the candidates occupy: the grid
-       :func:`classify` makes of all the points at once, so the classes
-       are those of an untiled run, with no buffer read twice and memory
-       that follows the grid and the chunk, not the points;
-    3. each chunk's point test and classes, written as it is read.
-
-    *threads* filter bands of the grid's rows at once
-    (:func:`dtm.stages.classify_ground.smrf.progressive_filter`).  With an *executor* of
-    more than one worker (and a *workdir* for the grids), step 3 runs on
-    the workers, a range of records each (:func:`_classes_on_workers`):
-    the same file, byte for byte.  Returns the counts, or None (nothing
-    written) when the grid of the candidates has more than
+    Returns the counts (:data:`COUNTS`, and ``grid``: its rows and columns),
+    or None (nothing written) when the candidates' grid has more than
     ``one_grid_cells`` cells: the caller tiles.
     """
-    import laspy
+    from dtm.common.clouds import cloud_info
 
-    from dtm.common.clouds import cloud_info, open_las_writer
-    from dtm.stages.classify_ground.smrf import provisional_dem
-    from dtm.stages.classify_ground.surface import CellIndex
-
-    algo = params.algorithm
-    cell, cap = algo.cell_size, params.one_grid_cells
     info = cloud_info(src)
-    extent = info.extent
     records = None  # where the records lie, for the workers to write them in place
     if executor is not None and executor.workers > 1 and workdir is not None and info.count >= 2 * chunk_size:
         records = _record_layout(src)
     if records is not None:
         executor.prepare(classes_range)  # the workers start while this process finds the grid
+    lowest = lowest_grid(src, params, info.extent, progress, chunk_size)
+    if lowest is None:
+        return None
+    grid, surfaces = survey_surfaces(*lowest, params.algorithm, threads=threads)
+    del lowest  # the grid of the lowest points, before the points are read again
+    if records is not None and surfaces is not None:
+        numbers = _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size)
+        if progress is not None:
+            progress.update(info.count)
+    else:
+        numbers = _classes_here(src, dst, params, grid, surfaces, chunk_size, progress)
+    counts = dict(zip(COUNTS, numbers, strict=True))
+    counts["grid"] = (grid.rows, grid.cols) if grid is not None else (0, 0)
+    return counts
+
+
+def lowest_grid(
+    src: Path, params: ClassifyGroundParams, extent, progress=None, chunk_size: int = 1_000_000
+) -> tuple[np.ndarray, tuple[int, int, int, int] | None, tuple[float, float, int, int]] | None:
+    """Step 1 of :func:`smrf_one_grid`: the lowest candidate per cell; None when its grid is too big.
+
+    On the grid of the header's *extent*, or of the candidates' own bounds
+    when a candidate lies off it (a header whose bounds miss points) or it
+    has more than ``one_grid_cells`` cells (stray points; the bounds are
+    then read first).  Returns ``(zmin, box, anchor)``: :func:`_lowest`'s
+    grid and box, and :func:`_anchored`'s grid; None when the candidates'
+    grid too has more than ``one_grid_cells`` cells.
+    """
+    cell, cap = params.algorithm.cell_size, params.one_grid_cells
     anchor = _anchored(extent[:2], extent[2:], cell)
     got = _lowest(src, params, anchor, progress, chunk_size) if anchor[2] * anchor[3] <= cap else None
     if got is None:  # the header's grid is too big (stray points) or misses points: the candidates' own
@@ -147,50 +171,58 @@ def smrf_one_grid(
             return None
         got = _lowest(src, params, anchor, chunk_size=chunk_size)
     zmin, box = got
-    test = {"elevation_threshold": algo.elevation_threshold, "elevation_scalar": algo.elevation_scalar}
-    surfaces, grid = None, None
-    if box is not None:
-        r0, r1, c0, c1 = box
-        x0, y0 = anchor[0] + c0 * cell, anchor[1] + r0 * cell
-        grid = CellIndex(x0, y0, cell, r1 - r0 + 1, c1 - c0 + 1, np.zeros(0, np.int64), np.zeros(0, np.int64))
-        zmin = zmin[r0 : r1 + 1, c0 : c1 + 1]
-        surfaces = provisional_dem(
-            zmin,
-            cell_size=cell,
-            slope=algo.slope,
-            max_window_size=algo.max_window_size,
-            floor_window=algo.floor_window,
-            wall_height=algo.wall_height,
-            threads=threads,
-            **test,
-        )
-    del zmin
+    return zmin, box, anchor
+
+
+def survey_surfaces(
+    zmin: np.ndarray, box, anchor, algo: SmrfParams, *, threads: int = 1
+) -> tuple[CellIndex | None, tuple[np.ndarray, np.ndarray] | None]:
+    """Step 2 of :func:`smrf_one_grid`: the grid cut to the candidates' *box*, and its provisional DEM and slope.
+
+    *zmin*, *box*, *anchor*: :func:`lowest_grid`'s.  ``(None, None)``
+    without candidates; the surfaces are None when the filter leaves no
+    cell (:func:`dtm.stages.classify_ground.smrf.provisional_dem`).
+    """
+    from dtm.stages.classify_ground.smrf import provisional_dem
+
+    if box is None:
+        return None, None
+    cell = algo.cell_size
+    r0, r1, c0, c1 = box
+    x0, y0 = anchor[0] + c0 * cell, anchor[1] + r0 * cell
+    grid = CellIndex(x0, y0, cell, r1 - r0 + 1, c1 - c0 + 1, np.zeros(0, np.int64), np.zeros(0, np.int64))
+    surfaces = provisional_dem(
+        zmin[r0 : r1 + 1, c0 : c1 + 1],
+        cell_size=cell,
+        slope=algo.slope,
+        max_window_size=algo.max_window_size,
+        floor_window=algo.floor_window,
+        wall_height=algo.wall_height,
+        threads=threads,
+        elevation_threshold=algo.elevation_threshold,
+        elevation_scalar=algo.elevation_scalar,
+    )
+    return grid, surfaces
+
+
+def _classes_here(src, dst, params, grid, surfaces, chunk_size, progress) -> list[int]:
+    """Step 3 of :func:`smrf_one_grid` in this process: *dst* written a chunk at a time; :data:`COUNTS`."""
+    import laspy
+
+    from dtm.common.clouds import open_las_writer
 
     def classes(chunk, xyz, cols):
         chunk.classification, numbers = _chunk_classes(xyz, cols, params, grid, surfaces)
         return chunk, numbers
 
-    counts = dict.fromkeys(COUNTS, 0)
-    if records is not None and surfaces is not None:
-        numbers = _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size)
-        for key, value in zip(counts, numbers, strict=True):
-            counts[key] += value
-        if progress is not None:
-            progress.update(info.count)
-    else:
-        with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
-            for chunk, numbers in _chunks(src, classes, chunk_size=chunk_size):
-                writer.write_points(chunk)
-                for key, value in zip(counts, numbers, strict=True):
-                    counts[key] += value
-                if progress is not None:
-                    progress.update(numbers[0])
-    counts["grid"] = (grid.rows, grid.cols) if grid is not None else (0, 0)
-    return counts
-
-
-#: What step 3 counts, in this order: points, ground, non-ground, last (or single) returns.
-COUNTS = ("points", "ground", "non_ground", "last_returns")
+    totals = [0] * len(COUNTS)
+    with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
+        for chunk, numbers in _chunks(src, classes, chunk_size=chunk_size):
+            writer.write_points(chunk)
+            totals = [a + b for a, b in zip(totals, numbers, strict=True)]
+            if progress is not None:
+                progress.update(numbers[0])
+    return totals
 
 
 def _chunk_classes(xyz, cols, params, grid, surfaces) -> tuple[np.ndarray, tuple[int, int, int, int]]:
@@ -263,17 +295,17 @@ def _classes_on_workers(src, dst, records, params, grid, surfaces, executor, wor
         pieces = 2 * executor.workers
         bounds = [count * k // pieces for k in range(pieces + 1)]
         tasks = [
-            {
-                "path": str(src),
-                "start": bounds[k],
-                "stop": bounds[k + 1],
-                "params": params.model_dump(mode="json"),
-                "grid": [grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols],
-                "surfaces": [str(folder / "dem.npy"), str(folder / "slope.npy")],
-                "dst": str(dst),
-                "offset": offset + bounds[k] * size,
-                "chunk_size": max(chunk_size // executor.workers, 1),  # the workers' chunks together: one process's
-            }
+            RangeTask(
+                path=str(src),
+                start=bounds[k],
+                stop=bounds[k + 1],
+                params=params.model_dump(mode="json"),
+                grid=(grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols),
+                surfaces=(str(folder / "dem.npy"), str(folder / "slope.npy")),
+                dst=str(dst),
+                offset=offset + bounds[k] * size,
+                chunk_size=max(chunk_size // executor.workers, 1),  # the workers' chunks together: one process's
+            )
             for k in range(pieces)
         ]
         results = executor.map(classes_range, tasks, what="point test")
@@ -282,32 +314,51 @@ def _classes_on_workers(src, dst, records, params, grid, surfaces, executor, wor
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def classes_range(task: dict) -> list[int]:
-    """Step 3 of :func:`smrf_one_grid` on records ``start:stop`` (runs in a worker; see :func:`_classes_on_workers`)."""
+@dataclass(frozen=True)
+class RangeTask:
+    """Step 3 of :func:`smrf_one_grid` on records ``start:stop`` of *path*, in a worker (:func:`classes_range`).
+
+    *grid*: ``(x0, y0, cell, rows, cols)`` of the filtered grid;
+    *surfaces*: its DEM and slope as ``.npy`` files; *offset*: where the
+    range's records go in *dst*; *params*: the stage's ``model_dump``.
+    """
+
+    path: str
+    start: int
+    stop: int
+    params: dict
+    grid: tuple[float, float, float, int, int]
+    surfaces: tuple[str, str]
+    dst: str
+    offset: int
+    chunk_size: int
+
+
+def classes_range(task: RangeTask) -> list[int]:
+    """Step 3 of :func:`smrf_one_grid` on one range of records (runs in a worker; see :func:`_classes_on_workers`)."""
     import laspy
 
     from dtm.common.clouds import chunk_xyz_metres, cloud_crs
     from dtm.common.tile_points import record_chunks
     from dtm.common.units import Units
-    from dtm.stages.classify_ground.surface import CellIndex
 
-    params = ClassifyGroundParams.model_validate(task["params"])
-    x0, y0, cell, rows, cols = task["grid"]
+    params = ClassifyGroundParams.model_validate(task.params)
+    x0, y0, cell, rows, cols = task.grid
     empty = np.zeros(0, np.int64)
     grid = CellIndex(x0, y0, cell, int(rows), int(cols), empty, empty)
-    surfaces = tuple(np.load(p, mmap_mode="r") for p in task["surfaces"])
-    start, stop = task["start"], task["stop"]
+    surfaces = tuple(np.load(p, mmap_mode="r") for p in task.surfaces)
+    start, stop = task.start, task.stop
     totals = [0] * len(COUNTS)
     # the file exists at its full size: each range writes its own bytes (r+: no truncation)
-    with laspy.open(task["path"]) as reader, open(task["dst"], "r+b") as out:
-        out.seek(task["offset"])
+    with laspy.open(task.path) as reader, open(task.dst, "r+b") as out:
+        out.seek(task.offset)
         units = Units.of(cloud_crs(reader))
-        for chunk in record_chunks(reader, start, stop, task["chunk_size"]):
+        for chunk in record_chunks(reader, start, stop, task.chunk_size):
             xyz = chunk_xyz_metres(chunk, units)
             cls, numbers = _chunk_classes(xyz, classify_columns(chunk), params, grid, surfaces)
             chunk.array["classification"] = cls
             out.write(chunk.array)  # contiguous records: written as they are, no copy
             totals = [a + b for a, b in zip(totals, numbers, strict=True)]
     if totals[0] != stop - start:  # pragma: no cover - fewer records than the header says; parse checks that first
-        raise InputDataError(f"{task['path']}: of records {start:,} to {stop:,}, {totals[0]:,} could be read.")
+        raise InputDataError(f"{task.path}: of records {start:,} to {stop:,}, {totals[0]:,} could be read.")
     return totals

@@ -84,7 +84,7 @@ MUTATIONS: list[Mutation] = [
     ),
     Mutation(
         "denoise tile buffer 6 m instead of 61 m",
-        "dtm/stages/denoise/stage.py",
+        "dtm/stages/denoise/classes.py",
         "return max(2.0 * params.isolated.radius, params.low.cell_size) + 1.0",
         "return 6.0",
         (BUFFERS, TILED),

@@ -154,7 +154,8 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
 
 def test_a_tile_split_on_two_workers_gives_the_same_noise_classes(split, tmp_path):
     from dtm.common.tile_classes import PointTask
-    from dtm.stages.denoise.stage import DenoiseParams, denoise_tile
+    from dtm.stages.denoise.classes import denoise_tile
+    from dtm.stages.denoise.params import DenoiseParams
 
     _, _, tmp, (rows, _), _ = split
     params = DenoiseParams().model_dump(mode="json")

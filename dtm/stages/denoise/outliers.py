@@ -21,57 +21,15 @@ def isolated_points(
 ) -> np.ndarray:
     """Points isolated in 3-D at the scale of the point spacing around them.
 
-    A point is isolated when its ``neighbors``-th nearest point in 3-D is
-    farther than ``multiplier`` times the local point spacing (the distance
-    in plan to its ``spacing_neighbors``-th nearest point) and farther than
-    ``min_distance``, both counted up to ``radius``.  A bird, a cloud return or a deep
-    multipath echo has many points below or above it in plan (a small
-    spacing) and none near it in 3-D; a return in a tree crown has branches
-    and leaves within about the spacing; a ground point of a sparse survey
-    has a large spacing, so the test asks more of it.  The threshold is
-    local: nothing is judged against a survey-wide statistic.
-
-    This departs from the statistical outlier removal of PCL and PDAL (Rusu
-    et al. 2008), which flags points whose mean distance to their k
-    neighbours exceeds the survey's mean by a multiple of its deviation:
-    that test measured canopy against the ground (74,122 crown returns
-    flagged on the 9.4 M-point bench survey, which has no outlier, and about
-    180 provider-ground points on Megaplot).  Comparing a point with the
-    density of its own neighbourhood is the idea of the local outlier
-    factor (Breunig et al. 2000).
-
-    Rusu, R. B., Marton, Z. C., Blodow, N., Dolha, M., Beetz, M. (2008).
-    Towards 3D point cloud based object maps for household environments.
-    Robotics and Autonomous Systems 56(11), 927-941.
-    doi:10.1016/j.robot.2008.08.005
-
-    Breunig, M. M., Kriegel, H.-P., Ng, R. T., Sander, J. (2000).  LOF:
-    identifying density-based local outliers.  SIGMOD 2000, 93-104.
-    doi:10.1145/335191.335388
-
-    Parameters
-    ----------
-    xyz : ndarray, shape (n, 3)
-    neighbors : int
-        The test looks at the distance to this nearest point in 3-D (2: a
-        pair of outliers close together is still found).
-    spacing_neighbors : int
-        The local spacing is the plan distance to this nearest point.
-    multiplier : float
-        Times the local spacing.
-    min_distance : float
-        A point with its ``neighbors``-th nearest point this close (m) is
-        never isolated.
-    radius : float
-        Distances are counted up to this (m): a point is found only if it
-        is farther than ``multiplier`` spacings from its neighbours within
-        it (at 8 points/m2 a spacing is about 0.55 m: 5.5 m; at 1.5
-        points/m2 about 1.3 m: 13 m).
-
-    Returns
-    -------
-    ndarray of bool
-        True for isolated points.
+    A point is isolated when its *neighbors*-th nearest point in 3-D is
+    farther than *multiplier* times the local point spacing (the plan
+    distance to its *spacing_neighbors*-th nearest point) and farther than
+    *min_distance* (m), both counted up to *radius* (m).  The threshold is
+    the point's own neighbourhood, the idea of the local outlier factor
+    (Breunig et al. 2000, doi:10.1145/335191.335388); we depart from the
+    survey-wide statistical outlier removal of PCL and PDAL (Rusu et al.
+    2008, doi:10.1016/j.robot.2008.08.005), which took canopy for noise
+    (docs/stages/denoise.md).  Returns a mask, True for isolated points.
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     n = len(xyz)
@@ -123,24 +81,12 @@ def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.nda
 def low_outliers(xyz: np.ndarray, *, cell_size: float = 10.0, elevation_threshold: float = 1.0) -> np.ndarray:
     """Extended local minimum: points well below everything else in their cell.
 
-    In each cell, points are taken from the lowest up; a point is a low
-    outlier while the gap to the next higher point of the cell exceeds
-    ``elevation_threshold``.  This is the extended local minimum (ELM) test of
-    Chen et al. (2012), as in PDAL's ``filters.elm``.  Multipath and
-    below-ground echoes come out; a cell's real lowest ground, with other
-    ground points close above it, stays.
-
-    Chen, Z., Devereux, B., Gao, B., Amable, G. (2012).  Upward-fusion urban
-    DTM generating method using airborne Lidar data.  ISPRS J. Photogramm.
-    Remote Sens. 72, 121-130.  doi:10.1016/j.isprsjprs.2012.07.001
-
-    Parameters
-    ----------
-    xyz : ndarray, shape (n, 3)
-    cell_size : float
-        Side of the square cells (m).
-    elevation_threshold : float
-        Height gap (m) that separates an outlier from the points above it.
+    In each square cell of *cell_size* (m), points are taken from the lowest
+    up; a point is a low outlier while the gap to the next higher point of
+    the cell exceeds *elevation_threshold* (m): the extended local minimum
+    (ELM) test of Chen et al. (2012, doi:10.1016/j.isprsjprs.2012.07.001), as
+    in PDAL's ``filters.elm``.  Multipath and below-ground echoes come out; a
+    cell's real lowest ground, with other ground close above it, stays.
 
     Returns
     -------

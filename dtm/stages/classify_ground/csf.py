@@ -62,35 +62,14 @@ def csf(
     iterations: int = 500,
     slope_smooth: bool = True,
 ) -> np.ndarray:
-    """Classify ground points by dropping a cloth on the inverted cloud.
+    """Classify ground points by dropping a cloth on the inverted cloud: True where a point is ground.
 
-    Parameters
-    ----------
-    xyz : ndarray, shape (n, 3)
-        Point coordinates (m).
-    cloth_resolution : float
-        Grid spacing of the cloth particles (m) (the paper's GR).
-    rigidness : int
-        1, 2 or 3: steep, relief, flat scenes (the paper's RI).
-    class_threshold : float
-        Distance to the cloth below which a point is ground (m) (hcc).
-    time_step : float
-        Simulation time step (dT).
-    iterations : int
-        Maximum simulation iterations.
-    slope_smooth : bool
-        Post-process steep slopes (the paper's slope processing).
-
-    Returns
-    -------
-    ndarray of bool
-        True where the point is ground.
-
-    Notes
-    -----
-    Defaults are the single setting that scored best on the shared ISPRS
-    samples (docs/GROUND.md): resolution 0.5 m, rigidness 1 with slope
-    processing, threshold 0.5 m, time step 0.65, 500 iterations.
+    *xyz*: (n, 3) coordinates (m).  The parameters are the package's, under
+    the names of Zhang W. et al. (2016): *cloth_resolution* (m, GR),
+    *rigidness* (1 steep, 2 relief, 3 flat; RI), *class_threshold* (m, hcc),
+    *time_step* (dT), *iterations*, *slope_smooth* (slope processing).  The
+    defaults are the single setting that scored best on the shared ISPRS
+    samples (docs/GROUND.md).
     """
     import CSF
 

@@ -61,58 +61,19 @@ def pmf(
     initial_distance: float = 0.15,
     max_distance: float = 2.5,
 ) -> np.ndarray:
-    """Classify ground points with the progressive morphological filter.
+    """Classify ground points with the progressive morphological filter (PMF): True where a point is ground.
 
-    The lowest point of each cell forms a surface; it is opened (erosion then
-    dilation) with square windows of growing size.  At each step, a point
-    whose height above the opened surface exceeds that step's threshold is
-    not ground.  The threshold grows with the window as the terrain slope
-    allows, so steep terrain survives while objects narrower than the window
-    are removed.
+    *xyz*: (n, 3) coordinates (m).  Zhang et al. (2003,
+    doi:10.1109/TGRS.2003.810682): the lowest point of each cell of
+    *cell_size* (m) forms a surface, opened with square windows of
+    ``w_k = 2 * 2**k + 1`` cells (eq. 5) up to *max_window_size* (m); at each
+    step a point higher above the opened surface than that step's threshold
+    (eq. 7: *initial_distance*, *slope*, *max_distance*) is not ground.  As
+    PCL and PDAL, we test every point at every step, and we raise each
+    threshold by ``slope * cell_size`` (docs/stages/classify_ground.md).
 
-    Parameters
-    ----------
-    xyz : ndarray, shape (n, 3)
-        Point coordinates (metres).
-    cell_size : float
-        Grid cell size, ``c`` in Zhang et al. (m).
-    max_window_size : float
-        Largest window, ``w_max`` (m); must exceed the widest building.
-    slope : float
-        Terrain slope ``s`` (rise over run).
-    initial_distance : float
-        Initial elevation-difference threshold ``dh_0`` (m).
-    max_distance : float
-        Maximum elevation-difference threshold ``dh_max`` (m).
-
-    Returns
-    -------
-    ndarray of bool, shape (n,)
-        True where the point is ground.
-
-    Notes
-    -----
-    Windows grow exponentially, ``w_k = 2 * 2**k + 1`` cells (eq. 5 with
-    ``b = 2``); thresholds follow eq. 7.  Departures from the paper, as in the
-    PCL and PDAL implementations: every point (not only each cell's lowest) is
-    tested against the opened surface of its cell at every step, and a point
-    is ground only if it passes every step; empty cells are filled by nearest
-    neighbour before the first opening; the structuring element is a square.
-    Because points are compared with their cell's lowest point, each
-    threshold is raised by ``s * c``, the rise of the terrain across one cell
-    (without it, about 1 % of the points of a plain 10 % slope are rejected).
-    The surface is padded by continuing its slopes, so uphill survey edges
-    are not taken for objects.
-
-    References
-    ----------
-    .. [1] Zhang et al. (2003), doi:10.1109/TGRS.2003.810682
-
-    Examples
-    --------
     >>> rng = np.random.default_rng(0)
-    >>> pts = np.column_stack([rng.uniform(0, 50, (2000, 2)), np.zeros(2000)])
-    >>> bool(pmf(pts).all())
+    >>> bool(pmf(np.column_stack([rng.uniform(0, 50, (2000, 2)), np.zeros(2000)])).all())
     True
     """
     xyz = as_xyz(xyz)
@@ -129,7 +90,7 @@ def pmf(
     )
     # On terrain of slope s, a point lies up to s * c above the lowest point
     # of its cell; the paper's thresholds are for cell minima, so points get
-    # that allowance on top (see Notes).
+    # that allowance on top (docs/stages/classify_ground.md).
     within_cell = slope * cell_size
     pad = sizes[-1] // 2 + 1
     surface = pad_plane(surface, pad)  # the local padding of SMRF scores worse here (samp11 13.4 -> 14.9 %)

@@ -4,6 +4,10 @@ Pingel, T. J., Clarke, K. C., McBride, W. A. (2013).  An improved simple
 morphological filter for the terrain classification of airborne LIDAR data.
 ISPRS J. Photogramm. Remote Sens. 77, 21-30.
 doi:10.1016/j.isprsjprs.2012.12.002
+
+:func:`smrf` on points; :func:`provisional_dem` (the grid steps) and
+:func:`point_test` apart, for the survey filtered on one grid.  The method
+and our departures from the paper: docs/stages/classify_ground.md.
 """
 
 from __future__ import annotations
@@ -62,35 +66,16 @@ def _dilate_octagon(grid: np.ndarray, radius: int) -> np.ndarray:
 def progressive_filter(
     surface: np.ndarray, *, cell_size: float, slope: float, max_radius: int, threads: int = 1
 ) -> np.ndarray:
-    """Flag cells that an opening of growing radius lowers by more than the slope allows.
+    """Flag cells that an opening of growing radius lowers by more than the slope allows: True for objects.
 
-    Parameters
-    ----------
-    surface : ndarray (rows, cols)
-        A filled minimum surface (no NaN).
-    cell_size : float
-        ``c`` (m).
-    slope : float
-        ``s``: the threshold at radius ``r`` cells is ``s * r * c``.
-    max_radius : int
-        Largest radius, in cells.
-    threads : int
-        Bands of rows filtered at once (SciPy's filters release the
-        interpreter lock); the result does not depend on it.
-
-    Returns
-    -------
-    ndarray of bool
-        True for object cells.
-
-    Notes
-    -----
-    The surface is padded by continuing its slopes (:func:`pad_linear`), so
-    that the survey's uphill edges are not mistaken for objects.  The
-    opening at radius ``r`` uses an octagon (alternately a 3x3 cross and
-    square, ``r`` times) instead of the paper's disk; the erosion is carried
-    from one radius to the next (one 3x3 pass per radius), and the dilation
-    is decomposed into a few passes (:func:`_dilate_octagon`).
+    *surface* is a filled minimum surface (no NaN); the threshold at radius
+    ``r`` cells (1 to *max_radius*) is ``slope * r * cell_size`` (m).
+    *threads* bands of rows are filtered at once (SciPy's filters release
+    the interpreter lock); the result does not depend on it.  Departures
+    from Pingel et al. (2013): the opening uses an octagon instead of a disk
+    (:func:`_dilate_octagon`), and the surface is padded by continuing its
+    slopes (:func:`pad_linear`), so that uphill survey edges are not taken
+    for objects (docs/stages/classify_ground.md).
     """
     return object_filter(surface, cell_size=cell_size, slope=slope, max_radius=max_radius, threads=threads)[0]
 
@@ -159,28 +144,15 @@ _WALLED_SHARE = 0.8
 def walled_plateaus(zmin: np.ndarray, *, wall: float, min_width: int) -> np.ndarray:
     """The cells of wide plateaus that stand above everything around them: buildings wider than the window.
 
-    A plateau is a group of cells with points joined through neighbours
-    (4-connected) whose lowest points differ by at most *wall*.  It is
-    *walled* when, along at least 80 % of its boundary with other cells
-    that hold points, it stands more than *wall* above them; it must not
-    touch the survey's outer boundary (the grid's edge, or empty cells
-    connected to it: a plateau cut by the survey may continue beyond it,
-    as a hillside does), and it must hold a square of ``2 min_width + 1``
-    cells (empty cells inside it count as its own).
-
-    Parameters
-    ----------
-    zmin : ndarray (rows, cols)
-        Lowest *z* per cell, NaN where a cell holds no point.
-    wall : float
-        Rise (m) that separates a plateau from its neighbours.
-    min_width : int
-        Half the side of the square, in cells.
-
-    Returns
-    -------
-    ndarray of bool
-        True for the cells of walled plateaus.
+    A plateau is a group of cells with points (*zmin*: lowest *z* per cell,
+    NaN where empty) joined through neighbours (4-connected) whose lowest
+    points differ by at most *wall* (m).  It is walled when, along at least
+    80 % of its boundary with other cells that hold points, it stands more
+    than *wall* above them; it must not touch the survey's outer boundary
+    (the grid's edge, or empty cells connected to it), and it must hold a
+    square of ``2 min_width + 1`` cells (empty cells inside it count as its
+    own).  Returns True for the cells of walled plateaus.  A departure from
+    Pingel et al. (2013): docs/stages/classify_ground.md.
     """
     rows, cols = zmin.shape
     has = np.isfinite(zmin)
@@ -257,100 +229,20 @@ def smrf(
     floor_window: float = 3.0,
     wall_height: float = 2.0,
 ) -> np.ndarray:
-    """Classify ground points with the simple morphological filter.
+    """Classify ground points with the simple morphological filter (SMRF): True where a point is ground.
 
-    Parameters
-    ----------
-    xyz : ndarray, shape (n, 3)
-        Point coordinates (m).
-    cell_size : float
-        ``c``: cell size of the minimum surface (m).
-    slope : float
-        ``s``: slope threshold (rise over run) of the progressive filter.
-    max_window_size : float
-        ``w_max``: largest window *radius* (m); larger than half the widest
-        building.
-    elevation_threshold : float
-        ``et``: base height threshold (m) of the final point test.
-    elevation_scalar : float
-        ``es``: how much the local slope of the provisional DEM raises the
-        threshold.
-    floor_window : float
-        Radius (m) up to which an opening that flags an object also bounds
-        the provisional DEM under it (a departure, below); 0: off.
-    wall_height : float
-        Rise (m) that walls in a plateau wider than the window
-        (:func:`walled_plateaus`; a departure, below); 0: off.
+    *xyz*: (n, 3) coordinates (m).  Pingel et al. (2013,
+    doi:10.1016/j.isprsjprs.2012.12.002): the minimum surface of cells of
+    *cell_size* (m) is opened with radii up to *max_window_size* (m) and a
+    threshold of *slope* times the radius; the cells it lowers, and the low
+    outliers, leave the provisional DEM; a point is ground within
+    ``elevation_threshold + elevation_scalar * slope(DEM)`` of it.  We depart
+    from the paper with a second look at the low cells, a floor under narrow
+    objects (*floor_window*, m), walled plateaus as buildings (*wall_height*,
+    m), octagonal openings and sloped edge padding (docs/stages/classify_ground.md).
 
-    Returns
-    -------
-    ndarray of bool, shape (n,)
-        True where the point is ground.
-
-    Notes
-    -----
-    Steps of the paper: (1) minimum surface at ``c``, empty cells inpainted;
-    (2) low outliers, on a separate fork: the progressive filter on the
-    negated surface with slope 5 and radius 1 cell; (3) the progressive
-    filter with radii 1..``w_max / c``, threshold ``s * r * c``, on the
-    surface of step 1 (low cells included); (4) object and low cells emptied
-    and re-inpainted: the provisional DEM; (5) a point is ground when
-    ``|z - DEM| <= et + es * slope(DEM)`` at the point.
-
-    The low cells leave the provisional DEM only, as the paper says ("the
-    resulting mask is used to flag low outlier cells as OBJ before the
-    inpainting of the provisional DEM") and as PDAL does.  In a dense forest
-    most cells' lowest point is canopy, and a cell that holds a ground return
-    is then a pit more than 5 m deep: emptying every low cell *before* the
-    object filter (as this function did until 2026-12-01) leaves a surface
-    of canopy wider than the window, which the filter keeps as ground.
-
-    Departure (a second look at the low cells): a low cell whose lowest
-    point lies below the provisional DEM by more than the point test's
-    tolerance ``et + es * slope`` is below the *terrain*, not below a canopy;
-    such cells are emptied and steps 3-4 run once more, so that a deep pit
-    does not drag the openings around it down (on ISPRS samp11, 500 ground
-    points beside pits were otherwise taken for objects; docs/GROUND.md).
-
-    Departure (the floor of narrow objects): under a cell first flagged by an
-    opening of radius ``r <= floor_window``, the provisional DEM is the lower
-    of the inpainted surface and that opening.  The harmonic inpainting of an
-    object's cells follows every cell around it, so a narrow object that
-    touches higher ground at one end (a bridge deck meeting the top of its
-    bank) is filled with a ramp from that ground, its points pass the point
-    test and the deck stays in the DTM; the opening that flagged the cell is
-    the terrain beside the object, at the scale of the object.  Wide objects
-    (flagged only at larger radii) are left to the inpainting, since an
-    opening of a large radius cuts convex terrain (embankments, ridges) and
-    loses its ground.  3 m: measured on the real and ISPRS files and the
-    simulated flight, docs/GROUND.md.
-
-    Departure (buildings wider than the window): an opening removes only
-    objects narrower than its window (``2 w_max``), so a warehouse wider
-    than 36 m at the defaults stays ground.  The cells of a plateau that
-    stands more than ``wall_height`` above its surroundings along 80 % of
-    its boundary, lies inside the survey and holds a square of side
-    ``w_max`` (:func:`walled_plateaus`) are objects too.  Terrain rarely
-    does that (a terrace or a bank meets the ground it steps down to on one
-    side only, and one cut by the survey's edge is left alone); the square
-    leaves everything narrower to the openings, which already remove it
-    (no class changes on the eight real and ISPRS files of docs/GROUND.md).
-
-    Departures: the opening uses an octagon instead of a disk, and the
-    surface is padded by continuing its slopes so that uphill survey edges
-    are not flagged (see :func:`progressive_filter`); inpainting is the harmonic (Laplacian)
-    interpolant (the paper uses D'Errico's spring metaphor, a close relative);
-    the DEM and its slope are sampled at each point bilinearly.
-
-    References
-    ----------
-    .. [1] Pingel et al. (2013), doi:10.1016/j.isprsjprs.2012.12.002
-
-    Examples
-    --------
     >>> rng = np.random.default_rng(0)
-    >>> pts = np.column_stack([rng.uniform(0, 50, (2000, 2)), np.zeros(2000)])
-    >>> bool(smrf(pts).all())
+    >>> bool(smrf(np.column_stack([rng.uniform(0, 50, (2000, 2)), np.zeros(2000)])).all())
     True
     """
     xyz = as_xyz(xyz)
@@ -393,7 +285,7 @@ def provisional_dem(
     *floor_window*, *wall_height*: see :func:`smrf`; *threads*: see :func:`progressive_filter`.
     """
     surface = inpaint(zmin)
-    # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM (see smrf's Notes).
+    # Low outliers: a separate fork, as in the paper; they leave only the provisional DEM (docs/stages/classify_ground.md).
     low = progressive_filter(-surface, cell_size=cell_size, slope=5.0, max_radius=1)
     max_radius = max(1, int(math.ceil(max_window_size / cell_size)))
     filters = {

@@ -153,25 +153,15 @@ def slope_grid(grid: np.ndarray, cell_size: float) -> np.ndarray:
 def pad_linear(grid: np.ndarray, width: int) -> np.ndarray:
     """Pad a grid by *width* cells, continuing its slope across each edge from the cells near that edge.
 
-    Along every row (then every column of the result), the padding
-    continues the line that supports the last *width* cells before an edge
-    from below at the middle of that band: the edge of their lower convex
-    hull there, the line under every one of those cells that is highest at
-    the band's middle.  A planar slope thus continues exactly, an object
-    within the band (a roof, a tree) does not tilt it, and an object cut by
-    the survey's boundary is bordered by ground-level padding, so an opening
-    can still remove it.  (Until 2026-12-01 this was a least-squares line
-    lowered to its lowest residual: a roof within the band tilted it, the
-    padding dropped away from ground that rises to the edge, and the opening
-    took the last metre for an object — issue 16's band of missed ground
-    along one edge of a synthetic survey.)
-    Flat ("nearest") padding instead makes every uphill edge look like the
-    foot of an object, which an opening then lowers.
-
-    Each padded value depends only on the cells within *width* of its edge,
-    so a tile whose grid shares an edge with the survey pads it exactly as
-    the whole survey does (a plane fitted to the whole grid would depend on
-    the tile's extent).
+    Along every row (then every column of the result), the padding continues
+    the line that supports the last *width* cells before an edge from below
+    at the middle of that band (the edge of their lower convex hull there).
+    A planar slope thus continues exactly, an object within the band does
+    not tilt it, and an object cut by the survey's boundary is bordered by
+    ground-level padding.  Each padded value depends only on the cells
+    within *width* of its edge, so a tile pads a shared edge as the whole
+    survey does.  Why not flat or least-squares padding:
+    docs/stages/classify_ground.md.
     """
     if width <= 0:
         return grid

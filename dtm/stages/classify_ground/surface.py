@@ -111,15 +111,13 @@ def inpaint(grid: np.ndarray) -> np.ndarray:
     return out
 
 
-def sample_bilinear(grid: np.ndarray, idx: CellIndex, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear interpolation of cell-centre values at points (clamped at the edges)."""
-    return sample_bilinear_all((grid,), idx, x, y)[0]
-
-
 def sample_bilinear_all(
     grids: tuple[np.ndarray, ...], idx: CellIndex, x: np.ndarray, y: np.ndarray
 ) -> list[np.ndarray]:
-    """:func:`sample_bilinear` of several grids of one shape at the same points (the weights computed once)."""
+    """Bilinear interpolation of cell-centre values of several grids of one shape at the same points.
+
+    Clamped at the grids' edges; the weights are computed once for all grids.
+    """
     fx = (x - idx.x0) / idx.cell_size - 0.5
     fy = (y - idx.y0) / idx.cell_size - 0.5
     rows, cols = grids[0].shape
@@ -220,9 +218,3 @@ def pad_plane(grid: np.ndarray, width: int) -> np.ndarray:
     residual = np.pad(grid - plane, width, mode="minimum", stat_length=width)
     pyy, pxx = np.mgrid[-width : rows + width, -width : cols + width].astype(np.float64)
     return residual + coef[0] + coef[1] * pxx + coef[2] * pyy
-
-
-def disk(radius: int) -> np.ndarray:
-    """Boolean disk structuring element of the given radius in cells."""
-    r = np.arange(-radius, radius + 1)
-    return (r[:, None] ** 2 + r[None, :] ** 2) <= radius**2 + 1e-9

@@ -77,7 +77,7 @@ MUTATIONS: list[Mutation] = [
     ),
     Mutation(
         "raster tile buffer 12 m instead of 102 m",
-        "dtm/stages/rasterize/stage.py",
+        "dtm/stages/rasterize/tiles.py",
         "return far * params.nodata_distance + 2.0 * params.resolution",
         "return 10.0 + 2.0 * params.resolution",
         (BUFFERS, TILED),
@@ -105,7 +105,7 @@ MUTATIONS: list[Mutation] = [
     ),
     Mutation(
         "DSM from noise-class points too",
-        "dtm/stages/rasterize/stage.py",
+        "dtm/stages/rasterize/tiles.py",
         'usable = glossary.usable(cols["classification"], cols["withheld"])',
         'usable = ~cols["withheld"]',
         ("tests/stages/denoise/test_noise_classes.py", "tests/stages/test_products_units.py"),

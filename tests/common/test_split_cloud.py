@@ -24,7 +24,8 @@ from dtm.common.grid import Grid
 from dtm.common.mosaic import core_window
 from dtm.common.tile_points import read_tile, split_cloud, tile_parts
 from dtm.common.units import Units
-from dtm.stages.rasterize.stage import RasterizeParams, Usable, raster_columns, rasterize_tile
+from dtm.stages.rasterize.params import RasterizeParams
+from dtm.stages.rasterize.tiles import RasterTask, Usable, raster_columns, rasterize_tile
 from pipeline.executor import LocalExecutor
 from pipeline.tiling import Layout
 
@@ -123,7 +124,6 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
     las, layout, tmp, (rows, usable), _ = split
     grid = Grid.covering(*usable.box(), 1.0)
     params = RasterizeParams(method=method, nodata_distance=10.0).model_dump(mode="json")
-    grid_args = dict(xmin=grid.xmin, ymax=grid.ymax, resolution=grid.resolution, cols=grid.cols, rows=grid.rows)
     outputs = ["dtm", "dsm", "ndsm", "density"]
     drawn = 0
     for tile in layout.tiles:
@@ -131,17 +131,18 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
             continue
         results = []
         for run in ("one", "two"):
-            task = {
-                "tile": tile.index,
-                "window": core_window(grid, tile, layout),
-                "source": str(tmp / run / str(tile.index)),
-                "result": str(tmp_path / run / str(tile.index)),
-                "grid": grid_args,
-                "params": params,
-                "buffer": BUFFER,
-                "vertical": 1.0,
-                "outputs": outputs,
-            }
+            task = RasterTask(
+                tile=tile.index,
+                window=core_window(grid, tile, layout),
+                weight=rows[tile.index][0],
+                source=str(tmp / run / str(tile.index)),
+                result=str(tmp_path / run / str(tile.index)),
+                grid=grid,
+                params=params,
+                buffer=BUFFER,
+                vertical=1.0,
+                outputs=tuple(outputs),
+            )
             results.append(rasterize_tile(task))
         assert results[0] == results[1]
         for name in outputs:

@@ -1,0 +1,32 @@
+"""Parameters of ``rasterize``: the grid, the DTM's interpolation method and each method's options."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from dtm.common import glossary
+from pipeline.config import StrictModel
+from pipeline.stage import StageParams
+
+
+class IdwParams(StrictModel):
+    neighbors: int = Field(8, ge=1, description="nearest ground points averaged per cell")
+    power: float = Field(2.0, gt=0, description="weights are 1 / distance**power")
+
+
+class TinParams(StrictModel):
+    thin: bool = Field(
+        True,
+        description="in cells with more than 4 ground points, triangulate one per half cell (the nearest to its "
+        "centre); false: every ground point",
+    )
+
+
+class RasterizeParams(StageParams):
+    resolution: float = glossary.resolution(1.0)
+    method: Literal["tin", "idw", "nearest"] = Field("tin", description="DTM interpolation: tin | idw | nearest")
+    nodata_distance: float = glossary.nodata_distance(50.0)
+    idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
+    tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")

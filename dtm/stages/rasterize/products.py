@@ -1,0 +1,110 @@
+"""The rasters of one tile from its points (DTM, DSM, nDSM, density, uncertainty), and the survey's figures.
+
+Grids are in metres and NaN means nodata; the tile task
+(:func:`dtm.stages.rasterize.tiles.rasterize_tile`) converts the heights to
+the CRS's unit when it writes them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtm.common.grid import Grid, cell_mean, fill_nearest
+from dtm.stages.rasterize.interpolate import idw, nearest, tin
+from dtm.stages.rasterize.params import RasterizeParams
+
+
+def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, progress=None) -> np.ndarray:
+    """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
+    if params.method == "tin":
+        return tin(ground, grid, nodata_distance=params.nodata_distance, thin=params.tin.thin, progress=progress)
+    if params.method == "idw":
+        return idw(
+            ground,
+            grid,
+            nodata_distance=params.nodata_distance,
+            neighbors=params.idw.neighbors,
+            power=params.idw.power,
+            progress=progress,
+        )
+    return nearest(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
+
+
+@dataclass
+class TileCloud:
+    """What the rasters of a tile need of its points (core plus buffer), on the tile's wide grid.
+
+    ``ground``: x, y, z of the ground points (n, 3), in file order (None once
+    handed to the TIN); ``highest`` and ``count``: the highest usable return
+    and the usable points per cell; ``sigma``: the ground points' vertical
+    sigma (None when the uncertainty is not made).
+    """
+
+    ground: np.ndarray | None
+    highest: np.ndarray
+    count: np.ndarray
+    sigma: np.ndarray | None = None
+
+
+def tile_rasters(cloud: TileCloud, core: Grid, wide: Grid, crop, params: RasterizeParams) -> dict[str, np.ndarray]:
+    """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
+
+    ``dtm`` (:func:`interpolate_dtm`), ``dsm`` (the highest return, gaps
+    filled from the nearest cell within ``nodata_distance``, else the DTM),
+    ``ndsm`` (DSM - DTM, at least 0), ``density`` (points per cell) and,
+    with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
+    the DSM's, where the DTM has a value).  With the TIN and no sigma, the
+    ground points are handed over: *cloud* no longer holds them.
+    """
+    max_cells = params.nodata_distance / params.resolution
+    dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
+    ground = cloud.ground
+    dtm = np.full((core.rows, core.cols), np.nan)
+    if core.rows and core.cols and len(ground) >= (3 if params.method == "tin" else 1):
+        if params.method == "tin" and cloud.sigma is None:
+            ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
+        dtm = interpolate_dtm(ground, core, params)  # collinear or coincident ground points: all nodata
+    dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
+    ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
+    density = cloud.count[crop].astype(np.float64)
+    out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
+    if cloud.sigma is not None:
+        unc = fill_nearest(cell_mean(ground, cloud.sigma, wide), max_cells=max_cells)[crop]
+        out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
+    return out
+
+
+def tile_figures(rasters: dict[str, np.ndarray], vertical: float) -> dict:
+    """A tile's figures for the survey's metrics (heights in the CRS's unit, *vertical* metres each)."""
+    dtm, ndsm = rasters["dtm"], rasters["ndsm"]
+    finite = np.isfinite(dtm)
+    return {
+        "cells": int(dtm.size),
+        "nodata_cells": int((~finite).sum()),
+        "dtm_min": float(dtm[finite].min()) / vertical if finite.any() else None,
+        "dtm_max": float(dtm[finite].max()) / vertical if finite.any() else None,
+        "density_sum": int(rasters["density"].sum()),
+        "ndsm_max": float(np.nanmax(ndsm)) / vertical if np.isfinite(ndsm).any() else None,
+    }
+
+
+def survey_figures(results: list[dict], cells: int) -> dict:
+    """The survey's figures from its tiles' (:func:`tile_figures`) over a grid of *cells*.
+
+    Cells no tile made are nodata; the lowest and highest DTM and the
+    highest nDSM are None when no tile has one.
+    """
+    empty = sum(r["nodata_cells"] for r in results) + (cells - sum(r["cells"] for r in results))
+    mins = [r["dtm_min"] for r in results if r["dtm_min"] is not None]
+    maxs = [r["dtm_max"] for r in results if r["dtm_max"] is not None]
+    ndsm = [r["ndsm_max"] for r in results if r["ndsm_max"] is not None]
+    return {
+        "nodata_cells": int(empty),
+        "nodata_fraction": round(empty / cells, 4),
+        "dtm_min": float(min(mins)) if mins else None,
+        "dtm_max": float(max(maxs)) if maxs else None,
+        "density_mean": round(sum(r["density_sum"] for r in results) / cells, 3),
+        "ndsm_max": float(max(ndsm)) if ndsm else None,
+    }

@@ -1,0 +1,272 @@
+"""The rasters made tile by tile: what the split counts, the tile tasks, and the mosaics of their windows.
+
+Each tile's task (:func:`rasterize_tile`, in a worker) reads its points
+(core plus buffer, :func:`dtm.common.tile_points.split_cloud`), makes the
+rasters of its core cells on the survey's grid and writes them as ``.npy``
+windows; :func:`mosaic_raster` assembles each raster of the survey from
+them as a COG.  A tile's cells are bit for bit those of an untiled run
+(:class:`dtm.common.grid.Grid`'s windows, and a buffer of :func:`reach`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dtm.common import glossary
+from dtm.common.grid import Grid, cell_max_count
+from dtm.common.mosaic import core_window
+from dtm.common.rasters import HEIGHT, NODATA
+from dtm.stages.rasterize.params import RasterizeParams
+from dtm.stages.rasterize.products import TileCloud, tile_figures, tile_rasters
+from pipeline.errors import InputDataError
+from pipeline.tiling import Layout
+
+#: The rasters a run can make, in the order they are made and written.
+RASTERS = ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty")
+
+
+def reach(params: RasterizeParams) -> float:
+    """The buffer (metres) a tile needs for its cells to equal the untiled ones.
+
+    IDW and nearest use points within ``nodata_distance`` of a cell centre,
+    as does the DSM's gap filling: ``nodata_distance`` plus a cell.  A TIN
+    triangle covering a cell may reach farther (across a gap up to
+    ``nodata_distance`` from both sides): twice ``nodata_distance``.
+    """
+    far = 2.0 if params.method == "tin" else 1.0
+    return far * params.nodata_distance + 2.0 * params.resolution
+
+
+def raster_columns(chunk, *, sigma: bool = False) -> dict[str, np.ndarray]:
+    """The columns the tiles need besides x, y, z (:func:`dtm.common.tile_points.split_cloud`): classes, withheld, sigma."""
+    cols = {
+        "classification": np.asarray(chunk.classification, dtype=np.uint8),
+        "withheld": np.asarray(chunk.withheld, dtype=bool),
+    }
+    if sigma:
+        cols["sigma_vertical"] = np.asarray(chunk["sigma_vertical"], dtype=np.float64)
+    return cols
+
+
+@dataclass(frozen=True)
+class Usable:
+    """The class histogram of some points, and the box (metres) of the usable ones: all but noise (7, 18) and withheld.
+
+    :meth:`of` is :func:`dtm.common.tile_points.split_cloud`'s ``count``; the sum of
+    two is the histogram and box of both (the grid is sized by the box).
+    """
+
+    classes: np.ndarray  # points per class 0..255
+    lo: np.ndarray  # xmin, ymin (inf: none usable)
+    hi: np.ndarray  # xmax, ymax
+
+    @classmethod
+    def of(cls, cols: dict[str, np.ndarray]) -> Usable:
+        usable = glossary.usable(cols["classification"], cols["withheld"])
+        lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+        if usable.any():
+            x, y = cols["x"][usable], cols["y"][usable]
+            lo, hi = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
+        return cls(np.bincount(cols["classification"], minlength=256), lo, hi)
+
+    def __add__(self, other: Usable) -> Usable:
+        return Usable(self.classes + other.classes, np.minimum(self.lo, other.lo), np.maximum(self.hi, other.hi))
+
+    def box(self) -> tuple[float, float, float, float]:
+        if not np.isfinite(self.lo).all():
+            raise InputDataError("every point is noise or withheld: there is nothing to grid.")
+        return (float(self.lo[0]), float(self.lo[1]), float(self.hi[0]), float(self.hi[1]))
+
+
+@dataclass(frozen=True)
+class RasterTask:
+    """One tile's rasters (runs in a worker process or on Dask: :func:`rasterize_tile`).
+
+    *window*: the core's rows and columns ``(r0, r1, c0, c1)`` of the
+    survey's *grid*; *source*: the tile's columns; *result*: where its
+    ``.npy`` windows go; *weight*: its points; *params*: the stage's
+    ``model_dump``; *vertical*: metres per height unit of the CRS;
+    *outputs*: the rasters to write.
+    """
+
+    tile: int
+    window: tuple[int, int, int, int]
+    weight: int
+    source: str
+    result: str
+    grid: Grid
+    params: dict
+    buffer: float
+    vertical: float
+    outputs: tuple[str, ...]
+
+
+def raster_tasks(
+    layout: Layout, rows: dict[int, tuple[int, int]], grid: Grid, work: Path, params: dict, vertical: float, outputs
+) -> list[RasterTask]:
+    """One task per tile holding points (*rows*: :func:`dtm.common.tile_points.split_cloud`'s), its columns in *work*."""
+    return [
+        RasterTask(
+            tile=tile.index,
+            window=core_window(grid, tile, layout),
+            weight=rows[tile.index][0],
+            source=str(work / "in" / str(tile.index)),
+            result=str(work / "out" / str(tile.index)),
+            grid=grid,
+            params=params,
+            buffer=layout.buffer,
+            vertical=vertical,
+            outputs=tuple(outputs),
+        )
+        for tile in layout.tiles
+        if tile.index in rows
+    ]
+
+
+def rasterize_tile(task: RasterTask) -> dict:
+    """The rasters of one tile's core cells, from its points (core plus buffer); its figures.
+
+    Runs in a worker process; writes one ``.npy`` per raster (in the CRS's
+    height unit, nodata -9999) to ``task.result`` and returns
+    :func:`dtm.stages.rasterize.products.tile_figures`.
+    """
+    params = RasterizeParams.model_validate(task.params)
+    core, wide, crop = tile_windows(task.grid, task.window, task.buffer)
+    cloud = read_tile_cloud(Path(task.source), wide, sigma="dtm_uncertainty" in task.outputs)
+    rasters = tile_rasters(cloud, core, wide, crop, params)
+    vertical = task.vertical
+    folder = Path(task.result)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in task.outputs:
+        values = rasters[name] if name == "density" else rasters[name] / vertical
+        np.save(folder / f"{name}.npy", np.where(np.isnan(values), NODATA, values).astype(np.float32))
+    return {"tile": task.tile, **tile_figures(rasters, vertical)}
+
+
+def tile_windows(grid: Grid, window: tuple[int, int, int, int], buffer: float) -> tuple[Grid, Grid, tuple]:
+    """The tile's core cells (*window* of *grid*), its wide grid (the core plus *buffer*), and the core's slice of it."""
+    r0, r1, c0, c1 = window
+    core = grid.window(r0, r1, c0, c1)
+    pad = int(math.ceil(buffer / grid.resolution))
+    br0, br1 = max(r0 - pad, 0), min(r1 + pad, grid.rows)
+    bc0, bc1 = max(c0 - pad, 0), min(c1 + pad, grid.cols)
+    wide = grid.window(br0, br1, bc0, bc1)
+    crop = (slice(r0 - br0, r1 - br0), slice(c0 - bc0, c1 - bc0))
+    return core, wide, crop
+
+
+def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
+    """What a tile's rasters need of its points (:class:`TileCloud`), read part by part, in file order.
+
+    The coordinates are mapped, not read: only the rows each raster needs
+    are in memory.
+    """
+    from dtm.common.tile_points import tile_parts
+
+    parts = tile_parts(folder)  # the tile's points in file order, a range of records each
+    masks = []
+    for part in parts:
+        cls = np.load(part / "classification.npy")
+        masks.append((cls == glossary.GROUND, glossary.usable(cls, np.load(part / "withheld.npy"))))
+    del cls
+    ground = np.empty((sum(int(is_ground.sum()) for is_ground, _ in masks), 3))
+    highest = count = None
+    sigma_parts = []
+    at = 0
+    for part, (is_ground, usable) in zip(parts, masks, strict=True):
+        xyz = [np.load(part / f"{a}.npy", mmap_mode="r") for a in "xyz"]
+        # core cells are wide cells; every point usable (the usual case): the mapped columns as they are
+        high, n = cell_max_count(xyz if usable.all() else [a[usable] for a in xyz], wide)
+        highest, count = (high, n) if highest is None else (np.fmax(highest, high), count + n)
+        k = int(is_ground.sum())
+        for i, a in enumerate(xyz):
+            ground[at : at + k, i] = a[is_ground]
+        at += k
+        if sigma:
+            sigma_parts.append(np.load(part / "sigma_vertical.npy", mmap_mode="r")[is_ground])
+        del xyz, high, n
+    del masks
+    if sigma:
+        return TileCloud(
+            ground, highest, count, sigma_parts[0] if len(sigma_parts) == 1 else np.concatenate(sigma_parts)
+        )
+    return TileCloud(ground, highest, count)
+
+
+@dataclass(frozen=True)
+class MosaicJob:
+    """One raster of the survey to assemble from its tiles' windows (runs in a worker: :func:`mosaic_raster`).
+
+    *path*, *rows*, *cols*, *transform*, *crs*, *fill*, *unit*: those of
+    :class:`dtm.common.mosaic.RasterMosaic`; *windows*: ``((r0, r1, c0,
+    c1), npy file)`` of each tile; *empty*: the windows no tile wrote;
+    *cache_mb*: GDAL's block cache.
+    """
+
+    path: str
+    rows: int
+    cols: int
+    transform: Any
+    crs: Any
+    fill: float
+    unit: str | None
+    windows: tuple[tuple[tuple[int, int, int, int], str], ...]
+    empty: tuple[tuple[int, int, int, int], ...]
+    cache_mb: int
+
+
+def mosaic_jobs(
+    paths: dict[str, Path], grid: Grid, transform, crs, layout: Layout, tasks: list[RasterTask], cache_mb: int
+) -> list[MosaicJob]:
+    """One job per raster of *paths* (name -> file): the windows of *tasks*, and fill for the tiles without one."""
+    done = {t.tile for t in tasks}
+    empty = tuple(core_window(grid, tile, layout) for tile in layout.tiles if tile.index not in done)
+    return [
+        MosaicJob(
+            path=str(path),
+            rows=grid.rows,
+            cols=grid.cols,
+            transform=transform,
+            crs=crs,
+            fill=0.0 if name == "density" else NODATA,
+            unit=None if name == "density" else HEIGHT,
+            windows=tuple((t.window, str(Path(t.result) / f"{name}.npy")) for t in tasks),
+            empty=empty,
+            cache_mb=cache_mb,
+        )
+        for name, path in paths.items()
+    ]
+
+
+def mosaic_raster(job: MosaicJob) -> None:
+    """Assemble one raster of the survey from its tiles' windows and write it as a COG (runs in a worker)."""
+    import rasterio
+
+    from dtm.common.mosaic import RasterMosaic
+
+    # GDAL's block cache, 64 MB for all the workers at once: its default, 5 % of the RAM, would grow with the grid
+    with rasterio.Env(GDAL_CACHEMAX=job.cache_mb):
+        mosaic = RasterMosaic(
+            Path(job.path),
+            rows=job.rows,
+            cols=job.cols,
+            transform=job.transform,
+            crs=job.crs,
+            nodata=NODATA,
+            fill=job.fill,
+            unit=job.unit,
+        )
+        try:
+            for (r0, _, c0, _), values in job.windows:
+                mosaic.write(r0, c0, np.load(values))
+            for window in job.empty:
+                mosaic.write_fill(*window)
+            mosaic.finish()
+        except BaseException:
+            mosaic.abort()
+            raise

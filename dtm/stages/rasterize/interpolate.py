@@ -319,29 +319,7 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     Returns the triangles that drew a cell (vertex indices, ascending).
     """
     res = grid.resolution
-    # Each triangle's box in whole-grid cell indices, a million triangles at a
-    # time (bounded temporaries); keep those that hold a cell centre.
-    boxes = []
-    for start in range(0, len(simplices), 1_000_000):
-        part = simplices[start : start + 1_000_000]
-        x = [xy[part[:, i], 0] for i in range(3)]
-        y = [xy[part[:, i], 1] for i in range(3)]
-        c0 = np.maximum(np.ceil(np.minimum(np.minimum(x[0], x[1]), x[2]) / res - 0.5), grid.col0)
-        c1 = np.minimum(np.floor(np.maximum(np.maximum(x[0], x[1]), x[2]) / res - 0.5), grid.col0 + grid.cols - 1)
-        r0 = np.maximum(np.ceil(-np.maximum(np.maximum(y[0], y[1]), y[2]) / res - 0.5), grid.row0)
-        r1 = np.minimum(np.floor(-np.minimum(np.minimum(y[0], y[1]), y[2]) / res - 0.5), grid.row0 + grid.rows - 1)
-        some = (c1 >= c0) & (r1 >= r0)
-        boxes.append((part[some], c0[some], c1[some], r0[some], r1[some]))
-    simplices = np.concatenate([b[0] for b in boxes])
-    c0, c1, r0, r1 = (np.concatenate([b[i] for b in boxes]) for i in range(1, 5))
-    del boxes
-    s = simplices.astype(np.int64)
-    lo, hi = s.min(axis=1), s.max(axis=1)
-    s = np.column_stack((lo, s.sum(axis=1) - lo - hi, hi))  # vertices ascending
-    order = np.lexsort(s.T[::-1])
-    s = s[order]
-    c0, c1 = c0[order].astype(np.int64), c1[order].astype(np.int64)
-    r0, r1 = r0[order].astype(np.int64), r1[order].astype(np.int64)
+    s, c0, c1, r0, r1 = _canonical_boxes(xy, simplices, grid)
     p0, p1, p2 = xy[s[:, 0]], xy[s[:, 1]], xy[s[:, 2]]
     ax, ay = p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1]
     bx, by = p2[:, 0] - p0[:, 0], p2[:, 1] - p0[:, 1]
@@ -379,6 +357,41 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     if progress is not None and not total:
         progress.update(grid.rows)
     return s[used]
+
+
+def _canonical_boxes(xy, simplices, grid: Grid) -> tuple[np.ndarray, ...]:
+    """The triangles whose box holds a cell centre of *grid*, in canonical order, and their boxes.
+
+    Returns ``(s, c0, c1, r0, r1)``: the vertices of each triangle in
+    ascending index, the triangles in lexicographic order (:func:`_draw_triangles`),
+    and the first and last column and row (whole-grid indices, int64) of
+    the cell centres in each triangle's box.
+    """
+    res = grid.resolution
+    # Each triangle's box in whole-grid cell indices, a million triangles at a
+    # time (bounded temporaries); keep those that hold a cell centre.
+    boxes = []
+    for start in range(0, len(simplices), 1_000_000):
+        part = simplices[start : start + 1_000_000]
+        x = [xy[part[:, i], 0] for i in range(3)]
+        y = [xy[part[:, i], 1] for i in range(3)]
+        c0 = np.maximum(np.ceil(np.minimum(np.minimum(x[0], x[1]), x[2]) / res - 0.5), grid.col0)
+        c1 = np.minimum(np.floor(np.maximum(np.maximum(x[0], x[1]), x[2]) / res - 0.5), grid.col0 + grid.cols - 1)
+        r0 = np.maximum(np.ceil(-np.maximum(np.maximum(y[0], y[1]), y[2]) / res - 0.5), grid.row0)
+        r1 = np.minimum(np.floor(-np.minimum(np.minimum(y[0], y[1]), y[2]) / res - 0.5), grid.row0 + grid.rows - 1)
+        some = (c1 >= c0) & (r1 >= r0)
+        boxes.append((part[some], c0[some], c1[some], r0[some], r1[some]))
+    simplices = np.concatenate([b[0] for b in boxes])
+    c0, c1, r0, r1 = (np.concatenate([b[i] for b in boxes]) for i in range(1, 5))
+    del boxes
+    s = simplices.astype(np.int64)
+    lo, hi = s.min(axis=1), s.max(axis=1)
+    s = np.column_stack((lo, s.sum(axis=1) - lo - hi, hi))  # vertices ascending
+    order = np.lexsort(s.T[::-1])
+    s = s[order]
+    c0, c1 = c0[order].astype(np.int64), c1[order].astype(np.int64)
+    r0, r1 = r0[order].astype(np.int64), r1[order].astype(np.int64)
+    return s, c0, c1, r0, r1
 
 
 def _query_grid(

@@ -79,61 +79,20 @@ def tin(
     batch_cells: int = 1_000_000,
     progress=None,
 ) -> np.ndarray:
-    """Linear interpolation on the Delaunay triangulation (TIN) of the points.
+    """Linear interpolation on the Delaunay triangulation (TIN) of *points*, at the cell centres of *grid*.
 
-    Parameters
-    ----------
-    points : ndarray, shape (n, 3), or a list holding one
-        x, y, z of the points (at least 3).  A list is emptied: the array is
-        then freed as soon as the TIN has what it needs of it (memory).
-    grid : Grid
-        Where to interpolate (cell centres).
-    nodata_distance : float
-        Cells whose centre is farther than this from every point get *nodata*;
-        so do cells outside the triangulation's convex hull.
-    nodata : float
-        Value of empty cells.
-    thin : bool
-        In cells holding more than four points, triangulate one point per
-        square of half a cell, the nearest to the square's centre
-        (:func:`thin_points`); sparser cells keep every point.  False:
-        every point.
-    margin : float or None
-        First triangulate only the points within *margin* (rounded up to
-        whole cells) of the grid, then prove that this gives the result of
-        triangulating every point: each triangle that drew a cell must be a
-        Delaunay triangle of all the points (its circumcircle holds none of
-        the points left out), and no cell nearer than *nodata_distance* to a
-        point may be left undrawn.  Otherwise every point is triangulated.
-        The result is the same either way; only the cost differs (a tile's
-        buffer is mostly far from its cells).  None: every point at once.
-    batch_cells : int
-        Candidate cells handled at a time (bounds memory).
-    progress : Progress, optional
-        Advanced from 0 to ``grid.rows`` as the triangles are drawn.
-
-    Returns
-    -------
-    ndarray, shape (grid.rows, grid.cols), float64
-
-    Notes
-    -----
-    The triangulation is Shewchuk's Triangle (divide and conquer with exact
-    predicates; Shewchuk 1996, doi:10.1007/BFb0014497), 7 x faster than
-    SciPy's Qhull here and a quarter of its memory.  The triangles are then
-    drawn onto the grid ("scan conversion", as GDAL and PDAL grid TINs):
-    each fills the cell centres inside it with its plane; only triangles
-    that reach the grid are drawn.  Points with identical x, y: the first in
-    the input order is used.  Thinning keeps the triangulation to what a
-    cell can resolve: on the 9.4 M-point bench survey (8 ground points per
-    m2) it halves the points and the RMSE against the true terrain goes from
-    0.0218 to 0.0210 m; on the LAS sample (1.5 per m2) the check-point
-    figures move by 0.01 mm (docs/BENCHMARKS.md).  The *margin* test is the
-    empty-circumcircle property of Delaunay triangles (Delaunay 1934; de
-    Berg et al. 2008, *Computational Geometry*, 3rd ed., Theorem 9.6,
-    doi:10.1007/978-3-540-77974-2): a triangle of a subset whose
-    circumcircle holds no other point of the whole set is a triangle of the
-    whole set's triangulation.
+    *points*: x, y, z (n, 3) of at least 3 points, or a list holding them
+    (emptied: the array is freed once the TIN has what it needs).  Cells
+    farther than *nodata_distance* from every point, or outside the hull,
+    get *nodata*.  *thin*: in cells holding more than four points, one point
+    per half-cell square is triangulated (:func:`thin_points`).  *margin*:
+    the points within it of the grid are triangulated first, and all of
+    them only when that could change a cell (None: all at once).
+    *batch_cells* bounds memory; *progress* goes to ``grid.rows``.  The
+    triangulation is Shewchuk's Triangle (doi:10.1007/BFb0014497), drawn by
+    scan conversion as GDAL and PDAL do; the margin's proof is the
+    empty-circumcircle property of Delaunay triangles (docs/stages/rasterize.md).
+    Returns a (grid.rows, grid.cols) float64 array.
     """
     pts = np.asarray(points.pop() if isinstance(points, list) else points, dtype=np.float64)
     if len(pts) < 3:

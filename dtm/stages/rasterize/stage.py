@@ -1,26 +1,15 @@
 """Stage ``rasterize``: the elevation rasters of the survey.
 
-- ``dtm.tif``: bare earth from the ground points (class 2) by ``method``:
-  ``tin`` (linear on a Delaunay triangulation, default), ``idw`` (inverse
-  distance weighting) or ``nearest``.  Cells under buildings are interpolated
-  from the surrounding ground; cells farther than ``nodata_distance`` from
-  every ground point (water, gaps) are nodata.
-- ``dsm.tif``: the highest non-noise return per cell; empty cells take the
-  value of the nearest full cell within ``nodata_distance``.
-- ``ndsm.tif``: DSM - DTM (height above ground), negatives set to 0.
-- ``density.tif``: points per cell (all points but noise and withheld).
-- ``dtm_uncertainty.tif`` (when the points carry ``sigma_vertical``, i.e.
-  ``stages.georeference.uncertainty`` is set): the mean propagated vertical
-  sigma of the ground points in each cell, cells without one taking the
-  nearest value within ``nodata_distance``.  Not divided by the square root
-  of the point count: the navigation errors that dominate it are shared by
-  neighbouring points, so averaging them does not shrink them.
-
-The grid covers all points of the survey, cell-aligned to multiples of
-``resolution``.  All rasters are Cloud Optimized GeoTIFF, float32, with the
-nodata value -9999.  Parameters are in metres; the rasters are in the CRS's
-units (cells and height values: a 1 m grid of a survey in US survey feet has
-cells of 3.2808 ftUS and heights in ftUS; :mod:`dtm.common.units`).
+``dtm.tif`` (bare earth from the ground points by ``method``: ``tin``,
+``idw`` or ``nearest``), ``dsm.tif`` (the highest non-noise return per
+cell), ``ndsm.tif`` (DSM - DTM, at least 0), ``density.tif`` (points per
+cell) and, when the points carry ``sigma_vertical``, ``dtm_uncertainty.tif``.
+The grid covers all usable points, cell-aligned to multiples of
+``resolution``; the rasters are Cloud Optimized GeoTIFF, float32, nodata
+-9999, in the CRS's units (parameters in metres; :mod:`dtm.common.units`).
+The survey is rasterized tile by tile (:mod:`dtm.stages.rasterize.tiles`),
+each tile's cells bit for bit those of an untiled run.  Each raster in
+detail: docs/stages/rasterize.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,9 @@
-"""TODO docstring: carried out of dtm.stages.rasterize.interpolate, dtm.stages.classify_ground.surface, stages.rasterize."""
+"""North-up raster grids and their windows, points counted into their cells, gaps filled.
+
+:class:`Grid` anchors every cell at whole multiples of its resolution, so a
+window (a tile) has the values of the same cells of the whole grid;
+:func:`check_grid_size` refuses a DTM grid the machine cannot hold.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,9 @@
-"""TODO docstring: carried out of dtm.common.tile_points."""
+"""Rasters of the survey assembled from its tiles' windows.
+
+:func:`core_window` gives the cells of a tile's core on the survey's grid
+(the windows of a layout's tiles partition it); :class:`RasterMosaic` writes
+the windows into one raster and converts it to a Cloud Optimized GeoTIFF.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""TODO docstring: carried out of dtm.stages.rasterize.interpolate."""
+"""The k nearest neighbours of points chosen canonically (by distance, ties by index): a tile chooses as the whole survey."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""TODO docstring: carried out of dtm.stages.contours.lines."""
+"""Shaded relief of an elevation grid (Horn 1981), for the ``hillshade`` stage and the report's maps."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Terrain products derived from an elevation grid: hillshade and contour lines."""
+"""Contour lines of an elevation grid: marching squares on its cell centres."""
 
 from __future__ import annotations
 

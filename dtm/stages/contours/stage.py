@@ -1,4 +1,12 @@
-"""TODO docstring: carried out of dtm.stages.hillshade.stage."""
+"""Stage ``contours``: contour lines of the DTM.
+
+``contours.gpkg``: a GeoPackage layer ``contours`` of line strings with an
+``elevation`` attribute, every ``interval`` metres
+(:func:`dtm.stages.contours.lines.contour_lines`); lines and elevations in
+the CRS's units (:mod:`dtm.common.units`).  A stage of its own, apart from
+``rasterize``, so that restyling it never re-grids the DTM
+(docs/stages/contours.md).
+"""
 
 from __future__ import annotations
 

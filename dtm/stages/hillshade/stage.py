@@ -1,13 +1,10 @@
-"""Stages ``hillshade`` and ``contours``: map products derived from the DTM.
+"""Stage ``hillshade``: the shaded relief of the DTM.
 
-- ``hillshade``: ``hillshade.tif`` (COG, Byte: shades 1-255, nodata 0, as
-  ``gdaldem hillshade`` writes it) and ``hillshade.png`` (the same bytes,
-  nodata black), Horn's method.
-- ``contours``: ``contours.gpkg``, a GeoPackage layer ``contours`` of line
-  strings with an ``elevation`` attribute, every ``interval`` metres; lines
-  and elevations in the CRS's units (:mod:`dtm.common.units`).
-
-Separate stages so that restyling them never re-grids the DTM.
+``hillshade.tif`` (COG, Byte: shades 1-255, nodata 0, as ``gdaldem
+hillshade`` writes it) and ``hillshade.png`` (the same bytes, nodata black),
+by Horn's method (:func:`dtm.common.shading.hillshade`) on the DTM in metres.
+A stage of its own, apart from ``rasterize``, so that restyling it never
+re-grids the DTM (docs/stages/hillshade.md).
 """
 
 from __future__ import annotations

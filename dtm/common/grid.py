@@ -8,11 +8,18 @@ window (a tile) has the values of the same cells of the whole grid;
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    from affine import Affine
+
+    from dtm.common.units import Units
 
 
 @dataclass(frozen=True)
@@ -56,7 +63,7 @@ class Grid:
         return Grid(self.xmin, self.ymax, self.resolution, c1 - c0, r1 - r0, self.row0 + r0, self.col0 + c0)
 
     @property
-    def transform(self):
+    def transform(self) -> Affine:
         """The affine pixel-to-map transform (rasterio convention)."""
         from affine import Affine
 
@@ -105,7 +112,7 @@ def cell_mean(points: np.ndarray, values: np.ndarray, grid: Grid) -> np.ndarray:
     return np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(grid.rows, grid.cols)
 
 
-def cell_max_count(points, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+def cell_max_count(points: np.ndarray | Sequence[np.ndarray], grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     """:func:`cell_max` (NaN where empty) and :func:`cell_count` in one pass over the points.
 
     *points*: an (n, 3) array, or its three columns x, y, z (1-D arrays,
@@ -143,7 +150,11 @@ BYTES_PER_CELL = 48
 
 
 def check_grid_size(
-    grid: Grid, box: tuple[float, float, float, float], units, memory: int | None = None, source: str = "the points"
+    grid: Grid,
+    box: tuple[float, float, float, float],
+    units: Units,
+    memory: int | None = None,
+    source: str = "the points",
 ) -> None:
     """Refuse a grid the machine cannot hold, before anything is allocated (one sentence, exit 3).
 

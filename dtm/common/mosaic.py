@@ -8,13 +8,21 @@ the windows into one raster and converts it to a Cloud Optimized GeoTIFF.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.common.rasters import HEIGHT
 
+if TYPE_CHECKING:
+    import pyproj
+    from affine import Affine
 
-def core_window(grid, tile, layout) -> tuple[int, int, int, int]:
+    from dtm.common.grid import Grid
+    from pipeline.tiling import Layout, Tile
+
+
+def core_window(grid: Grid, tile: Tile, layout: Layout) -> tuple[int, int, int, int]:
     """Rows and columns ``(r0, r1, c0, c1)`` of *grid* whose cell centres lie in *tile*'s core.
 
     Cell centres on a core's low edge belong to it, on its high edge to the
@@ -60,8 +68,8 @@ class RasterMosaic:
         *,
         rows: int,
         cols: int,
-        transform,
-        crs,
+        transform: Affine,
+        crs: pyproj.CRS | None,
         nodata: float,
         fill: float,
         unit: str | None = HEIGHT,

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
-def canonical_neighbours(tree, queries: np.ndarray, k: int, upper: float) -> tuple[np.ndarray, np.ndarray]:
+
+def canonical_neighbours(tree: cKDTree, queries: np.ndarray, k: int, upper: float) -> tuple[np.ndarray, np.ndarray]:
     """The *k* nearest points of each query within *upper*, chosen canonically.
 
     By distance, ties by index: a k-d tree breaks a tie at the k-th distance

@@ -10,13 +10,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dtm.common.clouds import cloud_info, open_las_writer
 from dtm.common.tile_points import cleanup, split_cloud, task_folder
 from pipeline.stage import StageContext
+
+if TYPE_CHECKING:
+    from pipeline.log import Progress
 
 #: Values read at a time from each tile's result files while merging.
 MERGE_BLOCK = 65_536
@@ -142,7 +145,7 @@ def merge_classes(
     results: list[Path],
     *,
     chunk_size: int = 1_000_000,
-    progress=None,
+    progress: Progress | None = None,
 ) -> None:
     """Copy the LAS *src* to *dst* with the classes of the tiles' results.
 

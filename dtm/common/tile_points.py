@@ -17,16 +17,22 @@ least as wide as its reach; the same code runs untiled as a single tile.
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dtm.common.clouds import chunk_xyz_metres
 from dtm.common.columns import NpyColumns, npy_header
 from pipeline.tiling import Layout
+
+if TYPE_CHECKING:
+    import laspy
+
+    from pipeline.executor import DaskExecutor, LocalExecutor
+    from pipeline.log import Progress
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -108,10 +114,10 @@ def split_cloud(
     columns: Callable[[Any], dict[str, np.ndarray]],
     *,
     chunk_size: int = 1_000_000,
-    progress=None,
+    progress: Progress | None = None,
     count: Callable[[dict[str, np.ndarray]], Any] | None = None,
     index: bool = True,
-    executor=None,
+    executor: LocalExecutor | DaskExecutor | None = None,
 ) -> tuple[dict[int, tuple[int, int]], Any]:
     """Write each tile's points (core plus buffer) of the LAS file *path* as ``.npy`` columns under ``folder/<tile>/``.
 
@@ -177,7 +183,9 @@ def _open_las(path: Path):
     return laspy.open(str(path))
 
 
-def _split_records(reader, task: SplitTask, progress=None) -> tuple[dict[int, tuple[int, int]], Any]:
+def _split_records(
+    reader: laspy.LasReader, task: SplitTask, progress: Progress | None = None
+) -> tuple[dict[int, tuple[int, int]], Any]:
     """Split the records of *task* from an open LAS *reader* into the tiles (the work of :func:`split_cloud`)."""
     from dtm.common.clouds import cloud_crs
     from dtm.common.units import Units
@@ -216,7 +224,9 @@ def _split_records(reader, task: SplitTask, progress=None) -> tuple[dict[int, tu
     return {t: (n, core_rows[t]) for t, n in rows.items()}, counted
 
 
-def record_chunks(reader, start: int, stop: int, chunk_size: int):
+def record_chunks(
+    reader: laspy.LasReader, start: int, stop: int, chunk_size: int
+) -> Iterator[laspy.ScaleAwarePointRecord]:
     """Records ``start:stop`` of an open LAS *reader*, a chunk of at most *chunk_size* at a time.
 
     Stops early when the file holds fewer records than that (the readers

@@ -8,6 +8,7 @@ its new class; :func:`classify_tile` does it for one tile in a worker.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,6 +16,11 @@ from dtm.common import glossary
 from dtm.common.tile_classes import PointTask
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from pipeline.config import StrictModel
+
+if TYPE_CHECKING:
+    import laspy
+
+    from dtm.common.clouds import CloudInfo
 
 
 def reach(algorithm: StrictModel) -> float:
@@ -75,7 +81,7 @@ def for_spacing(algorithm: StrictModel, spacing: float | None) -> StrictModel:
     return algorithm.model_copy(update={"cell_size": used})
 
 
-def nominal_spacing(path: Path, cell: float, info) -> float | None:
+def nominal_spacing(path: Path, cell: float, info: CloudInfo) -> float | None:
     """Nominal point spacing (metres) of the usable points, over the area they cover; None when surely dense.
 
     From the header first (count over the extent's area): a survey at least
@@ -165,7 +171,8 @@ def classify(
     return new_classes(classification, keep, ground)
 
 
-def classify_columns(chunk) -> dict[str, np.ndarray]:
+def classify_columns(chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
+    """The columns :func:`classify` needs besides x, y, z, of a chunk of points."""
     return {
         "classification": np.asarray(chunk.classification, dtype=np.uint8),
         "return_number": np.asarray(chunk.return_number, dtype=np.uint8),

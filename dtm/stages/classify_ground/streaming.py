@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,10 @@ from dtm.stages.classify_ground.classes import candidates_of, classify_columns, 
 from dtm.stages.classify_ground.params import ClassifyGroundParams, SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, grid_corner
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    from pipeline.executor import DaskExecutor, LocalExecutor
+    from pipeline.log import Progress
 
 
 def _chunks(path: Path, work, *, chunk_size: int = 1_000_000):
@@ -108,8 +113,8 @@ def smrf_one_grid(
     *,
     threads: int = 1,
     chunk_size: int = 1_000_000,
-    progress=None,
-    executor=None,
+    progress: Progress | None = None,
+    executor: LocalExecutor | DaskExecutor | None = None,
     workdir: Path | None = None,
 ) -> dict | None:
     """SMRF on one grid of the whole survey: *src* copied to *dst* with the new classes; None when too big.
@@ -150,7 +155,11 @@ def smrf_one_grid(
 
 
 def lowest_grid(
-    src: Path, params: ClassifyGroundParams, extent, progress=None, chunk_size: int = 1_000_000
+    src: Path,
+    params: ClassifyGroundParams,
+    extent: tuple[float, float, float, float],
+    progress: Progress | None = None,
+    chunk_size: int = 1_000_000,
 ) -> tuple[np.ndarray, tuple[int, int, int, int] | None, tuple[float, float, int, int]] | None:
     """Step 1 of :func:`smrf_one_grid`: the lowest candidate per cell; None when its grid is too big.
 
@@ -175,7 +184,12 @@ def lowest_grid(
 
 
 def survey_surfaces(
-    zmin: np.ndarray, box, anchor, algo: SmrfParams, *, threads: int = 1
+    zmin: np.ndarray,
+    box: tuple[int, int, int, int] | None,
+    anchor: tuple[float, float, int, int],
+    algo: SmrfParams,
+    *,
+    threads: int = 1,
 ) -> tuple[CellIndex | None, tuple[np.ndarray, np.ndarray] | None]:
     """Step 2 of :func:`smrf_one_grid`: the grid cut to the candidates' *box*, and its provisional DEM and slope.
 

@@ -37,7 +37,7 @@ class CellIndex:
         return self.row * self.cols + self.col
 
 
-def grid_corner(lowest, cell_size: float) -> tuple[float, float]:
+def grid_corner(lowest: np.ndarray, cell_size: float) -> tuple[float, float]:
     """The corner of a grid over points whose lowest x, y are *lowest*: rounded down to whole multiples of the cell."""
     return float(np.floor(lowest[0] / cell_size) * cell_size), float(np.floor(lowest[1] / cell_size) * cell_size)
 

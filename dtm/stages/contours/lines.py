@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from affine import Affine
 
 
 def contour_lines(
-    dem: np.ndarray, transform, *, interval: float, nodata_mask: np.ndarray | None = None
+    dem: np.ndarray, transform: Affine, *, interval: float, nodata_mask: np.ndarray | None = None
 ) -> list[tuple[float, np.ndarray]]:
     """Contour lines of a north-up DEM every *interval* metres.
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -10,6 +11,9 @@ from dtm.common import glossary
 from dtm.common.tile_classes import PointTask
 from dtm.stages.denoise.outliers import isolated_points, low_outliers
 from dtm.stages.denoise.params import DenoiseParams
+
+if TYPE_CHECKING:
+    import laspy
 
 
 def reach(params: DenoiseParams) -> float:
@@ -81,7 +85,7 @@ def above_neighbours(points: np.ndarray, iso: np.ndarray, *, neighbors: int, rad
     return high
 
 
-def denoise_columns(chunk) -> dict[str, np.ndarray]:
+def denoise_columns(chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
     """The columns the noise tests need besides x, y, z (:func:`dtm.common.tile_points.split_cloud`)."""
     return {
         "classification": np.asarray(chunk.classification, dtype=np.uint8),

@@ -8,11 +8,15 @@ cell.  Values are computed at cell centres.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.common.grid import Grid
 from dtm.common.neighbours import canonical_neighbours
+
+if TYPE_CHECKING:
+    from pipeline.log import Progress
 
 
 def thin_points(xy: np.ndarray, cell: float, *, sparse: int = 0) -> np.ndarray:
@@ -77,7 +81,7 @@ def tin(
     thin: bool = True,
     margin: float | None = 25.0,
     batch_cells: int = 1_000_000,
-    progress=None,
+    progress: Progress | None = None,
 ) -> np.ndarray:
     """Linear interpolation on the Delaunay triangulation (TIN) of *points*, at the cell centres of *grid*.
 
@@ -414,7 +418,7 @@ def idw(
     nodata: float = np.nan,
     block_rows: int = 64,
     margin: float | None = 10.0,
-    progress=None,
+    progress: Progress | None = None,
 ) -> np.ndarray:
     """Inverse-distance-weighted mean of the ``neighbors`` nearest points of each cell centre.
 
@@ -449,7 +453,7 @@ def nearest(
     nodata: float = np.nan,
     block_rows: int = 64,
     margin: float | None = 10.0,
-    progress=None,
+    progress: Progress | None = None,
 ) -> np.ndarray:
     """Value of the nearest point to each cell centre (*nodata* beyond ``nodata_distance``; *margin* as :func:`idw`)."""
     pts = np.asarray(points, dtype=np.float64)

@@ -8,6 +8,7 @@ the CRS's unit when it writes them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,8 +16,13 @@ from dtm.common.grid import Grid, cell_mean, fill_nearest
 from dtm.stages.rasterize.interpolate import idw, nearest, tin
 from dtm.stages.rasterize.params import RasterizeParams
 
+if TYPE_CHECKING:
+    from pipeline.log import Progress
 
-def interpolate_dtm(ground: np.ndarray, grid: Grid, params: RasterizeParams, progress=None) -> np.ndarray:
+
+def interpolate_dtm(
+    ground: np.ndarray | list[np.ndarray], grid: Grid, params: RasterizeParams, progress: Progress | None = None
+) -> np.ndarray:
     """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
     if params.method == "tin":
         return tin(ground, grid, nodata_distance=params.nodata_distance, thin=params.tin.thin, progress=progress)
@@ -48,7 +54,9 @@ class TileCloud:
     sigma: np.ndarray | None = None
 
 
-def tile_rasters(cloud: TileCloud, core: Grid, wide: Grid, crop, params: RasterizeParams) -> dict[str, np.ndarray]:
+def tile_rasters(
+    cloud: TileCloud, core: Grid, wide: Grid, crop: tuple[slice, slice], params: RasterizeParams
+) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
     ``dtm`` (:func:`interpolate_dtm`), ``dsm`` (the highest return, gaps

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from functools import partial
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import survey_figures
 from dtm.stages.rasterize.tiles import (
     RASTERS,
+    RasterTask,
     Usable,
     mosaic_jobs,
     mosaic_raster,
@@ -35,7 +36,14 @@ from dtm.stages.rasterize.tiles import (
     reach,
 )
 from pipeline.errors import InputDataError
-from pipeline.stage import Stage, StageContext
+from pipeline.stage import Stage, StageContext, StageIO
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+    from dtm.common.clouds import CloudInfo
+    from dtm.common.units import Units
+    from pipeline.tiling import Layout
 
 
 class Rasterize(Stage):
@@ -47,9 +55,7 @@ class Rasterize(Stage):
     outputs: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
     products: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
 
-    def declare(self, params, config):
-        from pipeline.stage import StageIO
-
+    def declare(self, params: RasterizeParams, config: BaseModel) -> StageIO:
         outputs, products = dict(self.outputs), dict(self.products)
         geo = getattr(config.stages, "georeference", None)
         if config.input.format != "las" and geo is not None and geo.uncertainty is not None:
@@ -107,7 +113,7 @@ class Rasterize(Stage):
         )
 
 
-def _check_points(ctx: StageContext[RasterizeParams], info) -> None:
+def _check_points(ctx: StageContext[RasterizeParams], info: CloudInfo) -> None:
     """Refuse an empty cloud, and points without the sigmas an uncertainty raster needs."""
     if info.count == 0:
         raise InputDataError(f"{glossary.input_names(ctx.config)}: the point cloud is empty: there is nothing to grid.")
@@ -115,7 +121,7 @@ def _check_points(ctx: StageContext[RasterizeParams], info) -> None:
         raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
 
 
-def _median_sigma(path: Path, units) -> float | None:
+def _median_sigma(path: Path, units: Units) -> float | None:
     """The median vertical sigma (metres) of the uncertainty raster's cells; None when it has none."""
     from dtm.common.rasters import read_raster
 
@@ -131,14 +137,14 @@ class _Tiles:
     points) and ``transform`` (the grid's, in the CRS's units) are set then.
     """
 
-    def __init__(self, ctx: StageContext[RasterizeParams], src: Path, info, work: Path):
+    def __init__(self, ctx: StageContext[RasterizeParams], src: Path, info: CloudInfo, work: Path):
         self.ctx, self.src, self.info, self.work = ctx, src, info, work
         self.names = [n for n in RASTERS if n in ctx.outputs]
         self.grid: Grid | None = None
         self.ground = 0
         self.transform = None
 
-    def split(self, layout) -> list:
+    def split(self, layout: Layout) -> list[RasterTask]:
         """Cut the points into the tiles, size the grid by the usable ones, and make the tiles' tasks."""
         from dtm.common.tile_points import split_cloud
 
@@ -170,7 +176,7 @@ class _Tiles:
         params = p.model_dump(mode="json")
         return raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
 
-    def merge(self, layout, tasks, results) -> list[dict]:
+    def merge(self, layout: Layout, tasks: list[RasterTask], results: list[dict]) -> list[dict]:
         """Assemble each raster from the tiles' windows, on the workers when there are tiles."""
         ctx = self.ctx
         self.transform = self.info.units.transform_from_metres(self.grid.transform)

@@ -11,9 +11,10 @@ them as a COG.  A tile's cells are bit for bit those of an untiled run
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,6 +26,11 @@ from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import TileCloud, tile_figures, tile_rasters
 from pipeline.errors import InputDataError
 from pipeline.tiling import Layout
+
+if TYPE_CHECKING:
+    import laspy
+    import pyproj
+    from affine import Affine
 
 #: The rasters a run can make, in the order they are made and written.
 RASTERS = ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty")
@@ -42,7 +48,7 @@ def reach(params: RasterizeParams) -> float:
     return far * params.nodata_distance + 2.0 * params.resolution
 
 
-def raster_columns(chunk, *, sigma: bool = False) -> dict[str, np.ndarray]:
+def raster_columns(chunk: laspy.ScaleAwarePointRecord, *, sigma: bool = False) -> dict[str, np.ndarray]:
     """The columns the tiles need besides x, y, z (:func:`dtm.common.tile_points.split_cloud`): classes, withheld, sigma."""
     cols = {
         "classification": np.asarray(chunk.classification, dtype=np.uint8),
@@ -107,7 +113,13 @@ class RasterTask:
 
 
 def raster_tasks(
-    layout: Layout, rows: dict[int, tuple[int, int]], grid: Grid, work: Path, params: dict, vertical: float, outputs
+    layout: Layout,
+    rows: dict[int, tuple[int, int]],
+    grid: Grid,
+    work: Path,
+    params: dict,
+    vertical: float,
+    outputs: Sequence[str],
 ) -> list[RasterTask]:
     """One task per tile holding points (*rows*: :func:`dtm.common.tile_points.split_cloud`'s), its columns in *work*."""
     return [
@@ -148,7 +160,9 @@ def rasterize_tile(task: RasterTask) -> dict:
     return {"tile": task.tile, **tile_figures(rasters, vertical)}
 
 
-def tile_windows(grid: Grid, window: tuple[int, int, int, int], buffer: float) -> tuple[Grid, Grid, tuple]:
+def tile_windows(
+    grid: Grid, window: tuple[int, int, int, int], buffer: float
+) -> tuple[Grid, Grid, tuple[slice, slice]]:
     """The tile's core cells (*window* of *grid*), its wide grid (the core plus *buffer*), and the core's slice of it."""
     r0, r1, c0, c1 = window
     core = grid.window(r0, r1, c0, c1)
@@ -221,7 +235,13 @@ class MosaicJob:
 
 
 def mosaic_jobs(
-    paths: dict[str, Path], grid: Grid, transform, crs, layout: Layout, tasks: list[RasterTask], cache_mb: int
+    paths: dict[str, Path],
+    grid: Grid,
+    transform: Affine,
+    crs: pyproj.CRS | None,
+    layout: Layout,
+    tasks: list[RasterTask],
+    cache_mb: int,
 ) -> list[MosaicJob]:
     """One job per raster of *paths* (name -> file): the windows of *tasks*, and fill for the tiles without one."""
     done = {t.tile for t in tasks}

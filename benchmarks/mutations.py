@@ -162,7 +162,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
         ),
-    ),  # fmt: skip
+    ),
     Mutation(
         "SMRF window radius halved (w_max read as a diameter)",
         "dtm/stages/classify_ground/smrf.py",
@@ -173,7 +173,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
         ),
-    ),  # fmt: skip
+    ),
     Mutation(
         "inpainting: an unknown cell averages three of its four neighbours",
         "dtm/stages/classify_ground/surface.py",
@@ -184,7 +184,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
         ),
-    ),  # fmt: skip
+    ),
     Mutation(
         "inpainting: edge cells divided by four neighbours (zero outside the grid)",
         "dtm/stages/classify_ground/surface.py",
@@ -195,7 +195,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
         ),
-    ),  # fmt: skip
+    ),
     Mutation(
         "DTM check: reference minus run (a false hill reads as a hole)",
         "dtm/commands/evaluate/scores.py",

@@ -1,4 +1,4 @@
-"""Geodesy for georeferencing: WGS 84 geodetic <-> ECEF, local-level frames, map projection.
+"""Geodesy for georeferencing: WGS 84 geodetic -> ECEF, local-level frames, map projection.
 
 Every transform between datums and projections is pyproj's (PROJ).  What is
 ours is how it is applied to millions of points fast *without* giving up
@@ -24,12 +24,6 @@ def geodetic_to_ecef(lat_deg: np.ndarray, lon_deg: np.ndarray, h: np.ndarray) ->
         np.asarray(lon_deg, float), np.asarray(lat_deg, float), np.asarray(h, float)
     )
     return np.column_stack((x, y, z))
-
-
-def ecef_to_geodetic(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ECEF (n, 3) -> latitude, longitude (degrees), ellipsoidal height (pyproj)."""
-    lon, lat, h = _transformer("EPSG:4978", "EPSG:4979").transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
-    return np.asarray(lat), np.asarray(lon), np.asarray(h)
 
 
 def local_level_to_ecef(lat_deg: np.ndarray, lon_deg: np.ndarray, frame: str = "NED") -> np.ndarray:

@@ -46,6 +46,40 @@ def local_level_to_ecef(lat_deg: np.ndarray, lon_deg: np.ndarray, frame: str = "
     return np.stack(axes, -1)
 
 
+WGS84_A = 6_378_137.0  # semi-major axis, metres
+WGS84_E2 = 6.69437999014e-3  # first eccentricity squared
+
+
+def radii_of_curvature(lat_deg: float) -> tuple[float, float]:
+    """WGS 84 radii of curvature at a latitude (degrees): meridian M and prime vertical N, metres.
+
+    >>> [round(float(r)) for r in radii_of_curvature(0.0)]
+    [6335439, 6378137]
+    """
+    w = 1.0 - WGS84_E2 * np.sin(np.radians(lat_deg)) ** 2
+    return WGS84_A * (1 - WGS84_E2) / w**1.5, WGS84_A / np.sqrt(w)
+
+
+def ltp_predicted_departure(
+    platform: np.ndarray, lat0: float, h0: float, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """What geometry predicts for the seed-0 ltp plane's error at platform positions (local ENU, n x 3).
+
+    The platform is placed with the sphere's *radius* instead of the radii of
+    curvature at its height, M + h and N + h, and the tangent plane rises over
+    the ellipsoid by d^2 / 2R.  Returns the horizontal and vertical figures,
+    metres.  The pulse offsets are added in the plane, which tilts by d/R
+    against the true local level: a term left out.
+    """
+    radius_m, radius_n = radii_of_curvature(lat0)
+    h_p = h0 + platform[:, 2]
+    horizontal = np.hypot(
+        (radius / (radius_n + h_p) - 1) * platform[:, 0], (radius / (radius_m + h_p) - 1) * platform[:, 1]
+    )
+    vertical = (platform[:, 0] ** 2 + platform[:, 1] ** 2) / (2 * np.sqrt(radius_m * radius_n))
+    return horizontal, vertical
+
+
 @dataclass
 class LocalFrame:
     """A Cartesian east-north-up frame tangent to WGS 84 at an origin: a rigid transform of ECEF.

@@ -28,13 +28,18 @@ positions to the attitude epochs with a cubic spline first.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dtm.common.geodesy import LocalFrame, local_level_to_ecef
+from dtm.common.geodesy import LocalFrame, MapTransform, local_level_to_ecef
 from dtm.common.rotation import euler_quat, matrix_quat, quat_mul, slerp_weights, unwrap_signs
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    import pyproj
 
 
 @dataclass
@@ -235,7 +240,7 @@ def georeference(
 LAS_GPS_OFFSET = 1e9  # LAS 1.4 adjusted standard GPS time = GPS seconds - 1e9
 
 
-def ltp_crs(lat0: float, lon0: float, radius: float):
+def ltp_crs(lat0: float, lon0: float, radius: float) -> pyproj.CRS:
     """The seed-0 LTP as a PROJ CRS: equidistant cylindrical on a sphere, true scale at lat0."""
     import pyproj
 
@@ -244,29 +249,22 @@ def ltp_crs(lat0: float, lon0: float, radius: float):
     )
 
 
-def prepare_exact(traj: dict, convention: str, pmeta: dict):
+def prepare_exact(traj: dict, convention: str, pmeta: dict) -> tuple[Trajectory, Mounting]:
     """The trajectory in the exact frame (local level at the first fix) and the mounting of the pulses.
 
-    Returns the :class:`~dtm.common.geodesy.LocalFrame`, the
-    :class:`~dtm.common.georeferencing.Trajectory` and the
-    :class:`~dtm.common.georeferencing.Mounting` (``pmeta``'s rotation and lever arm).
+    *traj* holds the parse stage's trajectory columns, *pmeta* the pulses'
+    metadata (its ``rotation`` and ``lever_arm`` make the :class:`Mounting`).
     """
-    from dtm.common.geodesy import LocalFrame
-    from dtm.common.georeferencing import Mounting, prepare_trajectory
-
     frame = LocalFrame(float(traj["lat"][0]), float(traj["lon"][0]), float(traj["h"][0]))
-    exact = prepare_trajectory(traj["time"], traj["lat"], traj["lon"], traj["h"], traj["roll"], traj["pitch"],
-                               traj["yaw"], convention, frame)  # fmt: skip
+    exact = prepare_trajectory(
+        traj["time"], traj["lat"], traj["lon"], traj["h"], traj["roll"], traj["pitch"], traj["yaw"], convention, frame
+    )
     mounting = Mounting(np.asarray(pmeta["rotation"], dtype=np.float64), np.asarray(pmeta["lever_arm"], float))
-    return frame, exact, mounting
+    return exact, mounting
 
 
-def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: float):
-    """A :class:`~dtm.common.georeferencing.Trajectory` in the seed-0 LTP: formula positions, one fixed local level."""
-    from dtm.common.geodesy import LocalFrame, local_level_to_ecef
-    from dtm.common.georeferencing import trajectory_from
-    from dtm.common.rotation import euler_quat, matrix_quat, quat_mul
-
+def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: float) -> Trajectory:
+    """A :class:`Trajectory` in the seed-0 LTP: formula positions, one fixed local level."""
     lat, lon, h = (np.asarray(traj[k], dtype=np.float64) for k in ("lat", "lon", "h"))
     e = radius * np.radians(lon - lon0) * np.cos(np.radians(lat0))
     n = radius * np.radians(lat - lat0)
@@ -277,3 +275,93 @@ def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: f
     q = quat_mul(matrix_quat(enu.T @ level)[None, :], q_n_b)
     time = np.asarray(traj["time"], dtype=np.float64)
     return trajectory_from(time, position, q, LocalFrame(lat0, lon0, float(h[0])))
+
+
+def pulse_reach(x: np.ndarray, y: np.ndarray, z: np.ndarray, batch_size: int = 2_000_000) -> float:
+    """The longest pulse vector (scanner frame, metres), read *batch_size* pulses at a time."""
+    reach = 0.0
+    for s in range(0, len(x), batch_size):
+        sl = slice(s, s + batch_size)
+        r = np.sqrt(x[sl] ** 2 + y[sl] ** 2 + z[sl] ** 2)
+        reach = max(reach, float(r.max()))
+    return reach
+
+
+def same_columns(e: np.ndarray, n: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ltp frame's map: its plane is the output CRS, so columns are written as computed."""
+    return e, n, u
+
+
+@dataclass
+class OutputFrame:
+    """Where the points are written: the CRS, the trajectory the pulses are georeferenced in, and its map.
+
+    Built by :func:`exact_output` or :func:`ltp_output`; ``lo`` and ``hi``
+    bound the survey in the trajectory's local frame.
+    """
+
+    crs: pyproj.CRS
+    trajectory: Trajectory
+    to_map: MapTransform | None  # None: the ltp plane, which is its own map
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @property
+    def columns(self) -> Callable[..., tuple[np.ndarray, ...]]:
+        """Local columns (e, n, u) -> output-CRS columns, the ``to_map`` of :func:`georeference`."""
+        return self.to_map.columns if self.to_map is not None else same_columns
+
+    def points(self, local: np.ndarray) -> np.ndarray:
+        """Output-CRS coordinates of (n, 3) local points."""
+        return self.to_map(local) if self.to_map is not None else local
+
+    def bounds(self) -> np.ndarray:
+        """Output-CRS points whose box holds the survey: four corners of the local box (exact), or the box (ltp)."""
+        lo, hi = self.lo, self.hi
+        if self.to_map is None:
+            return np.array([lo, hi])
+        return self.to_map(
+            np.array([[lo[0], lo[1], lo[2]], [hi[0], hi[1], hi[2]], [lo[0], hi[1], lo[2]], [hi[0], lo[1], hi[2]]])
+        )
+
+
+def exact_output(exact: Trajectory, crs: pyproj.CRS, reach: float, *, geoid=None) -> OutputFrame:
+    """The exact frame: PROJ (through :class:`MapTransform`) over the platform's box widened by *reach* metres."""
+    lo = exact.position.min(axis=0) - reach
+    hi = exact.position.max(axis=0) + reach
+    return OutputFrame(crs, exact, MapTransform(exact.frame, crs, lo, hi, geoid=geoid), lo, hi)
+
+
+def ltp_output(ltp: Trajectory, radius: float, reach: float) -> OutputFrame:
+    """The seed-0 ltp plane of *ltp* (from :func:`prepare_ltp`), written with its PROJ definition."""
+    lo = ltp.position.min(axis=0) - reach
+    hi = ltp.position.max(axis=0) + reach
+    return OutputFrame(ltp_crs(ltp.frame.lat0, ltp.frame.lon0, radius), ltp, None, lo, hi)
+
+
+def platform_position(traj: Trajectory, i: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """The platform's (n, 3) local position at pulses located by :func:`locate`, linearly interpolated."""
+    return traj.position[i] + (traj.position[i + 1] - traj.position[i]) * f[:, None]
+
+
+def ltp_departure(
+    exact: Trajectory,
+    ltp: Trajectory,
+    t: np.ndarray,
+    v_s: tuple[np.ndarray, np.ndarray, np.ndarray],
+    mounting: Mounting,
+    max_gap_s: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How far the seed-0 ltp plane puts pulses from the exact local tangent plane.
+
+    Returns, for the pulses that have a trajectory: ltp minus exact (n, 3),
+    the exact local points and the platform's exact local position, metres.
+    """
+    i, f, ok = locate(exact, t, max_gap_s)
+    cols = tuple(c[ok] for c in v_s)
+    ex = np.column_stack(georeference_local(exact, *cols, mounting, i[ok], f[ok]))
+    platform = platform_position(exact, i[ok], f[ok])
+    i, f, _ = locate(ltp, t, max_gap_s)
+    lt = np.column_stack(georeference_local(ltp, *cols, mounting, i[ok], f[ok]))
+    lt[:, 2] -= exact.frame.h0
+    return lt - ex, ex, platform

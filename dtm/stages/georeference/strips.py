@@ -1,4 +1,9 @@
-"""Flight-strip segmentation from a trajectory: steady-heading lines separated by turns (SPEC 4)."""
+"""Flight strips (SPEC 4): steady-heading lines of the trajectory separated by turns.
+
+:func:`segment_strips` labels the epochs, :func:`pulse_strips` gives every
+pulse its strip and :func:`write_flight_lines` writes the lines to
+``qc/trajectory.gpkg``.
+"""
 
 from __future__ import annotations
 
@@ -6,9 +11,13 @@ import numpy as np
 
 
 def segment_strips(
-    time: np.ndarray, heading_deg: np.ndarray, *, turn_rate_deg_s: float = 1.0, min_line_s: float = 10.0,
+    time: np.ndarray,
+    heading_deg: np.ndarray,
+    *,
+    turn_rate_deg_s: float = 1.0,
+    min_line_s: float = 10.0,
     smooth_s: float = 2.0,
-) -> np.ndarray:  # fmt: skip
+) -> np.ndarray:
     """Strip number per epoch: 1, 2, ... for the lines in time order, 0 in turns.
 
     The heading (unwrapped) is smoothed with a moving average of *smooth_s*
@@ -48,3 +57,55 @@ def segment_strips(
     long_enough = t[last] - t[first] >= min_line_s
     label = np.concatenate(([0], np.where(long_enough, np.cumsum(long_enough), 0))).astype(np.int32)
     return label[run]
+
+
+def nearest(times: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Index of the epoch nearest to each time.
+
+    >>> nearest(np.array([0.0, 1.0, 2.0]), np.array([0.4, 0.6, 5.0])).tolist()
+    [0, 1, 2]
+    """
+    idx = np.clip(np.searchsorted(times, t, side="left"), 0, len(times) - 1)
+    prev = np.clip(idx - 1, 0, None)
+    return np.where(np.abs(times[prev] - t) < np.abs(times[idx] - t), prev, idx)
+
+
+def pulse_strips(
+    epoch_time: np.ndarray, epoch_strip: np.ndarray, pulse_time: np.ndarray, batch_size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The strip of every pulse (its nearest epoch's), and of every epoch, numbered again.
+
+    The strips that have pulses are numbered 1, 2, ... in time order (0 stays
+    a turn); the pulses are looked up *batch_size* at a time.
+    """
+    pulse_strip = np.empty(len(pulse_time), np.int32)
+    for s in range(0, len(pulse_time), batch_size):
+        sl = slice(s, s + batch_size)
+        pulse_strip[sl] = epoch_strip[nearest(epoch_time, np.asarray(pulse_time[sl]))]
+    used = np.unique(pulse_strip)
+    renumber = np.zeros(int(epoch_strip.max()) + 1, np.int32)
+    renumber[used[used > 0]] = np.arange(1, int(np.sum(used > 0)) + 1)
+    return renumber[pulse_strip], renumber[epoch_strip]
+
+
+def write_flight_lines(path, time: np.ndarray, xyz: np.ndarray, strip: np.ndarray, crs) -> None:
+    """``qc/trajectory.gpkg``: one LineString a flight line, in the output CRS.
+
+    Per line: the strip id, the first and last GPS time, and the height of the
+    platform in the output CRS (mean, lowest, highest); epochs in turns
+    (strip 0) are left out.
+    """
+    from dtm.common.vectors import line_wkb, write_gpkg
+
+    ids = [int(s) for s in np.unique(strip) if s > 0]
+    lines, rows = [], []
+    for s in ids:
+        m = strip == s
+        pts = xyz[m]
+        lines.append(line_wkb(pts))
+        rows.append((s, time[m].min(), time[m].max(), pts[:, 2].mean(), pts[:, 2].min(), pts[:, 2].max()))
+    names = ("strip", "time_start", "time_end", "altitude_mean", "altitude_min", "altitude_max")
+    table = np.array(rows, dtype=np.float64).reshape(-1, len(names))
+    fields = {n: table[:, i] for i, n in enumerate(names)}
+    fields["strip"] = fields["strip"].astype(np.int32)
+    write_gpkg(path, lines, fields, crs=crs, layer="flight_lines")

@@ -24,7 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtm.common.georeferencing import Mounting, Trajectory
+from dtm.common.georeferencing import Mounting, Trajectory, locate
+from dtm.stages.georeference.params import UncertaintyParams
+from pipeline.errors import ConfigError
 
 
 @dataclass
@@ -112,3 +114,86 @@ def propagate(
         for j in range(3):
             add(sig.lever_arm_m, tuple(body[j][k] for k in range(3)))
     return np.sqrt(var[0] + var[1]), np.sqrt(var[2])
+
+
+@dataclass(frozen=True)
+class EpochSigmas:
+    """Per-epoch one-sigma errors of the navigation, and where each came from."""
+
+    position: tuple[np.ndarray, np.ndarray, np.ndarray]  # east, north, up; metres
+    attitude: tuple[np.ndarray, np.ndarray, np.ndarray]  # roll, pitch, heading; radians
+    sources: dict[str, str]  # "position" / "attitude" -> "configuration" or "trajectory"
+
+
+def epoch_sigmas(u: UncertaintyParams, traj: dict) -> EpochSigmas:
+    """Per-epoch position and attitude sigmas: from the configuration, else from the trajectory's columns.
+
+    Neither is a :class:`~pipeline.errors.ConfigError` naming the key to set.
+    """
+    n = len(traj["time"])
+    out: dict = {"sources": {}}
+    wanted = (
+        (
+            "position",
+            u.position_m,
+            1.0,
+            ("sigma_east_m", "sigma_north_m", "sigma_up_m"),
+            "position_m",
+            "no position sigmas (no $GST, no smrmsg)",
+        ),
+        (
+            "attitude",
+            u.attitude_deg,
+            np.pi / 180,
+            ("sigma_roll_deg", "sigma_pitch_deg", "sigma_heading_deg"),
+            "attitude_deg",
+            "no attitude sigmas (only smrmsg files carry them)",
+        ),
+    )
+    for name, stated, scale, columns, key, missing in wanted:
+        if stated is not None:
+            out[name] = tuple(np.full(n, stated * scale) for _ in range(3))
+            out["sources"][name] = "configuration"
+        elif all(c in traj for c in columns):
+            out[name] = tuple(np.asarray(traj[c], dtype=np.float64) * scale for c in columns)
+            out["sources"][name] = "trajectory"
+        else:
+            raise ConfigError(
+                f"stages.georeference.uncertainty.{key}: the trajectory has {missing}, so state the {name} error."
+            )
+    return EpochSigmas(out["position"], out["attitude"], out["sources"])
+
+
+def scan_axis(pulse_format: str | None) -> tuple[float, float, float]:
+    """The scanner-frame axis the beam turns about: z for the LD-MRS (3.A), x for the RIEGL line scanners."""
+    return (0.0, 0.0, 1.0) if pulse_format == "ldmrs_mtig" else (1.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PointUncertainty:
+    """What the per-point propagation needs besides the pulses: the configured and per-epoch sigmas, the scan axis."""
+
+    config: UncertaintyParams
+    epochs: EpochSigmas
+    scan_axis: tuple[float, float, float]
+
+    def sigmas(
+        self, traj: Trajectory, t: np.ndarray, v_s: list[np.ndarray], mounting: Mounting
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal and vertical one-sigma (metres) of pulses at times *t* with scanner vectors *v_s*."""
+        u = self.config
+        i, f, _ = locate(traj, t, float("inf"))
+        sig = Sigmas(
+            range_m=u.range_m,
+            scan_angle_rad=np.radians(u.scan_angle_deg),
+            position_enu_m=tuple(c[i] for c in self.epochs.position),
+            attitude_rad=tuple(c[i] for c in self.epochs.attitude),
+            boresight_rad=np.radians(u.boresight_deg),
+            lever_arm_m=u.lever_arm_m,
+        )
+        return propagate(traj, i, f, tuple(v_s), mounting, sig, self.scan_axis)
+
+
+def point_uncertainty(u: UncertaintyParams, traj: dict, pulse_format: str | None) -> PointUncertainty:
+    """The :class:`PointUncertainty` of a flight: *u* configured, *traj* the trajectory's columns."""
+    return PointUncertainty(u, epoch_sigmas(u, traj), scan_axis(pulse_format))

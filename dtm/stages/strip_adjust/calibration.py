@@ -64,27 +64,21 @@ class _Geometry:
 
     def __init__(self, ctx, traj, tmeta, pulses, pmeta):
         from dtm.common.crs import output_crs
-        from dtm.common.geodesy import MapTransform
-        from dtm.common.georeferencing import prepare_exact, prepare_ltp
+        from dtm.common.georeferencing import exact_output, ltp_output, prepare_exact, prepare_ltp, pulse_reach
 
         g = ctx.setting("stages.georeference")
-        self.max_gap_s = g.max_gap_s
         convention = tmeta["convention"]
         lat0, lon0 = float(traj["lat"][0]), float(traj["lon"][0])
-        frame, self.exact, self.mounting = prepare_exact(traj, convention, pmeta)
-        reach = 0.0
-        for s in range(0, len(pulses["time"]), 2_000_000):
-            v = np.column_stack([np.asarray(pulses[k][s : s + 2_000_000]) for k in ("x", "y", "z")])
-            reach = max(reach, float(np.linalg.norm(v, axis=1).max(initial=0.0)))
+        self.exact, self.mounting = prepare_exact(traj, convention, pmeta)
+        reach = pulse_reach(pulses["x"], pulses["y"], pulses["z"])
         reach += float(np.linalg.norm(self.mounting.lever_arm)) + 11.0
         if g.frame == "exact":
             crs = output_crs(ctx.setting("crs"), None, (lon0, lat0))
-            lo, hi = self.exact.position.min(axis=0) - reach, self.exact.position.max(axis=0) + reach
-            self.output = self.exact
-            self.to_map = MapTransform(frame, crs, lo, hi, geoid=g.geoid).columns
+            out = exact_output(self.exact, crs, reach, geoid=g.geoid)
         else:
-            self.output = prepare_ltp(traj, convention, lat0, lon0, g.ltp_radius_m)
-            self.to_map = lambda e, n, u: (e, n, u)
+            out = ltp_output(prepare_ltp(traj, convention, lat0, lon0, g.ltp_radius_m), g.ltp_radius_m, reach)
+        self.output = out.trajectory
+        self.to_map = out.columns
 
     def map_to_local(self, xyz: np.ndarray) -> np.ndarray:
         """Output-CRS coordinates -> the output trajectory's local frame (Newton on the map transform)."""

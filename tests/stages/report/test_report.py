@@ -261,7 +261,7 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     """qc/trajectory.gpkg: a LineString per flight line with its id, times and heights; turns (0) left out."""
     import pyogrio
 
-    from dtm.stages.georeference.stage import write_flight_lines
+    from dtm.stages.georeference.strips import write_flight_lines
     from dtm.stages.report.inputs import read_flight_lines
 
     t = np.arange(0.0, 30.0, 1.0)

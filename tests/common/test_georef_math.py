@@ -22,8 +22,16 @@ S30, C30 = 0.5, np.sqrt(3) / 2
 
 
 def _one_pulse(convention, roll, pitch, yaw, v_s, rotation, lever):
-    traj = prepare_trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2), np.zeros(2), np.full(2, roll),
-                              np.full(2, pitch), np.full(2, yaw), convention)  # fmt: skip
+    traj = prepare_trajectory(
+        np.array([0.0, 1.0]),
+        np.zeros(2),
+        np.zeros(2),
+        np.zeros(2),
+        np.full(2, roll),
+        np.full(2, pitch),
+        np.full(2, yaw),
+        convention,
+    )
     i, f, ok = locate(traj, np.array([0.5]), 2.0)
     assert ok.all()
     local = np.column_stack(georeference_local(traj, *(np.array([c]) for c in v_s), Mounting(rotation, lever), i, f))
@@ -115,10 +123,22 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
     from dtm.commands.simulate.settings import SimulateConfig
     from dtm.commands.simulate.simulator import simulate
 
-    cfg = SimulateConfig(output=tmp_path / "sim", seed=3, formats=["lmsq_sbet"], checkpoints=0,
-                         scanner={"preset": "q140", "pulse_rate_hz": 2000},
-                         flight={"altitude_m": 150, "speed_ms": 60, "lines": 1, "line_length_m": 1000,
-                                 "cross_line": False, "lead_in_m": 0}, faults={"noise": False})  # fmt: skip
+    cfg = SimulateConfig(
+        output=tmp_path / "sim",
+        seed=3,
+        formats=["lmsq_sbet"],
+        checkpoints=0,
+        scanner={"preset": "q140", "pulse_rate_hz": 2000},
+        flight={
+            "altitude_m": 150,
+            "speed_ms": 60,
+            "lines": 1,
+            "line_length_m": 1000,
+            "cross_line": False,
+            "lead_in_m": 0,
+        },
+        faults={"noise": False},
+    )
     simulate(cfg)
     sim = tmp_path / "sim" / "lmsq"
     config = tmp_path / "ltp.yaml"
@@ -155,8 +175,17 @@ def test_geoid_grid_gives_orthometric_heights(tmp_path):
     from dtm.common.geodesy import LocalFrame, MapTransform
 
     grid = tmp_path / "geoid.tif"
-    with rasterio.open(grid, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32", crs="EPSG:4326",
-                       transform=from_origin(-4.0, 41.0, 0.05, 0.05)) as ds:  # fmt: skip
+    with rasterio.open(
+        grid,
+        "w",
+        driver="GTiff",
+        width=20,
+        height=20,
+        count=1,
+        dtype="float32",
+        crs="EPSG:4326",
+        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
+    ) as ds:
         ds.write(np.full((1, 20, 20), 50.0, np.float32))
     frame = LocalFrame(40.4168, -3.7038, 650.0)
     lo, hi = np.array([-500.0, -500.0, -100.0]), np.array([500.0, 500.0, 300.0])

@@ -25,16 +25,30 @@ LDMRS = {
     "formats": ["ldmrs_mtig"],
     "scanner": {"preset": "ldmrs", "angle_step_deg": 2.0},
     "navigation": {"preset": "mtig"},
-    "flight": {"altitude_m": 50, "speed_ms": 8, "lines": 2, "line_length_m": 80, "cross_line": False,
-               "lead_in_m": 5, "sidelap": 0.3},
-}  # fmt: skip
+    "flight": {
+        "altitude_m": 50,
+        "speed_ms": 8,
+        "lines": 2,
+        "line_length_m": 80,
+        "cross_line": False,
+        "lead_in_m": 5,
+        "sidelap": 0.3,
+    },
+}
 RIEGL = {
     "formats": ["lmsq_nmea", "lmsq_sbet", "las"],
     "scanner": {"preset": "q140"},
     "navigation": {"preset": "pos-av-410", "ins_rate_hz": 200},
-    "flight": {"altitude_m": 120, "speed_ms": 40, "lines": 2, "line_length_m": 160, "cross_line": True,
-               "bank_deg": 45, "lead_in_m": 20},
-}  # fmt: skip
+    "flight": {
+        "altitude_m": 120,
+        "speed_ms": 40,
+        "lines": 2,
+        "line_length_m": 160,
+        "cross_line": True,
+        "bank_deg": 45,
+        "lead_in_m": 20,
+    },
+}
 
 
 def _simulate(root: Path, spec: dict, **faults) -> tuple[Path, object]:
@@ -67,10 +81,14 @@ def _match(truth_path: Path, points_path: Path):
     a, b = laspy.read(truth_path), laspy.read(points_path)
 
     def key(las):
-        return np.rec.fromarrays([
-            np.round(np.asarray(las.gps_time) * 1e6).astype(np.int64), np.asarray(las.return_number),
-            np.asarray(las.scanner_channel), np.asarray(las.scan_angle),
-        ])  # fmt: skip
+        return np.rec.fromarrays(
+            [
+                np.round(np.asarray(las.gps_time) * 1e6).astype(np.int64),
+                np.asarray(las.return_number),
+                np.asarray(las.scanner_channel),
+                np.asarray(las.scan_angle),
+            ]
+        )
 
     ka, kb = key(a), key(b)
     assert len(np.unique(ka)) == len(ka), "truth keys must be unique"
@@ -159,8 +177,12 @@ def test_attitude_from_pashr_when_there_is_no_ins_csv(zero_noise, tmp_path):
 def test_headings_wrapped_or_unwrapped_give_the_same_points(tmp_path, unwrapped):
     """The SBET written as Applanix does ((-pi, pi]) and unwrapped (a first line at 750 deg: headings past
     4 pi): every pulse is georeferenced to the truth, from the SBET and from the INS CSV alike."""
-    spec = {**RIEGL, "formats": ["lmsq_nmea", "lmsq_sbet"], "flight": {**RIEGL["flight"], "heading_deg": 750.0},
-            "navigation": {**RIEGL["navigation"], "ins_rate_hz": 50, "unwrapped_heading": unwrapped}}  # fmt: skip
+    spec = {
+        **RIEGL,
+        "formats": ["lmsq_nmea", "lmsq_sbet"],
+        "flight": {**RIEGL["flight"], "heading_deg": 750.0},
+        "navigation": {**RIEGL["navigation"], "ins_rate_hz": 50, "unwrapped_heading": unwrapped},
+    }
     sim, res = _simulate(tmp_path / "sim", spec, noise=False)
     sbet = np.fromfile(sim / "lmsq" / "trajectory.sbet", "<f8").reshape(-1, 17)
     ins = np.loadtxt(sim / "lmsq" / "ins.csv", delimiter=",", skiprows=1)
@@ -233,8 +255,12 @@ def test_trajectory_epochs_round_trip(zero_noise):
 
 def test_noise_comes_out_as_it_went_in(tmp_path):
     """Range noise only (5 cm): the georeferencing error is that noise, along the ray."""
-    spec = {**RIEGL, "scanner": {"preset": "q140", "range_noise_m": 0.05}, "formats": ["lmsq_sbet"],
-            "navigation": {"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0}}  # fmt: skip
+    spec = {
+        **RIEGL,
+        "scanner": {"preset": "q140", "range_noise_m": 0.05},
+        "formats": ["lmsq_sbet"],
+        "navigation": {"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
+    }
     sim, _ = _simulate(tmp_path / "sim", spec, noise=True)
     stages = _run(tmp_path, "noisy", _input("lmsq_sbet", sim))
     _, _, _, _, d = _match(
@@ -247,10 +273,26 @@ def test_noise_comes_out_as_it_went_in(tmp_path):
 
 def test_counters_equal_injected_faults(tmp_path):
     """Every fault the simulator injects is counted by the reader, exactly."""
-    ld, res_ld = _simulate(tmp_path / "ld", LDMRS, noise=True, invalid_utc_scans=3, bad_gps_scans=2,
-                           lost_scans=3, empty_scans=2, clutter_points=40, dirt_points=9)  # fmt: skip
-    rg, res_rg = _simulate(tmp_path / "rg", {**RIEGL, "formats": ["lmsq_nmea"]}, noise=True, pps_gaps=1,
-                           invalid_quality=50, dust_echoes=30, nmea_bad_checksums=7)  # fmt: skip
+    ld, res_ld = _simulate(
+        tmp_path / "ld",
+        LDMRS,
+        noise=True,
+        invalid_utc_scans=3,
+        bad_gps_scans=2,
+        lost_scans=3,
+        empty_scans=2,
+        clutter_points=40,
+        dirt_points=9,
+    )
+    rg, res_rg = _simulate(
+        tmp_path / "rg",
+        {**RIEGL, "formats": ["lmsq_nmea"]},
+        noise=True,
+        pps_gaps=1,
+        invalid_quality=50,
+        dust_echoes=30,
+        nmea_bad_checksums=7,
+    )
     injected = json.loads((ld / "truth" / "faults.json").read_text())["ldmrs_mtig"]
     assert injected == res_ld.faults["ldmrs_mtig"]
     parse = _run(tmp_path, "ld", _input("ldmrs_mtig", ld), until="parse")["parse"]["metrics"]

@@ -28,8 +28,7 @@ def test_a_pulse_inside_a_gap_has_no_position():
     traj = prepare_trajectory(t, lat, np.full(len(t), -3.7), np.full(len(t), 800.0), *np.zeros((3, len(t))), "NED")
     pulses = np.array([1.05, 3.95, 4.5, 5.0, 5.95, 6.0, 9.0])
     v = tuple(np.array([0.0] * len(pulses)) if k < 2 else np.full(len(pulses), 100.0) for k in range(3))
-    xyz, ok = georeference(traj, pulses, v, Mounting(np.eye(3), np.zeros(3)), lambda e, n, u: (e, n, u),
-                           max_gap_s=0.5)  # fmt: skip
+    xyz, ok = georeference(traj, pulses, v, Mounting(np.eye(3), np.zeros(3)), lambda e, n, u: (e, n, u), max_gap_s=0.5)
     assert ok.tolist() == [True, True, False, False, False, True, True]
     assert np.isnan(xyz[~ok]).all() and np.isfinite(xyz[ok]).all()
     # a longer allowance bridges the gap (the point then lies on the straight line between the epochs)

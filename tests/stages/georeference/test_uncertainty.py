@@ -14,8 +14,16 @@ from tests.conftest import run_stages
 
 
 def _level_pulse(v_s, sig, lever=(0.0, 0.0, 0.0)):
-    traj = prepare_trajectory(np.array([0.0, 1.0]), np.full(2, 40.0), np.full(2, -3.7), np.full(2, 500.0),
-                              np.zeros(2), np.zeros(2), np.zeros(2), "NED")  # fmt: skip
+    traj = prepare_trajectory(
+        np.array([0.0, 1.0]),
+        np.full(2, 40.0),
+        np.full(2, -3.7),
+        np.full(2, 500.0),
+        np.zeros(2),
+        np.zeros(2),
+        np.zeros(2),
+        "NED",
+    )
     i, f, _ = locate(traj, np.array([0.5]), 2.0)
     cols = tuple(np.array([c]) for c in v_s)
     sh, sv = propagate(traj, i, f, cols, Mounting(np.eye(3), np.asarray(lever, float)), sig, (1.0, 0.0, 0.0))
@@ -68,14 +76,30 @@ def test_monte_carlo_matches_the_propagated_sigma(tmp_path):
     errors, sig_v, sig_h, keys = [], None, None, None
     for k in range(30):
         sim = tmp_path / f"r{k}"
-        simulate(SimulateConfig(
-            output=sim, seed=21, noise_seed=100 + k, formats=["lmsq_sbet"], checkpoints=0,
-            scanner={"preset": "q140", "pulse_rate_hz": 2000, "range_noise_m": 0.03},
-            navigation={"preset": "pos-av-410", "position_noise_m": 0.05, "attitude_noise_deg": 0.02,
-                        "error_period_s": 2.0},
-            flight={"altitude_m": 150, "speed_ms": 40, "lines": 1, "line_length_m": 400, "cross_line": False,
-                    "lead_in_m": 0},
-        ))  # fmt: skip
+        simulate(
+            SimulateConfig(
+                output=sim,
+                seed=21,
+                noise_seed=100 + k,
+                formats=["lmsq_sbet"],
+                checkpoints=0,
+                scanner={"preset": "q140", "pulse_rate_hz": 2000, "range_noise_m": 0.03},
+                navigation={
+                    "preset": "pos-av-410",
+                    "position_noise_m": 0.05,
+                    "attitude_noise_deg": 0.02,
+                    "error_period_s": 2.0,
+                },
+                flight={
+                    "altitude_m": 150,
+                    "speed_ms": 40,
+                    "lines": 1,
+                    "line_length_m": 400,
+                    "cross_line": False,
+                    "lead_in_m": 0,
+                },
+            )
+        )
         config = tmp_path / f"r{k}.yaml"
         config.write_text(
             f"input: {{format: lmsq_sbet, paths: [{sim}/lmsq/scan.lmsq], sbet: {sim}/lmsq/trajectory.sbet, "

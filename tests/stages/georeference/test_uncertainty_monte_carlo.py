@@ -36,8 +36,16 @@ PULSES = np.array([[0.0, 0.0, 12.0], [0.0, 8.0, 14.0], [0.0, -15.0, 20.0], [0.0,
 
 
 def _propagated() -> tuple[np.ndarray, np.ndarray]:
-    traj = prepare_trajectory(np.array([0.0, 1.0]), np.full(2, LAT), np.full(2, LON), np.full(2, H),
-                              np.full(2, ROLL), np.full(2, PITCH), np.full(2, HEADING), "NED")  # fmt: skip
+    traj = prepare_trajectory(
+        np.array([0.0, 1.0]),
+        np.full(2, LAT),
+        np.full(2, LON),
+        np.full(2, H),
+        np.full(2, ROLL),
+        np.full(2, PITCH),
+        np.full(2, HEADING),
+        "NED",
+    )
     t = np.full(len(PULSES), 0.5)
     i, f, _ = locate(traj, t, 2.0)
     sig = Sigmas(SIGMA["range"], SIGMA["scan"], tuple(SIGMA["enu"]), tuple(SIGMA["att"]))
@@ -76,11 +84,26 @@ def test_propagated_sigmas_match_monte_carlo_with_a_lever_arm_and_unequal_sigmas
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_each_position_sigma_lands_on_its_own_axis(axis):
     """One position sigma at a time: east and north are horizontal, up is vertical."""
-    traj = prepare_trajectory(np.array([0.0, 1.0]), np.full(2, LAT), np.full(2, LON), np.full(2, H),
-                              np.zeros(2), np.zeros(2), np.zeros(2), "NED")  # fmt: skip
+    traj = prepare_trajectory(
+        np.array([0.0, 1.0]),
+        np.full(2, LAT),
+        np.full(2, LON),
+        np.full(2, H),
+        np.zeros(2),
+        np.zeros(2),
+        np.zeros(2),
+        "NED",
+    )
     i, f, _ = locate(traj, np.array([0.5]), 2.0)
     enu = [0.0, 0.0, 0.0]
     enu[axis] = 0.05
-    h, v = propagate(traj, i, f, (np.zeros(1), np.zeros(1), np.full(1, 50.0)), Mounting(np.eye(3), LEVER),
-                     Sigmas(0.0, 0.0, tuple(enu), (0.0, 0.0, 0.0)), (1.0, 0.0, 0.0))  # fmt: skip
+    h, v = propagate(
+        traj,
+        i,
+        f,
+        (np.zeros(1), np.zeros(1), np.full(1, 50.0)),
+        Mounting(np.eye(3), LEVER),
+        Sigmas(0.0, 0.0, tuple(enu), (0.0, 0.0, 0.0)),
+        (1.0, 0.0, 0.0),
+    )
     assert (float(h[0]), float(v[0])) == pytest.approx((0.05, 0.0) if axis < 2 else (0.0, 0.05), abs=1e-12)

@@ -24,16 +24,33 @@ BORESIGHT = (0.05, -0.08, 0.15)  # injected roll, pitch, yaw error, degrees
 LEVER = (0.03, -0.04, 0.0)  # injected lever-arm error, metres (5 cm)
 
 
-def _flight(root: Path, *, boresight=(0.0, 0.0, 0.0), lever=(0.0, 0.0, 0.0), pulse_rate=10_000, checkpoints=0,
-            **flight) -> Path:  # fmt: skip
-    plan = {"altitude_m": 300, "speed_ms": 40, "lines": 2, "sidelap": 0.5, "line_length_m": 300,
-            "cross_line": True, "bank_deg": 45, "lead_in_m": 50, "second_altitude_m": 150, **flight}  # fmt: skip
-    simulate(SimulateConfig(
-        output=root / "sim", seed=5, formats=["lmsq_sbet"], checkpoints=checkpoints,
-        scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": pulse_rate, "scan_rate_hz": 40},
-        navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
-        flight=plan, faults={"boresight_error_deg": boresight, "lever_arm_error_m": lever},
-    ))  # fmt: skip
+def _flight(
+    root: Path, *, boresight=(0.0, 0.0, 0.0), lever=(0.0, 0.0, 0.0), pulse_rate=10_000, checkpoints=0, **flight
+) -> Path:
+    plan = {
+        "altitude_m": 300,
+        "speed_ms": 40,
+        "lines": 2,
+        "sidelap": 0.5,
+        "line_length_m": 300,
+        "cross_line": True,
+        "bank_deg": 45,
+        "lead_in_m": 50,
+        "second_altitude_m": 150,
+        **flight,
+    }
+    simulate(
+        SimulateConfig(
+            output=root / "sim",
+            seed=5,
+            formats=["lmsq_sbet"],
+            checkpoints=checkpoints,
+            scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": pulse_rate, "scan_rate_hz": 40},
+            navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
+            flight=plan,
+            faults={"boresight_error_deg": boresight, "lever_arm_error_m": lever},
+        )
+    )
     return root / "sim"
 
 
@@ -58,8 +75,17 @@ def _unknowns(corrections: dict) -> dict:
 
 @pytest.mark.slow  # a calibration flight of about 0.5 M pulses, adjusted twice (about 1 min on 2 cores)
 def test_calibration_flight_recovers_the_injected_boresight(tmp_path):
-    sim = _flight(tmp_path, boresight=BORESIGHT, lever=LEVER, pulse_rate=15_000, altitude_m=500,
-                  second_altitude_m=150, lines=3, line_length_m=400, lead_in_m=0)  # fmt: skip
+    sim = _flight(
+        tmp_path,
+        boresight=BORESIGHT,
+        lever=LEVER,
+        pulse_rate=15_000,
+        altitude_m=500,
+        second_altitude_m=150,
+        lines=3,
+        line_length_m=400,
+        lead_in_m=0,
+    )
     stage, corr = _run(tmp_path, sim, "model: mounting, cell: 8, mounting: {lever_arm: true}")
     u = _unknowns(corr)
     for name, truth in zip(("boresight_roll", "boresight_pitch", "boresight_yaw"), BORESIGHT, strict=True):

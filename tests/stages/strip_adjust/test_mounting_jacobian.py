@@ -26,8 +26,12 @@ H, D = 1000.0, 400.0  # flying height and ground distance of the patch, metres
 
 @pytest.fixture
 def flat_patch():
-    traj = trajectory_from(np.array([0.0, 1.0]), np.array([[0.0, 0.0, H], [0.0, D, H]]),
-                           np.array([[1.0, 0.0, 0.0, 0.0]] * 2), LocalFrame(40.0, -3.0, 0.0))  # fmt: skip
+    traj = trajectory_from(
+        np.array([0.0, 1.0]),
+        np.array([[0.0, 0.0, H], [0.0, D, H]]),
+        np.array([[1.0, 0.0, 0.0, 0.0]] * 2),
+        LocalFrame(40.0, -3.0, 0.0),
+    )
     g = np.linspace(-2.0, 2.0, 5)
     gx, gy = (a.ravel() for a in np.meshgrid(g, g))
     surface = np.column_stack((gx, gy, np.full(gx.size, -H)))  # from (0, D, H): nadir
@@ -36,17 +40,29 @@ def flat_patch():
     observed = np.column_stack((ox, D + oy, np.full(ox.size, -H)))  # from (0, 0, H): slant
     v = np.vstack((surface, observed))
     n_s, n_o = len(surface), len(observed)
-    sample = Sample(np.zeros(n_s + n_o, np.int64), np.r_[np.ones(n_s), np.zeros(n_o)], v,
-                    np.r_[np.ones(n_s, np.int64), np.full(n_o, 2, np.int64)])  # fmt: skip
-    links = Links(np.arange(n_s), np.zeros(n_s, np.int64), np.arange(n_s, n_s + n_o), np.zeros(n_o, np.int64),
-                  np.array([[0.0, D, 0.0]]), np.array([[1, 2]]), np.array([float(n_o)]))  # fmt: skip
+    sample = Sample(
+        np.zeros(n_s + n_o, np.int64),
+        np.r_[np.ones(n_s), np.zeros(n_o)],
+        v,
+        np.r_[np.ones(n_s, np.int64), np.full(n_o, 2, np.int64)],
+    )
+    links = Links(
+        np.arange(n_s),
+        np.zeros(n_s, np.int64),
+        np.arange(n_s, n_s + n_o),
+        np.zeros(n_o, np.int64),
+        np.array([[0.0, D, 0.0]]),
+        np.array([[1, 2]]),
+        np.array([float(n_o)]),
+    )
     return traj, Mounting(np.eye(3), np.zeros(3)), sample, links
 
 
 def test_flat_ground_jacobian_has_the_geometric_values(flat_patch):
     traj, mounting, sample, links = flat_patch
-    unknowns = make_unknowns(lever_arm=True, range_offset=True, offset_strips=[], reference=None,
-                             limits=(1.0, 1.0, 1.0, 1.0))  # fmt: skip
+    unknowns = make_unknowns(
+        lever_arm=True, range_offset=True, offset_strips=[], reference=None, limits=(1.0, 1.0, 1.0, 1.0)
+    )
     theta = np.zeros(unknowns.size)
     from dtm.stages.strip_adjust.mounting import georeference_sample
 

@@ -23,14 +23,27 @@ pytestmark = pytest.mark.slow  # simulates two flights of about 1 M pulses (abou
 
 
 def _flight(root: Path, bias: float, rotation: float, noise: bool = True) -> Path:
-    simulate(SimulateConfig(
-        output=root / "sim", seed=11, formats=["las"], checkpoints=40,
-        scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": 30000},
-        navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
-        flight={"altitude_m": 150, "speed_ms": 40, "lines": 5, "sidelap": 0.5, "line_length_m": 400,
-                "cross_line": True, "bank_deg": 45, "lead_in_m": 0},
-        faults={"noise": noise, "strip_bias_m": bias, "strip_rotation_deg": rotation, "error_free_lines": [1]},
-    ))  # fmt: skip
+    simulate(
+        SimulateConfig(
+            output=root / "sim",
+            seed=11,
+            formats=["las"],
+            checkpoints=40,
+            scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": 30000},
+            navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
+            flight={
+                "altitude_m": 150,
+                "speed_ms": 40,
+                "lines": 5,
+                "sidelap": 0.5,
+                "line_length_m": 400,
+                "cross_line": True,
+                "bank_deg": 45,
+                "lead_in_m": 0,
+            },
+            faults={"noise": noise, "strip_bias_m": bias, "strip_rotation_deg": rotation, "error_free_lines": [1]},
+        )
+    )
     return root / "sim"
 
 

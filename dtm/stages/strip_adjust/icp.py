@@ -70,8 +70,13 @@ class Patches:
     def gradient(self, which: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(-dq/dx, -dq/dy, 1): the (unnormalised) normal, the gradient of z - q."""
         c = self.coef[which]
-        return np.column_stack((-(c[:, 1] + 2 * c[:, 3] * x + c[:, 4] * y), -(c[:, 2] + c[:, 4] * x + 2 * c[:, 5] * y),
-                                np.ones(len(which))))  # fmt: skip
+        return np.column_stack(
+            (
+                -(c[:, 1] + 2 * c[:, 3] * x + c[:, 4] * y),
+                -(c[:, 2] + c[:, 4] * x + 2 * c[:, 5] * y),
+                np.ones(len(which)),
+            )
+        )
 
 
 @dataclass
@@ -110,8 +115,17 @@ def planar_patches(
     where in the cell each strip sampled (a bias of curvature x spread),
     which a quadratic removes.
     """
-    empty = Patches(np.zeros((0, 3)), np.zeros((0, 6)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                    np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), cell)  # fmt: skip
+    empty = Patches(
+        np.zeros((0, 3)),
+        np.zeros((0, 6)),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros(0),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        cell,
+    )
     if len(xyz) < min_points:
         return empty
     ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
@@ -152,8 +166,9 @@ def planar_patches(
     cx, cy = mx[idx], my[idx]
     centroid = origin[idx] + np.column_stack((cx, cy, atb[idx, 0] / n[idx]))
     c = coef
-    g = np.column_stack((-(c[:, 1] + 2 * c[:, 3] * cx + c[:, 4] * cy), -(c[:, 2] + c[:, 4] * cx + 2 * c[:, 5] * cy),
-                         np.ones(len(idx))))  # fmt: skip
+    g = np.column_stack(
+        (-(c[:, 1] + 2 * c[:, 3] * cx + c[:, 4] * cy), -(c[:, 2] + c[:, 4] * cx + 2 * c[:, 5] * cy), np.ones(len(idx)))
+    )
     normal = g / np.linalg.norm(g, axis=1)[:, None]
     keep = (rms <= max_rms) & (normal[:, 2] >= min_normal_z)
     sel = idx[keep]
@@ -170,6 +185,44 @@ def patch_points(patches: Patches, which: np.ndarray) -> tuple[np.ndarray, np.nd
     return patches.order[np.repeat(first, counts) + offsets], np.repeat(np.arange(len(which)), counts)
 
 
+def strip_patches(
+    xyz: np.ndarray, strip: np.ndarray, strips: list[int], *, cell: float, min_points: int, max_rms: float
+) -> tuple[dict[int, Patches], float | None]:
+    """Each strip's planar patches, kept where smooth and well sampled; and the RMS limit used.
+
+    Smooth means smooth for this survey: at most 2.5 x the median patch RMS
+    (the noise level); well sampled means at least half the strip's median
+    points per patch, which drops water (specular: most pulses return
+    nothing) and the thinly sampled swath edges.  The patches' ``order``
+    indexes *xyz*.  Without any patch the limit is None and nothing is dropped.
+    """
+    patches = {}
+    for s in strips:
+        sel = np.flatnonzero(strip == s)
+        patches[s] = planar_patches(xyz[sel], cell=cell, min_points=min_points, max_rms=max_rms)
+        patches[s].order = sel[patches[s].order]
+    all_rms = np.concatenate([patches[s].rms for s in strips]) if strips else np.zeros(0)
+    if not len(all_rms):
+        return patches, None
+    limit = min(max_rms, 2.5 * float(np.median(all_rms)))
+    for s in strips:
+        dense = patches[s].count >= 0.5 * np.median(patches[s].count) if len(patches[s].count) else True
+        patches[s].keep((patches[s].rms <= limit) & dense)
+    return patches, limit
+
+
+def lattice_step(points: int, max_points: int) -> int:
+    """Every how many cells in x and y the estimation samples, so that it uses about *max_points* (1: all)."""
+    return max(1, int(np.ceil(np.sqrt(points / max_points))))
+
+
+def on_lattice(xyz: np.ndarray, cell: float, step: int) -> np.ndarray:
+    """Which points lie in the cells whose indices are multiples of *step* in x and y."""
+    ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
+    iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
+    return (ix % step == 0) & (iy % step == 0)
+
+
 @dataclass
 class Pair:
     """Correspondences between patches of strip ``a`` (planes) and strip ``b`` (centroids)."""
@@ -180,8 +233,16 @@ class Pair:
     ib: np.ndarray
 
 
-def match(pa: Patches, ta: Transform, pb: Patches, tb: Transform, *, max_distance: float, max_angle_deg: float = 10.0,
-          max_offset: float | None = None):  # fmt: skip
+def match(
+    pa: Patches,
+    ta: Transform,
+    pb: Patches,
+    tb: Transform,
+    *,
+    max_distance: float,
+    max_angle_deg: float = 10.0,
+    max_offset: float | None = None,
+):
     """Patch pairs of two strips at the same place and on the same surface, under their current transforms.
 
     The two centroids must be within *max_offset* horizontally (default: half a cell).
@@ -208,8 +269,9 @@ def _rotation(omega: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(omega).as_matrix()
 
 
-def surface_residuals(ps: Patches, ts: Transform, pt: Patches, tt: Transform, ia: np.ndarray, ib: np.ndarray,
-                      points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+def surface_residuals(
+    ps: Patches, ts: Transform, pt: Patches, tt: Transform, ia: np.ndarray, ib: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Distances of strip t's points to strip s's surfaces, for matched patches (``ia`` of s, ``ib`` of t).
 
     Returns per point: the signed distance along the surface normal and the
@@ -258,111 +320,42 @@ def adjust(
 
     Parameters
     ----------
-    patches : dict
-        Strip id -> :class:`Patches` (their ``order`` indexes *points*).
-    centres : dict
-        Strip id -> rotation centre (its centroid).
+    patches, centres : dict
+        Strip id -> :class:`Patches` (their ``order`` indexes *points*), and -> its rotation centre.
     points : ndarray, shape (n, 3)
         The survey's points (original coordinates).
     reference : int or None
-        Strip held fixed (the datum); None when *control* fixes it.
-    control : ndarray, shape (m, 3), optional
-        Ground control points; each constrains the strips whose patch contains it.
+        Strip held fixed (the datum); None when *control* (ground control points, (m, 3)) fixes it.
     fixed : tuple of int
         Strips held as they are besides the reference (e.g. poorly determined ones).
     max_distance : float
         Patches farther apart than this along the normal are not matched (m).
+    prior_translation, prior_rotation, prior_yaw : float
+        Prior sigmas of a strip's correction (m, rad, rad).
     tolerance : float
-        Stop when no translation changes by more than this (m) and no rotation by more than
-        this / 1000 (rad).
+        Stop when no translation changes by more than this (m) and no rotation by more than this / 1000 (rad).
     """
     strips = sorted(patches)
     free = [s for s in strips if s != reference and s not in fixed]
     col = {s: 6 * i for i, s in enumerate(free)}
     tf = {s: Transform(np.asarray(centres[s], float)) for s in strips}
+    priors = (prior_translation, prior_rotation, prior_yaw)
     pairs: list[Pair] = []
     sigma = 0.0
     n_corr = 0
     it = 0
+    cov = np.zeros((0, 0))
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
-        rows_j, rows_r, rows_w = [], [], []
-        pairs = []
-        for i, a in enumerate(strips):
-            for b in strips[i + 1 :]:
-                for s, t in ((a, b), (b, a)):
-                    ia, ib = match(patches[s], tf[s], patches[t], tf[t], max_distance=max_distance)
-                    if len(ia) == 0:
-                        continue
-                    if s < t:
-                        pairs.append(Pair(s, t, ia, ib))
-                    dist, which, mean_xy, ct = surface_residuals(patches[s], tf[s], patches[t], tf[t], ia, ib, points)
-                    cnt = np.bincount(which, minlength=len(ia)).astype(np.float64)
-                    r = np.bincount(which, dist, len(ia)) / np.maximum(cnt, 1)
-                    # t's points must fit s's surface as well as each fits its own: where they do not,
-                    # the surface is not the same or not smooth enough there (edges, kinks, canopy)
-                    spread = np.sqrt(np.bincount(which, dist**2, len(ia)) / np.maximum(cnt, 1) - r**2)
-                    fits = spread <= 2.0 * np.hypot(patches[s].rms[ia], patches[t].rms[ib]) + 0.005
-                    if not fits.all():
-                        ia, ib, r, cnt, ct, mean_xy = ia[fits], ib[fits], r[fits], cnt[fits], ct[fits], mean_xy[fits]
-                        if s < t:
-                            pairs[-1] = Pair(s, t, ia, ib)
-                        if len(ia) == 0:
-                            continue
-                    g = patches[s].gradient(ia, mean_xy[:, 0], mean_xy[:, 1])
-                    n_w = tf[s].apply_normals(g / np.linalg.norm(g, axis=1)[:, None])
-                    jac = np.zeros((len(r), 6 * len(free)))
-                    if t in col:
-                        jac[:, col[t] : col[t] + 3] = n_w
-                        jac[:, col[t] + 3 : col[t] + 6] = np.cross(ct - (tf[t].centre + tf[t].translation), n_w)
-                    if s in col:
-                        jac[:, col[s] : col[s] + 3] = -n_w
-                        jac[:, col[s] + 3 : col[s] + 6] = -np.cross(ct - (tf[s].centre + tf[s].translation), n_w)
-                    rows_j.append(jac)
-                    rows_r.append(r)
-                    rows_w.append(cnt)
+        rows, pairs = _pair_observations(patches, tf, points, col, 6 * len(free), max_distance)
         if control is not None and len(control):
-            from scipy.spatial import cKDTree
-
-            for s in strips:
-                if not len(patches[s].centroid) or s not in col:
-                    continue
-                cs = tf[s].apply(patches[s].centroid)
-                dist, k = cKDTree(cs[:, :2]).query(control[:, :2], distance_upper_bound=patches[s].cell / 2)
-                ok = np.isfinite(dist)
-                if not ok.any():
-                    continue
-                k = k[ok]
-                local = (control[ok] - tf[s].centre - tf[s].translation) @ tf[s].rotation + tf[s].centre
-                local -= patches[s].origin[k]
-                g = patches[s].gradient(k, local[:, 0], local[:, 1])
-                norm = np.linalg.norm(g, axis=1)
-                r = (local[:, 2] - patches[s].height(k, local[:, 0], local[:, 1])) / norm
-                n_w = tf[s].apply_normals(g / norm[:, None])
-                jac = np.zeros((len(r), 6 * len(free)))
-                jac[:, col[s] : col[s] + 3] = -n_w
-                jac[:, col[s] + 3 : col[s] + 6] = -np.cross(control[ok] - (tf[s].centre + tf[s].translation), n_w)
-                rows_j.append(jac)
-                rows_r.append(r)
-                rows_w.append(np.full(len(r), 100.0))  # a surveyed point weighs as a patch of 100 points
-        if not rows_r or not free:
+            rows += _control_observations(patches, tf, control, col, 6 * len(free))
+        if not rows or not free:
             break
-        jac = np.vstack(rows_j)
-        r = np.concatenate(rows_r)
-        cnt = np.concatenate(rows_w)
+        jac = np.vstack([j for j, _, _ in rows])
+        r = np.concatenate([v for _, v, _ in rows])
+        cnt = np.concatenate([w for _, _, w in rows])
         n_corr = len(r)
-        # residuals are means of `cnt` points: scale them to one point before the robust estimate
-        z = r * np.sqrt(cnt)
-        sigma = max(1.4826 * np.median(np.abs(z - np.median(z))), 0.002)
-        w = cnt * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12))  # Huber, per point
-        # prior on the total correction: (x + dx) ~ N(0, diag)
-        x = np.concatenate([np.concatenate((tf[s].translation, tf[s].rotation_vector)) for s in free])
-        prior = np.tile(np.r_[np.full(3, 1 / prior_translation**2), np.full(2, 1 / prior_rotation**2), 1 / prior_yaw**2],
-                        len(free))  # fmt: skip
-        jw = jac * (w / sigma**2)[:, None]
-        normal = jac.T @ jw + np.diag(prior)
-        rhs = -(jw.T @ r) - prior * x
-        dx = np.linalg.solve(normal, rhs)
-        cov = np.linalg.inv(normal)
+        dx, cov, sigma = _irls_step(jac, r, cnt, tf, free, priors)
         for s in free:
             d = dx[col[s] : col[s] + 6]
             tf[s].rotation = _rotation(d[3:]) @ tf[s].rotation
@@ -375,3 +368,106 @@ def adjust(
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))
         std = {s: sd[col[s] : col[s] + 6] for s in free}
     return Solution(tf, it, pairs, sigma, n_corr, std)
+
+
+def _rigid_columns(jac: np.ndarray, c: int, tf: Transform, at: np.ndarray, n_w: np.ndarray, sign: float) -> None:
+    """Fill the six columns from *c* of a strip moved by *tf*: d(distance along n_w at *at*)/d(t, omega)."""
+    if sign > 0:
+        jac[:, c : c + 3] = n_w
+        jac[:, c + 3 : c + 6] = np.cross(at - (tf.centre + tf.translation), n_w)
+    else:
+        jac[:, c : c + 3] = -n_w
+        jac[:, c + 3 : c + 6] = -np.cross(at - (tf.centre + tf.translation), n_w)
+
+
+def _fitting(ps: Patches, ts: Transform, pt: Patches, tt: Transform, ia: np.ndarray, ib: np.ndarray, points):
+    """Matched patches whose points fit the other strip's surface, with each's mean distance and point count.
+
+    Strip t's points must fit s's surface as well as each fits its own: where they do not, the surface is
+    not the same or not smooth enough there (edges, kinks, canopy).  Returns ia, ib, the mean distances,
+    the counts, t's point centroids and their mean (x, y) in s's patch frame.
+    """
+    dist, which, mean_xy, ct = surface_residuals(ps, ts, pt, tt, ia, ib, points)
+    cnt = np.bincount(which, minlength=len(ia)).astype(np.float64)
+    r = np.bincount(which, dist, len(ia)) / np.maximum(cnt, 1)
+    spread = np.sqrt(np.bincount(which, dist**2, len(ia)) / np.maximum(cnt, 1) - r**2)
+    fits = spread <= 2.0 * np.hypot(ps.rms[ia], pt.rms[ib]) + 0.005
+    if not fits.all():
+        return ia[fits], ib[fits], r[fits], cnt[fits], ct[fits], mean_xy[fits]
+    return ia, ib, r, cnt, ct, mean_xy
+
+
+def _pair_observations(patches, tf, points, col, n_cols, max_distance):
+    """The observation rows (Jacobian, mean distance, weight) of every strip pair, both ways, and the pairs.
+
+    A pair (a < b) is listed whenever its patches match, even when none of them fits.
+    """
+    strips = sorted(patches)
+    rows, pairs = [], []
+    for i, a in enumerate(strips):
+        for b in strips[i + 1 :]:
+            for s, t in ((a, b), (b, a)):
+                ia, ib = match(patches[s], tf[s], patches[t], tf[t], max_distance=max_distance)
+                if len(ia) == 0:
+                    continue
+                ia, ib, r, cnt, ct, mean_xy = _fitting(patches[s], tf[s], patches[t], tf[t], ia, ib, points)
+                if s < t:
+                    pairs.append(Pair(s, t, ia, ib))
+                if len(ia) == 0:
+                    continue
+                g = patches[s].gradient(ia, mean_xy[:, 0], mean_xy[:, 1])
+                n_w = tf[s].apply_normals(g / np.linalg.norm(g, axis=1)[:, None])
+                jac = np.zeros((len(r), n_cols))
+                if t in col:
+                    _rigid_columns(jac, col[t], tf[t], ct, n_w, 1.0)
+                if s in col:
+                    _rigid_columns(jac, col[s], tf[s], ct, n_w, -1.0)
+                rows.append((jac, r, cnt))
+    return rows, pairs
+
+
+def _control_observations(patches, tf, control, col, n_cols):
+    """The observation rows of ground control points: each one's distance to the patch of a strip it lies in."""
+    from scipy.spatial import cKDTree
+
+    rows = []
+    for s in sorted(patches):
+        if not len(patches[s].centroid) or s not in col:
+            continue
+        cs = tf[s].apply(patches[s].centroid)
+        dist, k = cKDTree(cs[:, :2]).query(control[:, :2], distance_upper_bound=patches[s].cell / 2)
+        ok = np.isfinite(dist)
+        if not ok.any():
+            continue
+        k = k[ok]
+        local = (control[ok] - tf[s].centre - tf[s].translation) @ tf[s].rotation + tf[s].centre
+        local -= patches[s].origin[k]
+        g = patches[s].gradient(k, local[:, 0], local[:, 1])
+        norm = np.linalg.norm(g, axis=1)
+        r = (local[:, 2] - patches[s].height(k, local[:, 0], local[:, 1])) / norm
+        n_w = tf[s].apply_normals(g / norm[:, None])
+        jac = np.zeros((len(r), n_cols))
+        _rigid_columns(jac, col[s], tf[s], control[ok], n_w, -1.0)
+        rows.append((jac, r, np.full(len(r), 100.0)))  # a surveyed point weighs as a patch of 100 points
+    return rows
+
+
+def _irls_step(jac, r, cnt, tf, free, priors):
+    """One reweighted least-squares step: the correction of every free strip, its covariance, the robust scale.
+
+    Huber weights (k = 2 robust sigmas) per point, and a prior on the total correction: (x + dx) ~ N(0, diag).
+    """
+    prior_translation, prior_rotation, prior_yaw = priors
+    # residuals are means of `cnt` points: scale them to one point before the robust estimate
+    z = r * np.sqrt(cnt)
+    sigma = max(1.4826 * np.median(np.abs(z - np.median(z))), 0.002)
+    w = cnt * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12))  # Huber, per point
+    x = np.concatenate([np.concatenate((tf[s].translation, tf[s].rotation_vector)) for s in free])
+    prior = np.tile(
+        np.r_[np.full(3, 1 / prior_translation**2), np.full(2, 1 / prior_rotation**2), 1 / prior_yaw**2], len(free)
+    )
+    jw = jac * (w / sigma**2)[:, None]
+    normal = jac.T @ jw + np.diag(prior)
+    rhs = -(jw.T @ r) - prior * x
+    dx = np.linalg.solve(normal, rhs)
+    return dx, np.linalg.inv(normal), sigma

@@ -58,6 +58,7 @@ exact); the output points go through the full equation to the output CRS.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,8 +66,15 @@ import numpy as np
 from dtm.common.georeferencing import Mounting, Trajectory, georeference_local
 from dtm.common.rotation import euler_matrix
 
-NAMES = ("boresight_roll", "boresight_pitch", "boresight_yaw", "lever_arm_x", "lever_arm_y", "lever_arm_z",
-         "range_offset")  # fmt: skip
+NAMES = (
+    "boresight_roll",
+    "boresight_pitch",
+    "boresight_yaw",
+    "lever_arm_x",
+    "lever_arm_y",
+    "lever_arm_z",
+    "range_offset",
+)
 #: which flight lines determine an unknown that the flight could not
 ADVICE = {
     "boresight_roll": "overlapping lines flown in opposite directions (a roll error tilts the swath one way on "
@@ -118,8 +126,14 @@ class Unknowns:
         return len(self.names)
 
 
-def make_unknowns(*, lever_arm: bool, range_offset: bool, offset_strips: list[int], reference: int | None,
-                  limits: tuple[float, float, float, float]) -> Unknowns:  # fmt: skip
+def make_unknowns(
+    *,
+    lever_arm: bool,
+    range_offset: bool,
+    offset_strips: list[int],
+    reference: int | None,
+    limits: tuple[float, float, float, float],
+) -> Unknowns:
     """Boresight (always), lever arm, range offset, per-strip offsets (not of the *reference* strip)."""
     b, la, ro, so = limits
     names = list(NAMES)
@@ -136,11 +150,12 @@ def make_unknowns(*, lever_arm: bool, range_offset: bool, offset_strips: list[in
     return Unknowns(names, np.asarray(step), np.asarray(limit), free, list(offset_strips))
 
 
-def georeference_sample(traj: Trajectory, mounting: Mounting, sample: Sample, theta: np.ndarray,
-                        unknowns: Unknowns) -> np.ndarray:  # fmt: skip
+def georeference_sample(
+    traj: Trajectory, mounting: Mounting, sample: Sample, theta: np.ndarray, unknowns: Unknowns
+) -> np.ndarray:
     """Local ENU points (n, 3) of *sample* under the corrections *theta* (radians and metres)."""
     scale = 1.0 + theta[6] / np.maximum(sample.range, 1e-9)
-    corrected = Mounting(euler_matrix(*theta[:3]) @ mounting.rotation, mounting.lever_arm + theta[3:6])
+    corrected = corrected_mounting(mounting, theta)
     v = sample.v * scale[:, None]
     e, n, u = georeference_local(traj, v[:, 0], v[:, 1], v[:, 2], corrected, sample.i, sample.f)
     xyz = np.column_stack((e, n, u))
@@ -259,8 +274,9 @@ def robust_weights(r: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, float]:
     return base * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12)), sigma
 
 
-def determinability(jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, cols: list[int],
-                    max_correlation: float) -> dict[int, str]:  # fmt: skip
+def determinability(
+    jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, cols: list[int], max_correlation: float
+) -> dict[int, str]:
     """Unknowns (column numbers of the full vector) the observations cannot determine, with the reason.
 
     One at a time, the worst first: an unknown with no observation depending on it, then the one whose
@@ -327,90 +343,138 @@ class Calibration:
     not_significant: dict[int, str]  # estimated but not applied (held at the configured value), and why
 
 
-def solve(traj: Trajectory, mounting: Mounting, sample: Sample, find_links, unknowns: Unknowns, *,
-          rounds: int = 3, max_iterations: int = 10, max_correlation: float = 0.95, min_significance: float = 3.0,
-          log=None) -> Calibration | None:  # fmt: skip
+def solve(
+    traj: Trajectory,
+    mounting: Mounting,
+    sample: Sample,
+    find_links: Callable[[np.ndarray], tuple[Links, np.ndarray] | None],
+    unknowns: Unknowns,
+    *,
+    rounds: int = 3,
+    max_iterations: int = 10,
+    max_correlation: float = 0.95,
+    min_significance: float = 3.0,
+    log: Callable | None = None,
+) -> Calibration | None:
     """Gauss-Newton over *rounds* correspondence searches (see the module notes).
 
     *find_links(xyz)* returns the :class:`Links` of the sample's points *xyz* (local ENU) and the sample
-    indices they use.  Returns None when there is no correspondence.  After the last round, an estimate
-    within *min_significance* of its sigmas of zero is not applied: the least significant is held at
-    its configured value and the others are solved again, until every applied one is significant
-    (0: apply every estimate).
+    indices they use.  Returns None when there is no correspondence.  After the first round the unknowns
+    the flight cannot determine are held (:func:`determinability`); after the last, an estimate within
+    *min_significance* of its sigmas of zero is not applied (0: apply every estimate).  *log(round, theta,
+    sigma, links)* is told of each round.
     """
     theta = np.zeros(unknowns.size)
     free = list(unknowns.free)
     held: dict[int, str] = {}
-    state = {"cov": np.zeros((0, 0)), "sigma": 0.0, "iterations": 0}
-    links = sub = None
-
-    def iterate(cols: list[int], prior_on: bool) -> None:
-        for _ in range(max_iterations):
-            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
-            r = residuals(links, xyz)
-            w, state["sigma"] = robust_weights(r, link_weights(links, xyz))
-            if not cols:
-                return
-            jac = jacobian(traj, mounting, sub, links, theta, unknowns, cols)
-            jw = jac * (w / state["sigma"] ** 2)[:, None]
-            # first round: a weak prior (1 unit: degree or metre) keeps what the flight cannot determine from
-            # wandering before the determinability check; afterwards the solution is the plain least squares
-            prior = 1.0 / np.where(np.asarray(cols) < 3, np.radians(1.0), 1.0) ** 2 if prior_on else np.zeros(len(cols))
-            normal = jac.T @ jw + np.diag(prior)
-            dx = np.linalg.solve(normal, -(jw.T @ r) - prior * theta[cols])
-            state["cov"] = np.linalg.inv(normal)
-            theta[cols] += dx
-            state["iterations"] += 1
-            if all(abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, cols, strict=True)):
-                return
-
+    gn = _GaussNewton(traj, mounting, unknowns, max_iterations)
     for rnd in range(max(rounds, 2)):
         found = find_links(georeference_sample(traj, mounting, sample, theta, unknowns))
         if found is None:
             if rnd == 0:
                 return None
             break
-        links, used = found
-        sub = sample.subset(used)
-        iterate(free, prior_on=rnd == 0)
+        gn.links, used = found
+        gn.sample = sample.subset(used)
+        gn.iterate(theta, free, prior_on=rnd == 0)
         if log is not None:
-            log(rnd, theta, state["sigma"], links.size)
+            log(rnd, theta, gn.sigma, gn.links.size)
         if rnd == 0:
-            # determinability at the first round's solution, with its residual scale (not that of the
-            # uncorrected flight, which the errors themselves inflate); the held unknowns go back to zero
-            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
-            base = link_weights(links, xyz)
-            _, sigma = robust_weights(residuals(links, xyz), base)
-            jac = jacobian(traj, mounting, sub, links, theta, unknowns, free)
-            # the geometry's weights, not the robust ones: what the flight can determine does not depend on
-            # how well the first round fitted
-            held = determinability(jac, base, sigma, unknowns, free, max_correlation)
+            held = gn.undetermined(theta, free, max_correlation)
             free = [c for c in free if c not in held]
             theta[list(held)] = 0.0
     estimate = theta.copy()
     sd_full = np.full(unknowns.size, np.nan)
     corr = np.zeros((len(free), len(free)))
-    cov = state["cov"]
-    if free and cov.size:
-        sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    if free and gn.cov.size:
+        sd = np.sqrt(np.clip(np.diag(gn.cov), 0, None))
         sd_full[free] = sd
-        corr = cov / np.outer(sd, sd)
-    # significance: backward elimination of the estimates that do not differ from zero
-    applied = list(free)
-    not_significant: dict[int, str] = {}
-    while min_significance > 0 and applied and state["cov"].size:
-        sd = np.sqrt(np.clip(np.diag(state["cov"]), 0, None))
-        ratio = np.abs(theta[applied]) / np.maximum(sd, 1e-300)
-        k = int(np.argmin(ratio))
-        if ratio[k] >= min_significance:
-            break
-        c = applied.pop(k)
-        not_significant[c] = f"estimate within {min_significance:g} sigma of the configured value"
-        theta[c] = 0.0
-        if applied:
-            iterate(applied, prior_on=False)
-    return Calibration(theta, unknowns, free, sd_full, corr, held, state["sigma"], state["iterations"], links, sub,
-                       estimate, not_significant)  # fmt: skip
+        corr = gn.cov / np.outer(sd, sd)
+    not_significant = gn.drop_insignificant(theta, free, min_significance)
+    return Calibration(
+        theta,
+        unknowns,
+        free,
+        sd_full,
+        corr,
+        held,
+        gn.sigma,
+        gn.iterations,
+        gn.links,
+        gn.sample,
+        estimate,
+        not_significant,
+    )
+
+
+@dataclass
+class _GaussNewton:
+    """The iterations of :func:`solve` on one round's links and sample, and what they leave behind."""
+
+    traj: Trajectory
+    mounting: Mounting
+    unknowns: Unknowns
+    max_iterations: int
+    links: Links | None = None
+    sample: Sample | None = None
+    cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # of the columns last solved for
+    sigma: float = 0.0  # robust residual scale of one point, metres
+    iterations: int = 0
+
+    def iterate(self, theta: np.ndarray, cols: list[int], prior_on: bool) -> None:
+        """Gauss-Newton steps on the unknowns *cols* of *theta* (in place), until they stop moving."""
+        traj, mounting, sub, links, unknowns = self.traj, self.mounting, self.sample, self.links, self.unknowns
+        for _ in range(self.max_iterations):
+            xyz = georeference_sample(traj, mounting, sub, theta, unknowns)
+            r = residuals(links, xyz)
+            w, self.sigma = robust_weights(r, link_weights(links, xyz))
+            if not cols:
+                return
+            jac = jacobian(traj, mounting, sub, links, theta, unknowns, cols)
+            jw = jac * (w / self.sigma**2)[:, None]
+            # first round: a weak prior (1 unit: degree or metre) keeps what the flight cannot determine from
+            # wandering before the determinability check; afterwards the solution is the plain least squares
+            prior = 1.0 / np.where(np.asarray(cols) < 3, np.radians(1.0), 1.0) ** 2 if prior_on else np.zeros(len(cols))
+            normal = jac.T @ jw + np.diag(prior)
+            dx = np.linalg.solve(normal, -(jw.T @ r) - prior * theta[cols])
+            self.cov = np.linalg.inv(normal)
+            theta[cols] += dx
+            self.iterations += 1
+            if all(abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, cols, strict=True)):
+                return
+
+    def undetermined(self, theta: np.ndarray, free: list[int], max_correlation: float) -> dict[int, str]:
+        """The unknowns this flight cannot determine, at the first round's solution and residual scale.
+
+        Not that of the uncorrected flight, which the errors themselves inflate; and with the geometry's
+        weights, not the robust ones: what the flight can determine does not depend on how well the first
+        round fitted.
+        """
+        xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
+        base = link_weights(self.links, xyz)
+        _, sigma = robust_weights(residuals(self.links, xyz), base)
+        jac = jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, free)
+        return determinability(jac, base, sigma, self.unknowns, free, max_correlation)
+
+    def drop_insignificant(self, theta: np.ndarray, free: list[int], min_significance: float) -> dict[int, str]:
+        """Backward elimination of the estimates that do not differ from zero; which were dropped, and why.
+
+        The least significant is held at its configured value (zero in *theta*) and the others solved again.
+        """
+        applied = list(free)
+        not_significant: dict[int, str] = {}
+        while min_significance > 0 and applied and self.cov.size:
+            sd = np.sqrt(np.clip(np.diag(self.cov), 0, None))
+            ratio = np.abs(theta[applied]) / np.maximum(sd, 1e-300)
+            k = int(np.argmin(ratio))
+            if ratio[k] >= min_significance:
+                break
+            c = applied.pop(k)
+            not_significant[c] = f"estimate within {min_significance:g} sigma of the configured value"
+            theta[c] = 0.0
+            if applied:
+                self.iterate(theta, applied, prior_on=False)
+        return not_significant
 
 
 def corrected_mounting(mounting: Mounting, theta: np.ndarray) -> Mounting:

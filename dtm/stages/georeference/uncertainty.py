@@ -72,8 +72,11 @@ def propagate(
     body = tuple(tuple(m[:, j, k] for j in range(3)) for k in range(3))  # columns of R
     rs = mounting.rotation
     sx, sy, sz = (np.asarray(c, dtype=np.float64) for c in v_s)
-    vb_s = (rs[0, 0] * sx + rs[0, 1] * sy + rs[0, 2] * sz, rs[1, 0] * sx + rs[1, 1] * sy + rs[1, 2] * sz,
-            rs[2, 0] * sx + rs[2, 1] * sy + rs[2, 2] * sz)  # fmt: skip
+    vb_s = (
+        rs[0, 0] * sx + rs[0, 1] * sy + rs[0, 2] * sz,
+        rs[1, 0] * sx + rs[1, 1] * sy + rs[1, 2] * sz,
+        rs[2, 0] * sx + rs[2, 1] * sy + rs[2, 2] * sz,
+    )
     a = mounting.lever_arm
     v_b = (vb_s[0] + a[0], vb_s[1] + a[1], vb_s[2] + a[2])
     rho = np.sqrt(sx**2 + sy**2 + sz**2)

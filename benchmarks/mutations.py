@@ -133,7 +133,7 @@ MUTATIONS: list[Mutation] = [
     ),
     Mutation(
         "strip datum most_overlap takes the least-overlapping strip",
-        "dtm/stages/strip_adjust/stage.py",
+        "dtm/stages/strip_adjust/rigid.py",
         "max(linked, key=lambda s: overlap[s]) if linked else None",
         "min(linked, key=lambda s: overlap[s]) if linked else None",
         ("tests/stages/strip_adjust/test_strip_datum.py", "tests/stages/strip_adjust/test_strip_adjust.py"),

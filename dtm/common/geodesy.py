@@ -122,20 +122,15 @@ def _monomials(p: np.ndarray) -> np.ndarray:
 
 
 class MapTransform:
-    """Local ENU -> output CRS (easting, northing, height), exact to ``tolerance``.
+    """Local ENU -> output CRS (easting, northing, height), exact to ``tolerance`` (m).
 
     The exact transform is pyproj's (ECEF -> CRS, with the geoid grid when
-    one is given).  Projecting every point through PROJ runs at about
-    2.5 M points/s per core here, slower than the rest of georeferencing put
-    together, so over a survey's extent the transform is replaced by a
-    cubic polynomial in local (e, n, u) fitted to PROJ on a lattice.  This is
-    not an approximation left to chance: a map projection is analytic, its
-    departure from a cubic over a few kilometres is of order d^4/R^3
-    (micrometres), and the fit is *checked* against PROJ at random points of
-    the extent; if the largest difference exceeds ``tolerance`` (0.1 mm by
-    default; surveys of tens of kilometres, or an irregular geoid grid),
-    every point goes through PROJ instead.  ``max_error_m`` records the
-    checked figure and ``method`` which path is used.
+    one is given).  Over the box *lo*..*hi* it is replaced by a cubic
+    polynomial in local (e, n, u) fitted to PROJ on a lattice and checked
+    against PROJ at random points: ``max_error_m`` records the check, and
+    ``method`` is ``polynomial`` when it is within *tolerance*, else
+    ``proj`` (every point through PROJ).  Why this is exact and fast:
+    docs/stages/georeference.md.
     """
 
     def __init__(self, frame: LocalFrame, crs, lo: np.ndarray, hi: np.ndarray, *, tolerance: float = 1e-4, geoid=None):

@@ -4,26 +4,13 @@ For each pulse at time t::
 
     p_map = T( pos(t) + R_n^e(t) . R_b^n(t) . (R_s^b . v_s + a_b) )
 
-with v_s the pulse in the scanner frame, R_s^b the boresight (mounting
-rotation), a_b the lever arm, R_b^n the attitude in the navigation
-system's local-level convention (NED or NWU), R_n^e local level -> ECEF and
-T the exact ECEF -> output CRS transform.  The standard formulation; see
-e.g. Baltsavias (1999), "Airborne laser scanning: basic relations and
-formulas", ISPRS J. 54(2-3), doi:10.1016/S0924-2716(99)00011-8, and
-Glennie (2007), "Rigorous 3D error analysis of kinematic scanning LIDAR
-systems", J. Applied Geodesy 1, doi:10.1515/jag.2007.017.
-
-How it is computed (ours): per trajectory epoch (few) the position is taken
-into a local ENU frame and R_n^e . R_b^n is folded into one quaternion
-(local ENU <- body); per pulse (millions) the position is interpolated
-linearly and that quaternion by SLERP between the two epochs around the
-pulse, then applied to the lever-armed vector.  Folding R_n^e into the
-interpolated rotation is exact at the epochs; between epochs the local
-level turns by (distance flown)/R, about 1e-6 rad over 5 ms, so the
-difference from interpolating the attitude alone is far below a
-micrometre.  Linear position interpolation is exact for straight,
-constant-velocity flight; the parse stage resamples low-rate GNSS
-positions to the attitude epochs with a cubic spline first.
+v_s the pulse in the scanner frame, R_s^b the boresight, a_b the lever arm,
+R_b^n the attitude (NED or NWU local level), R_n^e local level -> ECEF, T the
+exact ECEF -> output CRS transform: Baltsavias (1999), ISPRS J. 54(2-3),
+doi:10.1016/S0924-2716(99)00011-8; Glennie (2007), J. Applied Geodesy 1,
+doi:10.1515/jag.2007.017.  Where we depart: per epoch R_n^e . R_b^n is folded
+into one quaternion, interpolated per pulse by SLERP (exact at the epochs,
+below a micrometre between them); see docs/stages/georeference.md.
 """
 
 from __future__ import annotations
@@ -177,39 +164,27 @@ def georeference(
     t: np.ndarray,
     v_s: tuple[np.ndarray, np.ndarray, np.ndarray],
     mounting: Mounting,
-    to_map,
+    to_map: Callable[..., tuple[np.ndarray, ...]],
     *,
     max_gap_s: float = 0.5,
     chunk: int = 32_768,
     workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Map coordinates (n, 3) of pulses and the mask of pulses that had a trajectory.
+    """Map coordinates (n, 3) of pulses (NaN where ``ok`` is False) and the mask ``ok`` of those with a trajectory.
 
     Parameters
     ----------
     traj : Trajectory
-        From :func:`prepare_trajectory`.
-    t : ndarray, shape (n,)
-        Pulse times, GPS seconds since 1980-01-06 (the trajectory's time system).
-    v_s : tuple of three ndarrays, shape (n,)
-        Pulse vectors in the scanner frame (x, y, z columns), metres.
-    mounting : Mounting
-        Boresight and lever arm.
+        From :func:`prepare_trajectory` (times: GPS seconds since 1980-01-06, as *t*).
+    t, v_s : ndarray, shape (n,), and three of them
+        Pulse times, and pulse vectors in the scanner frame (x, y, z columns, metres).
     to_map : callable
         Local ENU columns (e, n, u) -> output CRS columns, e.g. ``MapTransform.columns``.
     max_gap_s : float
         Pulses inside a trajectory interval longer than this get no position.
-    chunk : int
-        Pulses per block: blocks small enough for the CPU cache are several
-        times faster than whole-array NumPy.
-    workers : int
-        Threads (NumPy and PROJ release the GIL).
-
-    Returns
-    -------
-    xyz : ndarray, shape (n, 3)
-        NaN where ``ok`` is False.
-    ok : ndarray of bool, shape (n,)
+    chunk, workers : int
+        Pulses per block (small enough for the CPU cache: several times faster than whole-array NumPy),
+        and threads (NumPy and PROJ release the GIL).
     """
     n = len(t)
     out = np.full((n, 3), np.nan)

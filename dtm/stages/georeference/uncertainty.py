@@ -1,21 +1,13 @@
 """Per-point total propagated uncertainty (TPU) of direct georeferencing.
 
-First-order propagation of the georeferencing equation
-p = pos + R_b^n (R_s^b v_s + a_b) (see :mod:`dtm.common.georeferencing`), with
-independent errors in range, scan angle, position, attitude, boresight and
-lever arm — as in Glennie (2007), "Rigorous 3D error analysis of kinematic
-scanning LIDAR systems", J. Applied Geodesy 1, doi:10.1515/jag.2007.017,
-and the budget of seed 2, chapter 4 (there for one flying height, here for
-every pulse).  Each source k with standard deviation s_k and Jacobian
-column J_k (metres per unit, local east-north-up) adds s_k^2 J_k J_k^T to
-the point's covariance; the horizontal sigma is sqrt(C_ee + C_nn), the
-vertical sqrt(C_uu).
-
-Departures: attitude errors are taken as small rotations about the body
-axes (for the few degrees of roll and pitch of a survey flight the
-difference from Euler-angle errors is second order); errors are independent
-(no correlation between, e.g., roll and the lever arm); the scan-angle
-error turns the beam about the scanner's scan axis.
+First-order propagation of p = pos + R_b^n (R_s^b v_s + a_b) (see
+:mod:`dtm.common.georeferencing`) with independent errors in range, scan
+angle, position, attitude, boresight and lever arm, as in Glennie (2007),
+"Rigorous 3D error analysis of kinematic scanning LIDAR systems",
+J. Applied Geodesy 1, doi:10.1515/jag.2007.017: each source adds
+s_k^2 J_k J_k^T to the point's covariance.  Where we depart: attitude errors
+are small rotations about the body axes, and no errors are correlated
+(docs/stages/georeference.md).
 """
 
 from __future__ import annotations

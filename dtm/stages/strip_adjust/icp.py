@@ -1,39 +1,15 @@
 """Strip adjustment: one small rigid correction per flight strip, from point-to-plane ICP solved jointly.
 
-Method.  Each strip's single-return points are binned into square cells; a
-cell whose points fit a smooth surface closely (a quadratic, see
-:func:`planar_patches`) becomes a *patch*.  Vegetation (multiple returns,
-rough) and edges fail the test, and the stage drops thinly sampled patches
-(water, swath edges), so correspondences come from smooth, well-sampled
-surfaces: open ground, slopes, roofs.  Wherever two strips have patches at the same place,
-the distance of one's centroid to the other's plane is an observation of
-their disagreement along the normal (point-to-plane ICP; Chen & Medioni
-1992, doi:10.1016/0262-8856(92)90066-C).  Horizontal disagreement is seen
-through sloped patches, so hills, embankments and roofs carry it.
-
-Every strip s gets a correction p' = R_s (p - c_s) + c_s + t_s about its
-centroid c_s (three translations, three small rotations).  All strips are
-solved *jointly*, by iteratively reweighted least squares over every
-correspondence of every overlapping pair (a global adjustment, as in
-Glira et al. 2015, "Rigorous strip adjustment of airborne laser scanning
-data based on the ICP algorithm", ISPRS Annals II-3/W5,
-doi:10.5194/isprsannals-II-3-W5-73-2015 — not a chain of pairwise fits);
-Huber weights (k = 2 robust sigmas) make it robust to outliers, and a weak
-prior (1 m, 0.5 degree by default) keeps unobservable directions at zero,
-so strips without error get corrections indistinguishable from zero.  The
-rotation about the vertical gets a tight prior (0.01 degree): parallel
-strips determine it only through a near-null mode (a common yaw of the
-strips with along-track shifts growing across the block leaves every
-overlap unchanged), and no error source of a flight turns a strip
-rigidly about the vertical — a heading error shears it.  The
-datum is one reference strip held fixed (default: the one with the most
-overlap) or ground control points.
-
-Departures from Glira et al.: corrections are rigid per strip (they
-estimate trajectory-based corrections with time-dependent terms); patches
-are computed once in the original coordinates and moved with each strip's
-current transform at every iteration (exact for rigid motions), so an
-iteration costs the patches, not the points.
+Smooth cells of each strip's single returns become patches (a quadratic
+surface each, :func:`planar_patches`); patches of two strips at the same
+place observe their disagreement along the normal (point-to-plane ICP; Chen
+& Medioni 1992, doi:10.1016/0262-8856(92)90066-C).  Every strip gets a
+correction p' = R_s (p - c_s) + c_s + t_s about its centroid, all strips
+solved jointly by reweighted least squares with priors (:func:`adjust`), as
+in Glira et al. (2015), ISPRS Annals II-3/W5,
+doi:10.5194/isprsannals-II-3-W5-73-2015.  Where we depart: the corrections
+are rigid per strip (no time-dependent trajectory terms), and the patches
+are fitted once and moved with their strip.  See docs/stages/strip_adjust.md.
 """
 
 from __future__ import annotations
@@ -104,7 +80,7 @@ class Transform:
 def planar_patches(
     xyz: np.ndarray, *, cell: float, min_points: int, max_rms: float, min_normal_z: float = 0.3
 ) -> Patches:
-    """The smooth cells of a strip's points (see the module notes).
+    """The smooth cells of a strip's points (docs/stages/strip_adjust.md, "Patches").
 
     Each cell's points are fitted with a quadratic surface (least squares,
     from moment sums: one pass, no per-cell Python); a cell is kept when it
@@ -316,22 +292,18 @@ def adjust(
     prior_yaw: float = np.radians(0.01),
     tolerance: float = 1e-4,
 ) -> Solution:
-    """Joint ICP over every overlapping strip pair (see the module notes).
+    """Joint ICP over every overlapping strip pair: the transforms and their sigmas.
 
     Parameters
     ----------
     patches, centres : dict
-        Strip id -> :class:`Patches` (their ``order`` indexes *points*), and -> its rotation centre.
-    points : ndarray, shape (n, 3)
-        The survey's points (original coordinates).
+        Strip id -> :class:`Patches` (their ``order`` indexes *points*, (n, 3)), and -> its rotation centre.
     reference : int or None
         Strip held fixed (the datum); None when *control* (ground control points, (m, 3)) fixes it.
     fixed : tuple of int
         Strips held as they are besides the reference (e.g. poorly determined ones).
-    max_distance : float
-        Patches farther apart than this along the normal are not matched (m).
-    prior_translation, prior_rotation, prior_yaw : float
-        Prior sigmas of a strip's correction (m, rad, rad).
+    max_distance, prior_translation, prior_rotation, prior_yaw : float
+        Patches farther apart along the normal are not matched (m); prior sigmas of a correction (m, rad).
     tolerance : float
         Stop when no translation changes by more than this (m) and no rotation by more than this / 1000 (rad).
     """

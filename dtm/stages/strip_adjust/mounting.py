@@ -1,59 +1,18 @@
 """System calibration from overlapping strips: boresight, lever arm, range offset (issue 23).
 
-Model.  Every pulse is georeferenced again through the exact equation of
-:mod:`dtm.common.georeferencing` with a corrected mounting::
+Every pulse is georeferenced again (:mod:`dtm.common.georeferencing`) with a corrected mounting::
 
     p = pos(t) + R(t) . (dR . R_s^b . v_s (1 + dr / |v_s|) + a_b + da) [+ o_strip]
 
-``dR = Rz(yaw) Ry(pitch) Rx(roll)`` the boresight correction (in the body
-axes of the navigation convention: forward-right-down for NED, forward-
-left-up for NWU), ``da`` the lever-arm correction, ``dr`` a range offset
-and ``o_strip`` an optional 3-D trajectory offset per strip (local east,
-north, up).  The unknowns are found once for the whole flight from the
-overlaps, as TerraMatch and OPALS do and as Skaloud & Lichti (2006,
-"Rigorous approach to bore-sight self-calibration in airborne laser
-scanning", ISPRS J. 61(1), doi:10.1016/j.isprsjprs.2006.07.001) and Glira
-et al. (2015, "Rigorous strip adjustment of airborne laserscanning data
-based on the ICP algorithm", ISPRS Annals II-3/W5,
-doi:10.5194/isprsannals-II-3-W5-73-2015; issue 23 also cites
-doi:10.1016/j.isprsjprs.2015.06.002) formulate it; Filin (2003, "Recovery of systematic biases in laser
-altimetry data using natural surfaces", Photogramm. Eng. Remote Sens.
-69(11), doi:10.14358/PERS.69.11.1235) recovers the same biases from
-natural surfaces.
-
-Observations.  The smooth, well-sampled cells of each strip (the patches of
-:func:`dtm.stages.strip_adjust.icp.planar_patches`) are matched between strips at the
-same place (:func:`dtm.stages.strip_adjust.icp.match`).  For each matched pair the
-points of one strip are fitted with a quadratic surface and the mean signed
-distance of the other strip's points to it is one observation (point-to-
-surface, weight = its number of points); a ground control point inside a
-strip's patch is one observation of that strip's surface.  Both sides move
-with the unknowns: the surface is fitted again to the re-georeferenced
-points at every evaluation.
-
-Solution.  Gauss-Newton least squares with Huber weights (k = 2 robust
-sigmas); the Jacobian is computed numerically by central differences of
-the georeferencing function itself (each unknown moved by a small step, the
-pulses georeferenced again, the surfaces refitted), which is exact to the
-step's second order and needs no hand-derived partials.  Correspondences are
-searched again in each round (like ICP) with the current unknowns.
-
-Observability.  Before solving, the normal matrix of the first round is
-inverted; an unknown whose 1-sigma exceeds its limit, or which correlates
-beyond ``max_correlation`` with another (the one of the pair with the larger
-sigma relative to its limit), is held at its configured value, with a
-message naming the flight lines that would determine it.
-
-Departures from the references.  Skaloud & Lichti use conditions on planes
-chosen per patch and estimate plane parameters as unknowns; here each
-correspondence's surface is refitted from one strip's points at every
-evaluation (so there are no plane unknowns, and the surface noise is not
-propagated: the a-posteriori residual scale absorbs it).  Glira et al. also
-estimate time-dependent trajectory corrections; here only constant
-per-strip offsets are offered.  Filin's surface-based recovery uses a
-triangulated surface; here quadratic patches.  The estimation is done in the
-trajectory's local ENU frame (a rigid transform of ECEF: distances are
-exact); the output points go through the full equation to the output CRS.
+The unknowns (boresight dR, lever arm da, range offset dr, per-strip offsets)
+are estimated from the overlaps by Gauss-Newton with Huber weights and a
+numerical Jacobian, the correspondences searched again each round, and the
+unknowns the flight cannot determine held: Skaloud & Lichti (2006), ISPRS J.
+61(1), doi:10.1016/j.isprsjprs.2006.07.001; Glira et al. (2015),
+doi:10.5194/isprsannals-II-3-W5-73-2015; Filin (2003),
+doi:10.14358/PERS.69.11.1235.  Where we depart: each link's surface is
+refitted from one strip's points at every evaluation (no plane unknowns).
+See docs/CALIBRATION.md.
 """
 
 from __future__ import annotations
@@ -356,7 +315,7 @@ def solve(
     min_significance: float = 3.0,
     log: Callable | None = None,
 ) -> Calibration | None:
-    """Gauss-Newton over *rounds* correspondence searches (see the module notes).
+    """Gauss-Newton over *rounds* correspondence searches (docs/CALIBRATION.md).
 
     *find_links(xyz)* returns the :class:`Links` of the sample's points *xyz* (local ENU) and the sample
     indices they use.  Returns None when there is no correspondence.  After the first round the unknowns

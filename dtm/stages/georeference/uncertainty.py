@@ -42,6 +42,11 @@ def _rot(cols: tuple, v: tuple) -> tuple:
     return tuple(cols[0][j] * v[0] + cols[1][j] * v[1] + cols[2][j] * v[2] for j in range(3))
 
 
+def _mount(rs: np.ndarray, v: tuple) -> tuple:
+    """Apply the boresight rotation R_s^b to scanner-frame vectors given as columns."""
+    return tuple(rs[j, 0] * v[0] + rs[j, 1] * v[1] + rs[j, 2] * v[2] for j in range(3))
+
+
 def propagate(
     traj: Trajectory,
     i: np.ndarray,
@@ -64,11 +69,7 @@ def propagate(
     body = tuple(tuple(m[:, j, k] for j in range(3)) for k in range(3))  # columns of R
     rs = mounting.rotation
     sx, sy, sz = (np.asarray(c, dtype=np.float64) for c in v_s)
-    vb_s = (
-        rs[0, 0] * sx + rs[0, 1] * sy + rs[0, 2] * sz,
-        rs[1, 0] * sx + rs[1, 1] * sy + rs[1, 2] * sz,
-        rs[2, 0] * sx + rs[2, 1] * sy + rs[2, 2] * sz,
-    )
+    vb_s = _mount(rs, (sx, sy, sz))
     a = mounting.lever_arm
     v_b = (vb_s[0] + a[0], vb_s[1] + a[1], vb_s[2] + a[2])
     rho = np.sqrt(sx**2 + sy**2 + sz**2)
@@ -85,10 +86,7 @@ def propagate(
     # scan angle: the beam turns about the scan axis
     ax = np.asarray(scan_axis, dtype=np.float64)
     turn = _cross(tuple(np.full(len(sx), v) for v in ax), (sx, sy, sz))
-    add(
-        sig.scan_angle_rad,
-        _rot(body, tuple(rs[j, 0] * turn[0] + rs[j, 1] * turn[1] + rs[j, 2] * turn[2] for j in range(3))),
-    )
+    add(sig.scan_angle_rad, _rot(body, _mount(rs, turn)))
     # position: straight through, per axis
     for j in range(3):
         var[j] += np.square(sig.position_enu_m[j])
@@ -99,11 +97,7 @@ def propagate(
     # boresight: small rotations about the scanner axes, applied to the beam
     if sig.boresight_rad:
         for j in range(3):
-            c = _cross(unit[j], (sx, sy, sz))
-            add(
-                sig.boresight_rad,
-                _rot(body, tuple(rs[k, 0] * c[0] + rs[k, 1] * c[1] + rs[k, 2] * c[2] for k in range(3))),
-            )
+            add(sig.boresight_rad, _rot(body, _mount(rs, _cross(unit[j], (sx, sy, sz)))))
     # lever arm: through the attitude
     if sig.lever_arm_m:
         for j in range(3):

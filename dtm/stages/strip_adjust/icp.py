@@ -86,47 +86,15 @@ def planar_patches(
     from moment sums: one pass, no per-cell Python); a cell is kept when it
     has *min_points*, its points spread over both directions (not one scan
     line), the fit's RMS is at most *max_rms* and it is not steeper than
-    ``acos(min_normal_z)``.  A quadratic, not a plane: on curved ground the
-    distance from one strip's plane to another strip's points depends on
-    where in the cell each strip sampled (a bias of curvature x spread),
-    which a quadratic removes.
+    ``acos(min_normal_z)``.
     """
-    empty = Patches(
-        np.zeros((0, 3)),
-        np.zeros((0, 6)),
-        np.zeros((0, 3)),
-        np.zeros((0, 3)),
-        np.zeros(0),
-        np.zeros(0, np.int64),
-        np.zeros(0, np.int64),
-        np.zeros(0, np.int64),
-        cell,
-    )
     if len(xyz) < min_points:
-        return empty
-    ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
-    iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
-    key = (ix - ix.min()) * (iy.max() - iy.min() + 1) + (iy - iy.min())
-    order = np.argsort(key, kind="stable")
-    k_sorted = key[order]
-    starts = np.flatnonzero(np.concatenate(([True], k_sorted[1:] != k_sorted[:-1])))
-    counts = np.diff(np.append(starts, len(order)))
+        return _no_patches(cell)
+    order, starts, counts, origin, q = _cells(xyz, cell)
     good = counts >= min_points
     if not good.any():
-        return empty
-    p = xyz[order]
-    # cell origin: the cell's centre at the first point's height
-    origin = np.column_stack(((ix[order][starts] + 0.5) * cell, (iy[order][starts] + 0.5) * cell, p[starts, 2]))
-    q = p - np.repeat(origin, counts, axis=0)
-    x, y, z = q[:, 0], q[:, 1], q[:, 2]
-    basis = [np.ones_like(x), x, y, x * x, x * y, y * y]
-    ata = np.empty((len(starts), 6, 6))
-    atb = np.empty((len(starts), 6))
-    for i in range(6):
-        atb[:, i] = np.add.reduceat(basis[i] * z, starts)
-        for j in range(i, 6):
-            ata[:, i, j] = ata[:, j, i] = np.add.reduceat(basis[i] * basis[j], starts)
-    zz = np.add.reduceat(z * z, starts)
+        return _no_patches(cell)
+    ata, atb, zz = _moment_sums(q, starts)
     n = counts.astype(np.float64)
     mx, my = ata[:, 0, 1] / n, ata[:, 0, 2] / n
     vxx, vyy, vxy = ata[:, 0, 3] / n - mx * mx, ata[:, 0, 5] / n - my * my, ata[:, 0, 4] / n - mx * my
@@ -134,7 +102,7 @@ def planar_patches(
     spread = (vxx + vyy) / 2 - np.sqrt(((vxx - vyy) / 2) ** 2 + vxy**2)
     good &= spread > (cell / 8) ** 2
     if not good.any():
-        return empty
+        return _no_patches(cell)
     idx = np.flatnonzero(good)
     coef = np.linalg.solve(ata[idx] + np.eye(6) * 1e-9, atb[idx][:, :, None])[:, :, 0]
     sse = zz[idx] - 2 * np.einsum("ki,ki->k", coef, atb[idx]) + np.einsum("ki,kij,kj->k", coef, ata[idx], coef)
@@ -151,6 +119,49 @@ def planar_patches(
     return Patches(
         origin[sel], coef[keep], centroid[keep], normal[keep], rms[keep], counts[sel], order, starts[sel], cell
     )
+
+
+def _no_patches(cell: float) -> Patches:
+    """A strip without any patch."""
+    return Patches(
+        np.zeros((0, 3)),
+        np.zeros((0, 6)),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        np.zeros(0),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        cell,
+    )
+
+
+def _cells(xyz: np.ndarray, cell: float) -> tuple[np.ndarray, ...]:
+    """The points sorted by cell: the order, each cell's first position and count, its origin, and the
+    sorted points relative to their cell's origin (the cell's centre at its first point's height)."""
+    ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
+    iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
+    key = (ix - ix.min()) * (iy.max() - iy.min() + 1) + (iy - iy.min())
+    order = np.argsort(key, kind="stable")
+    k_sorted = key[order]
+    starts = np.flatnonzero(np.concatenate(([True], k_sorted[1:] != k_sorted[:-1])))
+    counts = np.diff(np.append(starts, len(order)))
+    p = xyz[order]
+    origin = np.column_stack(((ix[order][starts] + 0.5) * cell, (iy[order][starts] + 0.5) * cell, p[starts, 2]))
+    return order, starts, counts, origin, p - np.repeat(origin, counts, axis=0)
+
+
+def _moment_sums(q: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per cell (rows of *q* from each of *starts*): A'A and A'z of the quadratic's basis, and z'z."""
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    basis = [np.ones_like(x), x, y, x * x, x * y, y * y]
+    ata = np.empty((len(starts), 6, 6))
+    atb = np.empty((len(starts), 6))
+    for i in range(6):
+        atb[:, i] = np.add.reduceat(basis[i] * z, starts)
+        for j in range(i, 6):
+            ata[:, i, j] = ata[:, j, i] = np.add.reduceat(basis[i] * basis[j], starts)
+    return ata, atb, np.add.reduceat(z * z, starts)
 
 
 def patch_points(patches: Patches, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -218,7 +229,7 @@ def match(
     max_distance: float,
     max_angle_deg: float = 10.0,
     max_offset: float | None = None,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Patch pairs of two strips at the same place and on the same surface, under their current transforms.
 
     The two centroids must be within *max_offset* horizontally (default: half a cell).

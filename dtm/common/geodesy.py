@@ -8,8 +8,13 @@ exactness (:class:`MapTransform`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pyproj
 
 
 def _transformer(src, dst):
@@ -102,7 +107,7 @@ class LocalFrame:
     def to_ecef(self, enu: np.ndarray) -> np.ndarray:
         return np.asarray(enu) @ self.r_enu_to_ecef.T + self.origin
 
-    def from_geodetic(self, lat_deg, lon_deg, h) -> np.ndarray:
+    def from_geodetic(self, lat_deg: np.ndarray, lon_deg: np.ndarray, h: np.ndarray) -> np.ndarray:
         return self.from_ecef(geodetic_to_ecef(lat_deg, lon_deg, h))
 
 
@@ -133,7 +138,16 @@ class MapTransform:
     docs/stages/georeference.md.
     """
 
-    def __init__(self, frame: LocalFrame, crs, lo: np.ndarray, hi: np.ndarray, *, tolerance: float = 1e-4, geoid=None):
+    def __init__(
+        self,
+        frame: LocalFrame,
+        crs: pyproj.CRS,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        *,
+        tolerance: float = 1e-4,
+        geoid: Path | None = None,
+    ):
         import pyproj
 
         self.frame = frame

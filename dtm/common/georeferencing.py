@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -300,7 +301,7 @@ class OutputFrame:
         )
 
 
-def exact_output(exact: Trajectory, crs: pyproj.CRS, reach: float, *, geoid=None) -> OutputFrame:
+def exact_output(exact: Trajectory, crs: pyproj.CRS, reach: float, *, geoid: Path | None = None) -> OutputFrame:
     """The exact frame: PROJ (through :class:`MapTransform`) over the platform's box widened by *reach* metres."""
     lo = exact.position.min(axis=0) - reach
     hi = exact.position.max(axis=0) + reach

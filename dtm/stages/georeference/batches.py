@@ -9,8 +9,10 @@ as LAS 1.4 requires), its return number and count, intensity (amplitude x
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +20,10 @@ from dtm.common.georeferencing import LAS_GPS_OFFSET, Mounting, OutputFrame, geo
 from dtm.stages.georeference.params import GeoreferenceParams
 from dtm.stages.georeference.uncertainty import PointUncertainty
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    import laspy
+    import pyproj
 
 
 def pulse_batches(time: np.ndarray, batch_size: int) -> Iterator[slice]:
@@ -51,7 +57,7 @@ def group_returns(time: np.ndarray, channel: np.ndarray, angle: np.ndarray) -> n
     return np.repeat(sizes, sizes)
 
 
-def las_header(crs, bounds: np.ndarray, uncertainty: bool):
+def las_header(crs: pyproj.CRS, bounds: np.ndarray, uncertainty: bool) -> laspy.LasHeader:
     """The header of ``points.las``: the box of *bounds*, standard GPS time, the sigma extra bytes if asked."""
     import laspy
 
@@ -99,7 +105,7 @@ def georeference_batch(
     return Batch(sl, t, cols, xyz, ok, pulse_strip[sl], channel, angle)
 
 
-def point_record(header, pulses: dict, b: Batch, keep: np.ndarray):
+def point_record(header: laspy.LasHeader, pulses: dict, b: Batch, keep: np.ndarray) -> laspy.ScaleAwarePointRecord:
     """The LAS record of the pulses *keep* of batch *b* (the sigma extra bytes left for the caller)."""
     import laspy
 
@@ -148,7 +154,7 @@ class Tally:
         )
         return out
 
-    def report(self, log, pulses: int, crs_name: str, max_gap_s: float) -> None:
+    def report(self, log: logging.Logger, pulses: int, crs_name: str, max_gap_s: float) -> None:
         """Log what was written and dropped; no point written at all is an :class:`InputDataError`."""
         log.info(
             "%d of %d pulses georeferenced into %d strips (%s)",
@@ -169,8 +175,8 @@ class Tally:
 
 
 def write_batches(
-    writer,
-    header,
+    writer: laspy.LasWriter,
+    header: laspy.LasHeader,
     pulses: dict,
     pulse_strip: np.ndarray,
     out: OutputFrame,

@@ -9,9 +9,11 @@ in ``docs/stages/georeference.md``.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
+from pydantic import BaseModel
 
 from dtm.common.georeferencing import exact_output, ltp_output, prepare_exact, prepare_ltp, pulse_reach
 from dtm.stages.georeference.batches import las_header, write_batches
@@ -35,7 +37,7 @@ class Georeference(Stage):
     config_keys = ("crs",)
     description = "pulses + trajectory -> points in the output CRS (raw formats only)"
 
-    def is_enabled(self, params, config) -> bool:
+    def is_enabled(self, params: GeoreferenceParams, config: BaseModel) -> bool:
         if config.input.format == "las":
             return False  # already georeferenced: "not applicable"
         if not params.enabled:
@@ -47,7 +49,7 @@ class Georeference(Stage):
             )
         return True
 
-    def external_files(self, params, config):
+    def external_files(self, params: GeoreferenceParams, config: BaseModel) -> list[Path]:
         return [params.geoid] if params.geoid is not None else []
 
     def run(self, ctx: StageContext[GeoreferenceParams]) -> None:

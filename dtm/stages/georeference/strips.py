@@ -7,7 +7,13 @@ pulse its strip and :func:`write_flight_lines` writes the lines to
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    import pyproj
 
 
 def segment_strips(
@@ -88,7 +94,7 @@ def pulse_strips(
     return renumber[pulse_strip], renumber[epoch_strip]
 
 
-def write_flight_lines(path, time: np.ndarray, xyz: np.ndarray, strip: np.ndarray, crs) -> None:
+def write_flight_lines(path: Path, time: np.ndarray, xyz: np.ndarray, strip: np.ndarray, crs: pyproj.CRS) -> None:
     """``qc/trajectory.gpkg``: one LineString a flight line, in the output CRS.
 
     Per line: the strip id, the first and last GPS time, and the height of the

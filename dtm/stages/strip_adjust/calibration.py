@@ -11,8 +11,11 @@ georeferencing equation with the corrected mounting.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,6 +48,9 @@ from dtm.stages.strip_adjust.mounting import (
 )
 from dtm.stages.strip_adjust.params import StripAdjustParams
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    from dtm.common.units import Units
 
 
 @dataclass
@@ -81,7 +87,7 @@ class Geometry:
 
 
 def rebuild_geometry(
-    traj: dict, tmeta: dict, pulses: dict, pmeta: dict, *, frame: str, crs: str, geoid, ltp_radius_m: float
+    traj: dict, tmeta: dict, pulses: dict, pmeta: dict, *, frame: str, crs: str, geoid: Path | None, ltp_radius_m: float
 ) -> Geometry:
     """The :class:`Geometry` of the parse stage's columns under the georeference stage's settings.
 
@@ -130,7 +136,7 @@ def pulse_index(pulse_time: np.ndarray, las_time: np.ndarray) -> np.ndarray:
     return idx
 
 
-def read_points(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def read_points(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """gps_time, strip and whether it is a single return, of every point (11 bytes a point)."""
     import laspy
 
@@ -167,7 +173,7 @@ def estimation_sample(
     return base, step
 
 
-def local_control(geo: Geometry, path, log) -> np.ndarray | None:
+def local_control(geo: Geometry, path: Path, log: logging.Logger) -> np.ndarray | None:
     """Ground control points (output CRS) in the estimation's local frame; None with the ltp frame."""
     from dtm.common.checkpoints import read_control
 
@@ -208,13 +214,13 @@ def calibrate(
     control: np.ndarray | None,
     unknowns: Unknowns,
     p: StripAdjustParams,
-    log,
+    log: logging.Logger,
 ) -> Calibration | None:
     """:func:`~dtm.stages.strip_adjust.mounting.solve` on the sample (None with fewer than two strips)."""
     if len(strips) < 2:
         return None
 
-    def progress(rnd, theta, sigma, n):
+    def progress(rnd: int, theta: np.ndarray, sigma: float, n: int) -> None:
         log.info(
             "round %d: %d correspondences, residual sigma %.4f m, boresight correction %s deg",
             rnd + 1,
@@ -255,7 +261,16 @@ class _LinkParts:
         self.parts = {k: [] for k in ("surf", "sg", "obs", "og", "origin", "strips", "weight", "rms", "fixed", "fg")}
         self.k = 0  # links so far
 
-    def add(self, surface: tuple, origin, strips, weight, rms, observed: tuple | None = None, fixed=None) -> None:
+    def add(
+        self,
+        surface: tuple[np.ndarray, np.ndarray],
+        origin: np.ndarray,
+        strips: np.ndarray,
+        weight: np.ndarray,
+        rms: np.ndarray,
+        observed: tuple[np.ndarray, np.ndarray] | None = None,
+        fixed: np.ndarray | None = None,
+    ) -> None:
         """One group: the surface points and their link, the observed points (or control points), per link data."""
         sa, ga = surface
         self.parts["surf"].append(sa)
@@ -476,7 +491,15 @@ def pair_rows(cal: Calibration, geo: Geometry, theta: np.ndarray, cell: float) -
     return rows, before, after
 
 
-def summary(cal, unknowns, theta, geo, note, pmeta, datum) -> dict:
+def summary(
+    cal: Calibration | None,
+    unknowns: Unknowns,
+    theta: np.ndarray,
+    geo: Geometry,
+    note: str | None,
+    pmeta: dict,
+    datum: str,
+) -> dict:
     """strip_corrections.json for the mounting model, its ``pairs`` left empty (see :func:`pair_rows`)."""
     return {
         "model": "mounting",
@@ -517,14 +540,14 @@ def strip_rows(summary: dict, strips: list[int], counts: np.ndarray) -> dict:
 
 
 def rewrite_points(
-    src,
-    dst,
+    src: Path,
+    dst: Path,
     geo: Geometry,
     theta: np.ndarray,
     unknowns: Unknowns,
     idx: np.ndarray,
     pulses: dict,
-    units,
+    units: Units,
     advance: Callable[[int], object],
 ) -> float:
     """Copy *src* to *dst* with every point georeferenced again under *theta*; the largest move (m)."""
@@ -609,7 +632,7 @@ def outcome_metrics(
     return out
 
 
-def log_outcome(log, summary: dict, m: dict) -> None:
+def log_outcome(log: logging.Logger, summary: dict, m: dict) -> None:
     """The log lines of the calibration, from the summary and :func:`outcome_metrics`."""
     for u in summary["unknowns"]:
         if u["held_because"]:

@@ -8,8 +8,14 @@ LAStools' lasoverlap); ``strip_difference.png`` shows them side by side.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pyproj
+
+    from dtm.common.units import Units
 
 #: the outputs of the difference maps, unpublished when no overlap was measured
 DIFFERENCE_MAPS = ("strip_difference_before", "strip_difference_after", "strip_difference_png")
@@ -24,7 +30,13 @@ def combined_rms(values: list[float], weights: list[int]) -> float | None:
 
 
 def write_difference_maps(
-    paths: dict[str, Path], extent, before: list | None, after: list | None, resolution: float, crs, units
+    paths: dict[str, Path],
+    extent: tuple[float, float, float, float],
+    before: list | None,
+    after: list | None,
+    resolution: float,
+    crs: pyproj.CRS,
+    units: Units,
 ) -> None:
     """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after.
 

@@ -202,7 +202,15 @@ def residuals(links: Links, xyz: np.ndarray) -> np.ndarray:
     return np.bincount(g, d, links.size) / cnt
 
 
-def jacobian(traj, mounting, sample, links, theta, unknowns, cols) -> np.ndarray:
+def jacobian(
+    traj: Trajectory,
+    mounting: Mounting,
+    sample: Sample,
+    links: Links,
+    theta: np.ndarray,
+    unknowns: Unknowns,
+    cols: list[int],
+) -> np.ndarray:
     """d residuals / d unknowns (columns *cols*) by central differences of the georeferencing."""
     jac = np.empty((links.size, len(cols)))
     base = None

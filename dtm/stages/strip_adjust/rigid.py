@@ -8,17 +8,35 @@ A strip is a ``point_source_id`` (0, points kept in turns, is left as it is).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.stages.strip_adjust.difference_maps import combined_rms
-from dtm.stages.strip_adjust.icp import Pair, Patches, Solution, Transform, adjust, match, on_lattice, surface_residuals
+from dtm.stages.strip_adjust.icp import (
+    Pair,
+    Patches,
+    Solution,
+    Transform,
+    adjust,
+    match,
+    on_lattice,
+    strip_patches,
+    surface_residuals,
+)
 from dtm.stages.strip_adjust.params import StripAdjustParams
 
+if TYPE_CHECKING:
+    from dtm.common.units import Units
 
-def gather(path, units, cell: float, step: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+
+def gather(
+    path: Path, units: Units, cell: float, step: int
+) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """Read a LAS file in chunks: the estimation sample, and each strip's point count and coordinate sums.
 
     The sample is the single returns of strips (point_source_id > 0) in the
@@ -47,15 +65,37 @@ def gather(path, units, cell: float, step: int) -> tuple[tuple[np.ndarray, np.nd
     return (pts, sid), count, sums
 
 
+@dataclass
+class StripSample:
+    """The estimation sample: single returns (metres), and each strip's point count, centroid and patches."""
+
+    pts: np.ndarray  # (n, 3)
+    count: np.ndarray  # points (all returns) per point_source_id
+    strips: list[int]  # the strips with at least min_points points
+    centres: dict[int, np.ndarray]
+    patches: dict[int, Patches]
+    limit: float | None  # the patches' RMS limit (None without any patch)
+
+
+def strip_sample(path: Path, units: Units, p: StripAdjustParams, step: int) -> StripSample:
+    """Read the estimation sample (:func:`gather`) and find each strip's patches (:func:`.icp.strip_patches`)."""
+    (pts, sid), count, sums = gather(path, units, p.cell, step)
+    strips = [int(s) for s in np.flatnonzero(count) if s > 0 and count[s] >= p.min_points]
+    centres = {s: sums[s] / count[s] for s in strips}
+    patches, limit = strip_patches(pts, sid, strips, cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
+    return StripSample(pts, count, strips, centres, patches, limit)
+
+
 def overlap_datum(
-    strips: list[int], patches: dict[int, Patches], centres: dict, max_distance: float, reference_strip
+    sample: StripSample, max_distance: float, reference_strip: int | str
 ) -> tuple[dict[int, Transform], list[int], int | None]:
     """Which strips overlap (matched with identity transforms), and the reference strip held fixed.
 
     Returns the identity transforms, the strips with overlap and the
     reference (``most_overlap``: the strip with most matched patches).
     """
-    ident = {s: Transform(centres[s]) for s in strips}
+    strips, patches = sample.strips, sample.patches
+    ident = {s: Transform(sample.centres[s]) for s in strips}
     overlap = dict.fromkeys(strips, 0)
     for i, a in enumerate(strips):
         for b in strips[i + 1 :]:
@@ -75,7 +115,13 @@ def overlap_datum(
     return ident, linked, reference_strip
 
 
-def solve_determined(linked, patches, centres, pts, reference, control, p: StripAdjustParams):
+def solve_determined(
+    linked: list[int],
+    sample: StripSample,
+    reference: int | None,
+    control: np.ndarray | None,
+    p: StripAdjustParams,
+) -> tuple[Solution, dict[int, list[float]]]:
     """The joint adjustment, strips whose correction the overlaps do not determine held as they are.
 
     A correction less certain than ``max_sigma_*`` (small or flat overlap) is
@@ -85,9 +131,9 @@ def solve_determined(linked, patches, centres, pts, reference, control, p: Strip
     weak: dict[int, list[float]] = {}
     while True:
         sol = adjust(
-            {s: patches[s] for s in linked},
-            centres,
-            pts,
+            {s: sample.patches[s] for s in linked},
+            sample.centres,
+            sample.pts,
             reference=reference,
             control=control,
             fixed=tuple(weak),
@@ -122,7 +168,14 @@ def corrections(sol: Solution, count: np.ndarray) -> dict:
     return out
 
 
-def pair_figures(pair: Pair, patches, pts, ident, final, cell: float):
+def pair_figures(
+    pair: Pair,
+    patches: dict[int, Patches],
+    pts: np.ndarray,
+    ident: dict[int, Transform],
+    final: dict[int, Transform],
+    cell: float,
+) -> tuple[dict, tuple, tuple]:
     """A pair's row of strip_corrections.json, and its patches' mean distances before and after.
 
     Distances are those of strip b's patch points to strip a's surfaces; the
@@ -177,29 +230,37 @@ class RigidFit:
         }
 
 
-def fit_strips(strips, linked, patches, centres, ident, pts, count, reference, control, p, log) -> RigidFit:
+def fit_strips(
+    sample: StripSample,
+    linked: list[int],
+    ident: dict[int, Transform],
+    reference: int | None,
+    control: np.ndarray | None,
+    p: StripAdjustParams,
+    log: logging.Logger,
+) -> RigidFit:
     """Solve the strips with overlap and measure every pair (or a note: fewer than two strips overlap)."""
     if len(linked) < 2:
         return RigidFit(
-            note=f"{len(strips)} strip(s), {len(linked)} with overlap: nothing to adjust, points passed on unchanged"
+            note=f"{len(sample.strips)} strip(s), {len(linked)} with overlap: nothing to adjust, points passed on unchanged"
         )
-    sol, weak = solve_determined(linked, patches, centres, pts, reference, control, p)
+    sol, weak = solve_determined(linked, sample, reference, control, p)
     if weak:
         log.warning(
             "strips %s left unadjusted: their corrections are not determined by the overlaps (1-sigma translation %s m)",
             ", ".join(map(str, weak)),
             list(weak.values()),
         )
-    fit = RigidFit(sol, weak, corrections(sol, count), [], [], [])
+    fit = RigidFit(sol, weak, corrections(sol, sample.count), [], [], [])
     for pair in sol.pairs:
-        row, b_vals, a_vals = pair_figures(pair, patches, pts, ident, sol.transforms, p.cell)
+        row, b_vals, a_vals = pair_figures(pair, sample.patches, sample.pts, ident, sol.transforms, p.cell)
         fit.pairs.append(row)
         fit.before.append(b_vals)
         fit.after.append(a_vals)
     return fit
 
 
-def summary(fit: RigidFit, reference: int | None, control) -> dict:
+def summary(fit: RigidFit, reference: int | None, control: np.ndarray | None) -> dict:
     """strip_corrections.json of the rigid model."""
     datum = "control points" if reference is None and control is not None else f"strip {reference}"
     return {
@@ -211,7 +272,9 @@ def summary(fit: RigidFit, reference: int | None, control) -> dict:
     }
 
 
-def apply_transforms(src, dst, transforms: dict, units, advance: Callable[[int], object]) -> None:
+def apply_transforms(
+    src: Path, dst: Path, transforms: dict[int, Transform], units: Units, advance: Callable[[int], object]
+) -> None:
     """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform."""
     import laspy
 
@@ -254,7 +317,7 @@ def outcome_metrics(summary: dict, strips: list[int], reference: int | None, wea
     }
 
 
-def log_outcome(log, m: dict) -> None:
+def log_outcome(log: logging.Logger, m: dict) -> None:
     """The stage's log line, from :func:`outcome_metrics`."""
     if m["note"]:
         log.info("strip adjustment skipped: %s", m["note"])

@@ -15,13 +15,15 @@ overlap, passes through unchanged with a note.  See
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
+from pydantic import BaseModel
 
 from dtm.stages.strip_adjust import calibration, rigid
 from dtm.stages.strip_adjust.difference_maps import DIFFERENCE_MAPS, write_difference_maps
-from dtm.stages.strip_adjust.icp import lattice_step, strip_patches
+from dtm.stages.strip_adjust.icp import lattice_step
 from dtm.stages.strip_adjust.params import StripAdjustParams
 from pipeline.errors import ConfigError
 from pipeline.stage import Stage, StageContext, StageIO
@@ -49,10 +51,10 @@ class StripAdjust(Stage):
     passthrough: ClassVar = {"points_adjusted": "points_georef"}
     config_keys = ("crs", "stages.georeference")  # model: mounting georeferences the pulses again
 
-    def external_files(self, params, config):
+    def external_files(self, params: StripAdjustParams, config: BaseModel) -> list[Path]:
         return [params.control_points] if params.control_points is not None else []
 
-    def is_enabled(self, params, config) -> bool:
+    def is_enabled(self, params: StripAdjustParams, config: BaseModel) -> bool:
         if params.model == "mounting" and config.input.format == "las":
             raise ConfigError(
                 "stages.strip_adjust.model: mounting needs a raw flight's pulses and trajectory, and input.format "
@@ -60,7 +62,7 @@ class StripAdjust(Stage):
             )
         return super().is_enabled(params, config)
 
-    def declare(self, params, config) -> StageIO:
+    def declare(self, params: StripAdjustParams, config: BaseModel) -> StageIO:
         io = super().declare(params, config)
         if params.model == "mounting" and config.input.format != "las":
             return StageIO((*io.inputs, "trajectory", "pulses"), io.outputs, io.products)
@@ -83,21 +85,18 @@ class StripAdjust(Stage):
         # the estimation sample (everything in metres, like the parameters): each strip's point count and
         # centroid, and its single returns on every cell or, above max_points, on a regular lattice of cells
         step = lattice_step(info.count, p.max_points)
-        (pts, sid), count, sums = rigid.gather(src, info.units, p.cell, step)
-        strips = [int(s) for s in np.flatnonzero(count) if s > 0 and count[s] >= p.min_points]
-        centres = {s: sums[s] / count[s] for s in strips}
-        patches, limit = strip_patches(pts, sid, strips, cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
-        ctx.metrics.update(estimation_points=int(len(pts)), lattice_step=step)
-        if limit is not None:
-            ctx.metrics.update(plane_rms_limit_m=limit)
+        sample = rigid.strip_sample(src, info.units, p, step)
+        ctx.metrics.update(estimation_points=int(len(sample.pts)), lattice_step=step)
+        if sample.limit is not None:
+            ctx.metrics.update(plane_rms_limit_m=sample.limit)
         if step > 1:
-            ctx.log.info("estimation on every %d-th cell in x and y: %d single returns", step, len(pts))
+            ctx.log.info("estimation on every %d-th cell in x and y: %d single returns", step, len(sample.pts))
         # the datum, the joint adjustment, the figures of each pair
-        ident, linked, reference = rigid.overlap_datum(strips, patches, centres, p.max_distance, p.reference_strip)
+        ident, linked, reference = rigid.overlap_datum(sample, p.max_distance, p.reference_strip)
         control = info.units.to_metres(read_control(p.control_points)) if p.control_points is not None else None
         if control is not None and len(control):
             reference = None
-        fit = rigid.fit_strips(strips, linked, patches, centres, ident, pts, count, reference, control, p, ctx.log)
+        fit = rigid.fit_strips(sample, linked, ident, reference, control, p, ctx.log)
         ctx.metrics.update(fit.metrics())
         self._unpublish_empty_maps(ctx, fit.pairs)
         # the products
@@ -107,7 +106,7 @@ class StripAdjust(Stage):
         write_difference_maps(maps, info.extent, fit.before, fit.after, p.difference_resolution, info.crs, info.units)
         summary = rigid.summary(fit, reference, control)
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
-        outcome = rigid.outcome_metrics(summary, strips, reference, fit.weak)
+        outcome = rigid.outcome_metrics(summary, sample.strips, reference, fit.weak)
         ctx.metrics.update(outcome)
         rigid.log_outcome(ctx.log, outcome)
 

@@ -33,7 +33,7 @@ from dtm.common.georeferencing import (
     pulse_reach,
 )
 from dtm.stages.strip_adjust.difference_maps import combined_rms
-from dtm.stages.strip_adjust.icp import lattice_step, match, on_lattice, patch_points, strip_patches
+from dtm.stages.strip_adjust.icp import Transform, lattice_step, match, on_lattice, patch_points, strip_patches
 from dtm.stages.strip_adjust.mounting import (
     ADVICE,
     Calibration,
@@ -92,9 +92,8 @@ def rebuild_geometry(
     """The :class:`Geometry` of the parse stage's columns under the georeference stage's settings.
 
     *frame*, *geoid* and *ltp_radius_m* are the georeference stage's
-    settings, *crs* the configured output CRS.  The map transform covers
-    the survey with 10 m more margin than the georeference stage's, for
-    points the corrections move.
+    settings, *crs* the configured output CRS.  The map transform's box is
+    10 m wider on every side than the georeference stage's.
     """
     from dtm.common.crs import output_crs
 
@@ -308,7 +307,7 @@ class _LinkParts:
         return links, self._cat("rms", None)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LinkFinder:
     """What :func:`~dtm.stages.strip_adjust.mounting.solve` calls in each round: patches, matches, control.
 
@@ -347,8 +346,6 @@ class LinkFinder:
 
     def _pairs(self, patches: dict, parts: _LinkParts) -> None:
         """The matched patches of every strip pair: strip a's points the surface, strip b's observed."""
-        from dtm.stages.strip_adjust.icp import Transform
-
         ident = Transform(np.zeros(3))
         for i, a in enumerate(self.strips):
             for b in self.strips[i + 1 :]:
@@ -499,8 +496,9 @@ def summary(
     note: str | None,
     pmeta: dict,
     datum: str,
+    pairs: list[dict],
 ) -> dict:
-    """strip_corrections.json for the mounting model, its ``pairs`` left empty (see :func:`pair_rows`)."""
+    """strip_corrections.json for the mounting model (*pairs* from :func:`pair_rows`)."""
     return {
         "model": "mounting",
         "datum": None if note else datum,
@@ -513,7 +511,7 @@ def summary(
         "mounting": mounting_summary(geo.mounting, theta, pmeta),
         "residual_sigma_m": round(float(cal.residual_sigma), 5) if cal else None,
         "iterations": cal.iterations if cal else 0,
-        "pairs": [],
+        "pairs": pairs,
     }
 
 

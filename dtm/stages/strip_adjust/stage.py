@@ -149,9 +149,8 @@ class StripAdjust(Stage):
             note = f"{len(strips)} strip(s) without planar overlap: nothing to estimate, points passed on unchanged"
         theta = cal.theta if cal is not None else np.zeros(unknowns.size)
         datum = calibration.datum_of(unknowns, control, reference)
-        summary = calibration.summary(cal, unknowns, theta, geo, note, pmeta, datum)
         pairs, before, after = calibration.pair_rows(cal, geo, theta, p.cell) if cal else ([], None, None)
-        summary["pairs"] = pairs
+        summary = calibration.summary(cal, unknowns, theta, geo, note, pmeta, datum, pairs)
         summary["strips"] = calibration.strip_rows(
             summary, strips, np.bincount(sid, minlength=max(strips, default=0) + 1)
         )

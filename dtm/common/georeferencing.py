@@ -175,17 +175,16 @@ def georeference(
 
     Parameters
     ----------
-    traj : Trajectory
-        From :func:`prepare_trajectory` (times: GPS seconds since 1980-01-06, as *t*).
-    t, v_s : ndarray, shape (n,), and three of them
+    traj, mounting : Trajectory, Mounting
+        From :func:`prepare_trajectory` (GPS seconds since 1980-01-06, as *t*); boresight and lever arm.
+    t, v_s : ndarray (n,), and three of them
         Pulse times, and pulse vectors in the scanner frame (x, y, z columns, metres).
     to_map : callable
         Local ENU columns (e, n, u) -> output CRS columns, e.g. ``MapTransform.columns``.
     max_gap_s : float
         Pulses inside a trajectory interval longer than this get no position.
     chunk, workers : int
-        Pulses per block (small enough for the CPU cache: several times faster than whole-array NumPy),
-        and threads (NumPy and PROJ release the GIL).
+        Pulses per block (small enough for the CPU cache), and threads (NumPy and PROJ release the GIL).
     """
     n = len(t)
     out = np.full((n, 3), np.nan)

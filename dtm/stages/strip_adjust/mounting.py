@@ -4,15 +4,14 @@ Every pulse is georeferenced again (:mod:`dtm.common.georeferencing`) with a cor
 
     p = pos(t) + R(t) . (dR . R_s^b . v_s (1 + dr / |v_s|) + a_b + da) [+ o_strip]
 
-The unknowns (boresight dR, lever arm da, range offset dr, per-strip offsets)
-are estimated from the overlaps by Gauss-Newton with Huber weights and a
-numerical Jacobian, the correspondences searched again each round, and the
-unknowns the flight cannot determine held: Skaloud & Lichti (2006), ISPRS J.
-61(1), doi:10.1016/j.isprsjprs.2006.07.001; Glira et al. (2015),
-doi:10.5194/isprsannals-II-3-W5-73-2015; Filin (2003),
-doi:10.14358/PERS.69.11.1235.  Where we depart: each link's surface is
-refitted from one strip's points at every evaluation (no plane unknowns).
-See docs/CALIBRATION.md.
+The unknowns (boresight dR, lever arm da, range offset dr, strip offsets) are
+estimated from the overlaps by Gauss-Newton with Huber weights and a numerical
+Jacobian, correspondences searched again each round, undeterminable unknowns
+held: Skaloud & Lichti (2006), doi:10.1016/j.isprsjprs.2006.07.001; Glira et
+al. (2015), doi:10.5194/isprsannals-II-3-W5-73-2015; Filin (2003),
+doi:10.14358/PERS.69.11.1235.  Where we depart: each link's surface is refitted
+from one strip's points at every evaluation (no plane unknowns); see
+docs/CALIBRATION.md.
 """
 
 from __future__ import annotations

@@ -37,8 +37,9 @@ def bench_core(n: int) -> list[tuple[int, float]]:
 
     m = 200 * 600  # 10 minutes at 200 Hz
     t = np.arange(m) / 200.0
-    traj = prepare_trajectory(t, 40.4 + t * 5e-6, -3.7 + t * 1e-6, 1000 + 0 * t, np.sin(t), 1 + 0 * t, 30 + t * 0.01,
-                              "NED")  # fmt: skip
+    traj = prepare_trajectory(
+        t, 40.4 + t * 5e-6, -3.7 + t * 1e-6, 1000 + 0 * t, np.sin(t), 1 + 0 * t, 30 + t * 0.01, "NED"
+    )
     rng = np.random.default_rng(0)
     tp = np.sort(rng.uniform(0, t[-1], n))
     theta = rng.uniform(-0.5, 0.5, n)
@@ -51,8 +52,14 @@ def bench_core(n: int) -> list[tuple[int, float]]:
     to_map = MapTransform(traj.frame, pyproj.CRS.from_epsg(32630), lo, hi)
     out = []
     for workers in (1, 2):
-        best = min(_time(lambda w=workers: georeference(traj, tp, cols, Mounting(np.eye(3), np.zeros(3)), to_map.columns,
-                                                         workers=w)) for _ in range(3))  # fmt: skip
+        best = min(
+            _time(
+                lambda w=workers: georeference(
+                    traj, tp, cols, Mounting(np.eye(3), np.zeros(3)), to_map.columns, workers=w
+                )
+            )
+            for _ in range(3)
+        )
         out.append((workers, best))
     return out
 
@@ -73,17 +80,43 @@ def bench_flights(pulses: int, tmp: Path) -> list[tuple[str, int, float, float]]
     speed = 60.0
     length = seconds / lines * speed
     t0 = time.perf_counter()
-    simulate(SimulateConfig(output=tmp / "rg", seed=1, formats=["lmsq_nmea", "lmsq_sbet"], checkpoints=0,
-                            scanner={"preset": "q280", "pulse_rate_hz": rate, "scan_rate_hz": 80},
-                            flight={"altitude_m": 400, "speed_ms": speed, "lines": lines, "line_length_m": length,
-                                    "cross_line": False, "lead_in_m": 0}))  # fmt: skip
+    simulate(
+        SimulateConfig(
+            output=tmp / "rg",
+            seed=1,
+            formats=["lmsq_nmea", "lmsq_sbet"],
+            checkpoints=0,
+            scanner={"preset": "q280", "pulse_rate_hz": rate, "scan_rate_hz": 80},
+            flight={
+                "altitude_m": 400,
+                "speed_ms": speed,
+                "lines": lines,
+                "line_length_m": length,
+                "cross_line": False,
+                "lead_in_m": 0,
+            },
+        )
+    )
     print(f"simulated the RIEGL flight in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     scans = pulses / (81 * 4 * 12.5) * 1.1
     t0 = time.perf_counter()
-    simulate(SimulateConfig(output=tmp / "ld", seed=1, formats=["ldmrs_mtig"], checkpoints=0,
-                            scanner={"preset": "ldmrs", "angle_step_deg": 1.0},
-                            flight={"altitude_m": 60, "speed_ms": 10, "lines": 1, "line_length_m": scans * 10,
-                                    "cross_line": False, "lead_in_m": 0}))  # fmt: skip
+    simulate(
+        SimulateConfig(
+            output=tmp / "ld",
+            seed=1,
+            formats=["ldmrs_mtig"],
+            checkpoints=0,
+            scanner={"preset": "ldmrs", "angle_step_deg": 1.0},
+            flight={
+                "altitude_m": 60,
+                "speed_ms": 10,
+                "lines": 1,
+                "line_length_m": scans * 10,
+                "cross_line": False,
+                "lead_in_m": 0,
+            },
+        )
+    )
     print(f"simulated the LD-MRS flight in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     rows = []
     inputs = {
@@ -95,10 +128,15 @@ def bench_flights(pulses: int, tmp: Path) -> list[tuple[str, int, float, float]]
     for fmt, block in inputs.items():
         extra = "" if fmt == "ldmrs_mtig" else ", boresight_deg: [0, 0, 0], lever_arm_m: [0, 0, 0]"
         config = tmp / f"{fmt}.yaml"
-        config.write_text(f"input: {{{block}{extra}}}\noutput: out-{fmt}\ncache: cache-{fmt}\n"
-                          "executor: {kind: local, workers: 2}\nstages: {georeference: {strips: {keep_turns: true}}}\n")  # fmt: skip
-        subprocess.run([sys.executable, "-m", "pipeline", "run", str(config), "-q", "--until", "georeference"],
-                       check=True, cwd=ROOT)  # fmt: skip
+        config.write_text(
+            f"input: {{{block}{extra}}}\noutput: out-{fmt}\ncache: cache-{fmt}\n"
+            "executor: {kind: local, workers: 2}\nstages: {georeference: {strips: {keep_turns: true}}}\n"
+        )
+        subprocess.run(
+            [sys.executable, "-m", "pipeline", "run", str(config), "-q", "--until", "georeference"],
+            check=True,
+            cwd=ROOT,
+        )
         stages = {s["name"]: s for s in json.loads((tmp / f"out-{fmt}" / "run.json").read_text())["stages"]}
         n = stages["georeference"]["metrics"]["pulses"]
         rows.append((fmt, n, stages["parse"]["seconds"], stages["georeference"]["seconds"]))

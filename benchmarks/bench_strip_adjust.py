@@ -36,20 +36,38 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
-        simulate(SimulateConfig(output=tmp / "sim", seed=5, formats=["las"], checkpoints=0,
-                                scanner={"preset": "q280", "pulse_rate_hz": args.rate, "scan_rate_hz": 80,
-                                         "range_noise_m": 0.03},
-                                navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
-                                flight={"altitude_m": 300, "speed_ms": 60, "lines": 5, "sidelap": 0.5,
-                                        "line_length_m": 1500, "cross_line": True, "lead_in_m": 0},
-                                faults={"strip_bias_m": 0.5, "strip_rotation_deg": 0.05, "error_free_lines": [1]}))  # fmt: skip
+        simulate(
+            SimulateConfig(
+                output=tmp / "sim",
+                seed=5,
+                formats=["las"],
+                checkpoints=0,
+                scanner={"preset": "q280", "pulse_rate_hz": args.rate, "scan_rate_hz": 80, "range_noise_m": 0.03},
+                navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
+                flight={
+                    "altitude_m": 300,
+                    "speed_ms": 60,
+                    "lines": 5,
+                    "sidelap": 0.5,
+                    "line_length_m": 1500,
+                    "cross_line": True,
+                    "lead_in_m": 0,
+                },
+                faults={"strip_bias_m": 0.5, "strip_rotation_deg": 0.05, "error_free_lines": [1]},
+            )
+        )
         print(f"simulated in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
         config = tmp / "adjust.yaml"
-        config.write_text(f"input: {{format: las, paths: [{tmp}/sim/las/points.laz]}}\noutput: {tmp}/out\n"
-                          "stages: {strip_adjust: {reference_strip: 1}}\n")  # fmt: skip
+        config.write_text(
+            f"input: {{format: las, paths: [{tmp}/sim/las/points.laz]}}\noutput: {tmp}/out\n"
+            "stages: {strip_adjust: {reference_strip: 1}}\n"
+        )
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "pipeline", "run", str(config), "-q", "--until", "strip_adjust"],
-                       check=True, cwd=ROOT)  # fmt: skip
+        subprocess.run(
+            [sys.executable, "-m", "pipeline", "run", str(config), "-q", "--until", "strip_adjust"],
+            check=True,
+            cwd=ROOT,
+        )
         wall = time.perf_counter() - t0
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         stages = {s["name"]: s for s in json.loads((tmp / "out" / "run.json").read_text())["stages"]}
@@ -61,8 +79,10 @@ def main() -> None:
             "| points | strips | parse s | strip_adjust s | points/s | iterations | overlap RMS before → after (m) | peak RSS (MB) |"
         )
         print("|---|---|---|---|---|---|---|---|")
-        print(f"| {n:,} | {m['strips']} | {stages['parse']['seconds']:.1f} | {sec:.1f} | {n / sec / 1e6:.2f} M | "
-              f"{m['iterations']} | {m['overlap_rms_before_m']:.3f} → {m['overlap_rms_after_m']:.3f} | {peak:,.0f} |")  # fmt: skip
+        print(
+            f"| {n:,} | {m['strips']} | {stages['parse']['seconds']:.1f} | {sec:.1f} | {n / sec / 1e6:.2f} M | "
+            f"{m['iterations']} | {m['overlap_rms_before_m']:.3f} → {m['overlap_rms_after_m']:.3f} | {peak:,.0f} |"
+        )
         print(f"whole command {wall:.1f} s", file=sys.stderr)
 
 

@@ -76,7 +76,7 @@ def checkpoint_ids(path: str | Path, count: int) -> list[str]:
 
 
 def read_flight_lines(path: str | Path) -> list[tuple[np.ndarray, np.ndarray, str]]:
-    """The flight lines of ``trajectory.gpkg`` (:func:`dtm.stages.georeference.stage.write_flight_lines`): (x, y, 'strip N')."""
+    """The flight lines of ``trajectory.gpkg`` (:func:`dtm.stages.georeference.strips.write_flight_lines`): (x, y, 'strip N')."""
     import pyogrio
 
     meta, _, geometry, fields = pyogrio.raw.read(str(path))

@@ -98,8 +98,17 @@ def river(request, tmp_path_factory):
         ("declared", ["tiling.size=100", *TILES]),  # the buffer the stage declares
         ("short", ["tiling.size=100", f"tiling.buffer={short:g}", *TILES]),
     ):
-        args = ["run", str(root / "river.yaml"), "-q", "--until", "classify_ground",
-                "--set", f"output={root / name}", "--set", f"cache={root / name / 'cache'}"]  # fmt: skip
+        args = [
+            "run",
+            str(root / "river.yaml"),
+            "-q",
+            "--until",
+            "classify_ground",
+            "--set",
+            f"output={root / name}",
+            "--set",
+            f"cache={root / name / 'cache'}",
+        ]
         for s in sets:
             args += ["--set", s]
         assert main(args) == 0

@@ -61,8 +61,17 @@ def _survey(path: Path) -> None:
 
 def _run(root: Path, name: str, *sets: str, cache: str | None = None, until: str = "rasterize") -> dict:
     out = root / name
-    args = ["run", str(root / "survey.yaml"), "-q", "--until", until, "--set", f"output={out}",
-            "--set", f"cache={root / (cache or name) / 'cache'}"]  # fmt: skip
+    args = [
+        "run",
+        str(root / "survey.yaml"),
+        "-q",
+        "--until",
+        until,
+        "--set",
+        f"output={out}",
+        "--set",
+        f"cache={root / (cache or name) / 'cache'}",
+    ]
     for s in sets:
         args += ["--set", s]
     assert main(args) == 0
@@ -118,8 +127,17 @@ def test_tiled_denoise_equals_untiled_where_the_buffer_matters(tmp_path):
     (tmp_path / "q.yaml").write_text(f"name: q\ninput: {{format: las, paths: [{las}]}}\noutput: out\ncache: cache\n")
     classes = {}
     for name, sets in (("untiled", ["tiling.enabled=false"]), ("tiled", ["tiling.size=100"])):
-        args = ["run", str(tmp_path / "q.yaml"), "-q", "--until", "denoise", "--set", f"output={tmp_path / name}",
-                "--set", f"cache={tmp_path / name / 'cache'}"]  # fmt: skip
+        args = [
+            "run",
+            str(tmp_path / "q.yaml"),
+            "-q",
+            "--until",
+            "denoise",
+            "--set",
+            f"output={tmp_path / name}",
+            "--set",
+            f"cache={tmp_path / name / 'cache'}",
+        ]
         for s in sets:
             args += ["--set", s]
         assert main(args) == 0

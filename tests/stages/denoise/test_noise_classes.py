@@ -68,8 +68,12 @@ def test_every_point_of_a_low_cluster_is_low_noise(tmp_path):
     pts = _ground()
     low = np.array([[15.2, 15.3, 600.3 - 9.0], [15.6, 15.1, 600.3 - 7.5], [15.9, 15.8, 600.3 - 6.0]])
     cloud = np.vstack((pts, low))
-    stages = _run(tmp_path, write_las(tmp_path / "in.las", cloud), "denoise",
-                  "  denoise: {isolated: {enabled: false}, low: {enabled: true, cell_size: 10.0, elevation_threshold: 1.0}}\n")  # fmt: skip
+    stages = _run(
+        tmp_path,
+        write_las(tmp_path / "in.las", cloud),
+        "denoise",
+        "  denoise: {isolated: {enabled: false}, low: {enabled: true, cell_size: 10.0, elevation_threshold: 1.0}}\n",
+    )
     cls = _classes(stages["denoise"])
     assert cls[-3:].tolist() == [7, 7, 7]
     assert (cls[:-3] == 0).all()
@@ -91,8 +95,12 @@ def test_isolated_points_are_those_far_from_their_neighbours_at_the_local_spacin
     # the survey must tell the rule from looser ones: birds beyond 2 m but within 10 spacings, and beyond
     assert ((far > 2.0) & ~expect).sum() >= 3 and expect.sum() >= 3
     isolated = "{neighbors: 2, spacing_neighbors: 8, multiplier: 10.0, min_distance: 2.0, radius: 30.0}"
-    stages = _run(tmp_path, write_las(tmp_path / "in.las", cloud), "denoise",
-                  f"  denoise: {{low: {{enabled: false}}, isolated: {isolated}}}\n")  # fmt: skip
+    stages = _run(
+        tmp_path,
+        write_las(tmp_path / "in.las", cloud),
+        "denoise",
+        f"  denoise: {{low: {{enabled: false}}, isolated: {isolated}}}\n",
+    )
     cls = _classes(stages["denoise"])
     np.testing.assert_array_equal(np.isin(cls, (7, 18)), expect)
     assert (cls[expect] == 18).all()  # above the ground around them: high noise
@@ -103,8 +111,12 @@ def test_dsm_and_density_ignore_noise_classes(tmp_path):
     pts = _ground(40)
     noise = np.array([[20.3, 20.2, 680.0], [10.6, 30.4, 570.0]])
     cls = np.r_[np.zeros(len(pts), np.uint8), np.array([18, 7], np.uint8)]
-    stages = _run(tmp_path, write_las(tmp_path / "in.las", np.vstack((pts, noise)), cls), "rasterize",
-                  "  denoise: {enabled: false}\n  rasterize: {resolution: 1.0, method: tin}\n")  # fmt: skip
+    stages = _run(
+        tmp_path,
+        write_las(tmp_path / "in.las", np.vstack((pts, noise)), cls),
+        "rasterize",
+        "  denoise: {enabled: false}\n  rasterize: {resolution: 1.0, method: tin}\n",
+    )
     out = tmp_path / "out"
     dsm, *_ = read_raster(out / "dsm.tif")
     density, *_ = read_raster(out / "density.tif")

@@ -29,7 +29,7 @@ def _one(points: float, algorithm: str) -> None:
     xyz = np.column_stack([scene.x, scene.y, scene.z])
     t0 = time.perf_counter()
     if algorithm == "denoise":
-        from dtm.stages.denoise.classes import noise_classes
+        from dtm.stages.denoise.noise_classes import noise_classes
         from dtm.stages.denoise.params import DenoiseParams
 
         noise_classes(xyz, DenoiseParams())

@@ -19,10 +19,10 @@ from pathlib import Path
 
 from pipeline import __version__, interrupt
 from pipeline.config import load_config
+from pipeline.discovery import load_plugin
 from pipeline.errors import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, setup_logging
-from pipeline.plugin import load_plugin
 from pipeline.runner import build_plan, run
 from pipeline.stage import Plugin, config_model
 

@@ -25,7 +25,7 @@ from dtm.common.mosaic import core_window
 from dtm.common.tile_points import read_tile, split_cloud, tile_parts
 from dtm.common.units import Units
 from dtm.stages.rasterize.params import RasterizeParams
-from dtm.stages.rasterize.tiles import RasterTask, Usable, raster_columns, rasterize_tile
+from dtm.stages.rasterize.tile_rasters import RasterTask, Usable, raster_columns, rasterize_tile
 from pipeline.executor import LocalExecutor
 from pipeline.tiling import Layout
 
@@ -155,7 +155,7 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
 
 def test_a_tile_split_on_two_workers_gives_the_same_noise_classes(split, tmp_path):
     from dtm.common.tile_classes import PointTask
-    from dtm.stages.denoise.classes import denoise_tile
+    from dtm.stages.denoise.noise_classes import denoise_tile
     from dtm.stages.denoise.params import DenoiseParams
 
     _, _, tmp, (rows, _), _ = split

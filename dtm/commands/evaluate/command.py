@@ -137,7 +137,7 @@ def evaluate_ground(
     import shutil
     import tempfile
 
-    from pipeline.plugin import load_plugin
+    from pipeline.discovery import load_plugin
     from pipeline.stage import config_model
 
     reference = reference_ground(path)

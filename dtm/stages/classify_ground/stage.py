@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from dtm.common import glossary
-from dtm.stages.classify_ground.classes import (
+from dtm.stages.classify_ground.ground_classes import (
     SPARSE_SPACINGS,
     classify_columns,
     classify_tile,

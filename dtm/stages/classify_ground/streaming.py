@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dtm.common import glossary
-from dtm.stages.classify_ground.classes import candidates_of, classify_columns, new_classes
+from dtm.stages.classify_ground.ground_classes import candidates_of, classify_columns, new_classes
 from dtm.stages.classify_ground.params import ClassifyGroundParams, SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, grid_corner
 from pipeline.errors import InputDataError

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from dtm.stages.denoise.classes import denoise_columns, denoise_tile, reach
+from dtm.stages.denoise.noise_classes import denoise_columns, denoise_tile, reach
 from dtm.stages.denoise.params import DenoiseParams
 from pipeline.stage import Stage, StageContext
 

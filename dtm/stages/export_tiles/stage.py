@@ -4,7 +4,7 @@ Runs when ``stages.export_tiles.tile_size`` is set: each raster of
 ``rasters`` (default ``[dtm]``) becomes ``tiles/<raster>/<raster>_<E>_<N>.tif``
 (COGs on a grid of whole tile sides, named by their lower-left corner) and
 ``<raster>.vrt``, which reads as the untiled raster, cell for cell
-(:mod:`dtm.stages.export_tiles.tiles`; docs/stages/export_tiles.md).
+(:mod:`dtm.stages.export_tiles.cog_tiles`; docs/stages/export_tiles.md).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-from dtm.stages.export_tiles.tiles import tile_cells, write_tiles
+from dtm.stages.export_tiles.cog_tiles import tile_cells, write_tiles
 from pipeline.stage import Stage, StageContext, StageIO, StageParams
 
 

@@ -1,4 +1,4 @@
-"""Readers of the input formats; shared bookkeeping of what they skip."""
+"""What the text readers share: counters that keep the first places something was skipped, and opening (gzip too)."""
 
 from __future__ import annotations
 

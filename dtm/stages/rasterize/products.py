@@ -1,7 +1,7 @@
 """The rasters of one tile from its points (DTM, DSM, nDSM, density, uncertainty), and the survey's figures.
 
 Grids are in metres and NaN means nodata; the tile task
-(:func:`dtm.stages.rasterize.tiles.rasterize_tile`) converts the heights to
+(:func:`dtm.stages.rasterize.tile_rasters.rasterize_tile`) converts the heights to
 the CRS's unit when it writes them.
 """
 

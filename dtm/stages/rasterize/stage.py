@@ -7,7 +7,7 @@ cell) and, when the points carry ``sigma_vertical``, ``dtm_uncertainty.tif``.
 The grid covers all usable points, cell-aligned to multiples of
 ``resolution``; the rasters are Cloud Optimized GeoTIFF, float32, nodata
 -9999, in the CRS's units (parameters in metres; :mod:`dtm.common.units`).
-The survey is rasterized tile by tile (:mod:`dtm.stages.rasterize.tiles`),
+The survey is rasterized tile by tile (:mod:`dtm.stages.rasterize.tile_rasters`),
 each tile's cells bit for bit those of an untiled run.  Each raster in
 detail: docs/stages/rasterize.md.
 """
@@ -24,7 +24,7 @@ from dtm.common import glossary
 from dtm.common.grid import Grid, check_grid_size
 from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import survey_figures
-from dtm.stages.rasterize.tiles import (
+from dtm.stages.rasterize.tile_rasters import (
     RASTERS,
     RasterTask,
     Usable,

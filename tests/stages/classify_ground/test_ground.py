@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from dtm.commands.evaluate.scores import score
-from dtm.stages.classify_ground.classes import classify
 from dtm.stages.classify_ground.csf import csf
+from dtm.stages.classify_ground.ground_classes import classify
 from dtm.stages.classify_ground.params import ClassifyGroundParams, CsfParams, PmfParams, SmrfParams
 from dtm.stages.classify_ground.pmf import pmf
 from dtm.stages.classify_ground.smrf import smrf

@@ -115,7 +115,7 @@ def test_megaplot_dtm_matches_the_provider_ground(need_data):
     before the low-outlier fix: RMS 2.7 m, 20 % of the cells more than 2 m above, +13.9 m at most)."""
     import laspy
 
-    from dtm.stages.classify_ground.classes import classify
+    from dtm.stages.classify_ground.ground_classes import classify
     from dtm.stages.classify_ground.params import ClassifyGroundParams
 
     need_data(MEGAPLOT, what="lidR's Megaplot.laz")

@@ -3,7 +3,7 @@
 ``classify_ground`` filters a survey whose SMRF grid has at most
 ``one_grid_cells`` cells in passes over its points (lowest point per cell,
 the grid filtered whole, the point test chunk by chunk) instead of tiles.
-The reference is :func:`dtm.stages.classify_ground.classes.classify` on every point in memory,
+The reference is :func:`dtm.stages.classify_ground.ground_classes.classify` on every point in memory,
 the untiled code of before; the survey has buildings, trees with multiple
 returns, points the filter must leave alone (noise, water, withheld) and a
 stray withheld point 40 km away that makes the header's grid too big, and a
@@ -21,7 +21,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.stages.classify_ground.classes import classify
+from dtm.stages.classify_ground.ground_classes import classify
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from dtm.stages.classify_ground.smrf import progressive_filter
 from dtm.stages.classify_ground.streaming import smrf_one_grid

@@ -179,7 +179,7 @@ def test_a_new_tiling_buffer_reruns_the_ground_stage(survey):
 def test_smrf_near_the_survey_boundary_does_not_depend_on_the_tile():
     """Buildings 5-10 m from the survey's north edge: SMRF on each 100 m tile plus the declared buffer
     (146 m) must classify its core points as SMRF on the whole survey does."""
-    from dtm.stages.classify_ground.classes import reach
+    from dtm.stages.classify_ground.ground_classes import reach
     from dtm.stages.classify_ground.params import SmrfParams
     from dtm.stages.classify_ground.smrf import smrf
 

@@ -17,7 +17,7 @@ from affine import Affine
 from pyproj import CRS
 
 from dtm.common.rasters import NODATA, write_cog
-from dtm.stages.export_tiles.tiles import tile_cells, write_tiles
+from dtm.stages.export_tiles.cog_tiles import tile_cells, write_tiles
 from pipeline.errors import ConfigError
 
 CELL = 0.5

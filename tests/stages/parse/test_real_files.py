@@ -235,7 +235,7 @@ def test_grid_size_is_checked_against_memory_before_allocating():
 def test_sparse_surveys_filter_on_cells_of_their_spacing(tmp_path):
     """A 20 m lattice: the nominal spacing is measured over the occupied area, the SMRF cell follows it."""
     from dtm.common.clouds import cloud_info
-    from dtm.stages.classify_ground.classes import for_spacing, nominal_spacing
+    from dtm.stages.classify_ground.ground_classes import for_spacing, nominal_spacing
     from dtm.stages.classify_ground.params import SmrfParams
 
     g = np.arange(0.0, 1000.0, 20.0)

@@ -71,8 +71,8 @@ def _time(fn) -> float:
 
 
 def bench_flights(pulses: int, tmp: Path) -> list[tuple[str, int, float, float]]:
-    from dtm.commands.simulate.settings import SimulateConfig
-    from dtm.commands.simulate.simulator import simulate
+    from tests.flights import lines as flight_lines
+    from tests.flights import simulate_flight
 
     rate = 50_000
     seconds = pulses / rate * 1.15
@@ -80,42 +80,15 @@ def bench_flights(pulses: int, tmp: Path) -> list[tuple[str, int, float, float]]
     speed = 60.0
     length = seconds / lines * speed
     t0 = time.perf_counter()
-    simulate(
-        SimulateConfig(
-            output=tmp / "rg",
-            seed=1,
-            formats=["lmsq_nmea", "lmsq_sbet"],
-            checkpoints=0,
-            scanner={"preset": "q280", "pulse_rate_hz": rate, "scan_rate_hz": 80},
-            flight={
-                "altitude_m": 400,
-                "speed_ms": speed,
-                "lines": lines,
-                "line_length_m": length,
-                "cross_line": False,
-                "lead_in_m": 0,
-            },
-        )
-    )
+    scanner = {"preset": "q280", "pulse_rate_hz": rate, "scan_rate_hz": 80}
+    flight = flight_lines(400, speed, lines, length)
+    simulate_flight(tmp / "rg", seed=1, formats=["lmsq_nmea", "lmsq_sbet"], scanner=scanner, flight=flight)
     print(f"simulated the RIEGL flight in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     scans = pulses / (81 * 4 * 12.5) * 1.1
     t0 = time.perf_counter()
-    simulate(
-        SimulateConfig(
-            output=tmp / "ld",
-            seed=1,
-            formats=["ldmrs_mtig"],
-            checkpoints=0,
-            scanner={"preset": "ldmrs", "angle_step_deg": 1.0},
-            flight={
-                "altitude_m": 60,
-                "speed_ms": 10,
-                "lines": 1,
-                "line_length_m": scans * 10,
-                "cross_line": False,
-                "lead_in_m": 0,
-            },
-        )
+    scanner = {"preset": "ldmrs", "angle_step_deg": 1.0}
+    simulate_flight(
+        tmp / "ld", seed=1, formats=["ldmrs_mtig"], scanner=scanner, flight=flight_lines(60, 10, 1, scans * 10)
     )
     print(f"simulated the LD-MRS flight in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     rows = []

@@ -30,31 +30,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--rate", type=float, default=80_000)
     args = parser.parse_args()
-    from dtm.commands.simulate.settings import SimulateConfig
-    from dtm.commands.simulate.simulator import simulate
+    from tests.flights import PERFECT_NAVIGATION, lines, simulate_flight
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
-        simulate(
-            SimulateConfig(
-                output=tmp / "sim",
-                seed=5,
-                formats=["las"],
-                checkpoints=0,
-                scanner={"preset": "q280", "pulse_rate_hz": args.rate, "scan_rate_hz": 80, "range_noise_m": 0.03},
-                navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
-                flight={
-                    "altitude_m": 300,
-                    "speed_ms": 60,
-                    "lines": 5,
-                    "sidelap": 0.5,
-                    "line_length_m": 1500,
-                    "cross_line": True,
-                    "lead_in_m": 0,
-                },
-                faults={"strip_bias_m": 0.5, "strip_rotation_deg": 0.05, "error_free_lines": [1]},
-            )
+        simulate_flight(
+            tmp / "sim",
+            seed=5,
+            formats=["las"],
+            scanner={"preset": "q280", "pulse_rate_hz": args.rate, "scan_rate_hz": 80, "range_noise_m": 0.03},
+            navigation=PERFECT_NAVIGATION,
+            flight=lines(300, 60, 5, 1500, sidelap=0.5, cross_line=True),
+            faults={"strip_bias_m": 0.5, "strip_rotation_deg": 0.05, "error_free_lines": [1]},
         )
         print(f"simulated in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
         config = tmp / "adjust.yaml"

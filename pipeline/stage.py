@@ -124,6 +124,21 @@ class Stage:
     reads_metrics: ClassVar[bool] = False
     description: ClassVar[str] = ""
 
+    def __init_subclass__(
+        cls, *, name: str | None = None, version: str | None = None, params: Any = None, **kwargs: Any
+    ) -> None:
+        """``class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams)``.
+
+        The identity may also be set as class attributes.  The class docstring,
+        without its final period, is the ``description`` unless one is set.
+        """
+        super().__init_subclass__(**kwargs)
+        for attr, value in (("name", name), ("version", version), ("Params", params)):
+            if value is not None:
+                setattr(cls, attr, value)
+        if "description" not in cls.__dict__ and cls.__doc__:
+            cls.description = " ".join(cls.__doc__.split()).removesuffix(".")
+
     @classmethod
     def params_path(cls) -> str:
         """Dotted location of this stage's parameters in the configuration."""

@@ -7,6 +7,10 @@ missing on a developer's machine, but *fails* when the environment variable
 acceptance tests would report them as passing.
 
 ``run_stages``: a run's ``run.json`` stage entries by stage name.
+
+``run_until``: ``pipeline run CONFIG --until STAGE`` into a folder, its stage entries.
+
+``constant_geoid``: a GeoTIFF geoid grid of one separation.
 """
 
 from __future__ import annotations
@@ -44,3 +48,39 @@ def need_data() -> Callable[..., None]:
 def run_stages(out: Path) -> dict[str, dict]:
     """The stage entries of the ``run.json`` in the output folder *out*, by stage name."""
     return {s["name"]: s for s in json.loads((Path(out) / "run.json").read_text())["stages"]}
+
+
+def constant_geoid(grid: Path, separation: float) -> Path:
+    """A GeoTIFF geoid grid of one separation (metres) over 40-41 N, 4-3 W (the samples' area)."""
+    import numpy as np
+    import rasterio
+    from rasterio.transform import from_origin
+
+    with rasterio.open(
+        grid,
+        "w",
+        driver="GTiff",
+        width=20,
+        height=20,
+        count=1,
+        dtype="float32",
+        crs="EPSG:4326",
+        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
+    ) as ds:
+        ds.write(np.full((1, 20, 20), separation, np.float32))
+    return grid
+
+
+def run_until(config: Path, until: str, out: Path, *sets: str, cache: Path | None = None) -> dict[str, dict]:
+    """Run *config* up to the stage *until* into *out* (cache: *cache* or ``out/cache``), with ``--set`` *sets*.
+
+    Returns the run's stage entries by name (:func:`run_stages`); a run that fails fails the test.
+    """
+    from pipeline.cli import main
+
+    args = ["run", str(config), "-q", "--until", until, "--set", f"output={out}"]
+    args += ["--set", f"cache={cache or Path(out) / 'cache'}"]
+    for s in sets:
+        args += ["--set", s]
+    assert main(args) == 0
+    return run_stages(out)

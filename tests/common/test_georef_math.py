@@ -120,26 +120,13 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
     d^2 / 2R.  The reported figures must be those, within 1 cm (they are decimetres, not the
     "negligible" the seed assumes).
     """
-    from dtm.commands.simulate.settings import SimulateConfig
-    from dtm.commands.simulate.simulator import simulate
+    from tests.flights import lines, simulate_flight
 
-    cfg = SimulateConfig(
-        output=tmp_path / "sim",
-        seed=3,
-        formats=["lmsq_sbet"],
-        checkpoints=0,
-        scanner={"preset": "q140", "pulse_rate_hz": 2000},
-        flight={
-            "altitude_m": 150,
-            "speed_ms": 60,
-            "lines": 1,
-            "line_length_m": 1000,
-            "cross_line": False,
-            "lead_in_m": 0,
-        },
-        faults={"noise": False},
+    scanner = {"preset": "q140", "pulse_rate_hz": 2000}
+    flight = lines(150, 60, 1, 1000)
+    simulate_flight(
+        tmp_path / "sim", seed=3, formats=["lmsq_sbet"], scanner=scanner, flight=flight, faults={"noise": False}
     )
-    simulate(cfg)
     sim = tmp_path / "sim" / "lmsq"
     config = tmp_path / "ltp.yaml"
     config.write_text(
@@ -169,24 +156,10 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
 
 def test_geoid_grid_gives_orthometric_heights(tmp_path):
     """A geoid grid of N = 50 m: heights drop by 50 m (H = h - N), positions do not move."""
-    import rasterio
-    from rasterio.transform import from_origin
-
     from dtm.common.geodesy import LocalFrame, MapTransform
+    from tests.conftest import constant_geoid
 
-    grid = tmp_path / "geoid.tif"
-    with rasterio.open(
-        grid,
-        "w",
-        driver="GTiff",
-        width=20,
-        height=20,
-        count=1,
-        dtype="float32",
-        crs="EPSG:4326",
-        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
-    ) as ds:
-        ds.write(np.full((1, 20, 20), 50.0, np.float32))
+    grid = constant_geoid(tmp_path / "geoid.tif", 50.0)
     frame = LocalFrame(40.4168, -3.7038, 650.0)
     lo, hi = np.array([-500.0, -500.0, -100.0]), np.array([500.0, 500.0, 300.0])
     crs = pyproj.CRS.from_epsg(32630)

@@ -47,11 +47,9 @@ class AccuracyParams(StageParams):
         return self
 
 
-class Accuracy(Stage):
-    name = "accuracy"
-    version = "3"
-    Params = AccuracyParams
-    description = "DTM vertical accuracy at check points and against a truth raster (runs when either is set)"
+class Accuracy(Stage, name="accuracy", version="3", params=AccuracyParams):
+    """DTM vertical accuracy at check points and against a truth raster (runs when either is set)."""
+
     inputs = ("dtm",)
     outputs: ClassVar = {"accuracy": "accuracy.json"}
     products: ClassVar = {"accuracy": "accuracy.json"}

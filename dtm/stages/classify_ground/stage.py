@@ -34,11 +34,9 @@ from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext
 
 
-class ClassifyGround(Stage):
-    name = "classify_ground"
-    version = "8"
-    Params = ClassifyGroundParams
-    description = "ground / non-ground classification"
+class ClassifyGround(Stage, name="classify_ground", version="8", params=ClassifyGroundParams):
+    """ground / non-ground classification."""
+
     inputs = ("points_denoised",)
     outputs: ClassVar = {"points_classified": "points.las"}
     passthrough: ClassVar = {"points_classified": "points_denoised"}

@@ -24,11 +24,9 @@ class ContoursParams(StageParams):
     interval: float = Field(1.0, gt=0, description="height between contour lines, metres")
 
 
-class Contours(Stage):
-    name = "contours"
-    version = "2"
-    Params = ContoursParams
-    description = "contour lines of the DTM (GeoPackage)"
+class Contours(Stage, name="contours", version="2", params=ContoursParams):
+    """contour lines of the DTM (GeoPackage)."""
+
     inputs = ("dtm",)
     outputs: ClassVar = {"contours": "contours.gpkg"}
     products: ClassVar = {"contours": "contours.gpkg"}

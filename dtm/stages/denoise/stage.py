@@ -20,11 +20,9 @@ from dtm.stages.denoise.params import DenoiseParams
 from pipeline.stage import Stage, StageContext
 
 
-class Denoise(Stage):
-    name = "denoise"
-    version = "3"
-    Params = DenoiseParams
-    description = "isolated points and low outliers to noise classes 18/7"
+class Denoise(Stage, name="denoise", version="3", params=DenoiseParams):
+    """isolated points and low outliers to noise classes 18/7."""
+
     inputs = ("points_adjusted",)
     outputs: ClassVar = {"points_denoised": "points.las"}
     passthrough: ClassVar = {"points_denoised": "points_adjusted"}

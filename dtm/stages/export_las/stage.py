@@ -26,11 +26,9 @@ class ExportLasParams(StageParams):
     )
 
 
-class ExportLas(Stage):
-    name = "export_las"
-    version = "1"
-    Params = ExportLasParams
-    description = "classified points to points.laz"
+class ExportLas(Stage, name="export_las", version="1", params=ExportLasParams):
+    """classified points to points.laz."""
+
     inputs = ("points_classified",)
     outputs: ClassVar = {"points_export": "points.laz"}
     products: ClassVar = {"points_export": "points.laz"}

@@ -29,11 +29,9 @@ class ExportTilesParams(StageParams):
     )
 
 
-class ExportTiles(Stage):
-    name = "export_tiles"
-    version = "1"
-    Params = ExportTilesParams
-    description = "DTM (and DSM, nDSM) as GeoTIFF tiles plus a VRT mosaic, when tile_size is set"
+class ExportTiles(Stage, name="export_tiles", version="1", params=ExportTilesParams):
+    """DTM (and DSM, nDSM) as GeoTIFF tiles plus a VRT mosaic, when tile_size is set."""
+
     inputs = ("dtm",)
     outputs: ClassVar = {"tiles": "tiles", "dtm_vrt": "dtm.vrt"}
     products: ClassVar = {"tiles": "tiles", "dtm_vrt": "dtm.vrt"}

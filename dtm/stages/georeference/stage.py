@@ -25,17 +25,13 @@ from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext
 
 
-class Georeference(Stage):
-    """Raw pulses + trajectory -> georeferenced, strip-labelled points."""
+class Georeference(Stage, name="georeference", version="6", params=GeoreferenceParams):
+    """pulses + trajectory -> points in the output CRS (raw formats only)."""
 
-    name = "georeference"
-    version = "6"
-    Params = GeoreferenceParams
     inputs: ClassVar = ("trajectory", "pulses")
     outputs: ClassVar = {"points_georef": "points.las", "trajectory_lines": "trajectory.gpkg"}
     products: ClassVar = {"trajectory_lines": "qc/trajectory.gpkg"}
     config_keys = ("crs",)
-    description = "pulses + trajectory -> points in the output CRS (raw formats only)"
 
     def is_enabled(self, params: GeoreferenceParams, config: BaseModel) -> bool:
         if config.input.format == "las":

@@ -30,11 +30,9 @@ class HillshadeParams(StageParams):
     z_factor: float = Field(1.0, gt=0, description="vertical exaggeration")
 
 
-class Hillshade(Stage):
-    name = "hillshade"
-    version = "2"
-    Params = HillshadeParams
-    description = "shaded relief of the DTM (GeoTIFF and PNG)"
+class Hillshade(Stage, name="hillshade", version="2", params=HillshadeParams):
+    """shaded relief of the DTM (GeoTIFF and PNG)."""
+
     inputs = ("dtm",)
     outputs: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}
     products: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}

@@ -35,18 +35,11 @@ if TYPE_CHECKING:
     from dtm.stages.parse.read_lmsq import LmsqCounters
 
 
-class Parse(Stage):
-    """Read the configured input into the pipeline's intermediates."""
+class Parse(Stage, name="parse", version="9", params=InputConfig):
+    """read the input files (format from input.format)."""
 
-    name = "parse"
-    # 9: LD-MRS scans in time order; LAS: override_crs, header checks, stray points withheld, return 0 read as 1,
-    # the input's GPS time type, RGB, NIR, extra bytes kept; 8: .lmsq measurements after a missed PPS dated by the
-    # us counter; NMEA dated by ZDA/RMC anywhere; angles modulo 360; 7: LAS 1.4 format 6 copied as delivered
-    version = "9"
-    Params = InputConfig
     config_path = "input"
     config_keys = ("crs", "stages.georeference.geoid")  # the geoid: NMEA fixes without a geoid separation
-    description = "read the input files (format from input.format)"
     outputs: ClassVar = {"points_georef": "points.las"}
 
     def is_enabled(self, params: InputConfig, config: BaseModel) -> bool:

@@ -46,11 +46,9 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage):
-    name = "rasterize"
-    version = "5"
-    Params = RasterizeParams
-    description = "DTM, DSM, nDSM and density rasters"
+class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
+    """DTM, DSM, nDSM and density rasters."""
+
     inputs = ("points_classified",)
     outputs: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
     products: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}

@@ -42,11 +42,9 @@ def _enabled(config, name: str) -> bool:
     return params is not None and bool(getattr(params, "enabled", True))
 
 
-class Report(Stage):
-    name = "report"
-    version = "7"
-    Params = ReportParams
-    description = "self-contained QC page (report.html) and acceptance (qc/acceptance.json)"
+class Report(Stage, name="report", version="7", params=ReportParams):
+    """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
+
     inputs = ("dtm", "density", "points_classified")
     outputs: ClassVar = {"report": "report.html", "acceptance": "acceptance.json"}
     products: ClassVar = {"report": "report.html", "acceptance": "qc/acceptance.json"}

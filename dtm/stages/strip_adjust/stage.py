@@ -29,11 +29,9 @@ from pipeline.errors import ConfigError
 from pipeline.stage import Stage, StageContext, StageIO
 
 
-class StripAdjust(Stage):
-    name = "strip_adjust"
-    version = "8"
-    Params = StripAdjustParams
-    description = "joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration"
+class StripAdjust(Stage, name="strip_adjust", version="8", params=StripAdjustParams):
+    """joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration."""
+
     inputs: ClassVar = ("points_georef",)
     outputs: ClassVar = {
         "points_adjusted": "points.las",

@@ -41,14 +41,13 @@ pass's 4 w_max + 2 c = 74 m the same way.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import laspy
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from tests.conftest import run_until
 from tests.stages.denoise.test_noise_classes import X0, Y0, write_las
 
 assert X0 % 100 == 0 and Y0 % 100 == 0  # the origin on whole tiles: the tile edge at local x = 100 m
@@ -98,22 +97,7 @@ def river(request, tmp_path_factory):
         ("declared", ["tiling.size=100", *TILES]),  # the buffer the stage declares
         ("short", ["tiling.size=100", f"tiling.buffer={short:g}", *TILES]),
     ):
-        args = [
-            "run",
-            str(root / "river.yaml"),
-            "-q",
-            "--until",
-            "classify_ground",
-            "--set",
-            f"output={root / name}",
-            "--set",
-            f"cache={root / name / 'cache'}",
-        ]
-        for s in sets:
-            args += ["--set", s]
-        assert main(args) == 0
-        manifest = json.loads((root / name / "run.json").read_text())
-        stage = next(s for s in manifest["stages"] if s["name"] == "classify_ground")
+        stage = run_until(root / "river.yaml", "classify_ground", root / name, *sets)["classify_ground"]
         runs[name] = (stage, np.asarray(laspy.read(stage["outputs"]["points_classified"]["file"]).classification))
     return bank, runs, far, short
 

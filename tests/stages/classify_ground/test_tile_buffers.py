@@ -23,7 +23,6 @@ benchmarks/mutations.py, checks that each stage's test fails then).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import laspy
@@ -31,8 +30,7 @@ import numpy as np
 import pytest
 
 from dtm.common.rasters import read_raster
-from pipeline.cli import main
-from tests.conftest import run_stages
+from tests.conftest import run_until
 from tests.stages.denoise.test_noise_classes import X0, Y0, write_las
 from tests.synthetic import make_scene
 
@@ -60,22 +58,7 @@ def _survey(path: Path) -> None:
 
 
 def _run(root: Path, name: str, *sets: str, cache: str | None = None, until: str = "rasterize") -> dict:
-    out = root / name
-    args = [
-        "run",
-        str(root / "survey.yaml"),
-        "-q",
-        "--until",
-        until,
-        "--set",
-        f"output={out}",
-        "--set",
-        f"cache={root / (cache or name) / 'cache'}",
-    ]
-    for s in sets:
-        args += ["--set", s]
-    assert main(args) == 0
-    return run_stages(out)
+    return run_until(root / "survey.yaml", until, root / name, *sets, cache=root / (cache or name) / "cache")
 
 
 #: SMRF filters a grid this small whole, without tiles; the tiled runs make it cut the survey into tiles.
@@ -127,22 +110,7 @@ def test_tiled_denoise_equals_untiled_where_the_buffer_matters(tmp_path):
     (tmp_path / "q.yaml").write_text(f"name: q\ninput: {{format: las, paths: [{las}]}}\noutput: out\ncache: cache\n")
     classes = {}
     for name, sets in (("untiled", ["tiling.enabled=false"]), ("tiled", ["tiling.size=100"])):
-        args = [
-            "run",
-            str(tmp_path / "q.yaml"),
-            "-q",
-            "--until",
-            "denoise",
-            "--set",
-            f"output={tmp_path / name}",
-            "--set",
-            f"cache={tmp_path / name / 'cache'}",
-        ]
-        for s in sets:
-            args += ["--set", s]
-        assert main(args) == 0
-        run = json.loads((tmp_path / name / "run.json").read_text())
-        stage = next(s for s in run["stages"] if s["name"] == "denoise")
+        stage = run_until(tmp_path / "q.yaml", "denoise", tmp_path / name, *sets)["denoise"]
         classes[name] = _classes(stage, "points_denoised")
     assert classes["untiled"][-1] == 0 and not np.isin(classes["untiled"], (7, 18)).any()
     np.testing.assert_array_equal(classes["tiled"], classes["untiled"])

@@ -11,6 +11,7 @@ import pytest
 from dtm.stages.parse.read_ldmrs import utc_to_gps
 from dtm.stages.parse.read_nmea import NmeaCounters, read_nmea, with_checksum
 from pipeline.errors import ConfigError
+from tests.conftest import constant_geoid
 
 
 def gga(tod: str, lat="4025.0087", ns="N", lon="00342.2307", ew="W", quality=2, msl="598.20", sep="51.30"):
@@ -181,7 +182,7 @@ def test_empty_geoid_separation_needs_a_geoid(tmp_path):
         _read(tmp_path, lines)
     log, _ = _read(tmp_path, lines, separation_m=49.0)
     np.testing.assert_allclose(log.position["h"], [598.2 + 49.0, 598.2 + 51.3])  # the sentence's own wins
-    grid = _constant_geoid(tmp_path / "geoid.tif", 50.5)
+    grid = constant_geoid(tmp_path / "geoid.tif", 50.5)
     log, _ = _read(tmp_path, lines, geoid=grid)
     np.testing.assert_allclose(log.position["h"], [598.2 + 50.5, 598.2 + 51.3], atol=1e-6)
     np.testing.assert_allclose(log.position["msl"], [598.2, 598.2])
@@ -220,7 +221,7 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
     lines = (root / "data_samples" / "flight_lmsq" / "lmsq" / "nav.nmea").read_text().splitlines()
     emptied = [with_checksum(s[1:].split("*")[0].replace(",M,50.0000,M,", ",M,,M,")) for s in lines[:400]]
     (tmp_path / "nav.nmea").write_text("\r\n".join(emptied) + "\r\n")
-    grid = _constant_geoid(tmp_path / "geoid.tif", 50.0)
+    grid = constant_geoid(tmp_path / "geoid.tif", 50.0)
     base = [
         "run",
         str(root / "configs" / "flight_nmea.yaml"),
@@ -249,23 +250,3 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
         h = heights(name)
         np.testing.assert_allclose(h, a[: len(h)], atol=1e-6)
         assert len(h) > 100
-
-
-def _constant_geoid(grid: Path, separation: float) -> Path:
-    """A GeoTIFF geoid grid of one separation (metres) over 40-41 N, 4-3 W (the samples' area)."""
-    import rasterio
-    from rasterio.transform import from_origin
-
-    with rasterio.open(
-        grid,
-        "w",
-        driver="GTiff",
-        width=20,
-        height=20,
-        count=1,
-        dtype="float32",
-        crs="EPSG:4326",
-        transform=from_origin(-4.0, 41.0, 0.05, 0.05),
-    ) as ds:
-        ds.write(np.full((1, 20, 20), separation, np.float32))
-    return grid

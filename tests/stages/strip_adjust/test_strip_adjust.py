@@ -12,10 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
 from pipeline.cli import main
 from tests.conftest import run_stages
+from tests.flights import PERFECT_NAVIGATION, lines, simulate_flight
 from tests.stages.georeference.test_simulate_georef import _match
 
 SIGMA = 0.02
@@ -23,26 +22,15 @@ pytestmark = pytest.mark.slow  # simulates two flights of about 1 M pulses (abou
 
 
 def _flight(root: Path, bias: float, rotation: float, noise: bool = True) -> Path:
-    simulate(
-        SimulateConfig(
-            output=root / "sim",
-            seed=11,
-            formats=["las"],
-            checkpoints=40,
-            scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": 30000},
-            navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
-            flight={
-                "altitude_m": 150,
-                "speed_ms": 40,
-                "lines": 5,
-                "sidelap": 0.5,
-                "line_length_m": 400,
-                "cross_line": True,
-                "bank_deg": 45,
-                "lead_in_m": 0,
-            },
-            faults={"noise": noise, "strip_bias_m": bias, "strip_rotation_deg": rotation, "error_free_lines": [1]},
-        )
+    simulate_flight(
+        root / "sim",
+        seed=11,
+        formats=["las"],
+        checkpoints=40,
+        scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": 30000},
+        navigation=PERFECT_NAVIGATION,
+        flight=lines(150, 40, 5, 400, sidelap=0.5, cross_line=True, bank_deg=45),
+        faults={"noise": noise, "strip_bias_m": bias, "strip_rotation_deg": rotation, "error_free_lines": [1]},
     )
     return root / "sim"
 

@@ -14,34 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
 from pipeline.cli import main
 from tests.conftest import run_stages
+from tests.flights import PERFECT_NAVIGATION, lines, simulate_flight
 from tests.stages.georeference.test_simulate_georef import _match
 
 
 def test_most_overlap_holds_the_middle_strip_and_lands_on_the_truth(tmp_path):
-    simulate(
-        SimulateConfig(
-            output=tmp_path / "sim",
-            seed=5,
-            formats=["las"],
-            checkpoints=0,
-            scanner={"preset": "q140", "range_noise_m": 0.01, "pulse_rate_hz": 10000},
-            navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
-            flight={
-                "altitude_m": 100,
-                "speed_ms": 40,
-                "lines": 3,
-                "sidelap": 0.5,
-                "line_length_m": 400,
-                "cross_line": False,
-                "bank_deg": 45,
-                "lead_in_m": 0,
-            },
-            faults={"noise": True, "strip_bias_m": 0.4, "strip_rotation_deg": 0.04, "error_free_lines": [2]},
-        )
+    simulate_flight(
+        tmp_path / "sim",
+        seed=5,
+        formats=["las"],
+        scanner={"preset": "q140", "range_noise_m": 0.01, "pulse_rate_hz": 10000},
+        navigation=PERFECT_NAVIGATION,
+        flight=lines(100, 40, 3, 400, sidelap=0.5, bank_deg=45),
+        faults={"noise": True, "strip_bias_m": 0.4, "strip_rotation_deg": 0.04, "error_free_lines": [2]},
     )
     sim = tmp_path / "sim"
     config = tmp_path / "adjust.yaml"

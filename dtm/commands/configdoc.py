@@ -93,9 +93,9 @@ def _models(annotation: Any) -> list[type[BaseModel]]:
 
 
 def render() -> str:
-    from dtm.plugin import plugin
+    from pipeline.discovery import load_plugin  # the installed plugin, as `pipeline schema` finds it
 
-    return HEADER + "\n".join(_rows(config_model(plugin), "")) + "\n"
+    return HEADER + "\n".join(_rows(config_model(load_plugin()), "")) + "\n"
 
 
 SIMULATOR_HEADER = """# Simulator configuration reference

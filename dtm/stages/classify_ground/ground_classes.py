@@ -35,7 +35,7 @@ def reach(algorithm: StrictModel) -> float:
     cells.  PMF: the largest square window, twice, plus two cells.
     CSF: the cloth is one global simulation; 50 m is a practical margin and
     tiled CSF results may differ from untiled ones within a few metres of
-    tile edges (docs/ARCHITECTURE.md).
+    tile edges (docs/stages/classify_ground.md, "Tiled and untiled runs").
     """
     if algorithm.name == "smrf":
         return 8.0 * algorithm.max_window_size + 2.0 * algorithm.cell_size

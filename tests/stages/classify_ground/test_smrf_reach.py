@@ -29,7 +29,7 @@ point (a kerb, a bush) 0.6 m up at x = 96.75 m, in the last bank cell:
 So a tiled run with the buffer the stage declares must classify every point
 as the untiled run does, and one with 38 m must not: the test fails when the
 declared buffer is too small for a river the declared reach claims to cover
-(docs/ARCHITECTURE.md: a gap wider than the buffer may differ).
+(docs/stages/classify_ground.md: a gap wider than the buffer may differ).
 
 Since SMRF's second look at the low cells (issue 16: the object filter runs
 again around cells the first pass decided) the declared reach is

@@ -1,25 +1,16 @@
 """Content-addressed cache of stage outputs, written atomically.
 
-An entry lives in ``<cache>/<stage>/<key>/``: the stage's output files and an
+An entry, ``<cache>/<stage>/<key>/``, holds the stage's outputs and an
 ``entry.json`` (stage, version, parameters, input fingerprints, output
-checksums, metrics).  The key is the SHA-256 of the canonical JSON of
-everything that determines the result: stage name and version, parameters
-with their defaults, the configuration values the stage declares, and the
-SHA-256 of every input.  Because inputs are fingerprinted by content, a stage
-whose upstream re-ran but produced identical bytes is still a cache hit.
-
-Entries are built in a temporary folder beside their final place and renamed
-into it as a whole, after ``entry.json`` is written: a killed run never leaves
-an entry that a later run would trust.  Every output's SHA-256 (and the
-checksum of ``entry.json`` itself) is verified when an entry is read, so an
-entry damaged on disk is recomputed, with a warning, never used.
-
-Runs sharing a cache take an exclusive lock per entry (``.<key>.lock``, POSIX
-``flock``) while they look it up and, on a miss, compute it: a second run of
-the same configuration waits and then reuses the first run's entry instead of
-racing it.  A workspace left behind by a killed run is removed by the next run
-that holds its key's lock.  Nothing here uses pickle: entries are plain files
-and JSON.
+checksums, metrics).  The key is the SHA-256 of everything that determines
+the result: stage name and version, parameters with their defaults, the
+configuration values the stage declares, and the SHA-256 of every input (an
+upstream re-run that made the same bytes is still a hit).  Entries are built
+in a temporary folder and renamed in after ``entry.json``; every checksum is
+verified on reuse (a damaged entry is recomputed, never used).  Runs sharing
+a cache hold a ``flock`` per entry while they look it up or compute it; a
+killed run's workspace is removed by the next run holding its key's lock.
+No pickle: entries are plain files and JSON.
 """
 
 from __future__ import annotations

@@ -1,22 +1,14 @@
 """Executors: where the tasks of a tiled stage run.
 
-- :class:`LocalExecutor`: worker processes on this machine
-  (``executor: {kind: local, workers: N}``); one task, or one worker, runs
-  in this process.
-- :class:`DaskExecutor`: a Dask distributed cluster
-  (``executor: {kind: dask, address: tcp://host:8786}``), or, with no
-  address, a local Dask cluster of ``workers`` processes.  The workers must
-  have this package installed and see the cache folder at the same path.
-
-Tasks are module-level functions called with a small dict (paths and
-parameters, never large arrays) and returning something small; results come
-back in the order of the tasks.  The transport between processes is the
-executors' own (``concurrent.futures`` and Dask serialise the small task
-dicts); nothing they serialise is ever stored.
-
-:func:`thread_map` runs a function over items on threads of this process
-(for compiled code that releases the interpreter lock), then hands the
-memory the threads freed back to the system.
+:class:`LocalExecutor`: worker processes on this machine (``executor: {kind:
+local, workers: N}``; one task, or one worker, runs in this process).
+:class:`DaskExecutor`: a Dask cluster at ``executor.address``, or a local one
+of ``workers`` processes (workers need this package and the cache folder at
+the same path).  Tasks are module-level functions called with a small task
+(paths and parameters, never large arrays) that return something small, in
+task order; the transport is the executors' own, and nothing it serialises
+is stored.  :func:`thread_map` runs a function on threads of this process
+(for compiled code that releases the GIL), then hands the freed memory back.
 """
 
 from __future__ import annotations

@@ -469,20 +469,14 @@ def _record_failure(output: Path, manifest: dict[str, Any], log: logging.Logger)
 def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[str, Any], log: logging.Logger) -> None:
     """Publish *products* (name -> cached file and its SHA-256) and ``run.json`` as one step.
 
-    Under the output folder's lock:
-
-    1. every product that differs from the one in place is copied under a
-       temporary name (``.NAME.*.tmp``) beside it; if that fails (a full
-       disk) the copies are removed and the folder is as it was;
-    2. ``run.json`` is written with ``"status": "publishing"`` and the new
-       product list;
-    3. the copies are renamed into place, the products of the previous
-       publication that this run does not make (a stage now disabled) are
-       removed, and ``run.json`` is written with ``"status": "ok"``.
-
-    Step 3 holds SIGINT and SIGTERM back.  A run killed during it (SIGKILL,
-    power loss) leaves ``run.json`` at ``"publishing"``: the folder is then
-    a mix, and the next run completes it.
+    Under the output folder's lock: (1) every product that differs from the
+    one in place is copied beside it (``.NAME.*.tmp``); a failure (a full
+    disk) removes the copies and leaves the folder as it was; (2)
+    ``run.json`` is written as ``"publishing"`` with the new product list;
+    (3) with SIGINT and SIGTERM held back, the copies are renamed into place,
+    products of the previous publication this run does not make are removed,
+    and ``run.json`` is written as ``"ok"``.  A run killed in step 3 leaves
+    ``"publishing"``: the next run completes it.
     """
     products = _flatten_nested(products)
     folders = {output} | {(output / name).parent for name in products}

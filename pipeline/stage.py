@@ -1,26 +1,15 @@
 """The stage contract and the plugin that registers stages.
 
-A stage declares, in one place:
-
-- ``name`` and ``version`` (bump the version when its output changes for the
-  same inputs and parameters: the version is part of the cache key);
-- ``Params``, a typed model of its parameters (read from ``stages.<name>`` in
-  the configuration, or from ``config_path``);
-- ``inputs``, the artifact names it reads, and ``outputs``, the artifact
-  names it writes with their file names;
-- ``products``: outputs that are published to the output folder;
-- ``passthrough``: when the stage is disabled, which of its inputs stands in
-  for each of its outputs (a filter that is switched off passes its input on);
-- ``config_keys``: other configuration values that change its result, so that
-  they enter the cache key;
-- ``reads_metrics``: the stage reads the metrics of the stages before it
-  (``ctx.upstream_metrics``), which then enter its cache key;
-- :meth:`Stage.tile_buffer`: whether the stage works tile by tile, and the
-  buffer its tiles need (``None``: a global stage).
-
-The engine knows nothing else about a stage: it orders stages by their
-declared inputs, checks the graph before running anything, and calls
-:meth:`Stage.run` with a :class:`StageContext`.
+A stage declares its ``name``, ``version`` (part of the cache key: bump it
+when the output changes for the same inputs and parameters) and ``Params``
+(read from ``stages.<name>`` or ``config_path``); the artifacts it reads
+(``inputs``) and writes (``outputs``), the outputs it publishes
+(``products``), what stands in for its outputs when it is disabled
+(``passthrough``), other settings that change its result (``config_keys``),
+whether it reads earlier stages' metrics (``reads_metrics``), and through
+:meth:`Stage.tile_buffer` whether it works tile by tile.  The engine knows
+nothing else: it orders stages by their inputs, checks the graph before
+anything runs, and calls :meth:`Stage.run` with a :class:`StageContext`.
 """
 
 from __future__ import annotations
@@ -62,22 +51,14 @@ class StageIO:
 class StageContext(Generic[P]):
     """What a stage's ``run`` receives; ``StageContext[MyParams]`` types ``ctx.params``.
 
-    Attributes
-    ----------
-    params : P
-        The stage's validated parameters (its ``Params`` model).
-    config : BaseModel
-        The whole configuration, for checks and messages; a value that
-        changes the stage's result is read with :meth:`setting`.
-    inputs : dict
-        Artifact name -> path of the file (or folder) to read.
-    outputs : dict
-        Artifact name -> path to write (inside a private workspace).
-    executor : LocalExecutor or DaskExecutor
-        Runs the tasks of tiled work (:func:`pipeline.tiling.run_tiled`).
-    metrics : dict
-        JSON-serialisable figures the stage wants in the manifest and report;
-        they are cached with the outputs.
+    ``params``: the stage's validated parameters; ``config``: the whole
+    configuration, for checks and messages (a value that changes the result
+    is read with :meth:`setting`); ``inputs``: artifact name -> path to read;
+    ``outputs``: artifact name -> path to write, in a private workspace;
+    ``executor``: runs tiled work (:func:`pipeline.tiling.run_tiled`);
+    ``metrics``: JSON-ready figures for the manifest and the report, cached
+    with the outputs; ``upstream_metrics``: the earlier stages' (with
+    ``reads_metrics``).
     """
 
     name: str
@@ -184,20 +165,12 @@ class Command:
 class Plugin:
     """What a domain package gives the engine.
 
-    Attributes
-    ----------
-    name : str
-        Shown in ``--version`` and the manifest.
-    stages : list of Stage subclasses
-        In their natural order (used to break ties when ordering the graph).
-    global_fields : dict
-        Extra top-level configuration keys: name -> (annotation, default or
-        ``...`` for required), as for :func:`pydantic.create_model`.
-    commands : list of Command
-        Extra sub-commands.
-    versions : callable
-        Returns ``{package: version}`` of the libraries that shape results,
-        recorded in the run manifest.
+    ``name``: shown in ``--version`` and the manifest; ``stages``: the Stage
+    classes in their natural order (ties in the graph's order); ``global_fields``:
+    extra top-level configuration keys, name -> (annotation, default), as for
+    :func:`pydantic.create_model`; ``commands``: extra sub-commands;
+    ``versions``: ``{package: version}`` of the libraries that shape results,
+    for the manifest.
     """
 
     name: str

@@ -208,8 +208,8 @@ def run_tiled(
     ``(xmin, ymin, xmax, ymax)`` is what the tiles cover; *buffer* is the
     margin each task needs around its tile (its algorithm's reach) unless
     ``tiling.buffer`` is set.  ``split(layout)`` returns one small task per
-    tile that holds something (paths and parameters, never arrays; a dict or
-    a dataclass, whose optional ``weight`` runs the largest first); *task*, a
+    tile that holds something (a small dataclass of paths and parameters,
+    never arrays, whose optional ``weight`` runs the largest first); *task*, a
     module-level function, runs each one (in another process or on a Dask
     worker); ``merge(layout, tasks, results)`` gets the results in the tasks'
     order.
@@ -244,14 +244,9 @@ def map_largest_first(ctx: Any, task: Callable[[dict[str, Any]], Any], tasks: li
     Largest first, the workers finish together instead of one waiting on
     the last big tile.
     """
-    order = sorted(range(len(tasks)), key=lambda i: -float(_weight(tasks[i])))
+    order = sorted(range(len(tasks)), key=lambda i: -float(getattr(tasks[i], "weight", 0)))
     done = ctx.executor.map(task, [tasks[i] for i in order], log=ctx.log, what=what)
     results: list[Any] = [None] * len(tasks)
     for i, r in zip(order, done, strict=True):
         results[i] = r
     return results
-
-
-def _weight(task: Any) -> float:
-    """A task's ``weight``: a key of a dict task, an attribute of any other (0 when absent)."""
-    return task.get("weight", 0) if isinstance(task, dict) else getattr(task, "weight", 0)

@@ -22,3 +22,9 @@ def simulate_flight(output: Path, *, seed: int, formats: list[str], scanner: dic
 
     config = {"checkpoints": 0, **more}
     return simulate(SimulateConfig(output=output, seed=seed, formats=formats, scanner=scanner, flight=flight, **config))
+
+
+def simulate_ldmrs_line(output: Path) -> None:
+    """A short LD-MRS line in format 3.A (seed 5): 40 m long, 40 m high, at 8 m/s, 5 m lead-in."""
+    scanner = {"preset": "ldmrs", "angle_step_deg": 4.0}
+    simulate_flight(output, seed=5, formats=["ldmrs_mtig"], scanner=scanner, flight=lines(40, 8, 1, 40, lead_in_m=5))

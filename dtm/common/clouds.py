@@ -129,18 +129,6 @@ def grow_header(header, points) -> None:
     header.point_count += len(points)
 
 
-def xyz(las) -> np.ndarray:
-    """The scaled coordinates of a LasData as an (n, 3) float64 array."""
-    return np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))
-
-
-def cloud_units(las):
-    """The :class:`dtm.common.units.Units` of a LasData's CRS (metres when it has none)."""
-    from dtm.common.units import Units
-
-    return Units.of(cloud_crs(las))
-
-
 def chunk_xyz_metres(chunk, units) -> np.ndarray:
     """A chunk's (laspy record's) coordinates in metres, (n, 3) with contiguous columns.
 

@@ -162,19 +162,16 @@ def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
 
 @pytest.fixture(scope="module")
 def raw_flight(tmp_path_factory):
-    from tests.stages.parse.flights import simulate_line
+    from tests.flights import lines, simulate_flight
 
     root = tmp_path_factory.mktemp("fuzz_raw")
-    simulate_line(
+    simulate_flight(
         root,
         seed=9,
         formats=["lmsq_nmea", "lmsq_sbet"],
         scanner={"preset": "q140", "pulse_rate_hz": 1000},
         navigation={"preset": "pos-av-410", "ins_rate_hz": 50},
-        altitude_m=100,
-        speed_ms=40,
-        line_length_m=80,
-        lead_in_m=0,
+        flight=lines(100, 40, 1, 80),
     )
     return root / "lmsq"
 

@@ -15,23 +15,16 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from tests.stages.parse.flights import simulate_ldmrs_line, simulate_line
+from tests.flights import lines, simulate_flight, simulate_ldmrs_line
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     root = tmp_path_factory.mktemp("corrupt")
     simulate_ldmrs_line(root / "ld")
-    simulate_line(
-        root / "rg",
-        seed=5,
-        formats=["lmsq_nmea", "lmsq_sbet"],
-        scanner={"preset": "q140", "pulse_rate_hz": 2000},
-        altitude_m=100,
-        speed_ms=40,
-        line_length_m=100,
-        lead_in_m=10,
-    )
+    scanner = {"preset": "q140", "pulse_rate_hz": 2000}
+    flight = lines(100, 40, 1, 100, lead_in_m=10)
+    simulate_flight(root / "rg", seed=5, formats=["lmsq_nmea", "lmsq_sbet"], scanner=scanner, flight=flight)
     return root
 
 

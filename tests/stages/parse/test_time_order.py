@@ -22,7 +22,7 @@ import pytest
 from dtm.common.georeferencing import prepare_trajectory
 from pipeline.cli import main
 from pipeline.errors import InputDataError
-from tests.stages.parse.flights import simulate_ldmrs_line
+from tests.flights import simulate_ldmrs_line
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,8 @@
 """The ``pipeline`` command line.
 
 Exit codes: 0 success; 2 bad configuration or usage; 3 bad or unusable input
-data; 1 internal error; 130 interrupted by SIGINT (Ctrl-C), 143 by SIGTERM
+data; 4 the machine failed the run (disk full, a worker killed, a scheduler
+not answering); 1 internal error; 130 interrupted by SIGINT (Ctrl-C), 143 by SIGTERM
 (:mod:`pipeline.interrupt`).  Errors a user can cause print one sentence and no
 traceback; an internal error prints its traceback only with ``-v``.
 """
@@ -20,7 +21,7 @@ from pathlib import Path
 from pipeline import __version__, interrupt
 from pipeline.config import load_config
 from pipeline.discovery import load_plugin
-from pipeline.errors import EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
+from pipeline.errors import EXIT_ENVIRONMENT, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, setup_logging
 from pipeline.runner import build_plan, run
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
             where = f" while writing {exc.filename}" if exc.filename else ""
             print(f"pipeline: error: the disk is full{where}; no partial result was kept.", file=sys.stderr)
-            return EXIT_INTERNAL
+            return EXIT_ENVIRONMENT
         return _internal_error(exc, verbose)
     except Exception as exc:  # an internal error: a bug, not the user's
         return _internal_error(exc, verbose)

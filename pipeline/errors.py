@@ -11,6 +11,7 @@ EXIT_OK = 0
 EXIT_INTERNAL = 1
 EXIT_USAGE = 2
 EXIT_INPUT = 3
+EXIT_ENVIRONMENT = 4
 
 
 class PipelineError(Exception):
@@ -33,3 +34,16 @@ class InputDataError(PipelineError):
 
 class PlanError(ConfigError):
     """The enabled stages do not form a runnable graph (exit code 2)."""
+
+
+class EnvironmentFailure(PipelineError):
+    """The machine cannot carry out the run (exit code 4).
+
+    A full disk, a cache or output folder that cannot be written, a worker
+    process killed, a scheduler that does not answer: nothing is wrong with
+    the configuration or the data, and running again once the cause is
+    fixed resumes (complete stages are reused).  The sentence names the
+    folder or the stage and says which side (cache or output) it concerns.
+    """
+
+    exit_code = EXIT_ENVIRONMENT

@@ -281,7 +281,7 @@ def test_full_disk_is_reported_in_one_sentence(toy, capsys, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device", "numbers.json")
 
     monkeypatch.setattr(toymod.Load, "run", full)
-    assert toy.run() == 1
+    assert toy.run() == 4
     assert "the disk is full while writing numbers.json" in capsys.readouterr().err
     # nothing half-written: no cache entry for the stage
     assert not list((toy.root / "out" / ".cache" / "load").glob("*/entry.json"))

@@ -23,6 +23,7 @@ import json
 import logging
 import os
 import shutil
+import stat
 import tempfile
 import time
 import uuid
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputDataError
 
 ENTRY_FILE = "entry.json"
 META_SUM = "entry_sha256"  # checksum of entry.json's other fields
@@ -63,6 +64,51 @@ def hash_path(path: Path) -> str:
         while chunk := fh.read(_CHUNK):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def file_kind(mode: int) -> str:
+    """What a file of mode *mode* (``st_mode``) is, in words: "a folder", "a FIFO (named pipe)"..."""
+    kinds = (
+        (stat.S_ISREG, "a regular file"),
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISLNK, "a symbolic link"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    )
+    return next((words for test, words in kinds if test(mode)), "not a regular file")
+
+
+def identity(st: os.stat_result) -> tuple[int, ...]:
+    """What tells one version of a file from another: device, inode, size, mtime and ctime."""
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+class NotRegularFile(OSError):
+    """A path that should name a regular file names something else (``strerror`` says what)."""
+
+
+def hash_regular_file(path: Path, tries: int = 3) -> tuple[str, tuple[int, ...]]:
+    """SHA-256 (hex) of the regular file *path*, and its :func:`identity` while it was read.
+
+    A FIFO, a device or a folder is refused (:class:`NotRegularFile`) without
+    being read: it is opened non-blocking and checked with ``fstat`` before a
+    byte is read.  A file whose identity changes while it is read is read
+    again; one that keeps changing is an :class:`~pipeline.errors.InputDataError`.
+    """
+    for _ in range(tries):
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
+        with os.fdopen(fd, "rb", buffering=0) as fh:
+            before = os.fstat(fd)
+            if not stat.S_ISREG(before.st_mode):
+                raise NotRegularFile(errno.EINVAL, file_kind(before.st_mode), str(path))
+            digest = hashlib.sha256()
+            while chunk := fh.read(_CHUNK):
+                digest.update(chunk)
+            if identity(os.fstat(fd)) == identity(before) == identity(os.stat(path)):
+                return digest.hexdigest(), identity(before)
+    raise InputDataError(f"{path}: the file kept changing while it was read; run again once it is no longer written.")
 
 
 def path_size(path: Path) -> int:

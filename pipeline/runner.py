@@ -17,6 +17,7 @@ import os
 import platform
 import shutil
 import signal
+import stat
 import time
 import uuid
 from collections.abc import Iterable
@@ -31,13 +32,17 @@ from pipeline.cache import (
     UMASK,
     Cache,
     Entry,
+    NotRegularFile,
     atomic_write_text,
     exclusive_lock,
+    file_kind,
     hash_path,
+    hash_regular_file,
     hash_value,
+    identity,
     path_size,
 )
-from pipeline.errors import ConfigError, PipelineError, PlanError
+from pipeline.errors import ConfigError, InputDataError, PipelineError, PlanError
 from pipeline.executor import LocalExecutor, make_executor
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
@@ -610,7 +615,7 @@ def _run_step(step: Step, state: _Run) -> dict[str, Any]:
         record["tile_buffer"] = buffer
     if any(r in state.unknown for r in resolved.values()):
         return _upstream_unknown(step, state, record)
-    files = _external_hashes(step, state.config)
+    files, watched = _external_hashes(step, state.config)
     state.manifest["inputs"].update(files)
     input_hashes = {name: state.artifacts[r][1] for name, r in resolved.items()}
     upstream = None
@@ -635,7 +640,7 @@ def _run_step(step: Step, state: _Run) -> dict[str, Any]:
             inputs = {n: state.artifacts[r][0] for n, r in resolved.items()}
             replace = step.name in state.force
             entry = _execute(
-                step, state.config, cache, key, inputs, input_hashes, slog, upstream, state.executor, replace
+                step, state.config, cache, key, inputs, input_hashes, slog, upstream, state.executor, replace, watched
             )
             record.update(status="ran", seconds=entry.meta["seconds"])
     _remember(entry, step, state.artifacts)
@@ -654,14 +659,54 @@ def _upstream_unknown(step: Step, state: _Run, record: dict[str, Any]) -> dict[s
     return record
 
 
-def _external_hashes(step: Step, config: BaseModel) -> dict[str, str]:
-    """SHA-256 of every file outside the cache the step reads; a missing one is a ConfigError."""
-    files = {}
+def _external_hashes(step: Step, config: BaseModel) -> tuple[dict[str, str], dict[str, tuple[str, tuple]]]:
+    """SHA-256 of every file outside the cache the step reads, and what each was when hashed.
+
+    Returns ``{path: sha256}`` and ``{path: (sha256, identity)}`` for
+    :func:`_check_unchanged`.  A missing input, or one that is not a regular
+    file (a FIFO, a folder, a device: never opened), is a ConfigError; one
+    that cannot be read, an InputDataError.
+    """
+    files, watched = {}, {}
     for path in step.stage.external_files(step.params, config):
-        if not Path(path).is_file():
-            raise ConfigError(f"stage '{step.name}': input file not found: {path}.")
-        files[str(path)] = hash_path(path)
-    return files
+        try:
+            mode = os.stat(path).st_mode
+            if not stat.S_ISREG(mode):
+                raise NotRegularFile(0, file_kind(mode), str(path))
+            digest, seen = hash_regular_file(Path(path))
+        except FileNotFoundError:
+            raise ConfigError(f"stage '{step.name}': input file not found: {path}.") from None
+        except NotRegularFile as exc:
+            raise ConfigError(
+                f"stage '{step.name}': the input {path} is {exc.strerror}, not a regular file; "
+                "name the file itself in the configuration."
+            ) from None
+        except PermissionError as exc:
+            raise InputDataError(
+                f"stage '{step.name}': the input {path} cannot be read ({exc.strerror}); "
+                "make it readable and run again."
+            ) from None
+        files[str(path)] = digest
+        watched[str(path)] = (digest, seen)
+    return files, watched
+
+
+def _check_unchanged(stage: str, watched: dict[str, tuple[str, tuple]]) -> None:
+    """Refuse the result of a stage whose input file changed while it ran (its key would lie).
+
+    A file with another identity (size, times, inode) is hashed again; only
+    other bytes than those hashed for the key are refused.
+    """
+    for path, (digest, seen) in watched.items():
+        try:
+            if identity(os.stat(path)) == seen or hash_regular_file(Path(path))[0] == digest:
+                continue
+        except OSError:
+            pass  # gone, or not a regular file any more
+        raise InputDataError(
+            f"stage '{stage}': the input {path} changed while the run read it; nothing was cached: "
+            "run again once it is no longer being written."
+        )
 
 
 def _dry_run_record(step: Step, state: _Run, key: str, record: dict[str, Any]) -> dict[str, Any]:
@@ -693,6 +738,7 @@ def _execute(
     upstream: dict[str, dict[str, Any]] | None = None,
     executor: Any = None,
     replace: bool = False,
+    watched: dict[str, tuple[str, tuple]] | None = None,
 ) -> Entry:
     workspace = cache.new_workspace(step.name, key)
     try:  # from here on, any failure or interruption removes the workspace
@@ -712,6 +758,7 @@ def _execute(
         slog.info("running")
         t0 = time.perf_counter()
         step.stage.run(ctx)
+        _check_unchanged(step.name, watched or {})
         seconds = round(time.perf_counter() - t0, 3)
         meta = {
             "stage": step.name,

@@ -34,6 +34,10 @@ from typing import Any
 from pipeline.errors import ConfigError, InputDataError
 
 ENTRY_FILE = "entry.json"
+#: errno values of a disk that is full (or a quota that is used up).
+FULL = frozenset({errno.ENOSPC, errno.EDQUOT})
+#: errno values of a folder that cannot be written (a read-only mount, permissions).
+UNWRITABLE = frozenset({errno.EACCES, errno.EPERM, errno.EROFS})
 META_SUM = "entry_sha256"  # checksum of entry.json's other fields
 _CHUNK = 1 << 20
 UMASK = os.umask(0)
@@ -109,6 +113,17 @@ def hash_regular_file(path: Path, tries: int = 3) -> tuple[str, tuple[int, ...]]
             if identity(os.fstat(fd)) == identity(before) == identity(os.stat(path)):
                 return digest.hexdigest(), identity(before)
     raise InputDataError(f"{path}: the file kept changing while it was read; run again once it is no longer written.")
+
+
+def folder_failure(side: str, folder: Path, exc: OSError) -> str:
+    """The sentence for the *side*'s *folder* ("cache", "output") that is full or cannot be written."""
+    then = "then run again: complete stages are reused."
+    if exc.errno in FULL:
+        return f"the {side} folder {folder} is full ({exc.strerror}); free space or point `{side}:` elsewhere, {then}"
+    return (
+        f"the {side} folder {folder} cannot be written ({exc.strerror or exc}); make it writable or point "
+        f"`{side}:` elsewhere, {then}"
+    )
 
 
 def path_size(path: Path) -> int:

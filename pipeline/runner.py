@@ -11,6 +11,7 @@ happened.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -29,20 +30,23 @@ from pydantic import BaseModel
 
 from pipeline import __version__, interrupt
 from pipeline.cache import (
+    FULL,
     UMASK,
+    UNWRITABLE,
     Cache,
     Entry,
     NotRegularFile,
     atomic_write_text,
     exclusive_lock,
     file_kind,
+    folder_failure,
     hash_path,
     hash_regular_file,
     hash_value,
     identity,
     path_size,
 )
-from pipeline.errors import ConfigError, InputDataError, PipelineError, PlanError
+from pipeline.errors import ConfigError, EnvironmentFailure, InputDataError, PipelineError, PlanError
 from pipeline.executor import LocalExecutor, make_executor
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
@@ -224,7 +228,10 @@ def _topological(active: list[Step], deps: dict[str, set[str]]) -> list[Step]:
 
 
 def check_writable(folder: Path, what: str) -> None:
-    """Create *folder* if needed and prove it takes a file, or raise ConfigError.
+    """Create *folder* if needed and prove it takes a file.
+
+    A full or read-only disk, or missing permissions, raise EnvironmentFailure
+    (exit 4); a path that cannot be a folder (a file in the way), ConfigError.
 
     The probe is created with ``O_EXCL | O_NOFOLLOW``: a symbolic link
     planted under its name is removed (the link only), never written through.
@@ -238,7 +245,52 @@ def check_writable(folder: Path, what: str) -> None:
         os.close(fd)
         probe.unlink()
     except OSError as exc:
+        if exc.errno in FULL | UNWRITABLE:
+            raise EnvironmentFailure(folder_failure(what, folder, exc)) from None
         raise ConfigError(f"the {what} folder {folder} is not writable ({exc.strerror or exc}).") from None
+
+
+def _disk_failure(exc: OSError, side: str, folder: Path) -> str | None:
+    """The sentence for a full or unwritable disk met writing on the *side* ("cache", "output") in *folder*.
+
+    The sentence names *folder* itself (a stage's workspace inside it is
+    gone by the time it is read).  None when *exc* is neither, or when a
+    permission error concerns no file or one outside *folder* (an input
+    that cannot be read is not the machine's failure).
+    """
+    if exc.errno not in FULL | UNWRITABLE:
+        return None
+    where = Path(os.path.realpath(exc.filename)) if isinstance(exc.filename, (str, os.PathLike)) else None
+    inside = where is not None and where.is_relative_to(os.path.realpath(folder))
+    if exc.errno in FULL and where is not None and not inside:
+        return (
+            f"the disk holding {where.parent} is full ({exc.strerror}); free space, then run again: "
+            "complete stages are reused."
+        )
+    if exc.errno in UNWRITABLE and not inside:
+        return None
+    return folder_failure(side, folder, exc)
+
+
+@contextlib.contextmanager
+def _machine_failures(side: str, folder: Path, stage: str | None = None):
+    """Turn a full or unwritable disk on the *side* in *folder* into one sentence (exit 4).
+
+    With *stage*, the sentence (and any :class:`EnvironmentFailure` that does
+    not name a stage) starts with "stage 'NAME': ".
+    """
+    prefix = f"stage '{stage}': " if stage else ""
+    try:
+        yield
+    except EnvironmentFailure as exc:
+        if not prefix or str(exc).startswith("stage '"):
+            raise
+        raise EnvironmentFailure(f"{prefix}{exc}") from None
+    except OSError as exc:
+        sentence = _disk_failure(exc, side, folder)
+        if sentence is None:
+            raise
+        raise EnvironmentFailure(f"{prefix}{sentence}") from None
 
 
 def cache_root(config: BaseModel) -> Path:
@@ -305,7 +357,8 @@ def run(
             return manifest
         executor.close()
         _finish(manifest, started)
-        publish(output, _products(state), manifest, log)
+        with _machine_failures("output", output):
+            publish(output, _products(state), manifest, log)
         published = True
         return manifest
     except KeyboardInterrupt as exc:
@@ -630,7 +683,10 @@ def _run_step(step: Step, state: _Run) -> dict[str, Any]:
     # One run at a time computes an entry; a concurrent run of the same
     # configuration waits here and then finds the entry complete.
     cache = state.cache
-    with cache.lock(step.name, key, lambda: slog.info("another run is computing this stage; waiting for it")):
+    with (
+        _machine_failures("cache", cache.root, step.name),
+        cache.lock(step.name, key, lambda: slog.info("another run is computing this stage; waiting for it")),
+    ):
         entry = None if step.name in state.force else cache.lookup(step.name, key)
         if entry is not None:
             cache.sweep(step.name, key)

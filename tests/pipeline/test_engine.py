@@ -277,12 +277,16 @@ def test_unwritable_output_folder_is_one_sentence_exit_2(toy, capsys):
 def test_full_disk_is_reported_in_one_sentence(toy, capsys, monkeypatch):
     import errno
 
-    def full(*args, **kwargs):
-        raise OSError(errno.ENOSPC, "No space left on device", "numbers.json")
+    def full(self, ctx):
+        raise OSError(errno.ENOSPC, "No space left on device", str(ctx.outputs["numbers"]))
 
     monkeypatch.setattr(toymod.Load, "run", full)
     assert toy.run() == 4
-    assert "the disk is full while writing numbers.json" in capsys.readouterr().err
+    cache = toy.root / "out" / ".cache"
+    assert capsys.readouterr().err.strip() == (
+        f"pipeline: error: stage 'load': the cache folder {cache} is full (No space left on device); "
+        "free space or point `cache:` elsewhere, then run again: complete stages are reused."
+    )
     # nothing half-written: no cache entry for the stage
     assert not list((toy.root / "out" / ".cache" / "load").glob("*/entry.json"))
 

@@ -1,8 +1,8 @@
 """Faults of the machine and of a hostile user, on the toy stages (issue 38).
 
 An input that changes while it is read, an input that is not a regular
-file.  Each case ends in a true result or in one sentence with the
-documented exit code.
+file, a full or read-only disk on the cache or the output side.  Each case
+ends in a true result or in one sentence with the documented exit code.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 
 from pipeline import runner
 from pipeline.config import load_config
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.stage import config_model
 from tests.pipeline import toy as toymod
 
@@ -120,4 +120,97 @@ def test_an_input_that_cannot_be_read_is_exit_3_naming_it(toy, capsys, monkeypat
     assert capsys.readouterr().err.strip() == (
         f"pipeline: error: stage 'load': the input {source} cannot be read (Permission denied); "
         "make it readable and run again."
+    )
+
+
+# --------------------------------------------------------------------------
+# A full or read-only disk: which folder, which side (item 4)
+
+
+def _sentence(side: str, folder: Path, state: str, why: str) -> str:
+    fix = "free space" if state == "is full" else "make it writable"
+    return (
+        f"the {side} folder {folder} {state} ({why}); {fix} or point `{side}:` elsewhere, "
+        "then run again: complete stages are reused."
+    )
+
+
+@pytest.mark.parametrize(
+    ("code", "state"),
+    [(errno.ENOSPC, "is full"), (errno.EDQUOT, "is full"), (errno.EROFS, "cannot be written")],
+)
+def test_a_stage_that_fills_or_meets_a_read_only_cache_is_exit_4_naming_it(toy, capsys, monkeypatch, code, state):
+    def fail(self, ctx):
+        (ctx.workdir / "part").write_text("half")
+        name = None if code != errno.EROFS else str(ctx.workdir / "part")  # write() names no file; open() does
+        raise OSError(code, os.strerror(code), name)
+
+    monkeypatch.setattr(toymod.Scale, "run", fail)
+    assert toy.run() == 4
+    cache = toy.root / "out" / ".cache"
+    err = capsys.readouterr().err.strip()
+    assert err == f"pipeline: error: stage 'scale': {_sentence('cache', cache, state, os.strerror(code))}"
+    assert not _entries(toy, "scale") and not list((cache / "scale").glob(".tmp-*"))
+    assert "please report it" not in err
+
+
+def test_a_full_disk_outside_the_cache_is_named_as_it_is(toy, capsys, monkeypatch, tmp_path):
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+
+    def fail(self, ctx):
+        raise OSError(errno.ENOSPC, "No space left on device", str(scratch / "sort.tmp"))
+
+    monkeypatch.setattr(toymod.Scale, "run", fail)
+    assert toy.run() == 4
+    assert capsys.readouterr().err.strip() == (
+        f"pipeline: error: stage 'scale': the disk holding {scratch} is full (No space left on device); "
+        "free space, then run again: complete stages are reused."
+    )
+
+
+def test_an_environment_failure_in_a_stage_is_told_with_the_stage_name(toy, capsys, monkeypatch):
+    def worker_died(self, ctx):
+        raise EnvironmentFailure("a worker process died (killed by signal 9, SIGKILL); run again to resume.")
+
+    monkeypatch.setattr(toymod.Histogram, "run", worker_died)
+    assert toy.run() == 4
+    assert capsys.readouterr().err.strip() == (
+        "pipeline: error: stage 'histogram': a worker process died (killed by signal 9, SIGKILL); run again to resume."
+    )
+
+
+def test_a_read_only_output_folder_while_publishing_is_exit_4_naming_it(toy, capsys, monkeypatch):
+    assert toy.run() == 0
+    (toy.root / "numbers.txt").write_text("5\n6\n")
+    real = runner._stage_copy
+
+    def read_only(src, dst):
+        if dst.name == "hist.json":
+            raise OSError(errno.EROFS, "Read-only file system", str(dst.parent / f".{dst.name}.1234.tmp"))
+        return real(src, dst)
+
+    monkeypatch.setattr(runner, "_stage_copy", read_only)
+    capsys.readouterr()
+    assert toy.run() == 4
+    out = toy.root / "out"
+    assert capsys.readouterr().err.strip() == (
+        f"pipeline: error: {_sentence('output', out, 'cannot be written', 'Read-only file system')}"
+    )
+    assert toy.product("total.json") == {"total": 48.0}  # the old products stay
+
+
+def test_a_cache_root_that_cannot_be_written_is_exit_4_naming_it(toy, capsys, monkeypatch):
+    cache = toy.root / "out" / ".cache"
+    real_open = os.open
+
+    def read_only(path, *args, **kwargs):
+        if Path(path).parent == cache and Path(path).name.startswith(".write-test-"):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    assert toy.run() == 4
+    assert capsys.readouterr().err.strip() == (
+        f"pipeline: error: {_sentence('cache', cache, 'cannot be written', 'Read-only file system')}"
     )

@@ -10,6 +10,10 @@ in a temporary folder and renamed in after ``entry.json``; every checksum is
 verified on reuse (a damaged entry is recomputed, never used).  Runs sharing
 a cache hold a ``flock`` per entry while they look it up or compute it; a
 killed run's workspace is removed by the next run holding its key's lock.
+Nothing under the cache root is followed as a symbolic link: a stage folder
+that is a link, a file or cannot be written, or a lock that is a folder, is
+set aside (``.damaged-*`` in the cache root; a link is removed, never its
+target) with a warning, and the stage is recomputed.
 No pickle: entries are plain files and JSON.
 """
 
@@ -27,13 +31,16 @@ import stat
 import tempfile
 import time
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError, InputDataError
+from pipeline.errors import EnvironmentFailure, InputDataError
 
 ENTRY_FILE = "entry.json"
+#: Prefix of the name under which a damaged part of the cache is set aside, in the cache root.
+DAMAGED = ".damaged-"
 #: errno values of a disk that is full (or a quota that is used up).
 FULL = frozenset({errno.ENOSPC, errno.EDQUOT})
 #: errno values of a folder that cannot be written (a read-only mount, permissions).
@@ -180,15 +187,12 @@ def open_lock_file(path: Path) -> int:
     The pipeline never makes a lock file a link: one found in its place was
     planted, and following it would create or open a file outside the
     output and cache folders.  It is removed (the link, not what it points
-    to) with a warning, and a plain lock file is made.
+    to) with a warning, and a plain lock file is made.  Other errors (a
+    folder that cannot be written) are raised as they are.
     """
     for _ in range(3):
         try:
             return os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~UMASK)
-        except PermissionError as exc:
-            raise ConfigError(
-                f"cannot create the lock file {path} ({exc.strerror}); make {path.parent} writable."
-            ) from None
         except OSError as exc:
             if exc.errno != errno.ELOOP:
                 raise
@@ -237,9 +241,68 @@ class Cache:
     def entry_folder(self, stage: str, key: str) -> Path:
         return self.root / stage / key
 
-    def lock(self, stage: str, key: str, on_wait: Any = None) -> contextlib.AbstractContextManager:
-        """The exclusive lock of one entry (see :func:`exclusive_lock`)."""
-        return exclusive_lock(self.root / stage / f".{key}.lock", on_wait)
+    def stage_folder(self, stage: str) -> Path:
+        """``<cache>/<stage>``, made a real folder: a link or a file in its place is set aside first."""
+        folder = self.root / stage
+        try:
+            mode = os.lstat(folder).st_mode
+        except FileNotFoundError:
+            mode = None
+        if mode is not None and not stat.S_ISDIR(mode):
+            self.set_aside(folder, f"it is {file_kind(mode)}, not a folder")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise self.unwritable(folder.parent, exc) from None
+        return folder
+
+    def set_aside(self, path: Path, why: str, cause: OSError | None = None) -> None:
+        """Move the damaged *path* out of the way, with one warning; a link is removed, never its target.
+
+        A file or folder is renamed to ``.damaged-*`` in the cache root, kept
+        for inspection (deleting it is safe).  When even that fails (a
+        read-only mount), :class:`~pipeline.errors.EnvironmentFailure` names
+        *path* and the *cause* that made it damaged (else the failure itself).
+        """
+        try:
+            if path.is_symlink():
+                path.unlink()
+                self.log.warning("the cache's %s is damaged (%s); removed the link, not its target", path, why)
+                return
+            flat = path.relative_to(self.root).as_posix().replace("/", "_").lstrip(".")
+            aside = self.root / f"{DAMAGED}{flat}-{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
+            os.rename(path, aside)
+        except FileNotFoundError:
+            return  # a concurrent run set it aside first
+        except OSError as exc:
+            raise self.unwritable(path, cause or exc) from None
+        self.log.warning("the cache's %s is damaged (%s); set aside as %s, it is recomputed", path, why, aside)
+
+    def unwritable(self, folder: Path, exc: OSError) -> EnvironmentFailure:
+        """The exit-4 error for a cache *folder* that cannot be written (or a full disk under it)."""
+        return EnvironmentFailure(folder_failure("cache", folder, exc))
+
+    @contextlib.contextmanager
+    def lock(self, stage: str, key: str, on_wait: Any = None) -> Iterator[None]:
+        """Hold the exclusive lock of one entry (see :func:`exclusive_lock`).
+
+        The stage folder is checked first (see :meth:`stage_folder`); a lock
+        that is a folder, or a stage folder in which the lock cannot be
+        created, is set aside once and made again.
+        """
+        for attempt in range(2):
+            path = self.stage_folder(stage) / f".{key}.lock"
+            try:
+                if os.path.isdir(path) and not os.path.islink(path):
+                    self.set_aside(path, "the lock is a folder, not a file")
+                os.close(open_lock_file(path))
+                break
+            except OSError as exc:
+                if exc.errno not in UNWRITABLE or attempt:
+                    raise self.unwritable(path.parent, exc) from None
+                self.set_aside(path.parent, f"it cannot be written: {exc.strerror}", exc)
+        with exclusive_lock(path, on_wait):
+            yield
 
     def lookup(self, stage: str, key: str, verify: bool = True, warn: bool = True) -> Entry | None:
         """The complete, undamaged entry for *key*, or None.
@@ -251,6 +314,8 @@ class Cache:
         checksum is recomputed with a note, not a warning.
         """
         folder = self.entry_folder(stage, key)
+        if folder.parent.is_symlink() or not folder.parent.is_dir():
+            return None  # never read through a link; the stage folder is set aside before it is written
         if folder.is_symlink() or (os.path.lexists(folder) and not folder.is_dir()):
             kind = "a symbolic link" if folder.is_symlink() else "a file"
             return self._damaged(stage, key, f"the entry is {kind}, not a folder", warn)
@@ -275,6 +340,8 @@ class Cache:
             target = folder / name
             if not target.is_relative_to(folder) or ".." in Path(name).parts or not target.exists():
                 return self._damaged(stage, key, f"{name} is missing", warn)
+            if target.is_symlink():  # never followed out of the cache
+                return self._damaged(stage, key, f"{name} is a symbolic link", warn)
             if path_size(target) != size:
                 return self._damaged(stage, key, f"{name} has {path_size(target)} bytes, not {size}", warn)
             if verify and hash_path(target) != digest:
@@ -289,18 +356,19 @@ class Cache:
     def new_workspace(self, stage: str, key: str = "") -> Path:
         """A fresh temporary folder in which a stage writes its outputs.
 
-        Workspaces of killed runs (their key's lock is free) are removed.
+        Workspaces of killed runs (their key's lock is free) are removed.  A
+        stage folder that cannot be written is set aside once and made again.
         """
-        parent = self.root / stage
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-            self.sweep(stage, key)
-            return Path(tempfile.mkdtemp(prefix=f".tmp-{key}-", dir=parent))
-        except PermissionError as exc:
-            raise ConfigError(
-                f"the cache folder {parent} is not writable ({exc.strerror}); make it writable or remove it "
-                "(it is recomputed)."
-            ) from None
+        for attempt in range(2):
+            parent = self.stage_folder(stage)
+            try:
+                self.sweep(stage, key)
+                return Path(tempfile.mkdtemp(prefix=f".tmp-{key}-", dir=parent))
+            except OSError as exc:
+                if exc.errno not in UNWRITABLE or attempt:
+                    raise self.unwritable(parent, exc) from None
+                self.set_aside(parent, f"it cannot be written: {exc.strerror}", exc)
+        raise AssertionError("unreachable")
 
     def sweep(self, stage: str, held: str) -> int:
         """Remove the workspaces killed runs left in *stage*'s folder.
@@ -312,10 +380,13 @@ class Cache:
         were removed.
         """
         removed = 0
-        for old in (self.root / stage).glob(".tmp-*"):
+        folder = self.root / stage
+        if folder.is_symlink() or not folder.is_dir():
+            return 0  # never swept through a link (see stage_folder)
+        for old in folder.glob(".tmp-*"):
             old_key = old.name[len(".tmp-") :].rsplit("-", 1)[0]
-            if old_key and (old_key == held or not _is_locked(self.root / stage / f".{old_key}.lock")):
-                shutil.rmtree(old, ignore_errors=True)
+            if old_key and (old_key == held or not _is_locked(folder / f".{old_key}.lock")):
+                _remove_path(old)
                 removed += 1
         if removed:
             self.log.info("removed %d workspace(s) of killed runs from the cache of %s", removed, stage)
@@ -353,6 +424,14 @@ class Cache:
     @staticmethod
     def discard(workspace: Path) -> None:
         shutil.rmtree(workspace, ignore_errors=True)
+
+
+def _remove_path(path: Path) -> None:
+    """Remove a file, a symbolic link (never what it points to) or a folder."""
+    if path.is_symlink() or not path.is_dir():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def _remove(path: Path, aside: Path) -> None:

@@ -1,14 +1,18 @@
 """Faults of the machine and of a hostile user, on the toy stages (issue 38).
 
 An input that changes while it is read, an input that is not a regular
-file, a full or read-only disk on the cache or the output side.  Each case
-ends in a true result or in one sentence with the documented exit code.
+file, a full or read-only disk on the cache or the output side, a cache
+whose folders were replaced by links, files or folders.  Each case ends in
+a true result or in one sentence with the documented exit code, and
+nothing outside the cache folder is touched.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -214,3 +218,69 @@ def test_a_cache_root_that_cannot_be_written_is_exit_4_naming_it(toy, capsys, mo
     assert capsys.readouterr().err.strip() == (
         f"pipeline: error: {_sentence('cache', cache, 'cannot be written', 'Read-only file system')}"
     )
+
+
+# --------------------------------------------------------------------------
+# The cache is the cache: damaged stage folders (item 5)
+
+
+def _damage_stage_folder(toy, how: str, outside: Path, monkeypatch) -> None:
+    stage = toy.root / "out" / ".cache" / "scale"
+    record = next(s for s in toy.manifest()["stages"] if s["name"] == "scale")
+    if how == "lock is a folder":
+        lock = stage / f".{record['key']}.lock"
+        lock.unlink()
+        lock.mkdir()
+        (lock / "inside").write_text("x")
+        return
+    if how == "read-only":  # chmod a-w or a read-only mount (tests may run as root): the first workspace fails
+        shutil.rmtree(stage / record["key"])
+        real = tempfile.mkdtemp
+        calls = []
+
+        def refused_once(*args, **kwargs):
+            if Path(kwargs.get("dir", "")) == stage and not calls:
+                calls.append(1)
+                raise OSError(errno.EROFS, "Read-only file system", str(stage))
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(tempfile, "mkdtemp", refused_once)
+        return
+    shutil.rmtree(stage)
+    if how == "a link":
+        stage.symlink_to(outside, target_is_directory=True)
+    else:
+        stage.write_text("not a folder")
+
+
+@pytest.mark.parametrize("how", ["a link", "a file", "lock is a folder", "read-only"])
+def test_a_damaged_stage_folder_is_set_aside_and_recomputed(toy, capsys, monkeypatch, tmp_path, how):
+    outside = tmp_path / "outside"
+    (outside / ".tmp-x").mkdir(parents=True)
+    (outside / "keep.txt").write_text("keep me")
+    assert toy.run() == 0
+    _damage_stage_folder(toy, how, outside, monkeypatch)
+    capsys.readouterr()
+    assert toy.run() == 0
+    err = capsys.readouterr().err
+    assert err.count("is damaged") == 1 and "scale" in err, err
+    assert sorted(p.name for p in outside.iterdir()) == [".tmp-x", "keep.txt"]  # nothing made or removed outside
+    assert (outside / "keep.txt").read_text() == "keep me"
+    cache = toy.root / "out" / ".cache"
+    assert (cache / "scale").is_dir() and not (cache / "scale").is_symlink()
+    assert toy.product("total.json") == {"total": 48.0}
+    assert toy.run() == 0
+    assert toy.statuses()["scale"] == "cached"
+    assert "damaged" not in capsys.readouterr().err
+
+
+def test_a_dry_run_never_reads_through_a_stage_folder_that_is_a_link(toy, capsys, tmp_path):
+    assert toy.run() == 0
+    stage = toy.root / "out" / ".cache" / "scale"
+    outside = tmp_path / "outside"
+    shutil.copytree(stage, outside)
+    shutil.rmtree(stage)
+    stage.symlink_to(outside, target_is_directory=True)
+    capsys.readouterr()
+    assert toy.run("--dry-run") == 0
+    assert [line.split()[1] for line in capsys.readouterr().out.splitlines() if line.startswith("scale")] == ["run"]

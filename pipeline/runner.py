@@ -61,11 +61,22 @@ UNPUBLISHED = "unpublished"
 
 
 def _inside(folder: Path, name: str) -> Path:
-    """``folder / name``, refusing a name that would leave *folder*."""
+    """``folder / name``, refusing a name that would leave *folder*.
+
+    The last part of the name is not resolved: a product replaced by a
+    symbolic link is replaced by publishing (the link, never its target).
+    """
     path = folder / name
-    if not path.resolve().is_relative_to(folder.resolve()):
-        raise PlanError(f"the product name '{name}' would be written outside the output folder {folder}.")
+    if path.name in ("", ".", "..") or not _place(path).is_relative_to(folder.resolve()):
+        lexical = ".." not in Path(name).parts and not Path(name).is_absolute()
+        via = " (a symbolic link in it points elsewhere)" if lexical else ""
+        raise PlanError(f"the product name '{name}' would be written outside the output folder {folder}{via}.")
     return path
+
+
+def _place(path: Path) -> Path:
+    """Where *path* is, its folders resolved but not its last part (which may be a link)."""
+    return path.parent.resolve() / path.name
 
 
 def _remove_leftovers(folders: Iterable[Path]) -> None:
@@ -458,12 +469,19 @@ def _finish(manifest: dict[str, Any], started: float) -> None:
 
 
 def _check_inputs_are_not_products(plan: Plan, config: BaseModel, output: Path, config_path: Path | None) -> None:
-    """Refuse, before anything runs, an input file that publishing would overwrite."""
-    products = {(output / name).resolve(): name for step in plan.steps for name in step.io.products.values()}
-    products[(output / MANIFEST).resolve()] = MANIFEST
+    """Refuse, before anything runs, an input file that publishing would overwrite.
+
+    A product found replaced by a symbolic link is refused when the link
+    leads to an input (or a folder holding one), else replaced with a warning.
+    """
+    names = [name for step in plan.steps for name in step.io.products.values()] + [MANIFEST]
+    products = {_place(output / name): name for name in names}
     inputs = [Path(config_path)] if config_path else []
     for step in plan.steps:
         inputs += [Path(p) for p in step.stage.external_files(step.params, config)]
+    for place, name in products.items():
+        if place.is_symlink():
+            _check_product_link(place, name, output, inputs)
     for path in inputs:
         real = path.resolve()
         name = products.get(real) or next(
@@ -474,6 +492,25 @@ def _check_inputs_are_not_products(plan: Plan, config: BaseModel, output: Path, 
                 f"the input {path} is in the output folder under the product name '{name}', which a run "
                 "replaces: move the input out of the output folder or choose another output."
             )
+
+
+def _check_product_link(place: Path, name: str, output: Path, inputs: list[Path]) -> None:
+    """A product that is a symbolic link: refused if it leads to an input, else a warning (publishing replaces it)."""
+    target = place.resolve()
+    hit = next((p for p in inputs if p.resolve() == target or p.resolve().is_relative_to(target)), None)
+    if hit is not None:
+        to = f"the input {hit}" if hit.resolve() == target else f"{os.readlink(place)}, which holds the input {hit}"
+        raise ConfigError(
+            f"the product '{name}' in the output folder {output} is a symbolic link to {to}: "
+            "remove the link (not its target) or choose another output."
+        )
+    logging.getLogger(LOGGER_NAME).warning(
+        "the product '%s' in the output folder %s is a symbolic link to %s; publishing replaces the link, "
+        "never its target",
+        name,
+        output,
+        os.readlink(place),
+    )
 
 
 def _read_manifest(output: Path) -> dict[str, Any]:
@@ -581,7 +618,7 @@ def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[
                 _rename_into_place(tmp, dst)
             for name in stale:
                 path = output / name
-                if path.resolve().is_relative_to(output.resolve()) and (path.is_symlink() or path.exists()):
+                if _place(path).is_relative_to(output.resolve()) and (path.is_symlink() or path.exists()):
                     _remove_path(path)
             manifest["status"] = "ok"
             _write_manifest(output, manifest)
@@ -641,6 +678,8 @@ def _stage_copy(src: Path, dst: Path) -> Path:
 
 
 def _rename_into_place(tmp: Path, dst: Path) -> None:
+    if dst.is_symlink() and tmp.is_dir():
+        dst.unlink()  # a folder cannot be renamed over a link; the link goes, never its target
     if dst.is_dir() and not dst.is_symlink():
         aside = dst.parent / f".{dst.name}.{uuid.uuid4().hex[:8]}.old.tmp"
         os.replace(dst, aside)

@@ -2,14 +2,16 @@
 
 An input that changes while it is read, an input that is not a regular
 file, a full or read-only disk on the cache or the output side, a cache
-whose folders were replaced by links, files or folders.  Each case ends in
-a true result or in one sentence with the documented exit code, and
-nothing outside the cache folder is touched.
+whose folders were replaced by links, files or folders, a product replaced
+by a link.  Each case ends in a true result or in one sentence with the
+documented exit code, and nothing outside the cache and output folders is
+touched.
 """
 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 import tempfile
@@ -284,3 +286,43 @@ def test_a_dry_run_never_reads_through_a_stage_folder_that_is_a_link(toy, capsys
     capsys.readouterr()
     assert toy.run("--dry-run") == 0
     assert [line.split()[1] for line in capsys.readouterr().out.splitlines() if line.startswith("scale")] == ["run"]
+
+
+# --------------------------------------------------------------------------
+# A product replaced by a link (item 7)
+
+
+def test_a_product_replaced_by_a_link_is_replaced_never_its_target(toy, capsys, tmp_path):
+    assert toy.run() == 0
+    out = toy.root / "out"
+    target = tmp_path / "elsewhere.json"
+    target.write_text("precious")
+    (out / "total.json").unlink()
+    (out / "total.json").symlink_to(target)
+    capsys.readouterr()
+    assert toy.run() == 0
+    err = capsys.readouterr().err
+    assert (
+        f"the product 'total.json' in the output folder {out} is a symbolic link to {target}; "
+        "publishing replaces the link, never its target"
+    ) in err
+    assert not (out / "total.json").is_symlink() and toy.product("total.json") == {"total": 48.0}
+    assert target.read_text() == "precious"
+    assert json.loads((out / "run.json").read_text())["status"] == "ok"
+
+
+@pytest.mark.parametrize("to", ["the input", "its folder"])
+def test_a_product_that_is_a_link_to_an_input_is_refused_saying_so(toy, capsys, to):
+    assert toy.run() == 0
+    out = toy.root / "out"
+    source = toy.root / "numbers.txt"
+    (out / "total.json").unlink()
+    (out / "total.json").symlink_to(source if to == "the input" else toy.root)
+    capsys.readouterr()
+    assert toy.run() == 2
+    what = f"the input {source}" if to == "the input" else f"{toy.root}, which holds the input {toy.path}"
+    assert capsys.readouterr().err.strip() == (
+        f"pipeline: error: the product 'total.json' in the output folder {out} is a symbolic link to {what}: "
+        "remove the link (not its target) or choose another output."
+    )
+    assert source.read_text() == "1\n2\n3 # three\n10\n"

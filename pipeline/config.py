@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import stat
 import types
 import typing
 from pathlib import Path
@@ -129,11 +130,12 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
     """Read a YAML file safely: the document and the 1-based line of every key and list item.
 
     Lines are keyed by location (a tuple of keys and indices).  Refused in one
-    sentence (``ConfigError``): an unreadable or invalid file, a repeated
-    key, more than :data:`MAX_CONFIG_BYTES`, nesting deeper than
-    :data:`MAX_DEPTH`, an alias that refers to itself, or aliases expanding
-    to more than :data:`MAX_VALUES` values (a "billion laughs" file is
-    refused after a few hundred bytes, not expanded).
+    sentence (``ConfigError``): a path that is not a regular file (a FIFO, a
+    folder, a device), an unreadable or invalid file, a repeated key, more
+    than :data:`MAX_CONFIG_BYTES`, nesting deeper than :data:`MAX_DEPTH`, an
+    alias that refers to itself, or aliases expanding to more than
+    :data:`MAX_VALUES` values (a "billion laughs" file is refused after a
+    few hundred bytes, not expanded).
     """
     text = _read_config_text(Path(path))
     loader = None
@@ -170,14 +172,27 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
 
 
 def _read_config_text(path: Path) -> str:
-    """The text of a configuration file, read up to :data:`MAX_CONFIG_BYTES` (``/dev/zero`` is refused)."""
+    """The text of a configuration file, read up to :data:`MAX_CONFIG_BYTES`.
+
+    Only a regular file is read: a FIFO (which blocks until someone writes
+    to it), a folder or a device (``/dev/zero`` never ends) is refused at
+    once, without waiting on it.
+    """
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CONFIG_BYTES + 1)
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))  # a FIFO does not block
     except FileNotFoundError:
         raise ConfigError(f"{path}: configuration file not found.") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration file ({exc.strerror or exc}).") from None
+    kind = _file_kind(os.fstat(fd).st_mode)
+    if kind is not None:
+        os.close(fd)
+        raise ConfigError(f"{path}: not a configuration file but {kind}; give the path of a YAML file.")
+    with open(fd, "rb") as fh:
+        try:
+            raw = fh.read(MAX_CONFIG_BYTES + 1)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the configuration file ({exc.strerror or exc}).") from None
     if len(raw) > MAX_CONFIG_BYTES:
         raise ConfigError(
             f"{path}: not a configuration file (more than {MAX_CONFIG_BYTES // 1024} KiB); "
@@ -188,6 +203,20 @@ def _read_config_text(path: Path) -> str:
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
         raise ConfigError(f"{path}, line {line}: not UTF-8 text (byte {exc.start}).") from None
+
+
+def _file_kind(mode: int) -> str | None:
+    """What a file that is not a regular one is, in words (None for a regular file)."""
+    if stat.S_ISREG(mode):
+        return None
+    kinds = [
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a FIFO (named pipe), which would block until something writes to it"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ]
+    return next((text for test, text in kinds if test(mode)), "not a regular file")
 
 
 def _check_graph(root: yaml.Node, path: Path) -> None:

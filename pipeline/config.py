@@ -137,20 +137,11 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
     :data:`MAX_VALUES` values (a "billion laughs" file is refused after a
     few hundred bytes, not expanded).
     """
-    text = _read_config_text(Path(path))
-    loader = None
+    path = Path(path)
+    text = _read_config_text(path)
     try:
-        loader = yaml.SafeLoader(text)  # the reader checks every character here
-        try:
-            node = loader.get_single_node()
-        except RecursionError:
-            line = loader.get_mark().line + 1
-            raise ConfigError(
-                f"{path}, line {line}: the configuration nests mappings or lists more than {MAX_DEPTH} levels deep."
-            ) from None
-        if node is not None:
-            _check_graph(node, path)
-        data = loader.construct_document(node) if node is not None else {}
+        data, node = _compose(text, path)
+        data = {} if node is None else data
     except yaml.reader.ReaderError as exc:
         line = text.count("\n", 0, max(exc.position, 0)) + 1
         raise ConfigError(
@@ -162,13 +153,40 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
         raise ConfigError(f"{path}{where}: not valid YAML ({exc.problem or exc.context}).") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc}).") from None
-    finally:
-        if loader is not None:
-            loader.dispose()
     lines: dict[Location, int] = {}
     if node is not None:
         _record_lines(node, (), lines, path)
     return data, lines
+
+
+def _compose(text: str, source: Path | str, depth: int = 1) -> tuple[Any, yaml.Node | None]:
+    """The document of *text* and its node tree, its size and nesting checked before it is built.
+
+    *source* is the file (messages name its line) or an override's label;
+    *depth* is the level the document sits at (1: the top of a
+    configuration).  Limits break in one sentence (``ConfigError``); YAML
+    syntax errors propagate as ``yaml.YAMLError``.
+    """
+    loader = yaml.SafeLoader(text)  # the reader checks every character here
+    try:
+        try:
+            node = loader.get_single_node()
+        except RecursionError:
+            raise ConfigError(
+                f"{_at(source, loader.get_mark().line + 1)}: the configuration nests mappings or lists more than "
+                f"{MAX_DEPTH} levels deep."
+            ) from None
+        if node is None:
+            return None, None
+        _check_graph(node, source, depth)
+        return loader.construct_document(node), node
+    finally:
+        loader.dispose()
+
+
+def _at(source: Path | str, line: int) -> str:
+    """Where a problem is: the file and line, or the override (a one-line value)."""
+    return f"{source}, line {line}" if isinstance(source, Path) else str(source)
 
 
 def _read_config_text(path: Path) -> str:
@@ -219,16 +237,17 @@ def _file_kind(mode: int) -> str | None:
     return next((text for test, text in kinds if test(mode)), "not a regular file")
 
 
-def _check_graph(root: yaml.Node, path: Path) -> None:
+def _check_graph(root: yaml.Node, source: Path | str, depth: int = 1) -> None:
     """Refuse recursive aliases, deep nesting and alias expansion beyond :data:`MAX_VALUES`.
 
     Each distinct node is visited once (an alias is the same node object
     again), so the check costs the size of the file, not of its expansion.
+    *depth* is the level of *root* (an override's value sits below its keys).
     """
     sizes: dict[int, int] = {}  # id(node) -> values it expands to
     open_nodes: set[int] = set()  # on the current path: meeting one again is a recursion
     # An explicit stack of (node, depth, children-done?) instead of recursion.
-    stack: list[tuple[yaml.Node, int, bool]] = [(root, 1, False)]
+    stack: list[tuple[yaml.Node, int, bool]] = [(root, depth, False)]
     while stack:
         node, depth, done = stack.pop()
         children = _children(node)
@@ -238,7 +257,7 @@ def _check_graph(root: yaml.Node, path: Path) -> None:
             sizes[id(node)] = total
             if total > MAX_VALUES:
                 raise ConfigError(
-                    f"{path}, line {node.start_mark.line + 1}: the aliases here expand to more than "
+                    f"{_at(source, node.start_mark.line + 1)}: the aliases here expand to more than "
                     f"{MAX_VALUES:,} values; a configuration this large is refused (write the values out)."
                 )
             continue
@@ -246,7 +265,7 @@ def _check_graph(root: yaml.Node, path: Path) -> None:
             continue
         if depth > MAX_DEPTH:
             raise ConfigError(
-                f"{path}, line {node.start_mark.line + 1}: the configuration nests mappings or lists more than "
+                f"{_at(source, node.start_mark.line + 1)}: the configuration nests mappings or lists more than "
                 f"{MAX_DEPTH} levels deep."
             )
         open_nodes.add(id(node))
@@ -254,7 +273,7 @@ def _check_graph(root: yaml.Node, path: Path) -> None:
         for child in children:
             if id(child) in open_nodes:
                 raise ConfigError(
-                    f"{path}, line {child.start_mark.line + 1}: an alias refers to a value that contains it "
+                    f"{_at(source, child.start_mark.line + 1)}: an alias refers to a value that contains it "
                     "(a recursive alias); a configuration must be a finite tree."
                 )
             if id(child) not in sizes:
@@ -289,16 +308,37 @@ def _record_lines(node: yaml.Node, loc: Location, lines: dict[Location, int], pa
 # --set overrides
 
 
+#: Longest part of an override echoed in a message.
+MAX_SHOWN = 80
+
+
+def override_label(text: str) -> str:
+    """``--set key=value`` as messages name it, a long value cut short."""
+    return f"--set {text if len(text) <= MAX_SHOWN else text[: MAX_SHOWN - 1] + '…'}"
+
+
 def parse_override(text: str) -> tuple[tuple[str, ...], Any]:
-    """Split ``dotted.key=value``; the value is read as a YAML scalar or list."""
+    """Split ``dotted.key=value``; the value is read as a YAML scalar or list.
+
+    The key and the value together nest at most :data:`MAX_DEPTH` levels,
+    as in a file, and the value's aliases expand to at most
+    :data:`MAX_VALUES` values; text that is not YAML is kept as a string.
+    """
+    label = override_label(text)
     if "=" not in text:
-        raise ConfigError(f"--set {text}: expected dotted.key=value.")
+        raise ConfigError(f"{label}: expected dotted.key=value.")
     key, _, raw = text.partition("=")
     parts = tuple(p for p in key.strip().split("."))
     if not key.strip() or any(not p for p in parts):
-        raise ConfigError(f"--set {text}: the key must be dotted names like stages.rasterize.resolution.")
+        raise ConfigError(f"{label}: the key must be dotted names like stages.rasterize.resolution.")
+    if len(parts) >= MAX_DEPTH:
+        raise ConfigError(
+            f"{label}: the key nests {len(parts)} levels deep; a configuration nests at most {MAX_DEPTH}."
+        )
+    if not raw.strip():
+        return parts, None
     try:
-        value = yaml.safe_load(raw) if raw.strip() else None
+        value, _ = _compose(raw, label, depth=len(parts) + 1)
     except yaml.YAMLError:
         value = raw
     return parts, value
@@ -309,19 +349,20 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict[Location, str]:
     sources: dict[Location, str] = {}
     for text in overrides:
         parts, value = parse_override(text)
+        label = override_label(text)
         node = data
         for i, part in enumerate(parts[:-1]):
             child = node.get(part)
             if child is None:
                 child = node[part] = {}
                 # A mapping this override created: an error in it is the override's.
-                sources.setdefault(parts[: i + 1], f"--set {text}")
+                sources.setdefault(parts[: i + 1], label)
             elif not isinstance(child, dict):
                 where = ".".join(parts[: i + 1])
-                raise ConfigError(f"--set {text}: '{where}' is not a mapping, so it has no key '{parts[i + 1]}'.")
+                raise ConfigError(f"{label}: '{where}' is not a mapping, so it has no key '{parts[i + 1]}'.")
             node = child
         node[parts[-1]] = value
-        sources[parts] = f"--set {text}"
+        sources[parts] = label
     return sources
 
 

@@ -78,6 +78,14 @@ class ExecutorConfig(StrictModel):
         description="Dask scheduler address, e.g. tcp://host:8786 (workers must see the cache folder at the same "
         "path); none = a local Dask cluster of `workers` processes",
     )
+    connect_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        le=3600,
+        allow_inf_nan=False,
+        description="seconds to wait for the Dask scheduler at `address` to answer; then the run stops "
+        "(exit 4) instead of waiting for ever; default 10",
+    )
 
 
 #: Smallest tile side (metres): smaller tiles cost more in buffers than they save.

@@ -26,7 +26,7 @@ from concurrent.futures import ProcessPoolExecutor
 from importlib import import_module
 from typing import Any
 
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
 
 
@@ -90,12 +90,11 @@ class LocalExecutor:
 class DaskExecutor:
     """A Dask distributed cluster: the one at ``address``, or a local one started on first use."""
 
-    #: How long to try reaching a scheduler before giving up.
-    CONNECT_TIMEOUT = "20s"
-
-    def __init__(self, address: str | None = None, workers: int = 1):
+    def __init__(self, address: str | None = None, workers: int = 1, connect_timeout: float = 10.0):
         self.address = address
         self.workers = max(1, int(workers))
+        #: Seconds to wait for the scheduler at ``address`` to answer.
+        self.connect_timeout = float(connect_timeout)
         self._client = None
         self._cluster = None
 
@@ -116,24 +115,49 @@ class DaskExecutor:
             ) from None
         for name in ("distributed", "bokeh", "tornado"):
             logging.getLogger(name).setLevel(logging.ERROR)
-        try:
-            if self.address:
-                self._client = Client(self.address, timeout=self.CONNECT_TIMEOUT)
-            else:
-                self._cluster = LocalCluster(
-                    n_workers=self.workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                )
-                self._client = Client(self._cluster)
-        except (OSError, TimeoutError) as exc:
-            raise ConfigError(
-                f"executor.address: cannot reach the Dask scheduler at {self.address} within "
-                f"{self.CONNECT_TIMEOUT} ({type(exc).__name__})."
-            ) from None
+        if self.address:
+            self._client = self._reach(lambda: Client(self.address, timeout=self.connect_timeout))
+        else:
+            self._cluster = LocalCluster(
+                n_workers=self.workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
+            self._client = Client(self._cluster)
         return self._client
+
+    def _reach(self, connect: Callable[[], Any]) -> Any:
+        """``connect()``, given :attr:`connect_timeout` seconds to succeed, else ``EnvironmentFailure``.
+
+        The client's own timeout covers the connection but not the scheduler's
+        first message: something that accepts the connection and stays silent
+        (not a scheduler, or a hung one) would be waited on for ever.  The
+        attempt runs on a thread of its own, abandoned when the time is up.
+        """
+        box: dict[str, Any] = {}
+
+        def attempt() -> None:
+            try:
+                box["client"] = connect()
+            except Exception as exc:  # handed to the waiting thread
+                box["error"] = exc
+
+        thread = threading.Thread(target=attempt, name="dask-connect", daemon=True)
+        thread.start()
+        thread.join(self.connect_timeout + 0.5)
+        error = box.get("error")
+        if isinstance(error, ValueError):
+            raise ConfigError(f"executor.address {self.address}: not a Dask address ({error}).") from None
+        if thread.is_alive() or isinstance(error, (OSError, TimeoutError)):
+            raise EnvironmentFailure(
+                f"executor.address {self.address}: no Dask scheduler answered within {self.connect_timeout:g} s; "
+                "start it (`dask scheduler`) or correct the address."
+            ) from None
+        if error is not None:
+            raise error
+        return box["client"]
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         if not tasks:
@@ -244,5 +268,5 @@ def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
     if ex is None:
         return LocalExecutor(1)
     if ex.kind == "dask":
-        return DaskExecutor(ex.address, ex.workers)
+        return DaskExecutor(ex.address, ex.workers, getattr(ex, "connect_timeout_s", 10.0))
     return LocalExecutor(ex.workers)

@@ -1,0 +1,79 @@
+"""The executor when the machine fails the run (issue 38).
+
+A "scheduler" that accepts and never answers was waited on for ever; a
+killed worker was ``internal error: BrokenProcessPool ... please report it``;
+a Ctrl-C reaching a worker while it started printed a traceback; and
+``executor.workers: 16`` on 2 cores started 16 workers.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.cli import main
+from pipeline.errors import EnvironmentFailure
+from pipeline.executor import DaskExecutor
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def square(task: dict) -> int:
+    return task["i"] ** 2
+
+
+def sigint_blocked(seconds: float) -> tuple[int, bool]:
+    """In a worker: its pid and whether SIGINT is blocked in its mask (inherited from the run)."""
+    time.sleep(seconds)
+    return os.getpid(), signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+# --------------------------------------------------------------------------
+# a scheduler that does not answer
+
+
+@pytest.fixture
+def silent_listener():
+    """A TCP port that accepts connections and never sends a byte."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    yield f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    server.close()
+
+
+def test_a_listener_that_never_answers_is_no_scheduler(silent_listener):
+    ex = DaskExecutor(silent_listener, 1, connect_timeout=1)
+    t0 = time.monotonic()
+    with pytest.raises(EnvironmentFailure) as caught:
+        ex.map(square, [{"i": 1}])
+    assert time.monotonic() - t0 < 20  # was: for ever
+    assert str(caught.value) == (
+        f"executor.address {silent_listener}: no Dask scheduler answered within 1 s; "
+        "start it (`dask scheduler`) or correct the address."
+    )
+    assert caught.value.exit_code == 4
+    ex.close()
+
+
+def test_a_closed_port_is_the_same_sentence():
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    ex = DaskExecutor(f"tcp://127.0.0.1:{port}", 1, connect_timeout=0.5)
+    t0 = time.monotonic()
+    with pytest.raises(EnvironmentFailure, match=r"no Dask scheduler answered within 0.5 s; start it"):
+        ex.map(square, [{"i": 1}])
+    assert time.monotonic() - t0 < 20
+    ex.close()
+
+
+def test_the_connect_timeout_is_a_config_key(toy, capsys):
+    code = main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=0"])
+    assert code == 2 and "executor.connect_timeout_s" in capsys.readouterr().err
+    assert main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=2.5"]) == 0

@@ -44,6 +44,7 @@ class LocalExecutor:
         """Start the workers and import *fn*'s module in each, while this process does other work."""
         if self.workers == 1:
             return
+        _start_resource_tracker()
         with sigint_held():  # the workers start here and inherit the blocked mask
             if self._pool is None:
                 self._pool = _pool(self.workers)
@@ -58,6 +59,7 @@ class LocalExecutor:
                 results.append(fn(t))
                 _done(log, i + 1, len(tasks), what)
             return results
+        _start_resource_tracker()
         with sigint_held():  # workers may start here and inherit the blocked mask
             if self._pool is None:
                 self._pool = _pool(self.workers)
@@ -212,6 +214,20 @@ def release_freed_memory() -> None:
     except (OSError, AttributeError):  # pragma: no cover - not glibc
         return
     trim(0)
+
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker now, before SIGINT is held for the workers' start.
+
+    Started on the first worker's launch, it unblocks SIGINT in the thread
+    that launches it when done (its own way of starting with the signal
+    held): inside :func:`~pipeline.interrupt.sigint_held`, every worker
+    launched after it then started with SIGINT open, and a Ctrl-C landing
+    before its initializer ignored the signal printed a traceback.
+    """
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:

@@ -8,9 +8,13 @@ a Ctrl-C reaching a worker while it started printed a traceback; and
 
 from __future__ import annotations
 
+import ast
 import os
+import random
 import signal
 import socket
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -77,3 +81,52 @@ def test_the_connect_timeout_is_a_config_key(toy, capsys):
     code = main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=0"])
     assert code == 2 and "executor.connect_timeout_s" in capsys.readouterr().err
     assert main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=2.5"]) == 0
+
+
+# --------------------------------------------------------------------------
+# Ctrl-C while the workers start
+
+_CHILD = """
+import sys, time
+from pipeline.executor import LocalExecutor
+from pipeline.interrupt import Interrupted, handling
+
+ex = LocalExecutor(2)
+try:
+    with handling():
+        print(ex.map(__import__("tests.pipeline.test_executor_faults", fromlist=["x"]).sigint_blocked, [0.4] * 4))
+except Interrupted:
+    sys.exit(130)
+finally:
+    ex.close(abort=True)
+"""
+
+
+def _child(**kwargs) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(
+        [sys.executable, "-c", _CHILD], env=env, cwd=ROOT, text=True, start_new_session=True, **kwargs
+    )
+
+
+def test_every_worker_starts_with_sigint_held():
+    """The first pool of a process too: starting multiprocessing's resource tracker opened SIGINT again."""
+    child = _child(stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    out, err = child.communicate(timeout=60)
+    assert child.returncode == 0, err
+    blocked = dict(ast.literal_eval(out))  # [(pid, blocked), ...] printed by the child
+    assert len(blocked) == 2 and all(blocked.values())
+
+
+def test_a_ctrl_c_of_the_group_while_workers_start_prints_no_traceback():
+    rng = random.Random(38)
+    for _ in range(4):
+        child = _child(stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        time.sleep(0.2 + 0.4 * rng.random())  # the workers' interpreters are starting
+        try:
+            os.killpg(child.pid, signal.SIGINT)
+        except ProcessLookupError:
+            pass
+        err = child.communicate(timeout=60)[1]
+        assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+        assert child.returncode in (0, 130)

@@ -31,6 +31,7 @@ from pydantic import (
 )
 
 from pipeline.errors import ConfigError
+from pipeline.executor import usable_cores
 
 Location = tuple[str | int, ...]
 
@@ -68,10 +69,11 @@ class ExecutorConfig(StrictModel):
         "local", description="local: worker processes on this machine; dask: a Dask distributed cluster"
     )
     workers: int = Field(
-        default_factory=lambda: os.cpu_count() or 1,
+        default_factory=lambda: usable_cores(),
         ge=1,
         description="tiles processed at a time (local processes, or the workers of a local Dask cluster); "
-        "default: the number of CPUs",
+        "never more processes than the CPU cores this run may use (os.sched_getaffinity) nor than there are "
+        "tasks: a larger number is lowered, and the log says so; default: the usable CPU cores",
     )
     address: str | None = Field(
         None,

@@ -28,27 +28,54 @@ from typing import Any
 
 from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
+from pipeline.log import LOGGER_NAME
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask, which a batch system sets)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+def capped_workers(asked: int, log: Any = None) -> int:
+    """*asked* worker processes, at most :func:`usable_cores`; a lowered number is logged once."""
+    cores = usable_cores()
+    if asked <= cores:
+        return max(1, asked)
+    if log is not None:
+        log.info("executor.workers: %d asked, %d cores usable: using %d", asked, cores, cores)
+    return cores
 
 
 class LocalExecutor:
-    """Worker processes on this machine (started once per run, on first use)."""
+    """Worker processes on this machine (started once per run, on first use).
+
+    At most :func:`usable_cores` of them, and never more than there are
+    tasks to run.
+    """
 
     def __init__(self, workers: int = 1):
-        self.workers = max(1, int(workers))
+        self.workers = max(1, min(int(workers), usable_cores()))
         self._pool: ProcessPoolExecutor | None = None
 
     def describe(self) -> str:
         return f"local, {self.workers} worker{'s' if self.workers > 1 else ''}"
 
-    def prepare(self, fn: Callable[[Any], Any]) -> None:
-        """Start the workers and import *fn*'s module in each, while this process does other work."""
-        if self.workers == 1:
+    def prepare(self, fn: Callable[[Any], Any], tasks: int | None = None) -> None:
+        """Start the workers and import *fn*'s module in each, while this process does other work.
+
+        *tasks*, when known, bounds the number of workers started.
+        """
+        count = min(self.workers, tasks if tasks is not None else self.workers)
+        if count <= 1:
             return
         _start_resource_tracker()
         with sigint_held():  # the workers start here and inherit the blocked mask
             if self._pool is None:
-                self._pool = _pool(self.workers)
-            for _ in range(self.workers):
+                self._pool = _pool(count)
+            for _ in range(count):
                 self._pool.submit(import_module, fn.__module__)
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
@@ -62,7 +89,7 @@ class LocalExecutor:
         _start_resource_tracker()
         with sigint_held():  # workers may start here and inherit the blocked mask
             if self._pool is None:
-                self._pool = _pool(self.workers)
+                self._pool = _pool(min(self.workers, len(tasks)))
             futures = [self._pool.submit(fn, t) for t in tasks]
         return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
 
@@ -103,7 +130,7 @@ class DaskExecutor:
     def describe(self) -> str:
         return f"dask {self.address}" if self.address else f"dask local cluster, {self.workers} workers"
 
-    def prepare(self, fn: Callable[[Any], Any]) -> None:
+    def prepare(self, fn: Callable[[Any], Any], tasks: int | None = None) -> None:
         """Nothing to do ahead: a Dask cluster is connected to on first use."""
 
     def _connect(self):
@@ -279,10 +306,16 @@ def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any], as_c
 
 
 def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
-    """The executor the configuration's ``executor`` block names."""
+    """The executor the configuration's ``executor`` block names.
+
+    Processes on this machine are at most its usable cores
+    (:func:`capped_workers`); a remote cluster's workers are its own.
+    """
     ex = getattr(config, "executor", None)
     if ex is None:
         return LocalExecutor(1)
+    log = logging.getLogger(LOGGER_NAME)
     if ex.kind == "dask":
-        return DaskExecutor(ex.address, ex.workers, getattr(ex, "connect_timeout_s", 10.0))
-    return LocalExecutor(ex.workers)
+        workers = ex.workers if ex.address else capped_workers(ex.workers, log)
+        return DaskExecutor(ex.address, workers, getattr(ex, "connect_timeout_s", 10.0))
+    return LocalExecutor(capped_workers(ex.workers, log))

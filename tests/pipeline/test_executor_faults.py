@@ -9,6 +9,7 @@ a Ctrl-C reaching a worker while it started printed a traceback; and
 from __future__ import annotations
 
 import ast
+import logging
 import os
 import random
 import signal
@@ -20,9 +21,10 @@ from pathlib import Path
 
 import pytest
 
+import pipeline.executor as executor_module
 from pipeline.cli import main
 from pipeline.errors import EnvironmentFailure
-from pipeline.executor import DaskExecutor
+from pipeline.executor import DaskExecutor, LocalExecutor, make_executor
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -130,3 +132,48 @@ def test_a_ctrl_c_of_the_group_while_workers_start_prints_no_traceback():
         err = child.communicate(timeout=60)[1]
         assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
         assert child.returncode in (0, 130)
+
+
+# --------------------------------------------------------------------------
+# no more workers than cores, nor than tasks
+
+
+def test_no_more_worker_processes_than_usable_cores(monkeypatch):
+    monkeypatch.setattr(executor_module, "usable_cores", lambda: 2)
+    ex = LocalExecutor(16)
+    try:
+        assert ex.workers == 2 and ex.describe() == "local, 2 workers"
+        ex.prepare(square)
+        assert ex.map(square, [{"i": i} for i in range(20)]) == [i * i for i in range(20)]
+        assert len(ex._pool._processes) == 2
+    finally:
+        ex.close()
+
+
+def test_no_more_worker_processes_than_tasks(monkeypatch):
+    monkeypatch.setattr(executor_module, "usable_cores", lambda: 8)
+    ex = LocalExecutor(8)
+    try:
+        ex.prepare(square, 1)  # one task: nothing to start
+        assert ex._pool is None
+        assert ex.map(square, [{"i": 2}, {"i": 3}]) == [4, 9]
+        assert len(ex._pool._processes) == 2
+    finally:
+        ex.close()
+
+
+def test_the_lowered_number_is_said_once(monkeypatch, caplog):
+    monkeypatch.setattr(executor_module, "usable_cores", lambda: 2)
+
+    class Config:
+        class executor:  # noqa: N801 - stands for the configuration's block
+            kind, workers, address = "local", 16, None
+
+    with caplog.at_level(logging.INFO, logger="pipeline"):
+        ex = make_executor(Config)
+    assert ex.workers == 2
+    assert [r.getMessage() for r in caplog.records] == ["executor.workers: 16 asked, 2 cores usable: using 2"]
+    with caplog.at_level(logging.INFO, logger="pipeline"):
+        Config.executor.workers = 2
+        make_executor(Config)
+    assert len(caplog.records) == 1  # nothing to say when the number fits

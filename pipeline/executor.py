@@ -23,12 +23,36 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from importlib import import_module
 from typing import Any
 
+from pipeline import interrupt
 from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
 from pipeline.log import LOGGER_NAME
+
+
+class WorkerLost(EnvironmentFailure):
+    """A worker process died under a task (exit code 4): killed, or out of memory.
+
+    The runner sets :attr:`stage`, which the sentence then names first.
+    """
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+        self.stage: str | None = None
+
+    def __str__(self) -> str:
+        return f"stage '{self.stage}': {self.message}" if self.stage else self.message
+
+
+#: What a worker's death is put down to, for the signals that usually cause it.
+_CAUSES = {signal.SIGKILL: " — often the system's out-of-memory killer"}
+
+#: Said after a worker's death: nothing is lost by running again.
+_RESUME = "run again to resume: complete stages are reused."
 
 
 def usable_cores() -> int:
@@ -75,8 +99,11 @@ class LocalExecutor:
         with sigint_held():  # the workers start here and inherit the blocked mask
             if self._pool is None:
                 self._pool = _pool(count)
-            for _ in range(count):
-                self._pool.submit(import_module, fn.__module__)
+            try:
+                for _ in range(count):
+                    self._pool.submit(import_module, fn.__module__)
+            except BrokenProcessPool:
+                pass  # a worker died already: map() says so
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task."""
@@ -86,12 +113,17 @@ class LocalExecutor:
                 results.append(fn(t))
                 _done(log, i + 1, len(tasks), what)
             return results
-        _start_resource_tracker()
-        with sigint_held():  # workers may start here and inherit the blocked mask
-            if self._pool is None:
-                self._pool = _pool(min(self.workers, len(tasks)))
-            futures = [self._pool.submit(fn, t) for t in tasks]
-        return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
+        try:
+            _start_resource_tracker()
+            with sigint_held():  # workers may start here and inherit the blocked mask
+                if self._pool is None:
+                    self._pool = _pool(min(self.workers, len(tasks)))
+                futures = [self._pool.submit(fn, t) for t in tasks]
+            return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
+        except BrokenProcessPool:
+            if interrupt.received() is not None:  # the run is stopping: its signal, not the worker, says why
+                raise interrupt.Interrupted(interrupt.received()) from None
+            raise WorkerLost(f"a worker process died ({_death(self._pool)}); {_RESUME}") from None
 
     def close(self, abort: bool = False) -> None:
         """Stop the workers: after their tasks, or at once (``abort``: a failed or interrupted run).
@@ -195,7 +227,13 @@ class DaskExecutor:
 
         client = self._connect()
         futures = client.map(fn, list(tasks), pure=False)
-        return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+        try:
+            return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+        except distributed.KilledWorker:
+            raise WorkerLost(
+                "a Dask worker died running a task, on every worker that tried it (often the out-of-memory "
+                f"killer); {_RESUME}"
+            ) from None
 
     def close(self, abort: bool = False) -> None:
         """Disconnect (and stop a local cluster); ``abort`` is the same here: the scheduler cancels the tasks."""
@@ -241,6 +279,28 @@ def release_freed_memory() -> None:
     except (OSError, AttributeError):  # pragma: no cover - not glibc
         return
     trim(0)
+
+
+def _death(pool: ProcessPoolExecutor | None) -> str:
+    """How a worker of *pool* died: the signal that killed it, or its exit status."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for _ in range(50):  # the pool's own thread may be reaping the dead worker at this moment
+        codes = [p.exitcode for p in processes if p.exitcode not in (None, 0)]
+        if codes:
+            return _exit_in_words(codes[0])
+        time.sleep(0.01)
+    return "its exit status is not known"
+
+
+def _exit_in_words(code: int) -> str:
+    """A process's exit code (negative: the signal that ended it) in words."""
+    if code >= 0:
+        return f"exited with status {code}"
+    try:
+        sig = signal.Signals(-code)
+    except ValueError:
+        return f"killed by signal {-code}"
+    return f"killed by signal {-code}, {sig.name}{_CAUSES.get(sig, '')}"
 
 
 def _start_resource_tracker() -> None:

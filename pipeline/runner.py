@@ -38,7 +38,7 @@ from pipeline.cache import (
     path_size,
 )
 from pipeline.errors import ConfigError, PipelineError, PlanError
-from pipeline.executor import LocalExecutor, make_executor
+from pipeline.executor import LocalExecutor, WorkerLost, make_executor
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
@@ -723,7 +723,9 @@ def _execute(
             "seconds": seconds,
         }
         entry = cache.commit(step.name, key, workspace, meta, replace=replace)
-    except BaseException:
+    except BaseException as exc:
+        if isinstance(exc, WorkerLost):
+            exc.stage = step.name  # the sentence names the stage
         if executor is not None:  # its workers may still be writing tile parts into the workspace: stop them first
             executor.close(abort=True)
         Cache.discard(workspace)

@@ -9,6 +9,7 @@ a Ctrl-C reaching a worker while it started printed a traceback; and
 from __future__ import annotations
 
 import ast
+import json
 import logging
 import os
 import random
@@ -83,6 +84,36 @@ def test_the_connect_timeout_is_a_config_key(toy, capsys):
     code = main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=0"])
     assert code == 2 and "executor.connect_timeout_s" in capsys.readouterr().err
     assert main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=2.5"]) == 0
+
+
+# --------------------------------------------------------------------------
+# a worker killed
+
+
+@pytest.fixture
+def parallel(toy, monkeypatch):
+    monkeypatch.setenv("PIPELINE_PLUGIN", "tests.pipeline.toy:parallel_plugin")
+    monkeypatch.setattr(executor_module, "usable_cores", lambda: 2, raising=False)  # two workers, any machine
+    toy.path.write_text("name: par\nsource: {path: numbers.txt}\noutput: out\nexecutor: {kind: local, workers: 2}\n")
+    return toy
+
+
+def test_a_killed_worker_is_one_sentence_and_exit_4(parallel, capsys):
+    code = parallel.run("--set", "stages.spread.die=true")
+    err = capsys.readouterr().err
+    assert code == 4, err
+    assert err == (
+        "pipeline: error: stage 'spread': a worker process died (killed by signal 9, SIGKILL — often the "
+        "system's out-of-memory killer); run again to resume: complete stages are reused.\n"
+    )
+    manifest = parallel.manifest()
+    assert manifest["status"] == "failed" and "SIGKILL" in manifest["error"]
+    assert not (parallel.root / "out" / "squares.json").exists()  # nothing half-written
+    cache = parallel.root / "out" / ".cache" / "spread"
+    assert not cache.exists() or not any(p.name.startswith(".tmp") for p in cache.iterdir())
+    assert parallel.run() == 0  # resumes: load is reused
+    assert parallel.statuses() == {"load": "cached", "spread": "ran"}
+    assert json.loads((parallel.root / "out" / "squares.json").read_text()) == [1.0, 4.0, 9.0, 100.0]
 
 
 # --------------------------------------------------------------------------

@@ -19,6 +19,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -194,9 +195,14 @@ class DaskExecutor:
 
         The client's own timeout covers the connection but not the scheduler's
         first message: something that accepts the connection and stays silent
-        (not a scheduler, or a hung one) would be waited on for ever.  The
-        attempt runs on a thread of its own, abandoned when the time is up.
+        (not a scheduler, or a hung one) would be waited on for ever.  A TCP
+        address is first probed (:func:`_speaks_first`), so that a client is
+        made only where a scheduler answers; the attempt then runs on a thread
+        of its own, abandoned when the time is up.
         """
+        deadline = time.monotonic() + self.connect_timeout
+        if not _speaks_first(self.address, deadline):
+            raise self._silent()
         box: dict[str, Any] = {}
 
         def attempt() -> None:
@@ -207,18 +213,21 @@ class DaskExecutor:
 
         thread = threading.Thread(target=attempt, name="dask-connect", daemon=True)
         thread.start()
-        thread.join(self.connect_timeout + 0.5)
+        thread.join(max(deadline - time.monotonic(), 0.0) + 0.5)
         error = box.get("error")
         if isinstance(error, ValueError):
             raise ConfigError(f"executor.address {self.address}: not a Dask address ({error}).") from None
         if thread.is_alive() or isinstance(error, (OSError, TimeoutError)):
-            raise EnvironmentFailure(
-                f"executor.address {self.address}: no Dask scheduler answered within {self.connect_timeout:g} s; "
-                "start it (`dask scheduler`) or correct the address."
-            ) from None
+            raise self._silent()
         if error is not None:
             raise error
         return box["client"]
+
+    def _silent(self) -> EnvironmentFailure:
+        return EnvironmentFailure(
+            f"executor.address {self.address}: no Dask scheduler answered within {self.connect_timeout:g} s; "
+            "start it (`dask scheduler`) or correct the address."
+        )
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         if not tasks:
@@ -243,6 +252,38 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+def _speaks_first(address: str, deadline: float) -> bool:
+    """Whether the server at a TCP *address* sends its first bytes before *deadline* (``time.monotonic``).
+
+    A Dask scheduler greets every connection (its handshake); a closed port,
+    a name that does not resolve, or a listener that stays silent does not.
+    Connecting is retried until the deadline (a scheduler may be starting).
+    Addresses of other schemes (tls, ucx, ws) are not probed: True.  An
+    address Dask cannot read is a ``ConfigError``.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme != "tcp":
+            return True
+        host, port = parse_host_port(location)
+    except ValueError as exc:
+        raise ConfigError(f"executor.address {address}: not a Dask address ({exc}).") from None
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            with socket.create_connection((host, port), timeout=left) as sock:
+                sock.settimeout(max(deadline - time.monotonic(), 0.01))
+                if sock.recv(1):
+                    return True
+        except OSError:  # refused, unreachable, not resolved, or silent until the deadline
+            pass
+        time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
+    return False
 
 
 def thread_map(fn: Callable[[Any], Any], items: Sequence[Any], threads: int) -> list[Any]:

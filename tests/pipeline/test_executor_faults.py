@@ -80,6 +80,14 @@ def test_a_closed_port_is_the_same_sentence():
     ex.close()
 
 
+def test_an_address_dask_cannot_read_is_a_configuration_error():
+    from pipeline.errors import ConfigError
+
+    for address, words in [("foo://host:1", "unknown address scheme 'foo'"), ("host", "missing port number")]:
+        with pytest.raises(ConfigError, match=f"executor.address {address}: not a Dask address .*{words}"):
+            DaskExecutor(address, 1, connect_timeout=1).map(square, [{"i": 1}])
+
+
 def test_the_connect_timeout_is_a_config_key(toy, capsys):
     code = main(["validate", str(toy.path), "--set", "executor.connect_timeout_s=0"])
     assert code == 2 and "executor.connect_timeout_s" in capsys.readouterr().err

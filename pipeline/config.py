@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import stat
 import types
 import typing
 from pathlib import Path
@@ -29,7 +30,9 @@ from pydantic import (
     ValidationInfo,
 )
 
+from pipeline.cache import file_kind
 from pipeline.errors import ConfigError
+from pipeline.executor import usable_cores
 
 Location = tuple[str | int, ...]
 
@@ -49,8 +52,14 @@ def _resolve_path(value: Path, info: ValidationInfo) -> Path:
 
 
 def _must_be_file(value: Path) -> Path:
-    if not value.is_file():
-        raise ValueError(f"file not found: {value}")
+    try:
+        mode = value.stat().st_mode
+    except FileNotFoundError:
+        raise ValueError(f"file not found: {value}") from None
+    except OSError as exc:
+        raise ValueError(f"cannot read {value} ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{value} is {file_kind(mode)}, not a regular file")
     return value
 
 
@@ -67,15 +76,24 @@ class ExecutorConfig(StrictModel):
         "local", description="local: worker processes on this machine; dask: a Dask distributed cluster"
     )
     workers: int = Field(
-        default_factory=lambda: os.cpu_count() or 1,
+        default_factory=lambda: usable_cores(),
         ge=1,
         description="tiles processed at a time (local processes, or the workers of a local Dask cluster); "
-        "default: the number of CPUs",
+        "never more processes than the CPU cores this run may use (os.sched_getaffinity) nor than there are "
+        "tasks: a larger number is lowered, and the log says so; default: the usable CPU cores",
     )
     address: str | None = Field(
         None,
         description="Dask scheduler address, e.g. tcp://host:8786 (workers must see the cache folder at the same "
         "path); none = a local Dask cluster of `workers` processes",
+    )
+    connect_timeout_s: float = Field(
+        10.0,
+        gt=0,
+        le=3600,
+        allow_inf_nan=False,
+        description="seconds to wait for the Dask scheduler at `address` to answer; then the run stops "
+        "(exit 4) instead of waiting for ever; default 10",
     )
 
 
@@ -129,26 +147,18 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
     """Read a YAML file safely: the document and the 1-based line of every key and list item.
 
     Lines are keyed by location (a tuple of keys and indices).  Refused in one
-    sentence (``ConfigError``): an unreadable or invalid file, a repeated
-    key, more than :data:`MAX_CONFIG_BYTES`, nesting deeper than
-    :data:`MAX_DEPTH`, an alias that refers to itself, or aliases expanding
-    to more than :data:`MAX_VALUES` values (a "billion laughs" file is
-    refused after a few hundred bytes, not expanded).
+    sentence (``ConfigError``): a path that is not a regular file (a FIFO, a
+    folder, a device), an unreadable or invalid file, a repeated key, more
+    than :data:`MAX_CONFIG_BYTES`, nesting deeper than :data:`MAX_DEPTH`, an
+    alias that refers to itself, or aliases expanding to more than
+    :data:`MAX_VALUES` values (a "billion laughs" file is refused after a
+    few hundred bytes, not expanded).
     """
-    text = _read_config_text(Path(path))
-    loader = None
+    path = Path(path)
+    text = _read_config_text(path)
     try:
-        loader = yaml.SafeLoader(text)  # the reader checks every character here
-        try:
-            node = loader.get_single_node()
-        except RecursionError:
-            line = loader.get_mark().line + 1
-            raise ConfigError(
-                f"{path}, line {line}: the configuration nests mappings or lists more than {MAX_DEPTH} levels deep."
-            ) from None
-        if node is not None:
-            _check_graph(node, path)
-        data = loader.construct_document(node) if node is not None else {}
+        data, node = _compose(text, path)
+        data = {} if node is None else data
     except yaml.reader.ReaderError as exc:
         line = text.count("\n", 0, max(exc.position, 0)) + 1
         raise ConfigError(
@@ -160,24 +170,65 @@ def load_yaml(path: Path) -> tuple[Any, dict[Location, int]]:
         raise ConfigError(f"{path}{where}: not valid YAML ({exc.problem or exc.context}).") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc}).") from None
-    finally:
-        if loader is not None:
-            loader.dispose()
     lines: dict[Location, int] = {}
     if node is not None:
         _record_lines(node, (), lines, path)
     return data, lines
 
 
-def _read_config_text(path: Path) -> str:
-    """The text of a configuration file, read up to :data:`MAX_CONFIG_BYTES` (``/dev/zero`` is refused)."""
+def _compose(text: str, source: Path | str, depth: int = 1) -> tuple[Any, yaml.Node | None]:
+    """The document of *text* and its node tree, its size and nesting checked before it is built.
+
+    *source* is the file (messages name its line) or an override's label;
+    *depth* is the level the document sits at (1: the top of a
+    configuration).  Limits break in one sentence (``ConfigError``); YAML
+    syntax errors propagate as ``yaml.YAMLError``.
+    """
+    loader = yaml.SafeLoader(text)  # the reader checks every character here
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CONFIG_BYTES + 1)
+        try:
+            node = loader.get_single_node()
+        except RecursionError:
+            raise ConfigError(
+                f"{_at(source, loader.get_mark().line + 1)}: the configuration nests mappings or lists more than "
+                f"{MAX_DEPTH} levels deep."
+            ) from None
+        if node is None:
+            return None, None
+        _check_graph(node, source, depth)
+        return loader.construct_document(node), node
+    finally:
+        loader.dispose()
+
+
+def _at(source: Path | str, line: int) -> str:
+    """Where a problem is: the file and line, or the override (a one-line value)."""
+    return f"{source}, line {line}" if isinstance(source, Path) else str(source)
+
+
+def _read_config_text(path: Path) -> str:
+    """The text of a configuration file, read up to :data:`MAX_CONFIG_BYTES`.
+
+    Only a regular file is read: a FIFO (which blocks until someone writes
+    to it), a folder or a device (``/dev/zero`` never ends) is refused at
+    once, without waiting on it.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))  # a FIFO does not block
     except FileNotFoundError:
         raise ConfigError(f"{path}: configuration file not found.") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the configuration file ({exc.strerror or exc}).") from None
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = file_kind(mode) + (", which would block until something writes to it" if stat.S_ISFIFO(mode) else "")
+        raise ConfigError(f"{path}: not a configuration file but {kind}; give the path of a YAML file.")
+    with open(fd, "rb") as fh:
+        try:
+            raw = fh.read(MAX_CONFIG_BYTES + 1)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the configuration file ({exc.strerror or exc}).") from None
     if len(raw) > MAX_CONFIG_BYTES:
         raise ConfigError(
             f"{path}: not a configuration file (more than {MAX_CONFIG_BYTES // 1024} KiB); "
@@ -190,16 +241,17 @@ def _read_config_text(path: Path) -> str:
         raise ConfigError(f"{path}, line {line}: not UTF-8 text (byte {exc.start}).") from None
 
 
-def _check_graph(root: yaml.Node, path: Path) -> None:
+def _check_graph(root: yaml.Node, source: Path | str, depth: int = 1) -> None:
     """Refuse recursive aliases, deep nesting and alias expansion beyond :data:`MAX_VALUES`.
 
     Each distinct node is visited once (an alias is the same node object
     again), so the check costs the size of the file, not of its expansion.
+    *depth* is the level of *root* (an override's value sits below its keys).
     """
     sizes: dict[int, int] = {}  # id(node) -> values it expands to
     open_nodes: set[int] = set()  # on the current path: meeting one again is a recursion
     # An explicit stack of (node, depth, children-done?) instead of recursion.
-    stack: list[tuple[yaml.Node, int, bool]] = [(root, 1, False)]
+    stack: list[tuple[yaml.Node, int, bool]] = [(root, depth, False)]
     while stack:
         node, depth, done = stack.pop()
         children = _children(node)
@@ -209,7 +261,7 @@ def _check_graph(root: yaml.Node, path: Path) -> None:
             sizes[id(node)] = total
             if total > MAX_VALUES:
                 raise ConfigError(
-                    f"{path}, line {node.start_mark.line + 1}: the aliases here expand to more than "
+                    f"{_at(source, node.start_mark.line + 1)}: the aliases here expand to more than "
                     f"{MAX_VALUES:,} values; a configuration this large is refused (write the values out)."
                 )
             continue
@@ -217,7 +269,7 @@ def _check_graph(root: yaml.Node, path: Path) -> None:
             continue
         if depth > MAX_DEPTH:
             raise ConfigError(
-                f"{path}, line {node.start_mark.line + 1}: the configuration nests mappings or lists more than "
+                f"{_at(source, node.start_mark.line + 1)}: the configuration nests mappings or lists more than "
                 f"{MAX_DEPTH} levels deep."
             )
         open_nodes.add(id(node))
@@ -225,7 +277,7 @@ def _check_graph(root: yaml.Node, path: Path) -> None:
         for child in children:
             if id(child) in open_nodes:
                 raise ConfigError(
-                    f"{path}, line {child.start_mark.line + 1}: an alias refers to a value that contains it "
+                    f"{_at(source, child.start_mark.line + 1)}: an alias refers to a value that contains it "
                     "(a recursive alias); a configuration must be a finite tree."
                 )
             if id(child) not in sizes:
@@ -260,16 +312,37 @@ def _record_lines(node: yaml.Node, loc: Location, lines: dict[Location, int], pa
 # --set overrides
 
 
+#: Longest part of an override echoed in a message.
+MAX_SHOWN = 80
+
+
+def override_label(text: str) -> str:
+    """``--set key=value`` as messages name it, a long value cut short."""
+    return f"--set {text if len(text) <= MAX_SHOWN else text[: MAX_SHOWN - 1] + '…'}"
+
+
 def parse_override(text: str) -> tuple[tuple[str, ...], Any]:
-    """Split ``dotted.key=value``; the value is read as a YAML scalar or list."""
+    """Split ``dotted.key=value``; the value is read as a YAML scalar or list.
+
+    The key and the value together nest at most :data:`MAX_DEPTH` levels,
+    as in a file, and the value's aliases expand to at most
+    :data:`MAX_VALUES` values; text that is not YAML is kept as a string.
+    """
+    label = override_label(text)
     if "=" not in text:
-        raise ConfigError(f"--set {text}: expected dotted.key=value.")
+        raise ConfigError(f"{label}: expected dotted.key=value.")
     key, _, raw = text.partition("=")
     parts = tuple(p for p in key.strip().split("."))
     if not key.strip() or any(not p for p in parts):
-        raise ConfigError(f"--set {text}: the key must be dotted names like stages.rasterize.resolution.")
+        raise ConfigError(f"{label}: the key must be dotted names like stages.rasterize.resolution.")
+    if len(parts) >= MAX_DEPTH:
+        raise ConfigError(
+            f"{label}: the key nests {len(parts)} levels deep; a configuration nests at most {MAX_DEPTH}."
+        )
+    if not raw.strip():
+        return parts, None
     try:
-        value = yaml.safe_load(raw) if raw.strip() else None
+        value, _ = _compose(raw, label, depth=len(parts) + 1)
     except yaml.YAMLError:
         value = raw
     return parts, value
@@ -280,19 +353,20 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict[Location, str]:
     sources: dict[Location, str] = {}
     for text in overrides:
         parts, value = parse_override(text)
+        label = override_label(text)
         node = data
         for i, part in enumerate(parts[:-1]):
             child = node.get(part)
             if child is None:
                 child = node[part] = {}
                 # A mapping this override created: an error in it is the override's.
-                sources.setdefault(parts[: i + 1], f"--set {text}")
+                sources.setdefault(parts[: i + 1], label)
             elif not isinstance(child, dict):
                 where = ".".join(parts[: i + 1])
-                raise ConfigError(f"--set {text}: '{where}' is not a mapping, so it has no key '{parts[i + 1]}'.")
+                raise ConfigError(f"{label}: '{where}' is not a mapping, so it has no key '{parts[i + 1]}'.")
             node = child
         node[parts[-1]] = value
-        sources[parts] = f"--set {text}"
+        sources[parts] = label
     return sources
 
 

@@ -19,36 +19,92 @@ import logging
 import multiprocessing
 import os
 import signal
+import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from importlib import import_module
 from typing import Any
 
-from pipeline.errors import ConfigError
+from pipeline import interrupt
+from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
+from pipeline.log import LOGGER_NAME
+
+
+class WorkerLost(EnvironmentFailure):
+    """A worker process died under a task (exit code 4): killed, or out of memory.
+
+    The runner sets :attr:`stage`, which the sentence then names first.
+    """
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+        self.stage: str | None = None
+
+    def __str__(self) -> str:
+        return f"stage '{self.stage}': {self.message}" if self.stage else self.message
+
+
+#: What a worker's death is put down to, for the signals that usually cause it.
+_CAUSES = {signal.SIGKILL: " — often the system's out-of-memory killer"}
+
+#: Said after a worker's death: nothing is lost by running again.
+_RESUME = "run again to resume: complete stages are reused."
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask, which a batch system sets)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+def capped_workers(asked: int, log: Any = None) -> int:
+    """*asked* worker processes, at most :func:`usable_cores`; a lowered number is logged once."""
+    cores = usable_cores()
+    if asked <= cores:
+        return max(1, asked)
+    if log is not None:
+        log.info("executor.workers: %d asked, %d cores usable: using %d", asked, cores, cores)
+    return cores
 
 
 class LocalExecutor:
-    """Worker processes on this machine (started once per run, on first use)."""
+    """Worker processes on this machine (started once per run, on first use).
+
+    At most :func:`usable_cores` of them, and never more than there are
+    tasks to run.
+    """
 
     def __init__(self, workers: int = 1):
-        self.workers = max(1, int(workers))
+        self.workers = max(1, min(int(workers), usable_cores()))
         self._pool: ProcessPoolExecutor | None = None
 
     def describe(self) -> str:
         return f"local, {self.workers} worker{'s' if self.workers > 1 else ''}"
 
-    def prepare(self, fn: Callable[[Any], Any]) -> None:
-        """Start the workers and import *fn*'s module in each, while this process does other work."""
-        if self.workers == 1:
+    def prepare(self, fn: Callable[[Any], Any], tasks: int | None = None) -> None:
+        """Start the workers and import *fn*'s module in each, while this process does other work.
+
+        *tasks*, when known, bounds the number of workers started.
+        """
+        count = min(self.workers, tasks if tasks is not None else self.workers)
+        if count <= 1:
             return
+        _start_resource_tracker()
         with sigint_held():  # the workers start here and inherit the blocked mask
             if self._pool is None:
-                self._pool = _pool(self.workers)
-            for _ in range(self.workers):
-                self._pool.submit(import_module, fn.__module__)
+                self._pool = _pool(count)
+            try:
+                for _ in range(count):
+                    self._pool.submit(import_module, fn.__module__)
+            except BrokenProcessPool:
+                pass  # a worker died already: map() says so
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task."""
@@ -58,11 +114,17 @@ class LocalExecutor:
                 results.append(fn(t))
                 _done(log, i + 1, len(tasks), what)
             return results
-        with sigint_held():  # workers may start here and inherit the blocked mask
-            if self._pool is None:
-                self._pool = _pool(self.workers)
-            futures = [self._pool.submit(fn, t) for t in tasks]
-        return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
+        try:
+            _start_resource_tracker()
+            with sigint_held():  # workers may start here and inherit the blocked mask
+                if self._pool is None:
+                    self._pool = _pool(min(self.workers, len(tasks)))
+                futures = [self._pool.submit(fn, t) for t in tasks]
+            return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
+        except BrokenProcessPool:
+            if interrupt.received() is not None:  # the run is stopping: its signal, not the worker, says why
+                raise interrupt.Interrupted(interrupt.received()) from None
+            raise WorkerLost(f"a worker process died ({_death(self._pool)}); {_RESUME}") from None
 
     def close(self, abort: bool = False) -> None:
         """Stop the workers: after their tasks, or at once (``abort``: a failed or interrupted run).
@@ -90,19 +152,18 @@ class LocalExecutor:
 class DaskExecutor:
     """A Dask distributed cluster: the one at ``address``, or a local one started on first use."""
 
-    #: How long to try reaching a scheduler before giving up.
-    CONNECT_TIMEOUT = "20s"
-
-    def __init__(self, address: str | None = None, workers: int = 1):
+    def __init__(self, address: str | None = None, workers: int = 1, connect_timeout: float = 10.0):
         self.address = address
         self.workers = max(1, int(workers))
+        #: Seconds to wait for the scheduler at ``address`` to answer.
+        self.connect_timeout = float(connect_timeout)
         self._client = None
         self._cluster = None
 
     def describe(self) -> str:
         return f"dask {self.address}" if self.address else f"dask local cluster, {self.workers} workers"
 
-    def prepare(self, fn: Callable[[Any], Any]) -> None:
+    def prepare(self, fn: Callable[[Any], Any], tasks: int | None = None) -> None:
         """Nothing to do ahead: a Dask cluster is connected to on first use."""
 
     def _connect(self):
@@ -116,24 +177,57 @@ class DaskExecutor:
             ) from None
         for name in ("distributed", "bokeh", "tornado"):
             logging.getLogger(name).setLevel(logging.ERROR)
-        try:
-            if self.address:
-                self._client = Client(self.address, timeout=self.CONNECT_TIMEOUT)
-            else:
-                self._cluster = LocalCluster(
-                    n_workers=self.workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                )
-                self._client = Client(self._cluster)
-        except (OSError, TimeoutError) as exc:
-            raise ConfigError(
-                f"executor.address: cannot reach the Dask scheduler at {self.address} within "
-                f"{self.CONNECT_TIMEOUT} ({type(exc).__name__})."
-            ) from None
+        if self.address:
+            self._client = self._reach(lambda: Client(self.address, timeout=self.connect_timeout))
+        else:
+            self._cluster = LocalCluster(
+                n_workers=self.workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
+            self._client = Client(self._cluster)
         return self._client
+
+    def _reach(self, connect: Callable[[], Any]) -> Any:
+        """``connect()``, given :attr:`connect_timeout` seconds to succeed, else ``EnvironmentFailure``.
+
+        The client's own timeout covers the connection but not the scheduler's
+        first message: something that accepts the connection and stays silent
+        (not a scheduler, or a hung one) would be waited on for ever.  A TCP
+        address is first probed (:func:`_speaks_first`), so that a client is
+        made only where a scheduler answers; the attempt then runs on a thread
+        of its own, abandoned when the time is up.
+        """
+        deadline = time.monotonic() + self.connect_timeout
+        if not _speaks_first(self.address, deadline):
+            raise self._silent()
+        box: dict[str, Any] = {}
+
+        def attempt() -> None:
+            try:
+                box["client"] = connect()
+            except Exception as exc:  # handed to the waiting thread
+                box["error"] = exc
+
+        thread = threading.Thread(target=attempt, name="dask-connect", daemon=True)
+        thread.start()
+        thread.join(max(deadline - time.monotonic(), 0.0) + 0.5)
+        error = box.get("error")
+        if isinstance(error, ValueError):
+            raise ConfigError(f"executor.address {self.address}: not a Dask address ({error}).") from None
+        if thread.is_alive() or isinstance(error, (OSError, TimeoutError)):
+            raise self._silent()
+        if error is not None:
+            raise error
+        return box["client"]
+
+    def _silent(self) -> EnvironmentFailure:
+        return EnvironmentFailure(
+            f"executor.address {self.address}: no Dask scheduler answered within {self.connect_timeout:g} s; "
+            "start it (`dask scheduler`) or correct the address."
+        )
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
         if not tasks:
@@ -142,7 +236,13 @@ class DaskExecutor:
 
         client = self._connect()
         futures = client.map(fn, list(tasks), pure=False)
-        return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+        try:
+            return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+        except distributed.KilledWorker:
+            raise WorkerLost(
+                "a Dask worker died running a task, on every worker that tried it (often the out-of-memory "
+                f"killer); {_RESUME}"
+            ) from None
 
     def close(self, abort: bool = False) -> None:
         """Disconnect (and stop a local cluster); ``abort`` is the same here: the scheduler cancels the tasks."""
@@ -152,6 +252,38 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+def _speaks_first(address: str, deadline: float) -> bool:
+    """Whether the server at a TCP *address* sends its first bytes before *deadline* (``time.monotonic``).
+
+    A Dask scheduler greets every connection (its handshake); a closed port,
+    a name that does not resolve, or a listener that stays silent does not.
+    Connecting is retried until the deadline (a scheduler may be starting).
+    Addresses of other schemes (tls, ucx, ws) are not probed: True.  An
+    address Dask cannot read is a ``ConfigError``.
+    """
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme != "tcp":
+            return True
+        host, port = parse_host_port(location)
+    except ValueError as exc:
+        raise ConfigError(f"executor.address {address}: not a Dask address ({exc}).") from None
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            with socket.create_connection((host, port), timeout=left) as sock:
+                sock.settimeout(max(deadline - time.monotonic(), 0.01))
+                if sock.recv(1):
+                    return True
+        except OSError:  # refused, unreachable, not resolved, or silent until the deadline
+            pass
+        time.sleep(min(0.2, max(deadline - time.monotonic(), 0.0)))
+    return False
 
 
 def thread_map(fn: Callable[[Any], Any], items: Sequence[Any], threads: int) -> list[Any]:
@@ -188,6 +320,42 @@ def release_freed_memory() -> None:
     except (OSError, AttributeError):  # pragma: no cover - not glibc
         return
     trim(0)
+
+
+def _death(pool: ProcessPoolExecutor | None) -> str:
+    """How a worker of *pool* died: the signal that killed it, or its exit status."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for _ in range(50):  # the pool's own thread may be reaping the dead worker at this moment
+        codes = [p.exitcode for p in processes if p.exitcode not in (None, 0)]
+        if codes:
+            return _exit_in_words(codes[0])
+        time.sleep(0.01)
+    return "its exit status is not known"
+
+
+def _exit_in_words(code: int) -> str:
+    """A process's exit code (negative: the signal that ended it) in words."""
+    if code >= 0:
+        return f"exited with status {code}"
+    try:
+        sig = signal.Signals(-code)
+    except ValueError:
+        return f"killed by signal {-code}"
+    return f"killed by signal {-code}, {sig.name}{_CAUSES.get(sig, '')}"
+
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker now, before SIGINT is held for the workers' start.
+
+    Started on the first worker's launch, it unblocks SIGINT in the thread
+    that launches it when done (its own way of starting with the signal
+    held): inside :func:`~pipeline.interrupt.sigint_held`, every worker
+    launched after it then started with SIGINT open, and a Ctrl-C landing
+    before its initializer ignored the signal printed a traceback.
+    """
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
 
 
 def _pool(workers: int) -> ProcessPoolExecutor:
@@ -239,10 +407,16 @@ def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any], as_c
 
 
 def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
-    """The executor the configuration's ``executor`` block names."""
+    """The executor the configuration's ``executor`` block names.
+
+    Processes on this machine are at most its usable cores
+    (:func:`capped_workers`); a remote cluster's workers are its own.
+    """
     ex = getattr(config, "executor", None)
     if ex is None:
         return LocalExecutor(1)
+    log = logging.getLogger(LOGGER_NAME)
     if ex.kind == "dask":
-        return DaskExecutor(ex.address, ex.workers)
-    return LocalExecutor(ex.workers)
+        workers = ex.workers if ex.address else capped_workers(ex.workers, log)
+        return DaskExecutor(ex.address, workers, getattr(ex, "connect_timeout_s", 10.0))
+    return LocalExecutor(capped_workers(ex.workers, log))

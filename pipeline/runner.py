@@ -47,7 +47,7 @@ from pipeline.cache import (
     path_size,
 )
 from pipeline.errors import ConfigError, EnvironmentFailure, InputDataError, PipelineError, PlanError
-from pipeline.executor import LocalExecutor, make_executor
+from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
@@ -844,7 +844,7 @@ def _execute(
             inputs=inputs,
             outputs={a: workspace / f for a, f in step.io.outputs.items()},
             workdir=workspace,
-            workers=getattr(getattr(config, "executor", None), "workers", 1),
+            workers=capped_workers(getattr(getattr(config, "executor", None), "workers", 1)),
             log=slog,
             executor=executor if executor is not None else LocalExecutor(1),
             upstream_metrics=upstream or {},
@@ -865,7 +865,9 @@ def _execute(
             "seconds": seconds,
         }
         entry = cache.commit(step.name, key, workspace, meta, replace=replace)
-    except BaseException:
+    except BaseException as exc:
+        if isinstance(exc, WorkerLost):
+            exc.stage = step.name  # the sentence names the stage
         if executor is not None:  # its workers may still be writing tile parts into the workspace: stop them first
             executor.close(abort=True)
         Cache.discard(workspace)

@@ -222,7 +222,7 @@ def run_tiled(
         "executor": ctx.executor.describe(),
     }
     if len(layout) > 1:
-        ctx.executor.prepare(task)  # workers start while the tasks are being made
+        ctx.executor.prepare(task, len(layout))  # workers start while the tasks are being made
     tasks = split(layout)
     ctx.metrics["tiling"]["tasks"] = len(tasks)
     if len(layout) > 1:

@@ -178,10 +178,15 @@ def test_deep_nesting_and_recursive_aliases_are_one_sentence(toy, capsys, text, 
 
 
 def test_an_endless_file_is_not_read_forever(toy, capsys):
-    code = main(["validate", "/dev/zero"])
+    code = main(["validate", "/dev/zero"])  # a device: refused before reading (issue 38)
     err = capsys.readouterr().err
     assert code == 2
-    assert "/dev/zero: not a configuration file (more than 1024 KiB)" in err
+    assert "/dev/zero: not a configuration file but a character device" in err
+    with open(toy.root / "huge.yaml", "wb") as fh:  # a regular file too large: refused by its size
+        fh.truncate(8 << 20)
+    code = main(["validate", str(toy.root / "huge.yaml")])
+    assert code == 2
+    assert "huge.yaml: not a configuration file (more than 1024 KiB)" in capsys.readouterr().err
 
 
 def test_set_into_an_unknown_block_is_blamed_on_the_override(toy, capsys):

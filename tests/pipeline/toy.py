@@ -124,3 +124,38 @@ plugin = Plugin(
     stages=[Load, Scale, Total, Histogram, Summary],
     global_fields={"unit": (Unit, Field(default_factory=Unit))},
 )
+
+
+def square_or_die(task: dict) -> float:
+    """A worker task: the square of ``task["value"]``; a task with ``die`` kills its own process (SIGKILL)."""
+    if task.get("die"):
+        import os
+        import signal
+
+        os.kill(os.getpid(), signal.SIGKILL)
+    return task["value"] ** 2
+
+
+class SpreadParams(StageParams):
+    die: bool = Field(False, description="the worker running the second task kills itself (SIGKILL)")
+
+
+class Spread(Stage):
+    """Squares the numbers in worker processes (``executor.map``), as a tiled stage does its tiles."""
+
+    name = "spread"
+    Params = SpreadParams
+    inputs = ("numbers",)
+    outputs: ClassVar = {"squares": "squares.json"}
+    products: ClassVar = {"squares": "squares.json"}
+
+    def run(self, ctx):
+        values = json.loads(ctx.inputs["numbers"].read_text())
+        tasks = [{"value": v, "die": ctx.params.die and i == 1} for i, v in enumerate(values)]
+        ctx.outputs["squares"].write_text("partial")
+        squares = ctx.executor.map(square_or_die, tasks, log=ctx.log)
+        ctx.outputs["squares"].write_text(json.dumps(squares))
+
+
+#: load -> spread (product): work in worker processes.
+parallel_plugin = Plugin(name="toy-parallel", stages=[Load, Spread])

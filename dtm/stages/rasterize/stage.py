@@ -174,7 +174,8 @@ class _Tiles:
         )
         params = p.model_dump(mode="json")
         tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
-        check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
+        if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
+            check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
         return tasks
 
     def merge(self, layout: Layout, tasks: list[RasterTask], results: list[dict]) -> list[dict]:

@@ -146,16 +146,15 @@ TILE_BYTES_PER_CELL = 90
 MASK_BYTES_PER_CELL = 24
 
 
-def tile_memory(task: RasterTask, params: RasterizeParams) -> tuple[int, int, int]:
-    """Bytes one tile's task holds at its peak, and the rows and columns of its largest grid."""
+def tile_memory(task: RasterTask, params: RasterizeParams) -> tuple[int, int, int, int]:
+    """Bytes one tile's task holds at its peak: for its grid (core and buffer), for the TIN's nodata mask; the mask's rows, columns."""
     _, wide, _ = tile_windows(task.grid, task.window, task.buffer)
-    need = wide.rows * wide.cols * TILE_BYTES_PER_CELL
     rows, cols = wide.rows, wide.cols
-    if params.method == "tin":  # :func:`dtm.stages.rasterize.interpolate._far_from`'s margin
-        pad = 2 * (int(math.ceil(params.nodata_distance / params.resolution)) + 2)
-        rows, cols = rows + pad, cols + pad
-        need += rows * cols * MASK_BYTES_PER_CELL
-    return need, rows, cols
+    if params.method != "tin":
+        return wide.rows * wide.cols * TILE_BYTES_PER_CELL, 0, rows, cols
+    pad = 2 * (int(math.ceil(params.nodata_distance / params.resolution)) + 2)  # the margin of ``_far_from``
+    rows, cols = rows + pad, cols + pad
+    return wide.rows * wide.cols * TILE_BYTES_PER_CELL, rows * cols * MASK_BYTES_PER_CELL, rows, cols
 
 
 def check_tile_memory(
@@ -163,23 +162,31 @@ def check_tile_memory(
 ) -> None:
     """Refuse, before any tile is made, tiles the workers could not hold side by side (one sentence, exit 2).
 
-    *memory* (bytes) defaults to :func:`dtm.common.memory.free_memory`.
+    The key named is ``nodata_distance`` when the TIN's nodata mask takes
+    most of it, else ``resolution``.  *memory* (bytes) defaults to
+    :func:`dtm.common.memory.free_memory`.
     """
     from dtm.common.memory import free_memory, gigabytes
 
     if not tasks:
         return
     at_once = max(1, min(workers, len(tasks)))
-    largest, rows, cols = max(tile_memory(t, params) for t in tasks)
-    need = largest * at_once
+    grid, mask, rows, cols = max(tile_memory(t, params) for t in tasks)
+    need = (grid + mask) * at_once
     memory = free_memory() if memory is None else memory
     if need <= memory:
         return
+    tiles = f"about {gigabytes(need)} for {at_once} tile{'s' if at_once > 1 else ''} at a time"
+    if mask > grid:
+        raise ConfigError(
+            f"stages.rasterize.nodata_distance: {params.nodata_distance:g} m around each tile at {params.resolution:g} m "
+            f"cells make the TIN's nodata mask {cols:,} x {rows:,} cells, {tiles}, more than the {gigabytes(memory)} "
+            "of free memory; use a smaller nodata_distance or a coarser resolution."
+        )
     raise ConfigError(
         f"stages.rasterize.resolution: {params.resolution:g} m cells make grids of {cols:,} x {rows:,} cells per tile "
-        f"(its buffer and nodata_distance included), about {gigabytes(need)} for {at_once} tile"
-        f"{'s' if at_once > 1 else ''} at a time, more than the {gigabytes(memory)} of free memory; use a coarser "
-        "resolution, a smaller tiling.size, or fewer executor.workers."
+        f"(its buffer and nodata_distance included), {tiles}, more than the {gigabytes(memory)} of free memory; "
+        "use a coarser resolution, a smaller tiling.size, or fewer executor.workers."
     )
 
 

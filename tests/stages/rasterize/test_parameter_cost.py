@@ -71,14 +71,17 @@ def test_tiles_too_large_for_the_workers_are_refused_before_they_are_made():
 
     grid = Grid.covering(0.0, 0.0, 99.9, 99.9, 0.25)
     tasks = [RasterTask(i, (0, grid.rows, 0, grid.cols), 10, "", "", grid, {}, 0.0, 1.0, ()) for i in range(3)]
-    tin = RasterizeParams(resolution=0.25, nodata_distance=50.0)
-    need, rows, cols = tile_memory(tasks[0], tin)
-    assert (rows, cols) == (grid.rows + 404, grid.cols + 404) == (805, 804)
-    check_tile_memory(tasks, tin, workers=1, memory=need)
-    with pytest.raises(ConfigError, match=r"^stages.rasterize.resolution: 0.25 m cells make grids of 804 x 805 cells"):
-        check_tile_memory(tasks, tin, workers=2, memory=need)  # two tiles side by side
-    idw = RasterizeParams(resolution=0.25, nodata_distance=50.0, method="idw")
-    assert tile_memory(tasks[0], idw)[0] < need  # no nodata margin
+    tin = RasterizeParams(resolution=0.25, nodata_distance=5.0)
+    cells, mask, rows, cols = tile_memory(tasks[0], tin)
+    assert (rows, cols) == (grid.rows + 44, grid.cols + 44) == (445, 444) and mask < cells
+    check_tile_memory(tasks, tin, workers=1, memory=cells + mask)
+    with pytest.raises(ConfigError, match=r"^stages.rasterize.resolution: 0.25 m cells make grids of 444 x 445 cells"):
+        check_tile_memory(tasks, tin, workers=2, memory=cells + mask)  # two tiles side by side
+    idw = RasterizeParams(resolution=0.25, nodata_distance=5.0, method="idw")
+    assert tile_memory(tasks[0], idw)[1] == 0  # no nodata mask
+    far = RasterizeParams(resolution=0.25, nodata_distance=50.0)  # the mask reaches 50 m farther all round
+    with pytest.raises(ConfigError, match=r"^stages.rasterize.nodata_distance: 50 m around each tile at 0.25 m"):
+        check_tile_memory(tasks, far, workers=1, memory=cells + mask)
 
 
 def test_neighbors_beyond_the_cap_are_refused_by_name(tmp_path, capsys):

@@ -32,16 +32,49 @@ def _mem_available() -> int | None:
     return None
 
 
+#: Control group files: (mount, limit, usage, reclaimable cache in memory.stat), for cgroup v2 and v1.
+CGROUP_FILES = {
+    "v2": ("/sys/fs/cgroup", "memory.max", "memory.current", "inactive_file"),
+    "v1": ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file"),
+}
+
+
 def _cgroup_room() -> int | None:
-    """What the control group (v2) of this process still allows, in bytes (None: no limit)."""
+    """What the control group of this process still allows, in bytes (None: no limit found).
+
+    Its page cache not in active use is reclaimable, so it counts as room.
+    The group's own folder is tried, then the mount's root (inside a
+    container the group is often mounted there).
+    """
     try:
-        rel = Path("/proc/self/cgroup").read_text().strip().splitlines()[0].split(":", 2)[2]
-        folder = Path("/sys/fs/cgroup") / rel.lstrip("/")
-        limit = (folder / "memory.max").read_text().strip()
-        if limit == "max":
+        lines = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return None
+    rooms = []
+    for line in lines:
+        _, controllers, rel = (line.split(":", 2) + ["", ""])[:3]
+        version = "v2" if controllers == "" else "v1" if "memory" in controllers.split(",") else None
+        if version is None:
+            continue
+        mount, limit, usage, cache = CGROUP_FILES[version]
+        for folder in (Path(mount) / rel.lstrip("/"), Path(mount)):
+            room = _room(folder, limit, usage, cache)
+            if room is not None:
+                rooms.append(room)
+                break
+    return min(rooms) if rooms else None
+
+
+def _room(folder: Path, limit: str, usage: str, cache: str) -> int | None:
+    """Limit minus usage plus reclaimable cache of one control group folder (None: no limit, or not there)."""
+    try:
+        most = (folder / limit).read_text().strip()
+        if most == "max" or int(most) >= 1 << 60:
             return None
-        return int(limit) - int((folder / "memory.current").read_text().strip())
-    except (OSError, ValueError, IndexError):
+        used = int((folder / usage).read_text().strip())
+        stat = dict(line.split() for line in (folder / "memory.stat").read_text().splitlines() if line.count(" ") == 1)
+        return int(most) - used + int(stat.get(cache, 0))
+    except (OSError, ValueError):
         return None
 
 

@@ -147,7 +147,13 @@ MASK_BYTES_PER_CELL = 24
 
 
 def tile_memory(task: RasterTask, params: RasterizeParams) -> tuple[int, int, int, int]:
-    """Bytes one tile's task holds at its peak: for its grid (core and buffer), for the TIN's nodata mask; the mask's rows, columns."""
+    """Bytes a tile's task holds at its peak for its grid (core and buffer) and the TIN's nodata mask; the mask's size.
+
+    Returns
+    -------
+    grid_bytes, mask_bytes, rows, cols : int
+        The mask's rows and columns are the grid's when there is no mask (not the TIN).
+    """
     _, wide, _ = tile_windows(task.grid, task.window, task.buffer)
     rows, cols = wide.rows, wide.cols
     if params.method != "tin":

@@ -2,7 +2,7 @@
 
 :class:`Grid` anchors every cell at whole multiples of its resolution, so a
 window (a tile) has the values of the same cells of the whole grid;
-:func:`check_grid_size` refuses a DTM grid the machine cannot hold.
+:func:`check_grid_size` refuses a DTM grid the run could not hold.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.errors import InputDataError
+from pipeline.errors import ConfigError
 
 if TYPE_CHECKING:
     from affine import Affine
@@ -143,39 +143,54 @@ def cell_max(points: np.ndarray, grid: Grid, nodata: float = np.nan) -> np.ndarr
     return out.reshape(grid.rows, grid.cols)
 
 
-#: Bytes per DTM cell that the whole run may hold at once: the raster products
-#: (hillshade, contours, accuracy, report) read the DTM whole, as float64 with
-#: a few temporaries of its size.
-BYTES_PER_CELL = 48
+#: Bytes per cell of the survey's grid that a run holds at once, at most: the
+#: raster products (hillshade, contours, accuracy, report) read the DTM whole,
+#: as float64 with temporaries of its size (the report's peak, measured:
+#: 118 bytes a cell on a grid of 22.7 million cells).
+BYTES_PER_CELL = 120
 
 
 def check_grid_size(
     grid: Grid,
     box: tuple[float, float, float, float],
-    units: Units,
+    units: Units | None = None,
     memory: int | None = None,
     source: str = "the points",
 ) -> None:
-    """Refuse a grid the machine cannot hold, before anything is allocated (one sentence, exit 3).
+    """Refuse, before anything is allocated, a grid the run could not hold (one sentence, exit 2).
 
-    *memory* (bytes) defaults to the memory available now; *source* names the input in the message.
+    *box*: the usable points' extent in metres (stray points left out, so the
+    grid's size follows the configuration); *units*: the CRS's (the message
+    speaks metres, as ``stages.rasterize.resolution`` does); *memory* (bytes)
+    defaults to :func:`dtm.common.memory.free_memory`; *source* names the
+    input in the message.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``stages.rasterize.resolution``, the cells, the need and the
+        resolution that would fit.
     """
-    if memory is None:
-        import psutil
+    from dtm.common.memory import free_memory, gigabytes
 
-        memory = int(psutil.virtual_memory().available)
+    memory = free_memory() if memory is None else memory
     cells = grid.cols * grid.rows
     need = cells * BYTES_PER_CELL
     if need <= memory:
         return
-    width, height = (box[2] - box[0]) / units.horizontal, (box[3] - box[1]) / units.horizontal
-    suggest = grid.resolution * math.ceil(math.sqrt(need / memory) * 2)
-    raise InputDataError(
-        f"{source}: the DTM would have {grid.cols:,} x {grid.rows:,} cells of {grid.resolution:g} m over the points' "
-        f"{width:,.0f} x {height:,.0f} {units.horizontal_name} extent, about {need / 2**30:,.1f} GB for its products, "
-        f"more than the {memory / 2**30:,.1f} GB this machine has free: raise stages.rasterize.resolution "
-        f"(for example to {suggest:g}) or split the survey."
+    width, height = box[2] - box[0], box[3] - box[1]
+    fits = grid.resolution * math.sqrt(need / max(memory, 1)) * 1.05
+    raise ConfigError(
+        f"stages.rasterize.resolution: {grid.resolution:g} m cells over this {width:,.0f} x {height:,.0f} m survey "
+        f"({source}) make {cells:,} cells (about {gigabytes(need)} for the products), more than the "
+        f"{gigabytes(memory)} of free memory; use a coarser resolution (at least {round_up(fits):g} m here)."
     )
+
+
+def round_up(value: float) -> float:
+    """*value* rounded up to two significant digits: 0.0417 -> 0.042."""
+    scale = 10.0 ** (math.floor(math.log10(value)) - 1)
+    return math.ceil(value / scale) * scale
 
 
 def fill_nearest(grid: np.ndarray, max_cells: float | None = None) -> np.ndarray:

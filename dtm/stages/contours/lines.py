@@ -10,6 +10,13 @@ if TYPE_CHECKING:
     from affine import Affine
 
 
+def levels_between(lo: float, hi: float, interval: float) -> int:
+    """How many whole multiples of *interval* lie in [*lo*, *hi*]: the levels :func:`contour_lines` draws."""
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi < lo:
+        return 0
+    return max(0, int(np.floor(hi / interval + 1e-9) - np.ceil(lo / interval)) + 1)
+
+
 def contour_lines(
     dem: np.ndarray, transform: Affine, *, interval: float, nodata_mask: np.ndarray | None = None
 ) -> list[tuple[float, np.ndarray]]:
@@ -41,7 +48,7 @@ def contour_lines(
     )
     lo, hi = np.nanmin(z[~mask]), np.nanmax(z[~mask])
     lines = []
-    for level in np.arange(np.ceil(lo / interval) * interval, hi + interval * 1e-9, interval):
+    for level in np.arange(np.ceil(lo / interval) * interval, hi + interval * 1e-9, interval):  # levels_between's
         for line in gen.lines(float(level)):
             if len(line) >= 2:
                 lines.append((float(level), np.asarray(line)))

@@ -12,16 +12,26 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+import numpy as np
 from pydantic import Field
 
 from dtm.common.rasters import read_raster
 from dtm.common.units import raster_units
 from dtm.common.vectors import write_lines_gpkg
+from pipeline.errors import ConfigError
 from pipeline.stage import Stage, StageContext, StageParams
+
+#: Most contour levels one run draws, whatever the memory: each level is a pass over the DTM.
+MAX_LEVELS = 10_000
 
 
 class ContoursParams(StageParams):
-    interval: float = Field(1.0, gt=0, description="height between contour lines, metres")
+    interval: float = Field(
+        1.0,
+        gt=0,
+        description=f"height between contour lines, metres (at most {MAX_LEVELS:,} levels over the DTM's heights: "
+        "a finer interval is refused before drawing)",
+    )
 
 
 class Contours(Stage, name="contours", version="2", params=ContoursParams):
@@ -36,7 +46,9 @@ class Contours(Stage, name="contours", version="2", params=ContoursParams):
 
         dem, transform, crs, _ = read_raster(ctx.inputs["dtm"])
         units = raster_units(crs)  # levels every interval metres; written in the CRS's units
-        lines = contour_lines(dem * units.vertical, units.transform_to_metres(transform), interval=ctx.params.interval)
+        dem = dem * units.vertical
+        _check_levels(dem, ctx.params.interval)
+        lines = contour_lines(dem, units.transform_to_metres(transform), interval=ctx.params.interval)
         if not units.is_metre:
             lines = [(level / units.vertical, xy / units.horizontal) for level, xy in lines]
         write_lines_gpkg(ctx.outputs["contours"], lines, crs=crs)
@@ -49,3 +61,23 @@ class Contours(Stage, name="contours", version="2", params=ContoursParams):
             highest=levels[-1] if levels else None,
         )
         ctx.log.info("%d contour lines on %d levels", len(lines), len(levels))
+
+
+def _check_levels(dem: np.ndarray, interval: float) -> None:
+    """Refuse, before drawing, an interval that makes more than :data:`MAX_LEVELS` levels over *dem* (metres)."""
+    from dtm.common.grid import round_up
+    from dtm.stages.contours.lines import levels_between
+
+    finite = dem[np.isfinite(dem)]
+    if not len(finite):
+        return
+    lo, hi = float(finite.min()), float(finite.max())
+    levels = levels_between(lo, hi, interval)
+    if levels <= MAX_LEVELS:
+        return
+    least = (hi - lo) / (MAX_LEVELS - 1)
+    raise ConfigError(
+        f"stages.contours.interval: {interval:g} m between lines over the DTM's heights of {lo:.3f} to {hi:.3f} m "
+        f"make {levels:,} levels, more than the {MAX_LEVELS:,} a run draws; use an interval of at least "
+        f"{round_up(least):g} m."
+    )

@@ -68,6 +68,7 @@ class Georeference(Stage, name="georeference", version="6", params=GeoreferenceP
         epoch_strip = segment_strips(
             traj["time"], traj["yaw"], turn_rate_deg_s=p.strips.turn_rate_deg_s, min_line_s=p.strips.min_line_s
         )
+        _check_lines(ctx, traj["time"], epoch_strip)
         pulse_strip, epoch_strip = pulse_strips(traj["time"], epoch_strip, pulses["time"], p.batch_size)
         # the output frame over the survey: the platform's box +- the longest pulse
         reach = pulse_reach(pulses["x"], pulses["y"], pulses["z"], p.batch_size)
@@ -77,9 +78,8 @@ class Georeference(Stage, name="georeference", version="6", params=GeoreferenceP
             ctx.metrics.update(map_transform=out.to_map.method, map_transform_max_error_m=out.to_map.max_error_m)
         else:
             out = ltp_output(ltp, p.ltp_radius_m, reach)
-        write_flight_lines(
-            ctx.outputs["trajectory_lines"], traj["time"], out.points(out.trajectory.position), epoch_strip, out.crs
-        )
+        epochs = out.trajectory.position[: len(traj["time"])]  # a lone epoch is doubled for interpolating
+        write_flight_lines(ctx.outputs["trajectory_lines"], traj["time"], out.points(epochs), epoch_strip, out.crs)
         ctx.metrics.update(
             frame=p.frame,
             crs=out.crs.name,
@@ -102,3 +102,19 @@ class Georeference(Stage, name="georeference", version="6", params=GeoreferenceP
         ctx.metrics.update(ltp_metrics(exact, ltp, pulses, mounting, p.max_gap_s, p.ltp_radius_m))
         ctx.metrics.update(tally.metrics(n_pulses, len(traj["time"]), tpu))
         tally.report(ctx.log, n_pulses, out.crs.name, p.max_gap_s)
+
+
+def _check_lines(ctx: StageContext[GeoreferenceParams], time: np.ndarray, epoch_strip: np.ndarray) -> None:
+    """Refuse, before any pulse is georeferenced, a flight without one line when the turns are dropped."""
+    from dtm.common import glossary
+
+    strips = ctx.params.strips
+    if strips.keep_turns or (epoch_strip > 0).any():
+        return
+    span = float(time[-1] - time[0]) if len(time) else 0.0
+    raise InputDataError(
+        f"{glossary.input_names(ctx.config)}: not enough trajectory for a flight line: its {len(time):,} "
+        f"epoch{'s' if len(time) != 1 else ''} "
+        f"span {span:.3f} s and no steady stretch lasts stages.georeference.strips.min_line_s ({strips.min_line_s:g} s), "
+        "so every point would be dropped as flown in a turn (a log cut short? set strips.keep_turns: true to keep them)."
+    )

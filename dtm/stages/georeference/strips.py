@@ -41,8 +41,8 @@ def segment_strips(
     """
     t = np.asarray(time, dtype=np.float64)
     n = len(t)
-    if n < 3:
-        return np.ones(n, np.int32)
+    if n < 3:  # too few epochs for a turn rate: one line if they last long enough
+        return np.full(n, 1 if n and t[-1] - t[0] >= min_line_s else 0, np.int32)
     h = np.unwrap(np.radians(np.asarray(heading_deg, dtype=np.float64)))
     dt = float(np.median(np.diff(t)))
     win = max(1, int(round(smooth_s / max(dt, 1e-9))))
@@ -99,11 +99,11 @@ def write_flight_lines(path: Path, time: np.ndarray, xyz: np.ndarray, strip: np.
 
     Per line: the strip id, the first and last GPS time, and the height of the
     platform in the output CRS (mean, lowest, highest); epochs in turns
-    (strip 0) are left out.
+    (strip 0) are left out, as is a line of one epoch (no line to draw).
     """
     from dtm.common.vectors import line_wkb, write_gpkg
 
-    ids = [int(s) for s in np.unique(strip) if s > 0]
+    ids = [int(s) for s in np.unique(strip) if s > 0 and np.count_nonzero(strip == s) > 1]
     lines, rows = [], []
     for s in ids:
         m = strip == s

@@ -324,10 +324,13 @@ class TimeOrder:
     scan out of line with the scans on both sides of it is out of order.  Two
     scans in a row going back in time are a fault that cannot be told apart
     from a clock error, and raise :class:`TimeOrderError` naming the line.
+    The first and the last scan, with one neighbour only, are judged by
+    :class:`_Ends` (three more scans held back at the start).
     """
 
     def __init__(self, counters: Counters):
         self.counters = counters
+        self.ends = _Ends(self._skip)
         self.last: float | None = None  # time of the last scan passed on
         self.held: Scan | None = None  # the newest scan in order, not yet passed on
         self.suspect: Scan | None = None  # a scan earlier than ``held`` and than ``last``
@@ -379,7 +382,7 @@ class TimeOrder:
             self.held = scan
         else:
             self.suspect = scan  # earlier than the two before it: the next scan tells
-        return out
+        return self.ends.feed(out)
 
     def flush(self) -> list[Scan]:
         """The scans still held, once the survey's last file is read."""
@@ -388,4 +391,71 @@ class TimeOrder:
             self.suspect = None
         out = [self.held] if self.held is not None else []
         self.held = None
+        return self.ends.flush(out)
+
+
+#: A first or last scan (one neighbour only) is out of line when its step to that neighbour is longer, by
+#: more than this many of the log's scan intervals, than the scan numbers between them account for.
+FAR_INTERVALS = 100
+
+
+class _Ends:
+    """Skip a first or last scan far in time from its single neighbour (counted as out of order).
+
+    The log's scan interval is the median time per scan number over the last
+    64 steps in order; "far" is :data:`FAR_INTERVALS` of them beyond what the
+    scan numbers between the two scans account for (scans lost in between
+    are not a fault).  The first scan is held until two steps after it are
+    known; with fewer than three scans nothing is judged.
+    """
+
+    def __init__(self, skip):
+        from collections import deque
+
+        self.skip = skip
+        self.early: list[Scan] | None = []  # the first scans, until the first one is judged
+        self.prev: Scan | None = None
+        self.steps: deque[float] = deque(maxlen=64)
+
+    def _far(self, a: Scan, b: Scan, interval: float) -> str | None:
+        """Why *b* is out of line with *a* (or *a* with *b*), or None."""
+        numbers = (b.number - a.number) % 65536
+        gap = b.time_gps - a.time_gps
+        if not interval > 0 or gap - numbers * interval <= FAR_INTERVALS * interval:
+            return None
+        return (
+            f"{gap:.3f} s between it and its one neighbour (scan numbers {a.number} and {b.number}), "
+            f"far from the log's {interval:.3f} s scan interval"
+        )
+
+    def feed(self, scans: list[Scan]) -> list[Scan]:
+        """The scans of *scans* (in order) that can be passed on now."""
+        out: list[Scan] = []
+        for scan in scans:
+            if self.prev is not None and (scan.number - self.prev.number) % 65536:
+                self.steps.append((scan.time_gps - self.prev.time_gps) / ((scan.number - self.prev.number) % 65536))
+            self.prev = scan
+            if self.early is None:
+                out.append(scan)
+                continue
+            self.early.append(scan)
+            if len(self.early) == 3:
+                first, second, third = self.early
+                self.early = None
+                why = self._far(first, second, self.steps[-1] if self.steps else 0.0)
+                if why:
+                    self.skip(first, why)
+                out += [second, third] if why else [first, second, third]
+        return out
+
+    def flush(self, last: list[Scan]) -> list[Scan]:
+        """The scans still held, the survey's last one judged against the scan before it."""
+        if last and self.prev is not None and len(self.steps):
+            why = self._far(self.prev, last[0], float(np.median(self.steps)))
+            if why:
+                self.skip(last[0], why)
+                last = []
+        out = self.feed(last)
+        out += self.early or []
+        self.early = None
         return out

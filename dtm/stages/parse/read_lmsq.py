@@ -120,7 +120,7 @@ def read_lmsq(path: Path, counters: LmsqCounters, *, chunk_bytes: int = 1 << 24)
                 sow = float(np.frombuffer(buf, "<f8", 1, pos + 1)[0])
                 week = int(np.frombuffer(buf, "<u2", 1, pos + 9)[0])
                 if not (np.isfinite(sow) and 0.0 <= sow < SECONDS_PER_WEEK):
-                    raise InputDataError(f"{path}, byte {base + pos}: PPS seconds of week {sow!r} out of 0-604800.")
+                    raise InputDataError(f"{path}, byte {base + pos}: PPS seconds of week {sow:g} out of 0-604800.")
                 yield from timer.pps(week * SECONDS_PER_WEEK + sow)
                 pos += PPS
                 continue

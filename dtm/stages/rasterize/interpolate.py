@@ -15,6 +15,9 @@ import numpy as np
 from dtm.common.grid import Grid
 from dtm.common.neighbours import canonical_neighbours
 
+#: Most neighbours (cells x k) one block of :func:`idw` or :func:`nearest` asks the k-d tree for at once.
+NEIGHBOUR_BLOCK = 1 << 21
+
 if TYPE_CHECKING:
     from pipeline.log import Progress
 
@@ -360,7 +363,11 @@ def _canonical_boxes(xy, simplices, grid: Grid) -> tuple[np.ndarray, ...]:
 def _query_grid(
     points: np.ndarray, grid: Grid, k: int, nodata_distance: float, block_rows: int, progress, margin: float | None
 ):
-    """Yield (row slice, distances, indices) of the k nearest points of each cell centre (canonical).
+    """Yield (first cell, last cell + 1, distances, indices) of the k nearest points of each cell centre (canonical).
+
+    Cells are counted row by row; a block is at most *block_rows* rows and
+    at most :data:`NEIGHBOUR_BLOCK` neighbours (fewer cells when *k* is
+    large), so the tables stay small whatever *k*.
 
     With *margin*, the k-d tree holds only the points within *margin*
     (whole cells) of the grid; a cell whose k-th neighbour in it is not
@@ -391,10 +398,7 @@ def _query_grid(
         m = int(math.ceil(margin / res))
         x0, x1 = (grid.col0 - m) * res, (grid.col0 + grid.cols + m) * res
         y1, y0 = -(grid.row0 - m) * res, -(grid.row0 + grid.rows + m) * res
-    for start in range(0, grid.rows, block_rows):
-        stop = min(grid.rows, start + block_rows)
-        gx, gy = grid.centres(start, stop)
-        q = np.column_stack((gx.ravel() - origin[0], gy.ravel() - origin[1]))
+    for start, stop, q in _cell_blocks(grid, origin, min(block_rows * grid.cols, max(1, NEIGHBOUR_BLOCK // k))):
         dist, idx = canonical_neighbours(tree, q, k, nodata_distance)
         if kept is not None:
             idx = kept[idx]
@@ -404,8 +408,19 @@ def _query_grid(
             if len(doubt):
                 dist[doubt], idx[doubt] = canonical_neighbours(full(), q[doubt], k, nodata_distance)
         yield start, stop, dist, idx
-        if progress is not None:
-            progress.update(stop - start)
+        if progress is not None and stop // grid.cols > start // grid.cols:
+            progress.update(stop // grid.cols - start // grid.cols)  # rows finished
+
+
+def _cell_blocks(grid: Grid, origin: np.ndarray, block: int):
+    """Yield (first cell, last cell + 1, centres relative to *origin*) of *grid*'s cells, *block* cells at a time."""
+    total = grid.rows * grid.cols
+    for start in range(0, total, block):
+        stop = min(total, start + block)
+        r0, r1 = start // grid.cols, (stop - 1) // grid.cols + 1
+        gx, gy = grid.centres(r0, r1)
+        cut = slice(start - r0 * grid.cols, stop - r0 * grid.cols)
+        yield start, stop, np.column_stack((gx.ravel()[cut] - origin[0], gy.ravel()[cut] - origin[1]))
 
 
 def idw(
@@ -441,7 +456,7 @@ def idw(
         values = np.where(
             wsum > 0, (w * np.where(valid, z[idx], 0.0)).sum(axis=1) / np.where(wsum > 0, wsum, 1), nodata
         )
-        out[start:stop] = values.reshape(stop - start, grid.cols)
+        out.reshape(-1)[start:stop] = values
     return out
 
 
@@ -460,5 +475,5 @@ def nearest(
     out = np.empty((grid.rows, grid.cols), dtype=np.float64)
     z = np.append(pts[:, 2], nodata)
     for start, stop, _, idx in _query_grid(pts, grid, 1, nodata_distance, block_rows, progress, margin):
-        out[start:stop] = z[idx[:, 0]].reshape(stop - start, grid.cols)
+        out.reshape(-1)[start:stop] = z[idx[:, 0]]
     return out

@@ -10,9 +10,18 @@ from dtm.common import glossary
 from pipeline.config import StrictModel
 from pipeline.stage import StageParams
 
+#: Most ``idw.neighbors``: each cell's search grows with it (1,000 take 30 s for the sample's 196,608 cells, 2 cores).
+MAX_NEIGHBORS = 1_000
+
 
 class IdwParams(StrictModel):
-    neighbors: int = Field(8, ge=1, description="nearest ground points averaged per cell")
+    neighbors: int = Field(
+        8,
+        ge=1,
+        le=MAX_NEIGHBORS,
+        description=f"nearest ground points averaged per cell (at most {MAX_NEIGHBORS:,}: each cell's cost grows "
+        "with it; fewer when the tile has fewer ground points)",
+    )
     power: float = Field(2.0, gt=0, description="weights are 1 / distance**power")
 
 

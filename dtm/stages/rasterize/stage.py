@@ -28,6 +28,7 @@ from dtm.stages.rasterize.tile_rasters import (
     RASTERS,
     RasterTask,
     Usable,
+    check_tile_memory,
     mosaic_jobs,
     mosaic_raster,
     raster_columns,
@@ -172,7 +173,10 @@ class _Tiles:
             "%s DTM from %d ground points on %d x %d cells", p.method, self.ground, self.grid.cols, self.grid.rows
         )
         params = p.model_dump(mode="json")
-        return raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
+        tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
+        if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
+            check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
+        return tasks
 
     def merge(self, layout: Layout, tasks: list[RasterTask], results: list[dict]) -> list[dict]:
         """Assemble each raster from the tiles' windows, on the workers when there are tiles."""

@@ -24,7 +24,7 @@ from dtm.common.mosaic import core_window
 from dtm.common.rasters import HEIGHT, NODATA
 from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import TileCloud, tile_figures, tile_rasters
-from pipeline.errors import InputDataError
+from pipeline.errors import ConfigError, InputDataError
 from pipeline.tiling import Layout
 
 if TYPE_CHECKING:
@@ -138,6 +138,62 @@ def raster_tasks(
         for tile in layout.tiles
         if tile.index in rows
     ]
+
+
+#: Bytes per cell of a tile's wide grid (core plus buffer) while its rasters are made (measured: 84).
+TILE_BYTES_PER_CELL = 90
+#: Bytes per cell of the TIN's nodata mask, the wide grid plus ``nodata_distance`` all round (measured: 20).
+MASK_BYTES_PER_CELL = 24
+
+
+def tile_memory(task: RasterTask, params: RasterizeParams) -> tuple[int, int, int, int]:
+    """Bytes a tile's task holds at its peak for its grid (core and buffer) and the TIN's nodata mask; the mask's size.
+
+    Returns
+    -------
+    grid_bytes, mask_bytes, rows, cols : int
+        The mask's rows and columns are the grid's when there is no mask (not the TIN).
+    """
+    _, wide, _ = tile_windows(task.grid, task.window, task.buffer)
+    rows, cols = wide.rows, wide.cols
+    if params.method != "tin":
+        return wide.rows * wide.cols * TILE_BYTES_PER_CELL, 0, rows, cols
+    pad = 2 * (int(math.ceil(params.nodata_distance / params.resolution)) + 2)  # the margin of ``_far_from``
+    rows, cols = rows + pad, cols + pad
+    return wide.rows * wide.cols * TILE_BYTES_PER_CELL, rows * cols * MASK_BYTES_PER_CELL, rows, cols
+
+
+def check_tile_memory(
+    tasks: Sequence[RasterTask], params: RasterizeParams, workers: int, memory: int | None = None
+) -> None:
+    """Refuse, before any tile is made, tiles the workers could not hold side by side (one sentence, exit 2).
+
+    The key named is ``nodata_distance`` when the TIN's nodata mask takes
+    most of it, else ``resolution``.  *memory* (bytes) defaults to
+    :func:`dtm.common.memory.free_memory`.
+    """
+    from dtm.common.memory import free_memory, gigabytes
+
+    if not tasks:
+        return
+    at_once = max(1, min(workers, len(tasks)))
+    grid, mask, rows, cols = max(tile_memory(t, params) for t in tasks)
+    need = (grid + mask) * at_once
+    memory = free_memory() if memory is None else memory
+    if need <= memory:
+        return
+    tiles = f"about {gigabytes(need)} for {at_once} tile{'s' if at_once > 1 else ''} at a time"
+    if mask > grid:
+        raise ConfigError(
+            f"stages.rasterize.nodata_distance: {params.nodata_distance:g} m around each tile at {params.resolution:g} m "
+            f"cells make the TIN's nodata mask {cols:,} x {rows:,} cells, {tiles}, more than the {gigabytes(memory)} "
+            "of free memory; use a smaller nodata_distance or a coarser resolution."
+        )
+    raise ConfigError(
+        f"stages.rasterize.resolution: {params.resolution:g} m cells make grids of {cols:,} x {rows:,} cells per tile "
+        f"(its buffer and nodata_distance included), {tiles}, more than the {gigabytes(memory)} of free memory; "
+        "use a coarser resolution, a smaller tiling.size, or fewer executor.workers."
+    )
 
 
 def rasterize_tile(task: RasterTask) -> dict:

@@ -19,7 +19,7 @@ import pytest
 
 from dtm.stages.parse.read_las import read_las_files
 from pipeline.cli import main
-from pipeline.errors import InputDataError
+from pipeline.errors import ConfigError, InputDataError
 
 ROOT = Path(__file__).resolve().parents[3]
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -225,9 +225,7 @@ def test_grid_size_is_checked_against_memory_before_allocating():
     from dtm.common.units import METRE
 
     grid = Grid.covering(0.0, 0.0, 50_000.0, 50_000.0, 1.0)
-    with pytest.raises(
-        InputDataError, match=r"the points: the DTM would have 50,001 x 50,001 cells of 1 m.*resolution"
-    ):
+    with pytest.raises(ConfigError, match=r"^stages.rasterize.resolution: 1 m cells .* make 2,500,100,001 cells"):
         check_grid_size(grid, (0.0, 0.0, 50_000.0, 50_000.0), METRE, memory=24 * 2**30)
     check_grid_size(Grid.covering(0.0, 0.0, 5_000.0, 5_000.0, 1.0), (0, 0, 5e3, 5e3), METRE, memory=24 * 2**30)
 
@@ -265,7 +263,7 @@ def test_a_wide_sparse_survey_is_refused_at_once(tmp_path, capsys):
     path = _write_las(tmp_path / "wide.las", x, y, rng.uniform(600, 700, 100))
     code, out = _run_las(tmp_path, path)
     err = capsys.readouterr().err
-    assert code == 3 and "raise stages.rasterize.resolution" in err and str(path) in err
+    assert code == 2 and "stages.rasterize.resolution: 1 m cells" in err and str(path) in err
     run = json.loads((out / "run.json").read_text())
     assert [s["name"] for s in run["stages"] if s.get("status") == "ran"] == []  # refused in parse
 

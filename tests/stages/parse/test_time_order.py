@@ -162,3 +162,59 @@ def test_a_trajectory_going_back_is_input_data_naming_the_epoch():
     z = np.zeros(5)
     with pytest.raises(InputDataError, match=r"epoch 3 \(t = 1.500000 s\) is not after epoch 2 \(t = 2.000000 s\)"):
         prepare_trajectory(t, z + 40.0, z - 3.0, z + 600.0, z, z, z, "NED")
+
+
+def test_the_last_scan_stamped_9999_is_skipped_and_counted(flight, clean, tmp_path, capsys):
+    """The last scan has one neighbour: far from it (in the log's scan intervals) is out of line too."""
+    _, text = flight
+    head, blocks = _scans(text)
+    blocks[-1] = re.sub(r"UTC \S+", "UTC 9999-12-31T23:59:59.000000Z", blocks[-1])
+    code, m, _ = _run(tmp_path, ["".join(head + blocks)], capsys)
+    assert code == 0
+    assert m["out_of_order_scans"] == 1 and m["scans_accepted"] == clean["scans_accepted"] - 1
+    line = 1 + "".join(head + blocks[:-1]).count("\n")
+    assert any(
+        f"log0.log, line {line}: scan" in p and "far from the log's 0.080 s scan interval" in p for p in m["problems"]
+    )
+    times = np.loadtxt(tmp_path / "out" / "qc" / "lla_eul_vel.csv", delimiter=",", skiprows=1, usecols=0, ndmin=1)
+    assert times.max() - times.min() < 3600  # no epoch in the year 9999
+
+
+def test_the_first_scan_a_day_early_is_skipped_and_counted(flight, clean, tmp_path, capsys):
+    _, text = flight
+    head, blocks = _scans(text)
+    blocks[0] = _shift(blocks[0], -86_400.0)
+    code, m, _ = _run(tmp_path, ["".join(head + blocks)], capsys)
+    assert code == 0
+    assert m["out_of_order_scans"] == 1 and m["scans_accepted"] == clean["scans_accepted"] - 1
+    assert any("line 4: scan" in p and "between it and its one neighbour" in p for p in m["problems"])
+
+
+def _scan(number: int, time: float):
+    from dtm.stages.parse.read_ldmrs import Scan
+
+    return Scan(number, time, 7, (40.0, -3.0, 700.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros((2, 6)), number)
+
+
+def _order(times: list[float], numbers: list[int] | None = None) -> tuple[list[int], int]:
+    from dtm.stages.parse.read_ldmrs import Counters, TimeOrder
+
+    counters = Counters(scans_accepted=len(times), points_valid=2 * len(times))
+    order = TimeOrder(counters)
+    out = []
+    for n, t in zip(numbers or range(len(times)), times, strict=True):
+        out += order.feed(_scan(n, t))
+    out += order.flush()
+    return [s.number for s in out], counters.out_of_order_scans
+
+
+def test_the_ends_are_judged_by_the_scan_numbers_between_them():
+    steady = [100.0 + 0.08 * i for i in range(6)]
+    assert _order(steady) == ([0, 1, 2, 3, 4, 5], 0)
+    assert _order([*steady[:-1], 9e10]) == ([0, 1, 2, 3, 4], 1)  # last far in the future
+    assert _order([-5e8, *steady[1:]]) == ([1, 2, 3, 4, 5], 1)  # first far in the past
+    # 20 s between the last two scans, but 250 scan numbers lost between them: a gap, not a fault
+    assert _order([*steady[:-1], steady[-2] + 20.0], [0, 1, 2, 3, 4, 254]) == ([0, 1, 2, 3, 4, 254], 0)
+    assert _order([*steady[:-1], steady[-2] + 20.0]) == ([0, 1, 2, 3, 4], 1)  # 20 s for one scan number
+    assert _order([1.0, 9e10]) == ([0, 1], 0)  # two scans: no interval known, nothing judged
+    assert _order([1.0, 1.08, 9e10]) == ([0, 1], 1)

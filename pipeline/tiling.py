@@ -72,11 +72,11 @@ class Layout:
         """
         xmin, ymin, xmax, ymax = (float(v) for v in extent)
         if not math.isfinite(buffer) or buffer < 0:
-            raise ConfigError(f"tiling.buffer: {buffer!r} is not a finite length >= 0.")
+            raise ConfigError(f"tiling.buffer: {buffer:g} is not a finite length >= 0.")
         if size is None:
             return cls((xmin, ymin, xmax, ymax), None, float(buffer))
         if not (math.isfinite(size) and size > 0):
-            raise ConfigError(f"tiling.size: {size!r} is not a finite length > 0.")
+            raise ConfigError(f"tiling.size: {size:g} is not a finite length > 0.")
         copies = ((size + 2 * buffer) / size) ** 2
         if copies > MAX_COPIES:
             least = 2 * buffer / (math.sqrt(MAX_COPIES) - 1)

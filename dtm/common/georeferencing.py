@@ -220,7 +220,7 @@ def ltp_crs(lat0: float, lon0: float, radius: float) -> pyproj.CRS:
     import pyproj
 
     return pyproj.CRS.from_proj4(
-        f"+proj=eqc +lat_ts={lat0!r} +lat_0={lat0!r} +lon_0={lon0!r} +x_0=0 +y_0=0 +R={radius!r} +units=m +no_defs"
+        f"+proj=eqc +lat_ts={float(lat0)!r} +lat_0={float(lat0)!r} +lon_0={float(lon0)!r} +x_0=0 +y_0=0 +R={float(radius)!r} +units=m +no_defs"
     )
 
 

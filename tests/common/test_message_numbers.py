@@ -24,8 +24,6 @@ STRINGS = {
 ELSEWHERE = {
     ("dtm/common/las_guard.py", "scale"),
     ("dtm/common/las_guard.py", "offset"),
-    ("pipeline/tiling.py", "buffer"),
-    ("pipeline/tiling.py", "size"),
 }
 
 

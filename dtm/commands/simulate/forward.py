@@ -55,7 +55,7 @@ class Earth:
 
         self.lat0, self.lon0, self.h0 = float(lat0), float(lon0), float(h0)
         self._topo = pyproj.Transformer.from_pipeline(
-            f"+proj=topocentric +ellps=WGS84 +lat_0={self.lat0!r} +lon_0={self.lon0!r} +h_0={self.h0!r}"
+            f"+proj=topocentric +ellps=WGS84 +lat_0={float(self.lat0)!r} +lon_0={float(self.lon0)!r} +h_0={float(self.h0)!r}"
         )
         self._to_geodetic = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
         #: R_enu(origin)<-ecef

@@ -156,7 +156,7 @@ def _vrt(ds, nodata: float, unit: str | None, sources: list[str]) -> str:
         f'  <SRS dataAxisToSRSAxisMapping="1,2">{escape(ds.crs.to_wkt())}</SRS>\n'
         f"  <GeoTransform>{geotransform}</GeoTransform>\n"
         '  <VRTRasterBand dataType="Float32" band="1">\n'
-        f"    <NoDataValue>{nodata!r}</NoDataValue>\n"
+        f"    <NoDataValue>{float(nodata)!r}</NoDataValue>\n"
         f"{unit_xml}"
         f"{''.join(sources)}"
         "  </VRTRasterBand>\n"

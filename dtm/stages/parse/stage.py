@@ -298,8 +298,8 @@ def _log_las_report(log: logging.LoggerAdapter, report: LasReadReport, override)
         log.warning("%s: %d points have return number 0 (invalid in LAS): read as 1", path, n)
     for path, n in report.outside_header_bounds.items():
         log.warning(
-            "%s: %d points lie outside the header's bounds: flagged withheld (kept in points.laz, "
-            "left out of every grid and filter)",
+            "%s: %d points lie outside the header's bounds (damaged records or strays): left out of points.laz "
+            "and of every grid and filter",
             path,
             n,
         )

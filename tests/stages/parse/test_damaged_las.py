@@ -4,13 +4,14 @@ Each damaged file is built here from the shipped sample, cut to a few
 thousand points: garbage decoded from a LAZ chunk, damaged LAS records, a
 header offset beyond the Earth, a negative scale, a chunk table of 0xFF
 bytes, a file the user may not read, a disk that fills up while the points
-are written.
+are written, the same file listed twice.
 """
 
 from __future__ import annotations
 
 import builtins
 import errno
+import logging
 import os
 from pathlib import Path
 
@@ -157,3 +158,18 @@ def test_a_full_disk_while_writing_is_not_blamed_on_the_input(small, tmp_path, m
     with pytest.raises(OSError) as caught:
         _convert(small[kind], tmp_path)
     assert caught.value.errno == code and not isinstance(caught.value, InputDataError)
+
+
+def test_the_same_file_twice_is_read_once_with_a_warning(small, tmp_path, caplog, monkeypatch):
+    """Two spellings (relative, absolute), a symbolic link and a repeat: one file."""
+    from dtm.stages.parse.stage import distinct_files
+
+    link = tmp_path / "link.las"
+    link.symlink_to(small["las"])
+    monkeypatch.chdir(small["las"].parent)
+    paths = [small["las"], Path("small.las"), link, small["laz"], small["las"]]
+    log = logging.LoggerAdapter(logging.getLogger("test.parse"), {})
+    with caplog.at_level(logging.WARNING):
+        assert distinct_files(paths, log) == [small["las"], small["laz"]]
+    assert len(caplog.records) == 3 and all("read once" in r.getMessage() for r in caplog.records)
+    assert str(link) in caplog.text

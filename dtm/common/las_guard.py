@@ -53,8 +53,9 @@ DAMAGED = f"the file is damaged; {WAY_OUT}"
 MACHINE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS})
 #: Largest scale offset accepted (CRS units): far beyond any coordinate on Earth, in any unit.
 MAX_OFFSET = 1e9
-#: Largest scale factor accepted (CRS units a step): a step of a kilometre is no survey's.
-MAX_SCALE = 1e3
+#: Smallest and largest scale factors accepted (CRS units a step): no survey has steps of a
+#: picometre (or 1e-12 degree) or of a kilometre.
+MIN_SCALE, MAX_SCALE = 1e-12, 1e3
 
 
 def is_decoder_panic(exc: BaseException) -> bool:
@@ -113,7 +114,7 @@ def check_header_sizes(path: Path) -> None:
             f"{path}, byte 107: the header announces {count:,} points, more than the file's {size:,} bytes can hold."
         )
     if compressed and count and offset_points + 8 <= size:
-        _check_chunk_table(path, offset_points, size)
+        _check_chunk_table(path, offset_points, size, vlr_count, count)
     if evlr_count:
         if evlr_start + 60 * evlr_count > size:
             raise InputDataError(f"{path}, byte 235: the extended VLRs start beyond the end of the file.")
@@ -138,10 +139,10 @@ def _check_scales(path: Path, scales: np.ndarray, offsets: np.ndarray) -> None:
                 f"{path}, byte {131 + 8 * axis}: the {name} scale factor {scale:g} or offset {offset:g} is not usable "
                 f"(a scale must be a finite non-zero number, an offset finite); {DAMAGED}."
             )
-        if abs(scale) > MAX_SCALE:
+        if not MIN_SCALE <= abs(scale) <= MAX_SCALE:
             raise InputDataError(
-                f"{path}, byte {131 + 8 * axis}: the {name} scale factor {scale:g} makes a step of more than "
-                f"{MAX_SCALE:g} units, which no survey has; {DAMAGED}."
+                f"{path}, byte {131 + 8 * axis}: the {name} scale factor {scale:g} makes a step outside "
+                f"{MIN_SCALE:g} to {MAX_SCALE:g} units, which no survey has; {DAMAGED}."
             )
         if abs(offset) > MAX_OFFSET:
             raise InputDataError(
@@ -150,8 +151,8 @@ def _check_scales(path: Path, scales: np.ndarray, offsets: np.ndarray) -> None:
             )
 
 
-def _check_chunk_table(path: Path, offset_points: int, size: int) -> None:
-    """Refuse a LAZ chunk table whose offset or chunk count cannot be right.
+def _check_chunk_table(path: Path, offset_points: int, size: int, vlr_count: int, count: int) -> None:
+    """Refuse a LAZ chunk table whose offset, chunk count or chunk sizes cannot be right.
 
     LASzip stores the chunk table's offset in the first 8 bytes of the point
     data (-1: in the last 8 bytes of the file), and the number of chunks in
@@ -175,6 +176,48 @@ def _check_chunk_table(path: Path, offset_points: int, size: int) -> None:
         raise InputDataError(
             f"{path}, byte {table + 4}: the LAZ chunk table announces {chunks:,} chunks, "
             f"more than the file's {size:,} bytes can hold."
+        )
+    _check_chunk_sizes(path, offset_points, table, vlr_count, count)
+
+
+#: Points a LAZ chunk may hold beyond the file's: LASzip's default is 50,000 a chunk.
+MAX_CHUNK_POINTS = 1_000_000
+
+
+def _check_chunk_sizes(path: Path, offset_points: int, table: int, vlr_count: int, count: int) -> None:
+    """Refuse LAZ chunks the decoder would allocate without bound (lazrs aborts the process: 48 GB seen).
+
+    The LASzip VLR's chunk size (bytes 12-15 of its data; 0xFFFFFFFF:
+    variable) is at most the file's points or ``MAX_CHUNK_POINTS``; the
+    table (lazrs ``read_chunk_table``) gives each chunk's bytes, which
+    together fill the space between the point data's first 8 bytes and the table.
+    """
+    import lazrs
+
+    with open(path, "rb") as fh:
+        vlr, at = _laszip_vlr(fh, vlr_count), fh.tell()
+        if vlr is None or len(vlr) < 34:
+            return  # laspy reports a LAZ file without its VLR itself
+        chunk = int.from_bytes(vlr[12:16], "little")
+        if chunk != 0xFFFFFFFF and chunk > max(count, MAX_CHUNK_POINTS):
+            raise InputDataError(
+                f"{path}, byte {at - len(vlr) + 12}: the LASzip VLR announces chunks of {chunk:,} points, "
+                f"more than the file's {count:,}; {DAMAGED}."
+            )
+        fh.seek(offset_points)
+        try:
+            entries = lazrs.read_chunk_table(fh, lazrs.LazVlr(vlr))
+        except BaseException as exc:
+            if not (isinstance(exc, Exception) or is_decoder_panic(exc)):
+                raise
+            raise InputDataError(
+                f"{path}, byte {table}: the LAZ chunk table cannot be read ({exc}); {DAMAGED}."
+            ) from None
+    room = table - offset_points - 8
+    if sum(int(size) for _, size in entries) > room or any(int(size) < 0 for _, size in entries):
+        raise InputDataError(
+            f"{path}, byte {table}: the LAZ chunk table gives its chunks more than the {room:,} bytes "
+            f"between the point data and the table; {DAMAGED}."
         )
 
 
@@ -211,7 +254,7 @@ def laz_chunk_of(path: Path, header, point: int) -> tuple[int, int, int, int] | 
 
     try:
         with open(path, "rb") as fh:
-            vlr = _laszip_vlr(fh, header)
+            vlr = _laszip_vlr(fh, len(header.vlrs) + 1)  # laspy took the LASzip VLR out
             if vlr is None:
                 return None
             fh.seek(int(header.offset_to_point_data))
@@ -228,11 +271,11 @@ def laz_chunk_of(path: Path, header, point: int) -> tuple[int, int, int, int] | 
     return None
 
 
-def _laszip_vlr(fh, header) -> bytes | None:
+def _laszip_vlr(fh, vlr_count: int) -> bytes | None:
     """The data of the file's LASzip VLR (laspy takes it out of the header it reads), or None."""
     fh.seek(94)
     fh.seek(int.from_bytes(fh.read(2), "little"))  # the header's size
-    for _ in range(len(header.vlrs) + 1):
+    for _ in range(vlr_count):
         head = fh.read(54)
         if len(head) < 54:
             return None
@@ -294,29 +337,29 @@ def header_mins_maxs(header) -> tuple[np.ndarray, np.ndarray]:
 
     LAS 1.4 (R15) does not forbid a negative scale factor and the
     coordinates read correctly with one, but writers (laspy) then store the
-    bounds of the stored integers, inverted on that axis.
+    bounds of the stored integers, inverted on that axis; bounds in order
+    are left as they are.
     """
     mins, maxs = np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)
-    flip = np.asarray(header.scales, dtype=np.float64) < 0
+    flip = (np.asarray(header.scales, dtype=np.float64) < 0) & (mins > maxs)
     return np.where(flip, maxs, mins), np.where(flip, mins, maxs)
 
 
 def header_box(header) -> np.ndarray | None:
     """The box (xmin, ymin, zmin, xmax, ymax, zmax) a header announces, widened by the tolerance; None if unusable.
 
-    Bounds that are not finite, inverted, or all zero (never filled in) are
-    not a box to check points against; heights are not checked against
-    inverted height bounds.
+    Bounds that are not finite or all zero (never filled in) are not a box
+    to check points against; an axis whose bounds are inverted is not checked.
     """
     mins, maxs = header_mins_maxs(header)
     if int(header.point_count) == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
         return None
-    if (mins[:2] > maxs[:2]).any() or not (mins[:2].any() or maxs[:2].any()):
+    if not (mins[:2].any() or maxs[:2].any()):
         return None
     tol = np.maximum(HEADER_BOUNDS_TOLERANCE * (maxs - mins), 100.0 * np.abs(np.asarray(header.scales)))
+    inverted = np.tile(mins > maxs, 2)
     box = np.concatenate((mins - tol, maxs + tol))
-    if mins[2] > maxs[2]:
-        box[2], box[5] = -np.inf, np.inf
+    box[inverted] = np.array([-np.inf, -np.inf, -np.inf, np.inf, np.inf, np.inf])[inverted]
     return box
 
 

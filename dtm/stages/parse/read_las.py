@@ -362,9 +362,10 @@ def header_bounds(
     """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
 
     Horizontal bounds of a file in another CRS are transformed with the
-    edges densified (pyproj ``transform_bounds``).  Non-finite bounds (a
-    damaged header) are left out; the points are checked against the
-    writer's range as they are written (:func:`convert_las_files`).
+    edges densified (pyproj ``transform_bounds``).  Bounds no survey has (a
+    damaged header: :func:`_plausible_bounds`) are left out, lest they make
+    the writer's scale coarse; the points are checked against the writer's
+    range as they are written (:func:`convert_las_files`).
     """
     import pyproj
 
@@ -373,7 +374,7 @@ def header_bounds(
         with open_las(path) as reader:
             h = reader.header
             mins, maxs = header_mins_maxs(h)
-            if h.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+            if h.point_count == 0 or not _plausible_bounds(mins, maxs):
                 continue
             crs, _ = file_crs(path, h, assign_crs, override_crs)
             if not crs.equals(target):
@@ -382,6 +383,13 @@ def header_bounds(
                 mins, maxs = np.array([x0, y0, mins[2]]), np.array([x1, y1, maxs[2]])
             lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
     return lo, hi
+
+
+def _plausible_bounds(mins: np.ndarray, maxs: np.ndarray) -> bool:
+    """Whether header bounds can be a survey's: finite, not inverted, spanning less than ``MAX_SPAN_M``."""
+    if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (mins > maxs).any():
+        return False
+    return float(np.max(maxs - mins)) <= MAX_SPAN_M
 
 
 def convert_las_files(
@@ -567,7 +575,7 @@ def copy_records(
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
         spans = np.asarray(h.maxs[:2], dtype=np.float64) - np.asarray(h.mins[:2], dtype=np.float64)
-        usable = box is not None and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
+        usable = box is not None and spans.min() >= 0 and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
         grid = IsolationGrid(h.mins, h.maxs) if usable else None
         with open_las_writer(dst, header) as writer:
             for chunk in read_chunks(path, reader, chunk_size):

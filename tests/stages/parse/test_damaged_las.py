@@ -129,7 +129,7 @@ def test_a_chunk_table_of_ff_bytes_is_refused_at_the_chunk(small, tmp_path):
     header = laspy.open(small["laz"]).header
     table = int.from_bytes(blob[header.offset_to_point_data : header.offset_to_point_data + 8], "little")
     path = _damaged(small["laz"], tmp_path / "ff.laz", {table + 8: b"\xff" * (len(blob) - table - 8)})
-    with pytest.raises(InputDataError, match=r"ff.laz, byte [\d,]+ \(LAZ chunk 0.*cannot be decoded"):
+    with pytest.raises(InputDataError, match=r"ff.laz, byte \d+: the LAZ chunk table gives its chunks more than"):
         _convert(path, tmp_path)
 
 
@@ -173,3 +173,53 @@ def test_the_same_file_twice_is_read_once_with_a_warning(small, tmp_path, caplog
         assert distinct_files(paths, log) == [small["las"], small["laz"]]
     assert len(caplog.records) == 3 and all("read once" in r.getMessage() for r in caplog.records)
     assert str(link) in caplog.text
+
+
+def test_a_laz_chunk_size_beyond_the_file_is_refused_before_the_decoder_aborts(small, tmp_path):
+    """A damaged LASzip VLR chunk size made lazrs allocate 48 GB and abort the process (run apart here)."""
+    import subprocess
+    import sys
+
+    blob = small["laz"].read_bytes()
+    data = blob.index(b"laszip encoded") - 2 + 54  # the LASzip VLR's data
+    path = _damaged(small["laz"], tmp_path / "chunks.laz", {data + 12: (1_700_000_000).to_bytes(4, "little")})
+    code = (
+        "from pathlib import Path\n"
+        "from dtm.stages.parse.read_las import read_las_files\n"
+        "from pipeline.errors import InputDataError\n"
+        "try:\n"
+        f"    read_las_files([Path({str(path)!r})], crs_setting='auto-utm', assign_crs=None, chunk_size=5000)\n"
+        "except InputDataError as exc:\n"
+        "    print(exc)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-500:]
+    assert f"chunks.laz, byte {data + 12}: the LASzip VLR announces chunks of 1,700,000,000 points" in proc.stdout
+
+
+def test_a_scale_of_no_survey_is_refused_naming_its_byte(small, tmp_path):
+    path = _damaged(small["las"], tmp_path / "tiny.las", {147: np.float64(-2.5e-251).tobytes()})  # z scale
+    with pytest.raises(InputDataError, match=r"tiny.las, byte 147: the z scale factor -2.5e-251 makes a step"):
+        _convert(path, tmp_path)
+
+
+def test_header_bounds_of_no_survey_do_not_coarsen_the_points(tmp_path):
+    """autzen's header max x damaged to 3.6e48: the points are written as read, not rounded to kilometres."""
+    src = Path(__file__).resolve().parents[4] / "shared" / "data" / "real" / "pdal" / "autzen_trim.las"
+    las = laspy.read(src)
+    cut = laspy.LasData(las.header)
+    cut.points = las.points[:3000].copy()
+    cut.update_header()
+    cut.write(tmp_path / "cut.las")
+    path = _damaged(tmp_path / "cut.las", tmp_path / "bounds.las", {179: np.float64(3.6e48).tobytes()})
+    out, _ = _convert(path, tmp_path)
+    np.testing.assert_allclose(np.sort(out.x), np.sort(laspy.read(tmp_path / "cut.las").x), atol=0.01)
+
+
+def test_a_vlr_with_a_damaged_description_is_dropped_with_a_note(small, tmp_path):
+    """laspy cannot write a description that is not ASCII: the record is dropped and named, the points read."""
+    blob = small["las"].read_bytes()
+    at = blob.index(b"LASF_Projection") - 2 + 22  # the description of the first VLR
+    path = _damaged(small["las"], tmp_path / "vlr.las", {at: b"\xb8\xd5"})
+    las, report = _convert(path, tmp_path)
+    assert len(las) == POINTS and any("not ASCII" in note for note in report.dropped)

@@ -49,6 +49,8 @@ def text(s: dict) -> str:
     if s["bounds"]:
         lines.append(f"  bounds (points): min {_fmt(s['bounds']['min'])}; max {_fmt(s['bounds']['max'])}")
     lines.append(f"  bounds (header): min {_fmt(s['bounds_header']['min'])}; max {_fmt(s['bounds_header']['max'])}")
+    if s.get("outside_header_bounds"):
+        lines.append(f"  warning: {_strays(s)}")
     lines.append(f"  scale {_fmt(s['scale'])}; offset {_fmt(s['offset'])}")
     if s["gps_time"] is None:
         lines.append("  GPS time: none in this point format")
@@ -69,6 +71,14 @@ def text(s: dict) -> str:
     return "\n".join(lines)
 
 
+def _strays(s: dict) -> str:
+    """The warning for points outside the header's bounds (as the run's)."""
+    return (
+        f"{s['outside_header_bounds']:,} points lie outside the header's bounds (damaged records or strays): "
+        "a run leaves them out."
+    )
+
+
 def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", type=Path, nargs="+", metavar="FILE", help="LAS/LAZ files")
     parser.add_argument("--json", action="store_true", help="print a JSON list, one object per file")
@@ -82,6 +92,8 @@ def _run(args: argparse.Namespace) -> int:
     for path in args.files:
         try:
             found.append(summary(path))
+            if found[-1].get("outside_header_bounds"):
+                print(f"pipeline: warning: {path}: {_strays(found[-1])}", file=sys.stderr)
         except InputDataError as exc:
             print(f"pipeline: error: {exc}", file=sys.stderr)
             failed += 1

@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from dtm.common import glossary
-from dtm.common.las_guard import las_parse_errors, open_las
-from pipeline.errors import InputDataError
+from dtm.common.las_guard import check_strays, header_box, open_las, read_chunks
 
 #: Points read at a time.
 CHUNK = 1_000_000
@@ -65,7 +64,9 @@ def summary(path: Path, points: bool = True) -> dict:
     Raises
     ------
     InputDataError
-        When the file is not a readable LAS/LAZ file.
+        When the file is not a readable LAS/LAZ file, or one a run refuses: the
+        same checks (header, LAZ chunk table, the records decoded and checked
+        against the header's bounds, :func:`~dtm.common.las_guard.check_strays`).
     """
 
     path = Path(path)
@@ -74,13 +75,14 @@ def summary(path: Path, points: bool = True) -> dict:
         if not points:
             return out
         tally = PointTally(gps="gps_time" in out["dimensions"])
-        try:
-            for chunk in reader.chunk_iterator(CHUNK):
-                if len(chunk):
-                    tally.add(chunk)
-        except las_parse_errors() as exc:
-            raise InputDataError(f"{path}: unreadable after point {tally.n:,} ({exc}).") from None
+        box, strays = header_box(reader.header), 0
+        for chunk in read_chunks(path, reader, CHUNK):
+            if len(chunk):
+                xyz = (np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
+                _, strays = check_strays(path, reader.header, box, xyz, tally.n, strays)
+                tally.add(chunk)
     out.update(tally.figures())
+    out["outside_header_bounds"] = strays
     if crs is not None and tally.n:
         out["crs_fits"], out["crs_problem"] = crs_fit(crs, tally.lo[:2], tally.hi[:2])
     return out

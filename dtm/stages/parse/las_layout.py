@@ -118,6 +118,10 @@ def _shared_records(headers: list) -> tuple[dict[str, list], list[str]]:
     notes = []
     for kind in ("vlrs", "evlrs"):
         own = [[v for v in (getattr(h, kind) or []) if _carried(v)] for _, h in headers]
+        for path, h in headers:
+            damaged = [f"{v.user_id!r} {v.record_id}" for v in (getattr(h, kind) or []) if not _ascii(v)]
+            if damaged:
+                notes.append(f"{path}: {kind[:-1].upper()} {', '.join(damaged)} dropped (not ASCII: damaged)")
         shared = set.intersection(*({_vlr_key(v) for v in vs} for vs in own))
         records[kind] = [v for v in own[0] if _vlr_key(v) in shared]
         for (path, _), vs in zip(headers, own, strict=True):
@@ -136,10 +140,18 @@ def _carried(vlr) -> bool:
     CRS), extra-byte descriptions (``LASF_Spec`` 4; made from the layout),
     LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354).
     """
+    if not _ascii(vlr):
+        return False  # a damaged name or description: it could not be written
     user = vlr.user_id.strip("\0 ")
     if user in ("LASF_Projection", "laszip encoded") or (user == "liblas" and vlr.record_id == 2112):
         return False
     return not (user == "LASF_Spec" and (vlr.record_id == 4 or 100 <= vlr.record_id <= 354))
+
+
+def _ascii(vlr) -> bool:
+    """Whether a (E)VLR's user id and description are ASCII (LAS: char fields; laspy writes nothing else)."""
+    fields = (vlr.user_id, vlr.description or "")
+    return all(f.isascii() if isinstance(f, str) else bytes(f).isascii() for f in fields)
 
 
 def _vlr_key(vlr) -> tuple:

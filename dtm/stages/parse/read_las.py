@@ -21,7 +21,7 @@ import numpy as np
 
 from dtm.common.clouds import PointLayout, open_las_writer
 from dtm.common.crs import header_crs, output_crs
-from dtm.common.las_guard import las_parse_errors, open_las
+from dtm.common.las_guard import check_strays, header_box, header_mins_maxs, open_las, read_chunks
 from dtm.stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
 from dtm.stages.parse.las_layout import READ_APART, copied_dimensions, point_layout
 from pipeline.errors import InputDataError
@@ -46,7 +46,7 @@ class LasReadReport:
     gps_time_missing: list[str] = field(default_factory=list)
     #: Per file: points whose return number was 0 (invalid in LAS), read as 1.
     return_number_zero: dict[str, int] = field(default_factory=dict)
-    #: Per file: points outside the header's bounds, flagged withheld (they must not size a grid).
+    #: Per file: points outside the header's bounds (damaged records or strays), left out of points.las.
     outside_header_bounds: dict[str, int] = field(default_factory=dict)
     #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
     header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
@@ -110,7 +110,7 @@ def _check_fits(path: Path, header, crs, source: str) -> None:
 
     if int(header.point_count) == 0:
         return
-    problem = crs_problem(crs, header.mins, header.maxs)
+    problem = crs_problem(crs, *header_mins_maxs(header))
     if problem is None:
         return
     if source == "header":
@@ -185,7 +185,7 @@ def _file_chunks(
     import pyproj
 
     header = reader.header
-    bounds = _header_box(header)
+    bounds = header_box(header)
     transformer = None
     if not src_crs.equals(target):
         transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)
@@ -195,24 +195,21 @@ def _file_chunks(
     copied = copied_dimensions(layout)
     n_read = 0
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    try:
-        for chunk in reader.chunk_iterator(chunk_size):
-            x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
-            stray = _outside(bounds, x, y)
-            cols = _coordinates(path, (x, y, z), transformer, n_read, src_crs, target)
-            n = len(chunk)
-            if n:
-                xyz = (cols["x"], cols["y"], cols["z"])
-                lo, hi = _extend(path, lo, hi, [v.min() for v in xyz], [v.max() for v in xyz], target)
-            cols.update(_attributes(chunk, dims, copied, layout))
-            _repair(path, cols, stray, report)
-            _grow_box(report, cols["x"][~stray], cols["y"][~stray])
-            n_read += n
-            if progress is not None:
-                progress.update(n)
-            yield cols
-    except las_parse_errors() as exc:
-        raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+    for chunk in read_chunks(path, reader, chunk_size):
+        x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
+        n = len(chunk)
+        keep = ~_strays(path, header, bounds, (x, y, z), n_read, report)
+        cols = _coordinates(path, (x[keep], y[keep], z[keep]), transformer, n_read, src_crs, target)
+        if keep.any():
+            xyz = (cols["x"], cols["y"], cols["z"])
+            lo, hi = _extend(path, lo, hi, [v.min() for v in xyz], [v.max() for v in xyz], target)
+        cols.update({k: v[keep] for k, v in _attributes(chunk, dims, copied, layout).items()})
+        _repair(path, cols, report)
+        _grow_box(report, cols["x"], cols["y"])
+        n_read += n
+        if progress is not None:
+            progress.update(n)
+        yield cols
     report.points[str(path)] = n_read
 
 
@@ -257,45 +254,26 @@ def _attributes(chunk, dims: set[str], copied: list[str], layout: PointLayout) -
     return cols
 
 
-#: Points farther outside their header's bounds than this share of its span (or
-#: 100 scale steps) are stray: flagged withheld so that they size no grid.
-HEADER_BOUNDS_TOLERANCE = 0.01
+def _strays(path: Path, header, box, xyz: tuple, first: int, report: LasReadReport) -> np.ndarray:
+    """A chunk's points outside the header's bounds (:func:`~dtm.common.las_guard.check_strays`), counted in *report*."""
+    key = str(path)
+    stray, report.outside_header_bounds[key] = check_strays(
+        path, header, box, xyz, first, report.outside_header_bounds.get(key, 0)
+    )
+    if not report.outside_header_bounds[key]:
+        del report.outside_header_bounds[key]
+    return stray
 
 
-def _header_box(header) -> np.ndarray | None:
-    """The horizontal box (xmin, ymin, xmax, ymax) a header announces, widened by the tolerance; None if unusable.
-
-    Bounds that are not finite, inverted, or all zero (never filled in) are
-    not a box to check points against.
-    """
-    mins, maxs = np.asarray(header.mins, dtype=np.float64), np.asarray(header.maxs, dtype=np.float64)
-    if int(header.point_count) == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
-        return None
-    if (mins[:2] > maxs[:2]).any() or not (mins[:2].any() or maxs[:2].any()):
-        return None
-    tol = np.maximum(HEADER_BOUNDS_TOLERANCE * (maxs[:2] - mins[:2]), 100.0 * np.asarray(header.scales[:2]))
-    return np.concatenate((mins[:2] - tol, maxs[:2] + tol))
-
-
-def _outside(box: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Points outside *box* (see :func:`_header_box`), in the file's own CRS."""
-    if box is None:
-        return np.zeros(len(x), dtype=bool)
-    return (x < box[0]) | (y < box[1]) | (x > box[2]) | (y > box[3])
-
-
-def _repair(path: Path, cols: dict[str, np.ndarray], stray: np.ndarray, report: LasReadReport) -> bool:
-    """Return number 0 read as 1; stray points flagged withheld; both counted in *report*.  True if *cols* changed."""
+def _repair(path: Path, cols: dict[str, np.ndarray], report: LasReadReport) -> bool:
+    """Return number 0 read as 1, counted in *report*.  True if *cols* changed."""
     key = str(path)
     zero = cols["return_number"] == 0
     if zero.any():
         cols["return_number"] = np.where(zero, 1, cols["return_number"]).astype(cols["return_number"].dtype)
         cols["number_of_returns"] = np.maximum(cols["number_of_returns"], 1).astype(cols["number_of_returns"].dtype)
         report.return_number_zero[key] = report.return_number_zero.get(key, 0) + int(zero.sum())
-    if stray.any():
-        cols["withheld"] = np.asarray(cols["withheld"], dtype=bool) | stray
-        report.outside_header_bounds[key] = report.outside_header_bounds.get(key, 0) + int(stray.sum())
-    return bool(zero.any() or stray.any())
+    return bool(zero.any())
 
 
 def _grow_box(report: LasReadReport, x: np.ndarray, y: np.ndarray) -> None:
@@ -384,9 +362,10 @@ def header_bounds(
     """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
 
     Horizontal bounds of a file in another CRS are transformed with the
-    edges densified (pyproj ``transform_bounds``).  Non-finite bounds (a
-    damaged header) are left out; the points are checked against the
-    writer's range as they are written (:func:`convert_las_files`).
+    edges densified (pyproj ``transform_bounds``).  Bounds no survey has (a
+    damaged header: :func:`_plausible_bounds`) are left out, lest they make
+    the writer's scale coarse; the points are checked against the writer's
+    range as they are written (:func:`convert_las_files`).
     """
     import pyproj
 
@@ -394,8 +373,8 @@ def header_bounds(
     for path in paths:
         with open_las(path) as reader:
             h = reader.header
-            mins, maxs = np.asarray(h.mins, dtype=np.float64), np.asarray(h.maxs, dtype=np.float64)
-            if h.point_count == 0 or not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+            mins, maxs = header_mins_maxs(h)
+            if h.point_count == 0 or not _plausible_bounds(mins, maxs):
                 continue
             crs, _ = file_crs(path, h, assign_crs, override_crs)
             if not crs.equals(target):
@@ -404,6 +383,13 @@ def header_bounds(
                 mins, maxs = np.array([x0, y0, mins[2]]), np.array([x1, y1, maxs[2]])
             lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
     return lo, hi
+
+
+def _plausible_bounds(mins: np.ndarray, maxs: np.ndarray) -> bool:
+    """Whether header bounds can be a survey's: finite, not inverted, spanning less than ``MAX_SPAN_M``."""
+    if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (mins > maxs).any():
+        return False
+    return float(np.max(maxs - mins)) <= MAX_SPAN_M
 
 
 def convert_las_files(
@@ -547,6 +533,8 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayo
             return None
         if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
             return None
+        if (np.asarray(h.scales) < 0).any():
+            return None  # a negative scale (allowed by LAS 1.4): converted to the output's positive scales
         if override_crs is not None or (_records_held(paths[0], h) or 0) > h.point_count:
             return None  # the header's CRS or count is not the file's: convert, which handles both
         src_crs, source = file_crs(paths[0], h, assign_crs)
@@ -581,42 +569,38 @@ def copy_records(
     with open_las(path) as reader:
         h = reader.header
         report.crs_source[str(path)] = "header"
-        box = _header_box(h)
+        box = header_box(h)
         header = point_header(target, layout=layout)
         header.offsets, header.scales = h.offsets, h.scales
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         seen = np.zeros(65536, dtype=bool)
         spans = np.asarray(h.maxs[:2], dtype=np.float64) - np.asarray(h.mins[:2], dtype=np.float64)
-        usable = box is not None and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
+        usable = box is not None and spans.min() >= 0 and spans.max() > 0 and (np.asarray(h.scales[:2]) > 0).all()
         grid = IsolationGrid(h.mins, h.maxs) if usable else None
         with open_las_writer(dst, header) as writer:
-            try:
-                for chunk in reader.chunk_iterator(chunk_size):
-                    n = len(chunk)
-                    if n:
-                        seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
-                        x, y = np.asarray(chunk.x), np.asarray(chunk.y)
-                        stray = _outside(box, x, y)
-                        cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns", "withheld")}
-                        if _repair(path, cols, stray, report):
-                            for k, v in cols.items():
-                                chunk[k] = v
-                        if stray.any():
-                            _grow_box(report, x[~stray], y[~stray])
-                        else:
-                            _grow_box(report, x, y)
+            for chunk in read_chunks(path, reader, chunk_size):
+                n = len(chunk)
+                x, y = np.asarray(chunk.x), np.asarray(chunk.y)
+                stray = _strays(path, h, box, (x, y, np.asarray(chunk.z)), n_read, report)
+                if stray.any():
+                    chunk, x, y = chunk[~stray], x[~stray], y[~stray]
+                if len(chunk):
+                    seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
+                    cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns")}
+                    if _repair(path, cols, report):
+                        for k, v in cols.items():
+                            chunk[k] = v
+                    _grow_box(report, x, y)
                     writer.write_points(chunk)
-                    if n:  # the writer's header holds the extremes of the points written so far
-                        lo, hi = _extend(path, lo, hi, writer.header.mins, writer.header.maxs, target)
-                        if grid is not None and grid.covers((lo[0], hi[0]), (lo[1], hi[1])):
-                            grid.add(x, y)
-                        else:
-                            grid = None
-                    n_read += n
-                    if progress is not None:
-                        progress.update(n)
-            except las_parse_errors() as exc:
-                raise InputDataError(f"{path}: unreadable after point {n_read} ({exc}).") from None
+                    # the writer's header holds the extremes of the points written so far
+                    lo, hi = _extend(path, lo, hi, writer.header.mins, writer.header.maxs, target)
+                    if grid is not None and grid.covers((lo[0], hi[0]), (lo[1], hi[1])):
+                        grid.add(x, y)
+                    else:
+                        grid = None
+                n_read += n
+                if progress is not None:
+                    progress.update(n)
     report.points[str(path)] = n_read
     strips.update(int(v) for v in np.flatnonzero(seen))
     return target, grid

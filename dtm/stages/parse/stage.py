@@ -152,12 +152,13 @@ class Parse(Stage, name="parse", version="9", params=InputConfig):
         from dtm.stages.parse.read_las import convert_las_files, count_points
 
         params = ctx.params
-        total = count_points(list(params.paths))
+        paths = distinct_files(list(params.paths), ctx.log)
+        total = count_points(paths)
         assign = pyproj.CRS.from_user_input(params.crs) if params.crs else None
         override = pyproj.CRS.from_user_input(params.override_crs) if params.override_crs else None
         with ctx.progress(total, "reading LAS/LAZ", unit="pt") as bar:
             crs, report, strips = convert_las_files(
-                list(params.paths),
+                paths,
                 ctx.outputs["points_georef"],
                 crs_setting=ctx.setting("crs"),
                 assign_crs=assign,
@@ -187,6 +188,21 @@ class Parse(Stage, name="parse", version="9", params=InputConfig):
             fields_dropped=report.dropped,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
+
+
+def distinct_files(paths: list[Path], log: logging.LoggerAdapter) -> list[Path]:
+    """*paths* with every file once (the same (st_dev, st_ino): a second spelling, a link, a glob); each repeat warned."""
+    seen: dict[tuple[int, int], Path] = {}
+    out = []
+    for path in paths:
+        st = path.stat()
+        key = (st.st_dev, st.st_ino)
+        if key in seen:
+            log.warning("%s is %s again (listed twice in input.paths): read once", path, seen[key])
+        else:
+            seen[key] = path
+            out.append(path)
+    return out
 
 
 def _gps_week(p: LmsqNmeaInput | LmsqSbetInput, log: logging.LoggerAdapter) -> int:
@@ -298,8 +314,8 @@ def _log_las_report(log: logging.LoggerAdapter, report: LasReadReport, override)
         log.warning("%s: %d points have return number 0 (invalid in LAS): read as 1", path, n)
     for path, n in report.outside_header_bounds.items():
         log.warning(
-            "%s: %d points lie outside the header's bounds: flagged withheld (kept in points.laz, "
-            "left out of every grid and filter)",
+            "%s: %d points lie outside the header's bounds (damaged records or strays): left out of points.laz "
+            "and of every grid and filter",
             path,
             n,
         )

@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from dtm.stages.parse.read_lmsq import LmsqCounters
 
 
-class Parse(Stage, name="parse", version="9", params=InputConfig):
+class Parse(Stage, name="parse", version="10", params=InputConfig):
     """read the input files (format from input.format)."""
 
     config_path = "input"

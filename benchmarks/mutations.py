@@ -231,6 +231,31 @@ MUTATIONS: list[Mutation] = [
         '"off_5m": float(np.mean(e > TRUTH_OFF_M[1]))',
         ("tests/stages/accuracy/test_truth_accuracy.py",),
     ),
+    Mutation(
+        "boresight inverted: scanner-from-body instead of body-from-scanner",
+        "dtm/stages/parse/intermediates.py",
+        '"rotation": euler_matrix(*np.radians(p.boresight_deg)).tolist(),',
+        '"rotation": euler_matrix(*np.radians(p.boresight_deg)).T.tolist(),',
+        ("tests/stages/parse/test_boresight.py",),
+    ),
+    Mutation(
+        "map transform in the CRS's authority axis order (northing first swapped)",
+        "dtm/common/geodesy.py",
+        'self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)',
+        'self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs)',
+        ("tests/common/test_axis_order.py",),
+    ),
+    Mutation(
+        "smrmsg attitude sigmas taken in degrees instead of arc-minutes",
+        "dtm/stages/parse/read_ins.py",
+        """"sigma_roll_deg": r[:, 7] / 60.0,
+        "sigma_pitch_deg": r[:, 8] / 60.0,
+        "sigma_heading_deg": r[:, 9] / 60.0,""",
+        """"sigma_roll_deg": r[:, 7],
+        "sigma_pitch_deg": r[:, 8],
+        "sigma_heading_deg": r[:, 9],""",
+        ("tests/stages/parse/test_smrmsg_sigmas.py",),
+    ),
 ]
 
 

@@ -256,6 +256,15 @@ MUTATIONS: list[Mutation] = [
         "sigma_heading_deg": r[:, 9],""",
         ("tests/stages/parse/test_smrmsg_sigmas.py",),
     ),
+    Mutation(
+        "strip datum: the reference strip held even when control points are given",
+        "dtm/stages/strip_adjust/stage.py",
+        """        if control is not None and len(control):
+            reference = None
+""",
+        "",
+        ("tests/stages/strip_adjust/test_control_datum.py", "tests/stages/strip_adjust/test_strip_adjust.py"),
+    ),
 ]
 
 

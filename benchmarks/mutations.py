@@ -257,6 +257,20 @@ MUTATIONS: list[Mutation] = [
         ("tests/stages/parse/test_smrmsg_sigmas.py",),
     ),
     Mutation(
+        "LAS reprojection in the CRS's authority axis order (northing first swapped)",
+        "dtm/stages/parse/read_las.py",
+        "transformer = pyproj.Transformer.from_crs(src_crs, target, always_xy=True)",
+        "transformer = pyproj.Transformer.from_crs(src_crs, target)",
+        ("tests/common/test_axis_order.py", "tests/stages/parse/test_read_las.py"),
+    ),
+    Mutation(
+        "LAS header bounds reprojected in the CRS's authority axis order",
+        "dtm/stages/parse/read_las.py",
+        "t = pyproj.Transformer.from_crs(crs, target, always_xy=True)",
+        "t = pyproj.Transformer.from_crs(crs, target)",
+        ("tests/common/test_axis_order.py", "tests/stages/parse/test_read_las.py"),
+    ),
+    Mutation(
         "strip datum: the reference strip held even when control points are given",
         "dtm/stages/strip_adjust/stage.py",
         """        if control is not None and len(control):

@@ -56,3 +56,47 @@ def test_sweref99_tm_central_meridian_known_point():
     assert abs(e - 500_000.0) < 1e-3
     assert abs(n - 6_651_411.19) < 0.01
     assert abs(h - 100.0) < 1e-3
+
+
+@pytest.mark.parametrize("src", ["EPSG:32633", "EPSG:4326"])
+def test_las_reprojected_to_northing_first_crs_stays_easting_first(tmp_path, src):
+    """LAS in UTM 33N (easting first) or WGS 84 (registered latitude first) -> SWEREF99 TM (northing first).
+
+    UTM 33N and SWEREF99 TM share the central meridian (15 E), false easting and
+    scale: a point on the meridian keeps easting 500 000 m, and its northing
+    moves by the WGS 84 -> SWEREF99 datum difference only (well under a metre).
+    """
+    import laspy
+
+    from dtm.stages.parse.read_las import convert_las_files
+
+    lon, lat = np.array([15.0, 15.01, 14.99]), np.array([60.0, 60.005, 59.995])
+    if src == "EPSG:4326":
+        x, y, scale = lon, lat, 1e-8
+    else:
+        x, y = pyproj.Transformer.from_crs("EPSG:4326", src, always_xy=True).transform(lon, lat)
+        scale = 1e-3
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([scale, scale, 1e-3])
+    header.offsets = np.array([float(np.min(x)), float(np.min(y)), 0.0])
+    header.add_crs(pyproj.CRS.from_user_input(src))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, np.array([100.0, 101.0, 102.0])
+    las.write(str(tmp_path / "a.las"))
+    convert_las_files(
+        [tmp_path / "a.las"], tmp_path / "out.las", crs_setting="EPSG:3006", assign_crs=None, chunk_size=1000
+    )
+    out = laspy.read(str(tmp_path / "out.las"))
+    assert out.header.parse_crs().to_epsg() == 3006
+    # the peer: pyproj in x = easting, y = northing order
+    e, n = pyproj.Transformer.from_crs(src, "EPSG:3006", always_xy=True).transform(x, y)
+    np.testing.assert_allclose(out.x, e, atol=1e-3)
+    np.testing.assert_allclose(out.y, n, atol=1e-3)
+    # the writer's grid from the reprojected header bounds (dtm.common.clouds.point_header): offsets the
+    # easting and northing rounded down to whole kilometres, scale 0.1 mm (swapped bounds: 1 cm, far offsets)
+    np.testing.assert_array_equal(
+        out.header.offsets[:2], [np.floor(e.min() / 1e3) * 1e3, np.floor(n.min() / 1e3) * 1e3]
+    )
+    np.testing.assert_array_equal(out.header.scales[:2], [1e-4, 1e-4])
+    # by geometry: the first point is on the central meridian, 60 N
+    assert abs(out.x[0] - 500_000.0) < 1.0 and abs(out.y[0] - 6_651_411.19) < 1.0

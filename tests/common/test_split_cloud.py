@@ -122,7 +122,7 @@ def test_the_ranges_are_split_into_parts_that_join_in_file_order(split):
 @pytest.mark.parametrize("method", ["tin", "idw"])
 def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, tmp_path):
     las, layout, tmp, (rows, usable), _ = split
-    grid = Grid.covering(*usable.box(), 1.0)
+    grid = Grid.covering(*usable.box(), 2.0)
     params = RasterizeParams(method=method, nodata_distance=10.0).model_dump(mode="json")
     outputs = ["dtm", "dsm", "ndsm", "density"]
     drawn = 0

@@ -61,6 +61,10 @@ def _run(root: Path, name: str, *sets: str, cache: str | None = None, until: str
     return run_until(root / "survey.yaml", until, root / name, *sets, cache=root / (cache or name) / "cache")
 
 
+#: The tiles one after the other in this process: the buffers decide what a tile sees, not the worker that
+#: runs it (that tiles on two workers give the same bytes is test_split_cloud.py's and test_tiled_runs.py's).
+IN_PROCESS = "executor: {kind: local, workers: 1}"
+
 #: SMRF filters a grid this small whole, without tiles; the tiled runs make it cut the survey into tiles.
 TILED_SMRF = "stages.classify_ground.one_grid_cells=0"
 
@@ -71,7 +75,7 @@ def survey(tmp_path_factory):
     _survey(root / "survey.laz")
     (root / "survey.yaml").write_text(
         "name: buffers\ninput: {format: las, paths: [survey.laz]}\noutput: out\ncache: cache\n"
-        "executor: {kind: local, workers: 2}\n"
+        f"{IN_PROCESS}\n"
         "stages:\n  classify_ground: {algorithm: {name: smrf}}\n"
         "  rasterize: {resolution: 1.0, method: tin, nodata_distance: 50.0}\n"
     )
@@ -107,7 +111,9 @@ def test_tiled_denoise_equals_untiled_where_the_buffer_matters(tmp_path):
     z = np.where(x < 208.5, 100.0, 75.0)  # the quarry floor beyond x = 208.5
     echo = np.array([[199.0, 150.0, 75.0]])
     las = write_las(tmp_path / "quarry.las", np.vstack((np.column_stack((x, y, z)), echo)))
-    (tmp_path / "q.yaml").write_text(f"name: q\ninput: {{format: las, paths: [{las}]}}\noutput: out\ncache: cache\n")
+    (tmp_path / "q.yaml").write_text(
+        f"name: q\ninput: {{format: las, paths: [{las}]}}\noutput: out\ncache: cache\n{IN_PROCESS}\n"
+    )
     classes = {}
     for name, sets in (("untiled", ["tiling.enabled=false"]), ("tiled", ["tiling.size=100"])):
         stage = run_until(tmp_path / "q.yaml", "denoise", tmp_path / name, *sets)["denoise"]

@@ -37,7 +37,7 @@ LDMRS = {
 }
 RIEGL = {
     "formats": ["lmsq_nmea", "lmsq_sbet", "las"],
-    "scanner": {"preset": "q140"},
+    "scanner": {"preset": "q140", "pulse_rate_hz": 3000},
     "navigation": {"preset": "pos-av-410", "ins_rate_hz": 200},
     "flight": {
         "altitude_m": 120,
@@ -257,7 +257,7 @@ def test_noise_comes_out_as_it_went_in(tmp_path):
     """Range noise only (5 cm): the georeferencing error is that noise, along the ray."""
     spec = {
         **RIEGL,
-        "scanner": {"preset": "q140", "range_noise_m": 0.05},
+        "scanner": {**RIEGL["scanner"], "range_noise_m": 0.05},
         "formats": ["lmsq_sbet"],
         "navigation": {"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
     }

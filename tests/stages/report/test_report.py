@@ -55,16 +55,30 @@ def _dtm(cell=1.0, z0=650.0, noise=0.0, seed=0):
     return dtm + np.random.default_rng(seed).normal(0.0, noise, dtm.shape) if noise else dtm
 
 
-def _report(tmp_path, las, dtm, cell=1.0, metrics=None, **extra):
+def _transform(cell=1.0):
+    """The DTM's map transform: cells of *cell* from the survey's north-west corner."""
     from affine import Affine
 
+    return Affine(cell, 0, 1000.0, 0, -cell, 2000.0 + SIZE)
+
+
+def _report(tmp_path, las, dtm, cell=1.0, metrics=None, **extra):
     cloud = summarise_cloud(las, origin=(1000.0, 2000.0 + SIZE), resolution=cell, shape=dtm.shape, dtm=dtm)
     frame = MapFrame(1000.0, 2000.0 + SIZE, cell, "m")
     data = ReportInputs(dtm=dtm, density=np.ones_like(dtm), frame=frame, cloud=cloud, **extra)
     metrics = metrics or {}
     metrics.setdefault("rasterize", {"cols": dtm.shape[1], "rows": dtm.shape[0], "method": "tin"})
     page, verdict = build_report(name="t", metrics=metrics, data=data, max_size=300)
-    return page, verdict, data, Affine(cell, 0, 1000.0, 0, -cell, 2000.0 + SIZE)
+    return page, verdict, data, _transform(cell)
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    """The report of the plain survey (a 0.5-m lattice, one strip) and its DTM, with no other input:
+    built once, read by the tests that need nothing more."""
+    root = tmp_path_factory.mktemp("plain")
+    las = _survey(root)
+    return las, _report(root, las, _dtm())
 
 
 def _text(page: str) -> str:
@@ -152,9 +166,9 @@ def test_nva_is_labelled_with_the_open_ground_rmse_it_comes_from(tmp_path):
     assert "VVA = 95th percentile of |error|, vegetated (10 check points) (m) 0.4" in text
 
 
-def test_pulse_density_is_the_lattice_density_and_a_thinned_survey_fails_it(tmp_path):
+def test_pulse_density_is_the_lattice_density_and_a_thinned_survey_fails_it(tmp_path, plain):
     """A 0.5-m lattice is 4 pulses/m²: QL2 (2/m²) passes; kept every 4th point it is 1/m² and fails."""
-    dense = _report(tmp_path, _survey(tmp_path, spacing=0.5), _dtm())[1]
+    dense = plain[1][1]  # the plain survey: spacing 0.5
     assert _check(dense, "anpd")["measured"] == pytest.approx(4.0, rel=0.01)
     assert _check(dense, "anpd")["status"] == "PASS"
     thin = _report(tmp_path, _survey(tmp_path, spacing=0.5, keep_every=4, name="t.las"), _dtm())[1]
@@ -174,8 +188,7 @@ def test_a_noisy_survey_fails_nva(tmp_path):
     verdicts = {}
     for noise in (0.02, 0.15):
         dtm = _dtm(noise=noise)
-        _, _, _, transform = _report(tmp_path, las, dtm)
-        acc = vertical_accuracy(sample_dtm(dtm, transform, xy) - truth)
+        acc = vertical_accuracy(sample_dtm(dtm, _transform(), xy) - truth)
         verdicts[noise] = _report(tmp_path, las, dtm, metrics={"accuracy": acc})[1]
     assert _check(verdicts[0.02], "nva_95")["status"] == "PASS"
     noisy = _check(verdicts[0.15], "nva_95")
@@ -184,14 +197,13 @@ def test_a_noisy_survey_fails_nva(tmp_path):
     assert _check(asprs, "rmse_z_nv")["status"] == "FAIL"
 
 
-def test_a_hole_in_the_survey_is_a_void(tmp_path):
+def test_a_hole_in_the_survey_is_a_void(tmp_path, plain):
     """Points removed in a 10 x 10 m square inside the survey: voids are counted and the spec fails."""
-    path = _survey(tmp_path)
+    path, (_, whole, _, _) = plain
     las = laspy.read(str(path))
     x, y = np.asarray(las.x) - 1000.0, np.asarray(las.y) - 2000.0
     las.points = las.points[~((x > 20) & (x < 30) & (y > 20) & (y < 30))]
     las.write(str(tmp_path / "hole.las"))
-    whole = _report(tmp_path, path, _dtm())[1]
     holed = _report(tmp_path, tmp_path / "hole.las", _dtm())[1]
     assert _check(whole, "voids")["measured"] == 0 and _check(whole, "voids")["status"] == "PASS"
     assert _check(holed, "voids")["measured"] > 0 and _check(holed, "voids")["status"] == "FAIL"
@@ -249,8 +261,8 @@ def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
     assert "A open 1010.000 2010.000 650.100 650.120 +0.020" in _text(page)  # one row per check point
 
 
-def test_measure_reports_why_a_value_is_missing(tmp_path):
-    page, verdict, data, _ = _report(tmp_path, _survey(tmp_path), _dtm())
+def test_measure_reports_why_a_value_is_missing(plain):
+    _, (_, verdict, data, _) = plain
     values, why, _ = measure({}, data)
     assert values["nva_95"] is None and "stages.accuracy.checkpoints" in why["nva_95"]
     assert _check(verdict, "nva_95")["status"] == "NOT MEASURED"

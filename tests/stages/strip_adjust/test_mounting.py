@@ -115,7 +115,8 @@ def test_calibration_flight_recovers_the_injected_boresight(tmp_path):
 @pytest.fixture(scope="module")
 def error_free(tmp_path_factory):
     root = tmp_path_factory.mktemp("mount_free")
-    sim = _flight(root, pulse_rate=6_000)
+    # the boresight needs lines both ways and a cross line, not the second altitude (that is for the lever arm)
+    sim = _flight(root, pulse_rate=6_000, second_altitude_m=None)
     return _run(root, sim, "model: mounting, cell: 6")
 
 
@@ -137,7 +138,9 @@ def test_error_free_flight_estimates_zero_and_moves_no_point(error_free):
 
 
 def test_lines_flown_one_way_cannot_determine_pitch(tmp_path, capfd):
-    sim = _flight(tmp_path, boresight=BORESIGHT, one_way=True, cross_line=False, second_altitude_m=None)
+    sim = _flight(
+        tmp_path, boresight=BORESIGHT, pulse_rate=4_500, one_way=True, cross_line=False, second_altitude_m=None
+    )
     stage, corr = _run(tmp_path, sim, "model: mounting, cell: 6")
     u = _unknowns(corr)
     pitch = u["boresight_pitch"]
@@ -174,7 +177,7 @@ def test_mounting_model_with_las_input_is_a_usage_error(tmp_path, capsys):
 def test_ground_control_determines_the_vertical_lever_arm(tmp_path):
     # a 5 cm vertical lever-arm error lifts every strip alike: only ground control sees it.  The control
     # points are the simulator's check points in the open (true terrain, the output CRS, ellipsoidal)
-    sim = _flight(tmp_path, lever=(0.0, 0.0, 0.05), pulse_rate=6_000, checkpoints=40)
+    sim = _flight(tmp_path, lever=(0.0, 0.0, 0.05), pulse_rate=3_000, checkpoints=40)
     lines = (sim / "checkpoints.csv").read_text().splitlines()
     control = tmp_path / "control.csv"
     control.write_text("\n".join(lines[:2] + [row for row in lines[2:] if row.endswith(",open")]) + "\n")

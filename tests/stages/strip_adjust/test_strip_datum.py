@@ -25,7 +25,7 @@ def test_most_overlap_holds_the_middle_strip_and_lands_on_the_truth(tmp_path):
         tmp_path / "sim",
         seed=5,
         formats=["las"],
-        scanner={"preset": "q140", "range_noise_m": 0.01, "pulse_rate_hz": 10000},
+        scanner={"preset": "q140", "range_noise_m": 0.01, "pulse_rate_hz": 4000},
         navigation=PERFECT_NAVIGATION,
         flight=lines(100, 40, 3, 400, sidelap=0.5, bank_deg=45),
         faults={"noise": True, "strip_bias_m": 0.4, "strip_rotation_deg": 0.04, "error_free_lines": [2]},

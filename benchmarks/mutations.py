@@ -136,7 +136,11 @@ MUTATIONS: list[Mutation] = [
         "dtm/stages/strip_adjust/rigid.py",
         "max(linked, key=lambda s: overlap[s]) if linked else None",
         "min(linked, key=lambda s: overlap[s]) if linked else None",
-        ("tests/stages/strip_adjust/test_strip_datum.py", "tests/stages/strip_adjust/test_strip_adjust.py"),
+        (
+            "tests/stages/strip_adjust/test_strip_datum.py",
+            "tests/stages/strip_adjust/test_strip_adjust.py",
+            "tests/stages/strip_adjust/test_strip_adjust_no_error.py",
+        ),
     ),
     Mutation(
         "uncertainty: attitude Jacobian ignores the lever arm",
@@ -161,6 +165,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground_known_answers.py",
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
+            "tests/commands/test_evaluate_ground_isprs.py",
         ),
     ),
     Mutation(
@@ -172,6 +177,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground_known_answers.py",
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
+            "tests/commands/test_evaluate_ground_isprs.py",
         ),
     ),
     Mutation(
@@ -183,6 +189,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground_known_answers.py",
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
+            "tests/commands/test_evaluate_ground_isprs.py",
         ),
     ),
     Mutation(
@@ -194,6 +201,7 @@ MUTATIONS: list[Mutation] = [
             "tests/stages/classify_ground/test_ground_known_answers.py",
             "tests/stages/classify_ground/test_ground.py",
             "tests/commands/test_evaluate_ground.py",
+            "tests/commands/test_evaluate_ground_isprs.py",
         ),
     ),
     Mutation(

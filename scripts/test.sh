@@ -6,5 +6,5 @@ bash scripts/setup.sh --test
 .venv/bin/ruff check pipeline dtm tests benchmarks scripts data_samples
 .venv/bin/ruff format --check pipeline dtm tests benchmarks scripts data_samples
 # One test process per core (pytest-xdist); each test file runs whole on one
-# of them, so a module's fixtures are built once.
-.venv/bin/python -m pytest -n auto --dist loadfile "$@"
+# of them, so a module's fixtures are built once; the 15 slowest tests are listed.
+.venv/bin/python -m pytest -n auto --dist loadfile --durations=15 "$@"

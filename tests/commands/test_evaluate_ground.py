@@ -12,7 +12,6 @@ import pyproj
 from pipeline.cli import main
 
 
-
 def _labelled(path: Path) -> Path:
     """A plane with a building, labelled: class 2 ground, class 1 building."""
     rng = np.random.default_rng(5)

@@ -106,8 +106,8 @@ MUTATIONS: list[Mutation] = [
     Mutation(
         "DSM from noise-class points too",
         "dtm/stages/rasterize/tile_rasters.py",
-        'usable = glossary.usable(cols["classification"], cols["withheld"])',
-        'usable = ~cols["withheld"]',
+        'masks.append((cls == glossary.GROUND, glossary.usable(cls, np.load(part / "withheld.npy"))))',
+        'masks.append((cls == glossary.GROUND, ~np.load(part / "withheld.npy")))',
         ("tests/stages/denoise/test_noise_classes.py", "tests/stages/test_products_units.py"),
     ),
     Mutation(

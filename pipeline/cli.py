@@ -10,7 +10,6 @@ traceback; an internal error prints its traceback only with ``-v``.
 from __future__ import annotations
 
 import argparse
-import errno
 import json
 import logging
 import os
@@ -19,6 +18,7 @@ import traceback
 from pathlib import Path
 
 from pipeline import __version__, interrupt
+from pipeline.cache import FULL
 from pipeline.config import load_config
 from pipeline.discovery import load_plugin
 from pipeline.errors import EXIT_ENVIRONMENT, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except OSError as exc:
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        if exc.errno in FULL:
             where = f" while writing {exc.filename}" if exc.filename else ""
             print(f"pipeline: error: the disk is full{where}; no partial result was kept.", file=sys.stderr)
             return EXIT_ENVIRONMENT

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pipeline.cache import FULL
 from pipeline.errors import InputDataError
 
 if TYPE_CHECKING:
@@ -50,7 +51,7 @@ WAY_OUT = "re-export or re-download it, or leave it out of input.paths"
 #: A damaged file's diagnosis and way out.
 DAMAGED = f"the file is damaged; {WAY_OUT}"
 #: Errors of the machine, not of the file read: they propagate untouched (the engine's exit 4).
-MACHINE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS})
+MACHINE_ERRNOS = FULL | {errno.EROFS}
 #: Largest scale offset accepted (CRS units): far beyond any coordinate on Earth, in any unit.
 MAX_OFFSET = 1e9
 #: Smallest and largest scale factors accepted (CRS units a step): no survey has steps of a

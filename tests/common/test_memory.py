@@ -31,8 +31,6 @@ def test_an_address_space_limit_counts(monkeypatch):
 
 
 def test_a_control_group_limit_counts_its_reclaimable_cache(tmp_path, monkeypatch):
-    from pathlib import Path as RealPath
-
     group = tmp_path / "sys" / "job"
     group.mkdir(parents=True)
     (tmp_path / "cgroup").write_text("0::/job\n")
@@ -40,23 +38,13 @@ def test_a_control_group_limit_counts_its_reclaimable_cache(tmp_path, monkeypatc
     (group / "memory.current").write_text("1500000000\n")
     (group / "memory.stat").write_text("anon 1000000000\ninactive_file 300000000\nfile 500000000\n")
 
-    def fake(path):
-        text = str(path)
-        if text == "/proc/self/cgroup":
-            return RealPath(tmp_path / "cgroup")
-        if text.startswith("/sys/fs/cgroup"):
-            return RealPath(str(tmp_path / "sys") + text[len("/sys/fs/cgroup") :])
-        return RealPath(path)
-
-    monkeypatch.setattr(memory, "Path", fake)
+    _redirect_cgroups(monkeypatch, tmp_path / "cgroup", tmp_path / "sys")
     assert memory._cgroup_room() == 4_000_000_000 - 1_500_000_000 + 300_000_000
     (group / "memory.max").write_text("max\n")
     assert memory._cgroup_room() is None
 
 
 def test_a_cgroup_v1_limit_counts_too(tmp_path, monkeypatch):
-    from pathlib import Path as RealPath
-
     group = tmp_path / "memory"  # inside a container: the group at the mount's root
     group.mkdir()
     (tmp_path / "cgroup").write_text("9:name=systemd:/\n4:memory:/job/7\n0::/\n")
@@ -64,11 +52,20 @@ def test_a_cgroup_v1_limit_counts_too(tmp_path, monkeypatch):
     (group / "memory.usage_in_bytes").write_text("500000000\n")
     (group / "memory.stat").write_text("cache 100\ntotal_inactive_file 100000000\n")
 
+    _redirect_cgroups(monkeypatch, tmp_path / "cgroup", tmp_path)
+    assert memory._cgroup_room() == 2_000_000_000 - 500_000_000 + 100_000_000
+
+
+def _redirect_cgroups(monkeypatch, cgroup_file, sys_root):
+    """memory reads /proc/self/cgroup from *cgroup_file* and /sys/fs/cgroup/... under *sys_root*."""
+    from pathlib import Path as RealPath
+
     def fake(path):
         text = str(path)
         if text == "/proc/self/cgroup":
-            return RealPath(tmp_path / "cgroup")
-        return RealPath(str(tmp_path) + text[len("/sys/fs/cgroup") :]) if text.startswith("/sys/fs/cgroup") else path
+            return RealPath(cgroup_file)
+        if text.startswith("/sys/fs/cgroup"):
+            return RealPath(str(sys_root) + text[len("/sys/fs/cgroup") :])
+        return RealPath(path)
 
     monkeypatch.setattr(memory, "Path", fake)
-    assert memory._cgroup_room() == 2_000_000_000 - 500_000_000 + 100_000_000

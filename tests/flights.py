@@ -5,6 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+#: Cell of the true terrain grid of the tests' flights, metres (none of them reads that grid).
+TRUTH_CELL = 4.0
+
 #: Navigation without errors, for flights whose only errors are the ones a test injects.
 PERFECT_NAVIGATION = {"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0}
 
@@ -16,11 +19,15 @@ def lines(altitude_m: float, speed_ms: float, count: int, length_m: float, **mor
 
 
 def simulate_flight(output: Path, *, seed: int, formats: list[str], scanner: dict, flight: dict, **more: Any):
-    """Simulate a survey into *output*, no check points unless *more* asks (the simulator's result)."""
+    """Simulate a survey into *output*, no check points unless *more* asks (the simulator's result).
+
+    The true terrain (``truth/terrain.tif``) on 4-m cells unless *more* asks: these flights' tests read
+    the true echoes, not that grid, and at the default 1 m it is a quarter of a small flight's time.
+    """
     from dtm.commands.simulate.settings import SimulateConfig
     from dtm.commands.simulate.simulator import simulate
 
-    config = {"checkpoints": 0, **more}
+    config = {"checkpoints": 0, "truth_resolution": TRUTH_CELL, **more}
     return simulate(SimulateConfig(output=output, seed=seed, formats=formats, scanner=scanner, flight=flight, **config))
 
 

@@ -51,12 +51,11 @@ def crs_problem(crs: pyproj.CRS, mins: Sequence[float], maxs: Sequence[float]) -
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         return None  # unusable bounds: the point checks report the file
     horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
-    name = _name(horizontal)
     if horizontal.is_geographic:
         if max(abs(lo[0]), abs(hi[0])) > MAX_LONGITUDE or max(abs(lo[1]), abs(hi[1])) > MAX_LATITUDE:
             return (
                 f"its coordinates ({_extent(lo, hi)}) are not longitudes and latitudes in degrees, "
-                f"which its CRS {name} needs"
+                f"which its CRS {_name(horizontal)} needs"
             )
         return None
     if not horizontal.is_projected:
@@ -83,16 +82,18 @@ def crs_problem(crs: pyproj.CRS, mins: Sequence[float], maxs: Sequence[float]) -
     )
     area_near_origin = x0 <= degrees_box[2] and x1 >= degrees_box[0] and y0 <= degrees_box[3] and y1 >= degrees_box[1]
     if looks_like_degrees and not area_near_origin:
-        return f"its coordinates ({_extent(lo, hi)}) look like degrees, not the {_unit(horizontal)} of its CRS {name}"
+        unit = _unit(horizontal)
+        return f"its coordinates ({_extent(lo, hi)}) look like degrees, not the {unit} of its CRS {_name(horizontal)}"
     if not inside:
         return (
-            f"its coordinates ({_extent(lo, hi)}) lie far outside the area where its CRS {name} is used "
+            f"its coordinates ({_extent(lo, hi)}) lie far outside the area where its CRS {_name(horizontal)} is used "
             f"({area.name}: x {x0:,.0f} to {x1:,.0f}, y {y0:,.0f} to {y1:,.0f})"
         )
     return None
 
 
 def _name(crs) -> str:
+    # named only in a message: to_epsg() searches the EPSG database (about 28 ms), too slow for every file
     epsg = crs.to_epsg()
     return f"{crs.name} (EPSG:{epsg})" if epsg else crs.name
 

@@ -104,7 +104,7 @@ def object_filter(
         return objects[inner], None if floor is None else floor[inner]
     cuts = np.linspace(0, rows, bands + 1).round().astype(int)
     spans = [(max(a - reach, 0), min(b + reach, rows), a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
-    from pipeline.executor import thread_map
+    from pipeline.executor import release_freed_memory, thread_map
 
     parts = thread_map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius, floor_radius), spans, bands)
     objects = np.empty(surface.shape, dtype=bool)
@@ -113,6 +113,9 @@ def object_filter(
         objects[a:b] = part[a - lo : b - lo]
         if floor is not None:
             floor[a:b] = part_floor[a - lo : b - lo]
+    # the bands were allocated in the threads' arenas: hand their pages back now they are freed
+    del parts
+    release_freed_memory()
     return objects[inner], None if floor is None else floor[inner]
 
 

@@ -190,11 +190,13 @@ print((process.memory_info().rss - before) / 2**20)
 
 def test_the_grid_filter_on_two_threads_hands_back_the_memory_it_freed():
     """glibc keeps the pages freed in a thread's own arena: without ``malloc_trim`` this filter
-    on 4.8 M cells leaves the process 45 MB larger than before it (the run held 120 MB through
-    ``rasterize`` at 37.5 M points); handed back, 3 MB.  In a fresh interpreter, so that no
-    other test's arrays are in the arenas."""
+    on 4.8 M cells leaves the process 131-147 MB larger than before it; handed back, 7-9 MB on
+    idle cores and up to 31 MB with three such processes on two cores (the top of a thread's
+    arena, which ``malloc_trim`` does not return, depends on the order the threads free in;
+    measured 2026-12-04, 30 runs each).  In a fresh interpreter, so that no other test's arrays
+    are in the arenas."""
     import subprocess
     import sys
 
     out = subprocess.run([sys.executable, "-c", _GROWTH], capture_output=True, text=True, check=True)
-    assert float(out.stdout) < 15.0
+    assert float(out.stdout) < 40.0

@@ -16,6 +16,7 @@ from dtm.commands.simulate.simulator import simulate
 from dtm.common.georeferencing import Mounting, georeference, prepare_trajectory
 from pipeline.cli import main
 from tests.conftest import run_stages
+from tests.flights import TRUTH_CELL
 from tests.stages.georeference.test_simulate_georef import RIEGL, _input
 
 LAS_GPS_OFFSET = 1e9
@@ -38,7 +39,9 @@ def test_a_pulse_inside_a_gap_has_no_position():
 
 def test_a_navigation_outage_rejects_the_pulses_inside_it(tmp_path):
     sim = tmp_path / "sim"
-    result = simulate(SimulateConfig(output=sim, seed=7, checkpoints=0, faults={"noise": False}, **RIEGL))
+    result = simulate(
+        SimulateConfig(output=sim, seed=7, checkpoints=0, truth_resolution=TRUTH_CELL, faults={"noise": False}, **RIEGL)
+    )
     # cut 1.5 s out of the SBET (and its accuracy file) in the middle of the first line
     sbet = np.fromfile(sim / "lmsq" / "trajectory.sbet", dtype="<f8").reshape(-1, 17)
     sow0 = float(sbet[0, 0])

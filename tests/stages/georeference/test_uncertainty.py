@@ -82,6 +82,7 @@ def test_monte_carlo_matches_the_propagated_sigma(tmp_path):
     """
     from dtm.commands.simulate.settings import SimulateConfig
     from dtm.commands.simulate.simulator import simulate
+    from tests.flights import TRUTH_CELL
     from tests.stages.georeference.test_simulate_georef import _match
 
     errors, sig_v, sig_h, keys = [], None, None, None
@@ -94,6 +95,7 @@ def test_monte_carlo_matches_the_propagated_sigma(tmp_path):
                 noise_seed=100 + k,
                 formats=["lmsq_sbet"],
                 checkpoints=0,
+                truth_resolution=TRUTH_CELL,
                 scanner={"preset": "q140", "pulse_rate_hz": 2000, "range_noise_m": 0.03},
                 navigation={
                     "preset": "pos-av-410",

@@ -8,6 +8,7 @@ pulse density is known exactly) written as LAS; the DTM is the plane itself
 from __future__ import annotations
 
 import re
+from unittest import mock
 
 import laspy
 import numpy as np
@@ -18,6 +19,7 @@ from dtm.common.checkpoints import sample_dtm
 from dtm.stages.accuracy.vertical import vertical_accuracy
 from dtm.stages.report.acceptance import SPECIFICATIONS, evaluate
 from dtm.stages.report.cloud import summarise_cloud
+from dtm.stages.report.figures import map_figures
 from dtm.stages.report.inputs import ReportInputs
 from dtm.stages.report.maps import MapFrame
 from dtm.stages.report.measures import measure
@@ -62,13 +64,16 @@ def _transform(cell=1.0):
     return Affine(cell, 0, 1000.0, 0, -cell, 2000.0 + SIZE)
 
 
-def _report(tmp_path, las, dtm, cell=1.0, metrics=None, **extra):
+def _report(tmp_path, las, dtm, cell=1.0, metrics=None, figures=False, **extra):
+    """The page, the verdict, the inputs and the DTM's transform.  The maps (about 1 s of drawing) only
+    when *figures*: the tests of text and verdicts read neither, and the verdict is measured before them."""
     cloud = summarise_cloud(las, origin=(1000.0, 2000.0 + SIZE), resolution=cell, shape=dtm.shape, dtm=dtm)
     frame = MapFrame(1000.0, 2000.0 + SIZE, cell, "m")
     data = ReportInputs(dtm=dtm, density=np.ones_like(dtm), frame=frame, cloud=cloud, **extra)
     metrics = metrics or {}
     metrics.setdefault("rasterize", {"cols": dtm.shape[1], "rows": dtm.shape[0], "method": "tin"})
-    page, verdict = build_report(name="t", metrics=metrics, data=data, max_size=300)
+    with mock.patch("dtm.stages.report.page.map_figures", wraps=map_figures if figures else lambda *a: []):
+        page, verdict = build_report(name="t", metrics=metrics, data=data, max_size=300)
     return page, verdict, data, _transform(cell)
 
 
@@ -105,7 +110,7 @@ def test_three_strips_are_three(tmp_path):
 def test_a_survey_in_feet_says_feet_for_cells_and_elevations(tmp_path):
     """EPSG:2992 (Oregon Lambert, international foot): a 1-ft DTM of heights 406-...; no 'm' on them."""
     las = _survey(tmp_path, epsg=2992, z0=406.0)
-    page, *_ = _report(tmp_path, las, _dtm(z0=406.0))
+    page, *_ = _report(tmp_path, las, _dtm(z0=406.0), figures=True)
     text = _text(page)
     assert "cells of 1 ft (0.3048 m)" in text
     assert "DTM elevation range 406.00 – 406.60 ft" in text
@@ -247,6 +252,7 @@ def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
         differences=(diff, diff / 2, MapFrame(1000.0, 2060.0, 6.0, "m")),
         uncertainty=np.full((60, 60), 0.05),
         trajectory=[(np.array([1000.0, 1060.0]), np.array([2030.0, 2030.0]), "strip 1")],
+        figures=True,
     )
     for section in ("acceptance", "summary", "inputs", "maps", "classes", "raw", "strips", "accuracy"):
         assert f'<section id="{section}">' in page

@@ -17,6 +17,7 @@ from dtm.commands.simulate.settings import SimulateConfig
 from dtm.commands.simulate.simulator import simulate
 from pipeline.cli import main
 from tests.conftest import run_stages
+from tests.flights import TRUTH_CELL
 from tests.stages.georeference.test_simulate_georef import _match
 
 SIGMA = 0.03  # range noise, metres
@@ -45,6 +46,7 @@ def _flight(
             seed=5,
             formats=["lmsq_sbet"],
             checkpoints=checkpoints,
+            truth_resolution=TRUTH_CELL,
             scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": pulse_rate, "scan_rate_hz": 40},
             navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
             flight=plan,
@@ -116,7 +118,7 @@ def test_calibration_flight_recovers_the_injected_boresight(tmp_path):
 def error_free(tmp_path_factory):
     root = tmp_path_factory.mktemp("mount_free")
     # the boresight needs lines both ways and a cross line, not the second altitude (that is for the lever arm)
-    sim = _flight(root, pulse_rate=6_000, second_altitude_m=None)
+    sim = _flight(root, pulse_rate=4_000, second_altitude_m=None)
     return _run(root, sim, "model: mounting, cell: 6")
 
 

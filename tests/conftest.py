@@ -86,23 +86,35 @@ def run_until(config: Path, until: str, out: Path, *sets: str, cache: Path | Non
     return run_stages(out)
 
 
-#: The test files that take longest (``--durations``, fast suite), longest first.  ``scripts/test.sh`` runs
-#: whole files on each core (``--dist loadfile --no-loadscope-reorder``) in collection order; starting these
-#: first lets both cores finish together instead of one waiting on a long file drawn last.  Only the order
-#: changes: a file missing here runs after them, one renamed only costs balance.
+#: The test files that take longest in the whole suite (``--durations``, 2026-12-04), longest first; the
+#: fast suite's long files are among them.  ``scripts/test.sh`` runs whole files on each core (``--dist
+#: loadfile --no-loadscope-reorder``) in collection order; starting these first lets both cores finish
+#: together instead of one waiting on a long file drawn last.  Only the order changes: a file missing here
+#: runs after them, one renamed only costs balance.
 LONGEST_FIRST = (
+    "tests/end_to_end/test_crash_safety.py",
     "tests/stages/strip_adjust/test_mounting.py",
+    "tests/stages/parse/test_fuzz_las_damage.py",
+    "tests/commands/test_evaluate_ground_isprs.py",
+    "tests/stages/strip_adjust/test_strip_adjust.py",
+    "tests/end_to_end/test_tiled_runs.py",
+    "tests/stages/parse/test_real_files.py",
+    "tests/stages/strip_adjust/test_strip_adjust_no_error.py",
+    "tests/stages/parse/test_real_las_metadata.py",
     "tests/stages/georeference/test_simulate_georef.py",
     "tests/stages/report/test_report.py",
-    "tests/stages/classify_ground/test_tile_buffers.py",
+    "tests/end_to_end/test_las_to_dtm.py",
+    "tests/stages/export_tiles/test_deliverables.py",
     "tests/stages/classify_ground/test_smrf_one_grid.py",
     "tests/pipeline/test_executor_faults.py",
-    "tests/stages/parse/test_fuzz_las_damage.py",
+    "tests/end_to_end/test_feet_crs.py",
+    "tests/stages/georeference/test_uncertainty.py",
     "tests/common/test_split_cloud.py",
+    "tests/stages/classify_ground/test_tile_buffers.py",
     "tests/stages/parse/test_fuzz_inputs.py",
     "tests/pipeline/test_tiling.py",
+    "tests/stages/accuracy/test_truth_accuracy.py",
     "tests/stages/parse/test_shipped_samples.py",
-    "tests/end_to_end/test_odd_inputs.py",
 )
 
 

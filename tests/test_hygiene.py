@@ -46,3 +46,10 @@ def test_config_reference_is_current():
 
     committed = (ROOT / "docs" / "SIMULATOR.md").read_text()
     assert committed == render_simulator(), "stale: python -m dtm.commands.configdoc --simulator > docs/SIMULATOR.md"
+
+
+def test_the_longest_files_named_for_scheduling_exist():
+    """tests/conftest.py's LONGEST_FIRST orders the run; a name that no longer exists would order nothing."""
+    from tests.conftest import LONGEST_FIRST
+
+    assert [name for name in LONGEST_FIRST if not (ROOT / name).is_file()] == []

@@ -161,9 +161,11 @@ def fly(
     lead_in: float = 100.0,
     smooth_s: float = 3.0,
     seed: int = 0,
+    level: bool = False,
 ) -> Flight:
     """Fly *lines* in order at *altitude* (local up; a line's own ``altitude`` when set) and *speed*, with
-    turns between them; a change of height is flown as a steady climb or descent between the lines."""
+    turns between them; a change of height is flown as a steady climb or descent between the lines.  *level*:
+    roll and pitch exactly 0 out of the turns (:func:`_attitude`)."""
     radius = speed**2 / (G * np.tan(np.radians(bank_deg)))
     segs, start_p, start_psi = _segments(lines, speed, radius, lead_in)
     total = sum(s[0] for s in segs)
@@ -177,7 +179,7 @@ def fly(
     n = start_p[1] + _integral(speed * np.cos(heading))
     up = _heights(t, label, lines, altitude, lead_in / speed)
     pos = np.column_stack((e, n, up))
-    roll, pitch, crab = _attitude(t, omega_s, speed, seed)
+    roll, pitch, crab = _attitude(t, omega_s, speed, seed, level)
     # a line keeps its label only where the smoothed turn rate has died away
     label[np.abs(omega_s) > np.radians(0.05)] = 0
     return Flight(t, pos, roll, pitch, heading + crab, label, speed)
@@ -237,11 +239,20 @@ def _heights(t: np.ndarray, label: np.ndarray, lines: list[Line], altitude: floa
     return np.interp(t, knots_t, knots_h)
 
 
-def _attitude(t: np.ndarray, omega_s: np.ndarray, speed: float, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Roll (coordinated-turn bank plus a small oscillation), pitch (oscillating) and a constant crab angle, radians."""
+def _attitude(
+    t: np.ndarray, omega_s: np.ndarray, speed: float, seed: int, level: bool = False
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Roll (coordinated-turn bank plus a small oscillation), pitch (oscillating) and a constant crab angle, radians.
+
+    *level*: no oscillation and no nose-up pitch: roll is the turns' bank alone (0 on the lines), pitch 0;
+    the crab angle stays.
+    """
     rng = np.random.default_rng(seed)
     ph = rng.uniform(0, 2 * np.pi, 3)
-    roll = np.arctan(speed * omega_s / G) + np.radians(0.6) * np.sin(2 * np.pi * 0.21 * t + ph[0])
+    roll = np.arctan(speed * omega_s / G)
+    if level:
+        return roll, np.zeros_like(t), np.radians(2.0) * np.sin(ph[2])
+    roll = roll + np.radians(0.6) * np.sin(2 * np.pi * 0.21 * t + ph[0])
     pitch = np.radians(1.5) + np.radians(0.4) * np.sin(2 * np.pi * 0.13 * t + ph[1])
     crab = np.radians(2.0) * np.sin(ph[2])
     return roll, pitch, crab

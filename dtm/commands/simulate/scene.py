@@ -63,15 +63,23 @@ class Scene:
         return self.cls[iy, ix]
 
 
-def make_scene(extent: tuple[float, float, float, float], *, seed: int = 1, cell: float = 0.5) -> Scene:
+def make_scene(
+    extent: tuple[float, float, float, float], *, seed: int = 1, cell: float = 0.5, terrain: str = "default"
+) -> Scene:
     """A scene covering *extent* (e_min, e_max, n_min, n_max, local metres) with every feature the tests need.
 
     Hills, a 30-degree slope, a 3 m terrace (breakline), a river (water) with
     a bridge over it, flat-roofed and gabled buildings, trees.  Feature
     positions scale with the extent; *seed* moves buildings and trees.
+    *terrain* ``"flat"``: bare ground only, level at local height 0 (the
+    origin's ellipsoidal height), nothing on it: the geometry in which
+    overlapping strips cannot see a horizontal shift.
     """
     rng = np.random.default_rng(seed)
     g = _Lattice.of(extent, cell)
+    if terrain == "flat":
+        level = np.zeros(g.E.shape)
+        return Scene(g.e_min, g.n_min, cell, level, level.copy(), level.copy(), np.full(level.shape, GROUND, np.uint8))
     ground, river, banks, level = _river(g, _terrain(g))
     cls = np.full(ground.shape, GROUND, np.uint8)
     cls[river] = WATER

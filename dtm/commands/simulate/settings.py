@@ -78,8 +78,22 @@ class FlightConfig(StrictModel):
         description="fly the middle line again, there and back, at this height: with the alternating lines and the "
         "cross line, a calibration flight (docs/CALIBRATION.md); default: no such line",
     )
+    level_attitude: bool = Field(
+        False,
+        description="roll and pitch exactly 0 on the lines (no oscillation, no nose-up pitch; the bank in turns and "
+        "the crab angle stay); with scene.terrain: flat, the geometry where pitch and yaw boresight errors only move "
+        "points horizontally",
+    )
     bank_deg: float = Field(30.0, gt=0, lt=60, description="bank angle in turns (sets the turn radius)")
     lead_in_m: float = Field(50.0, ge=0, description="straight flight before and after each line, metres")
+
+
+class SceneConfig(StrictModel):
+    terrain: Literal["default", "flat"] = Field(
+        "default",
+        description="default: hills, slopes, a terrace, a river with a bridge, buildings and trees; flat: level bare "
+        "ground at the origin's height (local 0), nothing on it",
+    )
 
 
 class Faults(StrictModel):
@@ -139,6 +153,7 @@ class SimulateConfig(StrictModel):
     lever_arm_m: tuple[float, float, float] = Field(
         (0.1, 0.0, 0.25), description="lmsq: configured lever arm (body x fwd, y right, z down), metres"
     )
+    scene: SceneConfig = Field(default_factory=SceneConfig)
     flight: FlightConfig = Field(default_factory=FlightConfig)
     faults: Faults = Field(default_factory=Faults)
     truth_resolution: float = Field(1.0, gt=0, description="cell of truth/terrain.tif, metres")

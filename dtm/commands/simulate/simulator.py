@@ -76,7 +76,7 @@ def simulate(cfg: SimulateConfig) -> SimResult:
     frame = Earth(cfg.origin.lat, cfg.origin.lon, cfg.origin.h)  # the simulator's own geometry (forward.py)
     crs = truth_crs(cfg.crs, cfg.origin.lon, cfg.origin.lat)
     flight, recording, extent = _flight(cfg, scanner)
-    world = sc.make_scene(extent, seed=cfg.seed)
+    world = sc.make_scene(extent, seed=cfg.seed, terrain=cfg.scene.terrain)
     lat_s, lon_s, _ = frame.geodetic(flight.pos)
     mounting = _mounting(cfg, scanner)
     nav, bias, att_bias = recorded_navigation(cfg, frame, flight, sigmas, rng, noise_rng)
@@ -165,7 +165,13 @@ def _flight(cfg: SimulateConfig, scanner: Scanner) -> tuple[Flight, np.ndarray, 
         second_altitude=f.second_altitude_m,
     )
     flight = fly(
-        lines, altitude=f.altitude_m, speed=f.speed_ms, bank_deg=f.bank_deg, lead_in=f.lead_in_m, seed=cfg.seed
+        lines,
+        altitude=f.altitude_m,
+        speed=f.speed_ms,
+        bank_deg=f.bank_deg,
+        lead_in=f.lead_in_m,
+        seed=cfg.seed,
+        level=f.level_attitude,
     )
     # RIEGL systems record on the lines (and lead-ins); the seed-0 LD-MRS logs the whole flight
     recording = recording_mask(flight, f.lead_in_m / f.speed_ms if scanner.kind == "line" else None)

@@ -290,11 +290,16 @@ def mounting_table(corrections: dict) -> str:
         elif not u["estimated"]:
             fate = "not estimated (configuration)"
         elif not u["applied"]:
-            fate = f"not applied ({u['not_applied_because']})"
+            fate = f"not applied: {u['not_applied_because']}"
         else:
             fate = "applied"
+            held = u.get("sigma_from_held")
+            if held and held["shift"] >= 0.1 * (u["sigma"] or 0):
+                fate += f"; its 1-σ includes {held['shift']:.{5 if u['unit'] == 'deg' else 4}f} from the held {held['unknown']}"
         digits = 5 if u["unit"] == "deg" else 4
-        est = None if u["estimate"] is None else f"{u['estimate']:+.{digits}f}"
+        # an estimate that is not significant is not a value: only its bound is (in the status)
+        shown = u["estimate"] is not None and (u["applied"] or not u["estimated"])
+        est = f"{u['estimate']:+.{digits}f}" if shown else None
         sd = None if u["sigma"] is None else f"{u['sigma']:.{digits}f}"
         rows.append([u["name"], u["unit"], est, sd, f"{u['correction']:+.{digits}f}", fate])
     header = ["unknown", "unit", "estimate", "1-σ", "correction applied", "status"]

@@ -240,6 +240,7 @@ def calibrate(
         max_iterations=p.max_iterations,
         max_correlation=mp.max_correlation,
         min_significance=mp.min_significance,
+        min_noise=mp.min_noise_m,
         log=progress,
     )
 
@@ -432,9 +433,19 @@ def unknown_rows(cal: Calibration | None, unknowns: Unknowns, theta: np.ndarray)
                 "not_applied_because": cal.not_significant.get(j) if estimated else None,
                 "held_because": why,
                 "determined_by": ADVICE[key] if why else None,
+                "sigma_from_held": _held_effect(cal, j, scale, digits),
             }
         )
     return rows
+
+
+def _held_effect(cal: Calibration | None, j: int, scale: float, digits: int) -> dict | None:
+    """The held unknown whose possible error (its limit) moves unknown *j* most, and by how much (in *j*'s
+    unit); None when no held unknown moves it (its sigma includes every held unknown's effect)."""
+    if cal is None or j not in cal.held_effect or cal.held_effect[j][1] <= 0:
+        return None
+    by, shift = cal.held_effect[j]
+    return {"unknown": cal.unknowns.names[by], "shift": round(float(shift * scale), digits)}
 
 
 def mounting_summary(mounting: Mounting, theta: np.ndarray, pmeta: dict) -> dict:
@@ -646,7 +657,8 @@ def log_outcome(log: logging.Logger, summary: dict, m: dict) -> None:
         return
     est = ", ".join(
         f"{u['name']} {u['estimate']:+.5f} +- {u['sigma']:.5f} {u['unit']}"
-        + ("" if u["applied"] else " (not significant: not applied)")
+        if u["applied"]
+        else f"{u['name']} {u['not_applied_because']} (not applied)"
         for u in summary["unknowns"]
         if u["estimated"] and not u["name"].startswith("strip_")
     )

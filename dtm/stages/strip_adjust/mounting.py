@@ -40,8 +40,9 @@ ADVICE = {
     "boresight_pitch": "lines flown in opposite directions over the same ground with slopes or roofs (a pitch "
     "error shifts the points forward on one line, backward on the other; on lines flown one way it is an "
     "along-track offset)",
-    "boresight_yaw": "lines flown in opposite directions with overlapping swath edges, or a cross line (a yaw "
-    "error shifts the swath edges along track, in opposite senses)",
+    "boresight_yaw": "lines flown in opposite directions with overlapping swath edges over ground with slopes or "
+    "roofs, or a cross line (a yaw error shifts the swath edges along track, in opposite senses: over level "
+    "ground only horizontally)",
     "lever_arm_x": "lines at two flying heights (a lever-arm error moves the points the same at any height, a "
     "boresight error more the higher the flight), in opposite directions",
     "lever_arm_y": "lines at two flying heights (a lever-arm error moves the points the same at any height, a "
@@ -232,6 +233,72 @@ def jacobian(
     return jac
 
 
+#: A patch's fitted slope counts in :func:`geometry_jacobian` only when it is this far from level, in the
+#: squared Mahalanobis distance of its two components: 25 (5 sigma), so that the level patches taken for
+#: sloping by chance (at 3 sigma, 1 in 90 of them) do not add up to information on a large flight.
+LEVEL_T2 = 25.0
+
+
+def geometry_jacobian(
+    traj: Trajectory,
+    mounting: Mounting,
+    sample: Sample,
+    links: Links,
+    theta: np.ndarray,
+    unknowns: Unknowns,
+    cols: list[int],
+    sigma: float,
+) -> np.ndarray:
+    """d residuals / d unknowns (columns *cols*) from what the geometry shows, not from the patches' noise.
+
+    A link's residual moves by ``n . (d_obs - d_surf)`` when the unknown moves the observed points by
+    ``d_obs`` and the surface's by ``d_surf`` (means over each side), ``n`` the surface's normal.  Over a
+    level surface a horizontal move is invisible; but the slope fitted to noisy points is never exactly
+    level, and :func:`jacobian` (which differentiates the refitted surfaces) sees a random slope times a
+    horizontal move as information.  Here a patch's slope counts only where it differs from level by
+    :data:`LEVEL_T2` (5 sigma, from the quadratic fit's covariance with the one-point noise *sigma*);
+    elsewhere only the vertical part of the move counts.
+    """
+    xyz = georeference_sample(traj, mounting, sample, theta, unknowns)
+    k = links.size
+    coef, ata = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k, normals=True)
+    b = np.vstack((xyz[links.obs], links.fixed))
+    g = np.concatenate((links.obs_group, links.fixed_group))
+    q = b - links.origin[g]
+    cnt = np.maximum(np.bincount(g, minlength=k), 1)[:, None]
+    scnt = np.maximum(np.bincount(links.surf_group, minlength=k), 1)[:, None]
+    x, y = (np.bincount(g, q[:, i], k) / cnt[:, 0] for i in (0, 1))
+    zero, one = np.zeros(k), np.ones(k)
+    grad = np.stack(
+        (np.stack((zero, one, zero, 2 * x, y, zero), axis=1), np.stack((zero, zero, one, zero, x, 2 * y), axis=1)),
+        axis=1,
+    )  # (k, 2, 6): the slope at the observed points' mean, as a linear function of the coefficients
+    slope = np.einsum("kij,kj->ki", grad, coef)
+    cov = sigma**2 * grad @ np.linalg.solve(ata, grad.transpose(0, 2, 1))
+    cov += 1e-18 * np.eye(2)
+    t2 = np.einsum("ki,ki->k", slope, np.linalg.solve(cov, slope[:, :, None])[:, :, 0])
+    seen = np.where((t2 >= LEVEL_T2)[:, None], slope, 0.0)
+    norm = np.sqrt(1.0 + np.sum(slope**2, axis=1))
+    jac = np.empty((k, len(cols)))
+    for c, j in enumerate(cols):
+        if j >= 7:  # a strip offset moves that strip's points by one unit
+            disp = np.zeros_like(xyz)
+            disp[sample.strip == unknowns.offset_strips[(j - 7) // 3], (j - 7) % 3] = 1.0
+        else:
+            h = unknowns.step[j]
+            plus, minus = theta.copy(), theta.copy()
+            plus[j] += h
+            minus[j] -= h
+            disp = georeference_sample(traj, mounting, sample, plus, unknowns)
+            disp = (disp - georeference_sample(traj, mounting, sample, minus, unknowns)) / (2 * h)
+        d_obs = np.vstack((disp[links.obs], np.zeros_like(links.fixed)))
+        move = np.column_stack([np.bincount(g, d_obs[:, i], k) for i in range(3)]) / cnt
+        d_surf = disp[links.surf]
+        move -= np.column_stack([np.bincount(links.surf_group, d_surf[:, i], k) for i in range(3)]) / scnt
+        jac[:, c] = (move[:, 2] - np.sum(seen * move[:, :2], axis=1)) / norm
+    return jac
+
+
 def robust_weights(r: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, float]:
     """Huber weights (k = 2) of residuals whose variances are sigma^2 / *base*, and the robust scale sigma
     (of one point)."""
@@ -241,15 +308,21 @@ def robust_weights(r: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def determinability(
-    jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, cols: list[int], max_correlation: float
+    jac: np.ndarray,
+    w: np.ndarray,
+    sigma: float,
+    unknowns: Unknowns,
+    cols: list[int],
+    max_correlation: float,
+    held: dict[int, str] | None = None,
 ) -> dict[int, str]:
     """Unknowns (column numbers of the full vector) the observations cannot determine, with the reason.
 
     One at a time, the worst first: an unknown with no observation depending on it, then the one whose
     1-sigma (from the inverse normal matrix) is the largest multiple of its limit among those above the
-    limit or correlated beyond *max_correlation* with another.
+    limit or correlated beyond *max_correlation* with another.  Those already in *held* stay held.
     """
-    held: dict[int, str] = {}
+    held = dict(held or {})
     while True:
         keep = [c for c in cols if c not in held]
         if not keep:
@@ -286,6 +359,41 @@ def determinability(
         held[worst] = why
 
 
+def leakage(
+    jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, cols: list[int], held: dict[int, str]
+) -> tuple[int, str] | None:
+    """The estimated unknown that a held one would bias beyond its limit, and why; None when there is none.
+
+    A held unknown stays at its configured value, taken as right to within its own limit (the accuracy the
+    calibration asks of an estimate; the flight cannot say more).  Through the correlation, an error ``e``
+    of the held unknown moves the estimates by ``-inv(N_ff) N_fh e`` (consider analysis).  An estimate
+    whose sigma with that effect added (in quadrature) exceeds its limit cannot be told from the held
+    unknown with these lines.
+    """
+    free = [c for c in cols if c not in held]
+    considered = [c for c in held if c in cols and held[c] != "no observation depends on it"]
+    if not free or not considered:
+        return None
+    wn = (w / sigma**2)[:, None]
+    a = jac[:, [cols.index(c) for c in free]]
+    b = jac[:, [cols.index(c) for c in considered]]
+    nff = a.T @ (a * wn)
+    shift = np.linalg.solve(nff, a.T @ (b * wn)) * unknowns.limit[considered]
+    sd = np.sqrt(np.clip(np.diag(np.linalg.inv(nff)), 0, None) + np.sum(shift**2, axis=1))
+    ratio = sd / unknowns.limit[free]
+    worst = int(np.argmax(ratio))
+    if ratio[worst] <= 1.0:
+        return None
+    h = int(np.argmax(np.abs(shift[worst])))
+    c, by = free[worst], considered[h]
+    return c, (
+        f"cannot be told from {unknowns.names[by]} with these lines: an error of "
+        f"{_fmt(unknowns.limit[by], by, unknowns)} in the held {unknowns.names[by]} would move it by "
+        f"{_fmt(abs(shift[worst, h]), c, unknowns)}, with its own 1-sigma above the limit "
+        f"{_fmt(unknowns.limit[c], c, unknowns)}"
+    )
+
+
 def _fmt(value: float, col: int, unknowns: Unknowns) -> str:
     return f"{np.degrees(value):.4f} deg" if col < 3 else f"{value:.4f} m"
 
@@ -307,6 +415,9 @@ class Calibration:
     sample: Sample
     estimate: np.ndarray  # (size,) the estimate of every determinable unknown, before the significance test
     not_significant: dict[int, str]  # estimated but not applied (held at the configured value), and why
+    # applied unknown -> (the held unknown that moves it most, by how much for an error of that one's limit);
+    # its sigma includes the effect of every held unknown
+    held_effect: dict[int, tuple[int, float]] = field(default_factory=dict)
 
 
 def solve(
@@ -320,6 +431,7 @@ def solve(
     max_iterations: int = 10,
     max_correlation: float = 0.95,
     min_significance: float = 3.0,
+    min_noise: float = 0.01,
     log: Callable | None = None,
 ) -> Calibration | None:
     """Gauss-Newton over *rounds* correspondence searches (docs/CALIBRATION.md).
@@ -328,7 +440,8 @@ def solve(
     indices they use.  Returns None when there is no correspondence.  After the first round the unknowns
     the flight cannot determine are held (:func:`determinability`); after the last, an estimate within
     *min_significance* of its sigmas of zero is not applied (0: apply every estimate).  *log(round, theta,
-    sigma, links)* is told of each round.
+    sigma, links)* is told of each round; *min_noise* is the lowest one-point noise the determinability test
+    assumes (metres).
     """
     theta = np.zeros(unknowns.size)
     free = list(unknowns.free)
@@ -346,7 +459,7 @@ def solve(
         if log is not None:
             log(rnd, theta, gn.sigma, gn.links.size)
         if rnd == 0:
-            held = gn.undetermined(theta, free, max_correlation)
+            held = gn.undetermined(theta, free, max_correlation, min_noise)
             free = [c for c in free if c not in held]
             theta[list(held)] = 0.0
     estimate = theta.copy()
@@ -357,6 +470,9 @@ def solve(
         sd_full[free] = sd
         corr = gn.cov / np.outer(sd, sd)
     not_significant = gn.drop_insignificant(theta, free, min_significance)
+    applied = [c for c in free if c not in not_significant]
+    added, effect = gn.held_effect(theta, applied, held, min_noise)
+    sd_full[applied] = np.sqrt(sd_full[applied] ** 2 + added)
     return Calibration(
         theta,
         unknowns,
@@ -370,6 +486,7 @@ def solve(
         gn.sample,
         estimate,
         not_significant,
+        effect,
     )
 
 
@@ -409,18 +526,55 @@ class _GaussNewton:
             if all(abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, cols, strict=True)):
                 return
 
-    def undetermined(self, theta: np.ndarray, free: list[int], max_correlation: float) -> dict[int, str]:
+    def undetermined(
+        self, theta: np.ndarray, free: list[int], max_correlation: float, min_noise: float
+    ) -> dict[int, str]:
         """The unknowns this flight cannot determine, at the first round's solution and residual scale.
 
         Not that of the uncorrected flight, which the errors themselves inflate; and with the geometry's
         weights, not the robust ones: what the flight can determine does not depend on how well the first
-        round fitted.
+        round fitted.  The Jacobian is the geometry's (:func:`geometry_jacobian`: slopes only where they
+        are significant) and the noise at least *min_noise*, so the decision does not rest on the patches'
+        noise nor on a noise-free simulation.  Then the held unknowns' possible error is carried into the
+        others (:func:`leakage`), one more held at a time.
         """
         xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
         base = link_weights(self.links, xyz)
         _, sigma = robust_weights(residuals(self.links, xyz), base)
-        jac = jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, free)
-        return determinability(jac, base, sigma, self.unknowns, free, max_correlation)
+        sigma = max(sigma, min_noise)
+        jac = geometry_jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, free, sigma)
+        held: dict[int, str] = {}
+        while True:
+            held.update(determinability(jac, base, sigma, self.unknowns, free, max_correlation, held))
+            leak = leakage(jac, base, sigma, self.unknowns, free, held)
+            if leak is None:
+                return held
+            held[leak[0]] = leak[1]
+
+    def held_effect(
+        self, theta: np.ndarray, applied: list[int], held: dict[int, str], min_noise: float
+    ) -> tuple[np.ndarray, dict[int, tuple[int, float]]]:
+        """The variance the held unknowns add to each applied one (in *applied*'s order), and the largest.
+
+        Each held unknown is taken as right to within its limit; through the geometry's correlations an
+        error of that size moves the estimates by ``inv(N_ff) N_fh e`` (consider analysis, as in
+        :func:`leakage`), which their sigmas then include.
+        """
+        considered = [c for c in held if held[c] != "no observation depends on it"]
+        if not applied or not considered:
+            return np.zeros(len(applied)), {}
+        xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
+        base = link_weights(self.links, xyz)
+        _, sigma = robust_weights(residuals(self.links, xyz), base)
+        cols = applied + considered
+        jac = geometry_jacobian(
+            self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, cols, max(sigma, min_noise)
+        )
+        a, b = jac[:, : len(applied)], jac[:, len(applied) :]
+        nff = a.T @ (a * base[:, None])
+        shift = np.abs(np.linalg.solve(nff, a.T @ (b * base[:, None])) * self.unknowns.limit[considered])
+        effect = {c: (considered[int(np.argmax(shift[i]))], float(shift[i].max())) for i, c in enumerate(applied)}
+        return np.sum(shift**2, axis=1), effect
 
     def drop_insignificant(self, theta: np.ndarray, free: list[int], min_significance: float) -> dict[int, str]:
         """Backward elimination of the estimates that do not differ from zero; which were dropped, and why.
@@ -436,7 +590,8 @@ class _GaussNewton:
             if ratio[k] >= min_significance:
                 break
             c = applied.pop(k)
-            not_significant[c] = f"estimate within {min_significance:g} sigma of the configured value"
+            bound = _fmt(min_significance * sd[k], c, self.unknowns)
+            not_significant[c] = f"not determined beyond +-{bound} ({min_significance:g} sigma) of the configured value"
             theta[c] = 0.0
             if applied:
                 self.iterate(theta, applied, prior_on=False)

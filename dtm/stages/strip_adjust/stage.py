@@ -29,7 +29,7 @@ from pipeline.errors import ConfigError
 from pipeline.stage import Stage, StageContext, StageIO
 
 
-class StripAdjust(Stage, name="strip_adjust", version="8", params=StripAdjustParams):
+class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustParams):
     """joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration."""
 
     inputs: ClassVar = ("points_georef",)

@@ -26,7 +26,15 @@ LEVER = (0.03, -0.04, 0.0)  # injected lever-arm error, metres (5 cm)
 
 
 def _flight(
-    root: Path, *, boresight=(0.0, 0.0, 0.0), lever=(0.0, 0.0, 0.0), pulse_rate=10_000, checkpoints=0, **flight
+    root: Path,
+    *,
+    boresight=(0.0, 0.0, 0.0),
+    lever=(0.0, 0.0, 0.0),
+    pulse_rate=10_000,
+    checkpoints=0,
+    terrain="default",
+    sigma=SIGMA,
+    **flight,
 ) -> Path:
     plan = {
         "altitude_m": 300,
@@ -47,7 +55,8 @@ def _flight(
             formats=["lmsq_sbet"],
             checkpoints=checkpoints,
             truth_resolution=TRUTH_CELL,
-            scanner={"preset": "q140", "range_noise_m": SIGMA, "pulse_rate_hz": pulse_rate, "scan_rate_hz": 40},
+            scanner={"preset": "q140", "range_noise_m": sigma, "pulse_rate_hz": pulse_rate, "scan_rate_hz": 40},
+            scene={"terrain": terrain},
             navigation={"preset": "pos-av-410", "position_noise_m": 0.0, "attitude_noise_deg": 0.0},
             flight=plan,
             faults={"boresight_error_deg": boresight, "lever_arm_error_m": lever},

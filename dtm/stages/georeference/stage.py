@@ -25,7 +25,7 @@ from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext
 
 
-class Georeference(Stage, name="georeference", version="7", params=GeoreferenceParams):
+class Georeference(Stage, name="georeference", version="8", params=GeoreferenceParams):
     """pulses + trajectory -> points in the output CRS (raw formats only)."""
 
     inputs: ClassVar = ("trajectory", "pulses")

@@ -16,6 +16,10 @@ if TYPE_CHECKING:
     import pyproj
 
 
+GAP_S = 2.0
+"""A step between epochs longer than this (s) is a gap in the trajectory: it ends a line."""
+
+
 def segment_strips(
     time: np.ndarray,
     heading_deg: np.ndarray,
@@ -26,12 +30,23 @@ def segment_strips(
 ) -> np.ndarray:
     """Strip number per epoch: 1, 2, ... for the lines in time order, 0 in turns.
 
-    The heading (unwrapped) is smoothed with a moving average of *smooth_s*
-    seconds; an epoch is on a line when the smoothed turn rate is below
-    *turn_rate_deg_s*; a run of such epochs lasting at least *min_line_s*
-    seconds is a line.  A gap in the trajectory longer than 2 s also ends a
-    line.  Units: seconds and degrees (the direction of the heading does not
-    matter, so NED and NWU yaw both work).
+    The trajectory is first cut at its gaps: a step between epochs longer
+    than :data:`GAP_S` (2 s) ends a piece (the recording paused, in a turn or
+    on a line).  In each piece on its own, the heading (unwrapped) is smoothed
+    with a moving average of *smooth_s* seconds (the piece padded with its own
+    first and last heading; a piece no longer than the window is not smoothed)
+    and differentiated, the window counted in the piece's median time step.  An
+    epoch is on a line when the smoothed turn rate is below *turn_rate_deg_s*;
+    a run of such epochs, within one piece, lasting at least *min_line_s*
+    seconds is a line.  A piece of one epoch has no turn rate: it is taken as
+    steady, a run of 0 s (a line only if *min_line_s* is 0).  Fewer than three
+    epochs in all make one line if they span *min_line_s*, gaps or not.
+    Units: seconds and degrees (the direction of the heading does not matter,
+    so NED and NWU yaw both work).
+
+    Smoothing piece by piece departs from the earlier whole-array average:
+    across a gap that one mixed the heading of the line before the gap with
+    the line after it, so the first epochs after a gap looked like a turn.
 
     >>> t = np.arange(0, 60, 0.1)
     >>> hdg = np.where(t < 20, 0.0, np.where(t < 30, (t - 20) * 18.0, 180.0))
@@ -44,17 +59,15 @@ def segment_strips(
     if n < 3:  # too few epochs for a turn rate: one line if they last long enough
         return np.full(n, 1 if n and t[-1] - t[0] >= min_line_s else 0, np.int32)
     h = np.unwrap(np.radians(np.asarray(heading_deg, dtype=np.float64)))
-    dt = float(np.median(np.diff(t)))
-    win = max(1, int(round(smooth_s / max(dt, 1e-9))))
-    if win > 1 and n > win:
-        kernel = np.ones(win) / win
-        padded = np.concatenate((np.full(win, h[0]), h, np.full(win, h[-1])))
-        h = np.convolve(padded, kernel, "same")[win:-win]
-    rate = np.degrees(np.abs(np.gradient(h, t)))
+    gaps = np.concatenate(([False], np.diff(t) > GAP_S))
+    # the turn rate piece by piece between the gaps (a loop over the pieces, a few hundred at most;
+    # each piece vectorised: a trajectory has an epoch every 5 ms, hours of them)
+    bounds = np.concatenate(([0], np.flatnonzero(gaps), [n]))
+    rate = np.empty(n)
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        rate[a:b] = _turn_rate(t[a:b], h[a:b], smooth_s)
     steady = rate < turn_rate_deg_s
-    gaps = np.concatenate(([False], np.diff(t) > 2.0))
-    # runs of steady epochs, a gap in the trajectory also starting a new run (vectorised: a
-    # trajectory has an epoch every 5 ms, hours of them)
+    # runs of steady epochs, a gap in the trajectory also starting a new run
     before = np.concatenate(([False], steady[:-1]))
     after = np.concatenate((steady[1:], [False]))
     first = np.flatnonzero(steady & (~before | gaps))
@@ -63,6 +76,20 @@ def segment_strips(
     long_enough = t[last] - t[first] >= min_line_s
     label = np.concatenate(([0], np.where(long_enough, np.cumsum(long_enough), 0))).astype(np.int32)
     return label[run]
+
+
+def _turn_rate(t: np.ndarray, h: np.ndarray, smooth_s: float) -> np.ndarray:
+    """Smoothed turn rate (deg/s) of one piece of trajectory without a gap; 0 for a lone epoch."""
+    n = len(t)
+    if n < 2:
+        return np.zeros(n)
+    dt = float(np.median(np.diff(t)))
+    win = max(1, int(round(smooth_s / max(dt, 1e-9))))
+    if win > 1 and n > win:
+        kernel = np.ones(win) / win
+        padded = np.concatenate((np.full(win, h[0]), h, np.full(win, h[-1])))
+        h = np.convolve(padded, kernel, "same")[win:-win]
+    return np.degrees(np.abs(np.gradient(h, t)))
 
 
 def nearest(times: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -287,6 +287,20 @@ MUTATIONS: list[Mutation] = [
         "",
         ("tests/stages/strip_adjust/test_control_datum.py", "tests/stages/strip_adjust/test_strip_adjust.py"),
     ),
+    Mutation(
+        "calibration: every patch slope counts, however level (issue 37)",
+        "dtm/stages/strip_adjust/mounting.py",
+        "seen = np.where((t2 >= LEVEL_T2)[:, None], slope, 0.0)",
+        "seen = slope",
+        ("tests/stages/strip_adjust/test_mounting_flat.py",),
+    ),
+    Mutation(
+        "calibration: a held unknown's error not carried into the others (issue 37)",
+        "dtm/stages/strip_adjust/mounting.py",
+        "    sd_full[applied] = np.sqrt(sd_full[applied] ** 2 + added)",
+        "    sd_full[applied] = sd_full[applied]",
+        ("tests/stages/strip_adjust/test_mounting_flat.py",),
+    ),
 ]
 
 

@@ -93,6 +93,7 @@ def run_until(config: Path, until: str, out: Path, *sets: str, cache: Path | Non
 #: runs after them, one renamed only costs balance.
 LONGEST_FIRST = (
     "tests/end_to_end/test_crash_safety.py",
+    "tests/stages/strip_adjust/test_mounting_flat.py",
     "tests/stages/strip_adjust/test_mounting.py",
     "tests/stages/parse/test_fuzz_las_damage.py",
     "tests/commands/test_evaluate_ground_isprs.py",

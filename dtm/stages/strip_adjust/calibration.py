@@ -240,7 +240,6 @@ def calibrate(
         max_iterations=p.max_iterations,
         max_correlation=mp.max_correlation,
         min_significance=mp.min_significance,
-        min_noise=mp.min_noise_m,
         log=progress,
     )
 

@@ -431,7 +431,6 @@ def solve(
     max_iterations: int = 10,
     max_correlation: float = 0.95,
     min_significance: float = 3.0,
-    min_noise: float = 0.01,
     log: Callable | None = None,
 ) -> Calibration | None:
     """Gauss-Newton over *rounds* correspondence searches (docs/CALIBRATION.md).
@@ -440,8 +439,7 @@ def solve(
     indices they use.  Returns None when there is no correspondence.  After the first round the unknowns
     the flight cannot determine are held (:func:`determinability`); after the last, an estimate within
     *min_significance* of its sigmas of zero is not applied (0: apply every estimate).  *log(round, theta,
-    sigma, links)* is told of each round; *min_noise* is the lowest one-point noise the determinability test
-    assumes (metres).
+    sigma, links)* is told of each round.
     """
     theta = np.zeros(unknowns.size)
     free = list(unknowns.free)
@@ -459,7 +457,7 @@ def solve(
         if log is not None:
             log(rnd, theta, gn.sigma, gn.links.size)
         if rnd == 0:
-            held = gn.undetermined(theta, free, max_correlation, min_noise)
+            held = gn.undetermined(theta, free, max_correlation)
             free = [c for c in free if c not in held]
             theta[list(held)] = 0.0
     estimate = theta.copy()
@@ -471,7 +469,7 @@ def solve(
         corr = gn.cov / np.outer(sd, sd)
     not_significant = gn.drop_insignificant(theta, free, min_significance)
     applied = [c for c in free if c not in not_significant]
-    added, effect = gn.held_effect(theta, applied, held, min_noise)
+    added, effect = gn.held_effect(theta, applied, held)
     sd_full[applied] = np.sqrt(sd_full[applied] ** 2 + added)
     return Calibration(
         theta,
@@ -526,22 +524,18 @@ class _GaussNewton:
             if all(abs(v) < (1e-8 if c < 3 else 1e-5) for v, c in zip(dx, cols, strict=True)):
                 return
 
-    def undetermined(
-        self, theta: np.ndarray, free: list[int], max_correlation: float, min_noise: float
-    ) -> dict[int, str]:
+    def undetermined(self, theta: np.ndarray, free: list[int], max_correlation: float) -> dict[int, str]:
         """The unknowns this flight cannot determine, at the first round's solution and residual scale.
 
         Not that of the uncorrected flight, which the errors themselves inflate; and with the geometry's
         weights, not the robust ones: what the flight can determine does not depend on how well the first
         round fitted.  The Jacobian is the geometry's (:func:`geometry_jacobian`: slopes only where they
-        are significant) and the noise at least *min_noise*, so the decision does not rest on the patches'
-        noise nor on a noise-free simulation.  Then the held unknowns' possible error is carried into the
-        others (:func:`leakage`), one more held at a time.
+        are significant), so the decision does not rest on the patches' noise.  Then the held unknowns'
+        possible error is carried into the others (:func:`leakage`), one more held at a time.
         """
         xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
         base = link_weights(self.links, xyz)
         _, sigma = robust_weights(residuals(self.links, xyz), base)
-        sigma = max(sigma, min_noise)
         jac = geometry_jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, free, sigma)
         held: dict[int, str] = {}
         while True:
@@ -552,7 +546,7 @@ class _GaussNewton:
             held[leak[0]] = leak[1]
 
     def held_effect(
-        self, theta: np.ndarray, applied: list[int], held: dict[int, str], min_noise: float
+        self, theta: np.ndarray, applied: list[int], held: dict[int, str]
     ) -> tuple[np.ndarray, dict[int, tuple[int, float]]]:
         """The variance the held unknowns add to each applied one (in *applied*'s order), and the largest.
 
@@ -567,9 +561,7 @@ class _GaussNewton:
         base = link_weights(self.links, xyz)
         _, sigma = robust_weights(residuals(self.links, xyz), base)
         cols = applied + considered
-        jac = geometry_jacobian(
-            self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, cols, max(sigma, min_noise)
-        )
+        jac = geometry_jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, cols, sigma)
         a, b = jac[:, : len(applied)], jac[:, len(applied) :]
         nff = a.T @ (a * base[:, None])
         shift = np.abs(np.linalg.solve(nff, a.T @ (b * base[:, None])) * self.unknowns.limit[considered])

@@ -38,12 +38,6 @@ class MountingParams(StrictModel):
         "determined beyond +-(this many sigmas)' (held at the configured value, the others solved again); 0: apply "
         "every estimate",
     )
-    min_noise_m: float = Field(
-        0.01,
-        gt=0,
-        description="the lowest one-point noise (metres) the determinability test assumes: an unknown that only a "
-        "scanner with less noise, or a surface model better than the patches' quadratics, could determine is held",
-    )
     rounds: int = Field(3, ge=2, description="correspondence searches (each followed by Gauss-Newton iterations)")
 
 

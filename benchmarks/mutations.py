@@ -297,8 +297,8 @@ MUTATIONS: list[Mutation] = [
     Mutation(
         "calibration: a held unknown's error not carried into the others (issue 37)",
         "dtm/stages/strip_adjust/mounting.py",
-        "    sd_full[applied] = np.sqrt(sd_full[applied] ** 2 + added)",
-        "    sd_full[applied] = sd_full[applied]",
+        "    sd_full[applied] = np.sqrt(np.maximum(sd_full[applied] ** 2, geometric) + added)",
+        "    sd_full[applied] = np.sqrt(np.maximum(sd_full[applied] ** 2, geometric))",
         ("tests/stages/strip_adjust/test_mounting_flat.py",),
     ),
 ]

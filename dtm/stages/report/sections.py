@@ -310,6 +310,10 @@ def mounting_table(corrections: dict) -> str:
         lead += f"; boresight to configure (input.boresight_deg): {roll:+.5f}, {pitch:+.5f}, {yaw:+.5f}°"
     if corrections.get("residual_sigma_m") is not None:
         lead += f"; residual σ of one point {corrections['residual_sigma_m']:.4f} m"
+    lead += (
+        "; 1-σ of an applied unknown: the larger of the formal one and the one the geometry alone gives "
+        "(surface slopes only where significant), with the held unknowns' possible error added"
+    )
     if corrections.get("largest_point_move_m") is not None:
         lead += f"; largest point move {corrections['largest_point_move_m']:.4f} m"
     return lead + ".</p>" + grid(header, rows)

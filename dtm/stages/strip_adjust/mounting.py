@@ -406,7 +406,9 @@ class Calibration:
     theta: np.ndarray
     unknowns: Unknowns
     free: list[int]
-    sigma: np.ndarray  # (size,) NaN where not estimated
+    # (size,) NaN where not estimated; for an applied unknown the larger of the formal and the geometric
+    # sigma, with the held unknowns' effect added
+    sigma: np.ndarray
     correlation: np.ndarray  # (len(free), len(free))
     held: dict[int, str]
     residual_sigma: float
@@ -469,8 +471,8 @@ def solve(
         corr = gn.cov / np.outer(sd, sd)
     not_significant = gn.drop_insignificant(theta, free, min_significance)
     applied = [c for c in free if c not in not_significant]
-    added, effect = gn.held_effect(theta, applied, held)
-    sd_full[applied] = np.sqrt(sd_full[applied] ** 2 + added)
+    geometric, added, effect = gn.held_effect(theta, applied, held)
+    sd_full[applied] = np.sqrt(np.maximum(sd_full[applied] ** 2, geometric) + added)
     return Calibration(
         theta,
         unknowns,
@@ -547,16 +549,18 @@ class _GaussNewton:
 
     def held_effect(
         self, theta: np.ndarray, applied: list[int], held: dict[int, str]
-    ) -> tuple[np.ndarray, dict[int, tuple[int, float]]]:
-        """The variance the held unknowns add to each applied one (in *applied*'s order), and the largest.
+    ) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[int, float]]]:
+        """The applied unknowns' variances from the geometry, what the held unknowns add, and the largest.
 
-        Each held unknown is taken as right to within its limit; through the geometry's correlations an
-        error of that size moves the estimates by ``inv(N_ff) N_fh e`` (consider analysis, as in
-        :func:`leakage`), which their sigmas then include.
+        The first: from :func:`geometry_jacobian` (slopes only where significant) and the residual scale,
+        so not lowered by the patches' noise as the formal variance can be.  Each held unknown is taken as
+        right to within its limit; through the geometry's correlations an error of that size moves the
+        estimates by ``inv(N_ff) N_fh e`` (consider analysis, as in :func:`leakage`): the second, and per
+        applied unknown the held one that moves it most and by how much.  All in *applied*'s order.
         """
+        if not applied:
+            return np.zeros(0), np.zeros(0), {}
         considered = [c for c in held if held[c] != "no observation depends on it"]
-        if not applied or not considered:
-            return np.zeros(len(applied)), {}
         xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
         base = link_weights(self.links, xyz)
         _, sigma = robust_weights(residuals(self.links, xyz), base)
@@ -564,9 +568,13 @@ class _GaussNewton:
         jac = geometry_jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, cols, sigma)
         a, b = jac[:, : len(applied)], jac[:, len(applied) :]
         nff = a.T @ (a * base[:, None])
-        shift = np.abs(np.linalg.solve(nff, a.T @ (b * base[:, None])) * self.unknowns.limit[considered])
+        vals, vecs = np.linalg.eigh(nff)
+        geometric = sigma**2 * np.diag((vecs / np.maximum(vals, 1e-300)) @ vecs.T)
+        if not considered:
+            return geometric, np.zeros(len(applied)), {}
+        shift = np.abs(np.linalg.lstsq(nff, a.T @ (b * base[:, None]), rcond=None)[0] * self.unknowns.limit[considered])
         effect = {c: (considered[int(np.argmax(shift[i]))], float(shift[i].max())) for i, c in enumerate(applied)}
-        return np.sum(shift**2, axis=1), effect
+        return geometric, np.sum(shift**2, axis=1), effect
 
     def drop_insignificant(self, theta: np.ndarray, free: list[int], min_significance: float) -> dict[int, str]:
         """Backward elimination of the estimates that do not differ from zero; which were dropped, and why.

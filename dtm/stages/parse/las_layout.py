@@ -138,12 +138,15 @@ def _carried(vlr) -> bool:
 
     Not: the CRS (``LASF_Projection``, liblas' WKT; the writer adds the output
     CRS), extra-byte descriptions (``LASF_Spec`` 4; made from the layout),
-    LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354).
+    LASzip's record, waveform packet descriptors (``LASF_Spec`` 100-354), a
+    COPC file's info VLR and octree hierarchy EVLR (``copc``: they describe
+    where that file's points lie in it, not ours; our COPC product writes
+    its own).
     """
     if not _ascii(vlr):
         return False  # a damaged name or description: it could not be written
     user = vlr.user_id.strip("\0 ")
-    if user in ("LASF_Projection", "laszip encoded") or (user == "liblas" and vlr.record_id == 2112):
+    if user in ("LASF_Projection", "laszip encoded", "copc") or (user == "liblas" and vlr.record_id == 2112):
         return False
     return not (user == "LASF_Spec" and (vlr.record_id == 4 or 100 <= vlr.record_id <= 354))
 

@@ -95,6 +95,13 @@ class ExecutorConfig(StrictModel):
         description="seconds to wait for the Dask scheduler at `address` to answer; then the run stops "
         "(exit 4) instead of waiting for ever; default 10",
     )
+    in_process_below: int = Field(
+        100_000,
+        ge=0,
+        description="local executor: a stage whose tiled work weighs less than this (its points, for this "
+        "pipeline's stages) runs its tiles one after the other in the run's own process, without starting "
+        "workers (about 1 s, more than such work takes); the products are the same; 0: always use the workers",
+    )
 
 
 #: Smallest tile side (metres): smaller tiles cost more in buffers than they save.

@@ -201,6 +201,7 @@ def run_tiled(
     task: Callable[[Any], Any],
     merge: Callable[[Layout, list[Any], list[Any]], Any],
     what: str = "tiles",
+    weight: float | None = None,
 ) -> Any:
     """Run a stage's work tile by tile on the run's executor; the value of *merge*.
 
@@ -212,8 +213,32 @@ def run_tiled(
     never arrays, whose optional ``weight`` runs the largest first); *task*, a
     module-level function, runs each one (in another process or on a Dask
     worker); ``merge(layout, tasks, results)`` gets the results in the tasks'
-    order.
+    order.  *weight*, the whole work's in the tasks' unit, lets a light stage
+    run in this process (:func:`_runs_here`); the results are the same.
     """
+    executor, here = ctx.executor, _runs_here(ctx.config, weight)
+    if here:
+        from pipeline.executor import LocalExecutor
+
+        ctx.executor = LocalExecutor(1)  # the split, the tasks: all here, no worker started
+    try:
+        result = _run_tiled(ctx, extent, buffer, split, task, merge, what)
+    finally:
+        ctx.executor = executor
+    if here:
+        ctx.metrics["tiling"]["executor"] = f"this process (work {weight:,.0f}, below executor.in_process_below)"
+    return result
+
+
+def _runs_here(config: Any, weight: float | None) -> bool:
+    """Whether work of *weight* runs in this process: the local executor's ``in_process_below``."""
+    ex = getattr(config, "executor", None)
+    below = getattr(ex, "in_process_below", 0) if ex is not None else 0
+    return weight is not None and ex is not None and ex.kind == "local" and weight < below
+
+
+def _run_tiled(ctx: Any, extent, buffer, split, task, merge, what) -> Any:
+    """:func:`run_tiled` on the context's executor."""
     layout = layout_for(ctx.config, extent, buffer)
     ctx.metrics["tiling"] = {
         "tiles": len(layout),

@@ -62,7 +62,7 @@ def classes_by_tile(
         return results
 
     try:
-        return run_tiled(ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge)
+        return run_tiled(ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge, weight=info.count)
     finally:
         cleanup(work)
 

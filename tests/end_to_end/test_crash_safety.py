@@ -302,6 +302,7 @@ def test_a_killed_run_leaves_no_worker_behind(small_job, tmp_path):
     cmd = [str(Path(sys.executable).with_name("pipeline")), "run", str(small_job / "job.yaml"), "-q"]
     cmd += ["--set", f"output={out}", "--set", f"cache={tmp_path / 'cache'}"]
     cmd += ["--set", "tiling.size=50", "--set", "executor.workers=2", "--set", "executor.kind=local"]
+    cmd += ["--set", "executor.in_process_below=0"]  # a small job: workers all the same
     run = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     parent = psutil.Process(run.pid)
     workers: list = []
@@ -368,6 +369,7 @@ def test_sigint_and_sigterm_stop_a_tiled_run_cleanly(small_job, trigger, signum,
     root = small_job
     base = root / "signals"
     tiled = ["--set", "tiling.size=50", "--set", "executor.workers=2", "--set", "executor.kind=local"]
+    tiled += ["--set", "executor.in_process_below=0"]  # a small job: workers all the same
     if trigger.startswith("[classify_ground] tiles"):  # SMRF filters a grid this small whole, in this process
         tiled += ["--set", "stages.classify_ground.one_grid_cells=0"]
     pipeline = str(Path(sys.executable).with_name("pipeline"))

@@ -104,3 +104,43 @@ def test_unreachable_scheduler_is_one_sentence():
     with pytest.raises(EnvironmentFailure, match=r"tcp://127.0.0.1:9: no Dask scheduler answered within 1 s"):
         ex.map(square, [{"i": 1}])
     ex.close()
+
+
+def where(task: dict) -> tuple[int, int]:
+    """The task's number and the process that ran it."""
+    import os
+
+    return task["i"], os.getpid()
+
+
+@pytest.mark.parametrize("weight, here", [(99_999, True), (100_000, False), (None, False)])
+def test_light_work_runs_in_this_process_and_gives_the_same_results(weight, here):
+    """Below ``executor.in_process_below`` (100,000 by default) the tiles run here, no worker started."""
+    import logging
+    import os
+    from types import SimpleNamespace
+
+    from pipeline.config import ExecutorConfig
+    from pipeline.tiling import run_tiled
+
+    ex = LocalExecutor(2)
+    config = SimpleNamespace(executor=ExecutorConfig(workers=2), tiling=None)
+    ctx = SimpleNamespace(config=config, executor=ex, metrics={}, log=logging.getLogger("test"))
+    try:
+        out = run_tiled(
+            ctx,
+            extent=(0.0, 0.0, 10.0, 10.0),
+            buffer=0.0,
+            split=lambda layout: [{"i": i} for i in range(6)],
+            task=where,
+            merge=lambda layout, tasks, results: results,
+            weight=weight,
+        )
+        assert [i for i, _ in out] == list(range(6))
+        pids = {pid for _, pid in out}
+        assert (pids == {os.getpid()}) is here
+        assert (ex._pool is None) is here
+        assert ctx.executor is ex  # given back
+        assert ctx.metrics["tiling"]["executor"].startswith("this process") is here
+    finally:
+        ex.close()

@@ -84,6 +84,7 @@ class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
                 split=tiles.split,
                 task=rasterize_tile,
                 merge=tiles.merge,
+                weight=info.count,
             )
         finally:
             cleanup(tiles.work)

@@ -188,6 +188,7 @@ print((process.memory_info().rss - before) / 2**20)
 """
 
 
+@pytest.mark.slow  # a 4.8 M-cell filter in a fresh interpreter (about 5 s)
 def test_the_grid_filter_on_two_threads_hands_back_the_memory_it_freed():
     """glibc keeps the pages freed in a thread's own arena: without ``malloc_trim`` this filter
     on 4.8 M cells leaves the process 131-147 MB larger than before it; handed back, 7-9 MB on

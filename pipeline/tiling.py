@@ -221,13 +221,32 @@ def run_tiled(
         from pipeline.executor import LocalExecutor
 
         ctx.executor = LocalExecutor(1)  # the split, the tasks: all here, no worker started
+    where = f"this process (work {weight:,.0f}, below executor.in_process_below)" if here else executor.describe()
     try:
-        result = _run_tiled(ctx, extent, buffer, split, task, merge, what)
+        layout = layout_for(ctx.config, extent, buffer)
+        ctx.metrics["tiling"] = {
+            "tiles": len(layout),
+            "size": layout.size,
+            "buffer": layout.buffer,
+            "executor": where,
+        }
+        if len(layout) > 1:
+            ctx.executor.prepare(task, len(layout))  # workers start while the tasks are being made
+        tasks = split(layout)
+        ctx.metrics["tiling"]["tasks"] = len(tasks)
+        if len(layout) > 1:
+            ctx.log.info(
+                "%d tiles of %g with a buffer of %g (%d hold data) on %s",
+                len(layout),
+                layout.size,
+                layout.buffer,
+                len(tasks),
+                where,
+            )
+        results = map_largest_first(ctx, task, tasks, what)
+        return merge(layout, tasks, results)
     finally:
         ctx.executor = executor
-    if here:
-        ctx.metrics["tiling"]["executor"] = f"this process (work {weight:,.0f}, below executor.in_process_below)"
-    return result
 
 
 def _runs_here(config: Any, weight: float | None) -> bool:
@@ -235,32 +254,6 @@ def _runs_here(config: Any, weight: float | None) -> bool:
     ex = getattr(config, "executor", None)
     below = getattr(ex, "in_process_below", 0) if ex is not None else 0
     return weight is not None and ex is not None and ex.kind == "local" and weight < below
-
-
-def _run_tiled(ctx: Any, extent, buffer, split, task, merge, what) -> Any:
-    """:func:`run_tiled` on the context's executor."""
-    layout = layout_for(ctx.config, extent, buffer)
-    ctx.metrics["tiling"] = {
-        "tiles": len(layout),
-        "size": layout.size,
-        "buffer": layout.buffer,
-        "executor": ctx.executor.describe(),
-    }
-    if len(layout) > 1:
-        ctx.executor.prepare(task, len(layout))  # workers start while the tasks are being made
-    tasks = split(layout)
-    ctx.metrics["tiling"]["tasks"] = len(tasks)
-    if len(layout) > 1:
-        ctx.log.info(
-            "%d tiles of %g with a buffer of %g (%d hold data) on %s",
-            len(layout),
-            layout.size,
-            layout.buffer,
-            len(tasks),
-            ctx.executor.describe(),
-        )
-    results = map_largest_first(ctx, task, tasks, what)
-    return merge(layout, tasks, results)
 
 
 def map_largest_first(ctx: Any, task: Callable[[dict[str, Any]], Any], tasks: list[dict[str, Any]], what: str) -> list:

@@ -285,6 +285,7 @@ def mounting_table(corrections: dict) -> str:
     """The system calibration (``strip_adjust.model: mounting``): each unknown, its estimate, sigma and fate."""
     rows = []
     for u in corrections.get("unknowns", []):
+        digits = 5 if u["unit"] == "deg" else 4
         if u["held_because"]:
             fate = f"not determined ({u['held_because']}): held at the configured value; {u['determined_by']}"
         elif not u["estimated"]:
@@ -295,8 +296,7 @@ def mounting_table(corrections: dict) -> str:
             fate = "applied"
             held = u.get("sigma_from_held")
             if held and held["shift"] >= 0.1 * (u["sigma"] or 0):
-                fate += f"; its 1-σ includes {held['shift']:.{5 if u['unit'] == 'deg' else 4}f} from the held {held['unknown']}"
-        digits = 5 if u["unit"] == "deg" else 4
+                fate += f"; its 1-σ includes {held['shift']:.{digits}f} from the held {held['unknown']}"
         # an estimate that is not significant is not a value: only its bound is (in the status)
         shown = u["estimate"] is not None and (u["applied"] or not u["estimated"])
         est = f"{u['estimate']:+.{digits}f}" if shown else None

@@ -163,13 +163,18 @@ def _fit_quadratics(q: np.ndarray, group: np.ndarray, k: int, normals: bool = Fa
     return (coef, ata) if normals else coef
 
 
+def _observed(links: Links, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every observed point (the strips' points, then the control points) in its link's surface frame, and
+    its link."""
+    g = np.concatenate((links.obs_group, links.fixed_group))
+    return np.vstack((xyz[links.obs], links.fixed)) - links.origin[g], g
+
+
 def distances(links: Links, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance of every observed point to its link's surface, and the link of each."""
     k = links.size
     coef = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k)
-    b = np.vstack((xyz[links.obs], links.fixed))
-    g = np.concatenate((links.obs_group, links.fixed_group))
-    q = b - links.origin[g]
+    q, g = _observed(links, xyz)
     c = coef[g]
     x, y = q[:, 0], q[:, 1]
     height = c[:, 0] + c[:, 1] * x + c[:, 2] * y + c[:, 3] * x * x + c[:, 4] * x * y + c[:, 5] * y * y
@@ -185,9 +190,7 @@ def link_weights(links: Links, xyz: np.ndarray) -> np.ndarray:
     is uncertain, and its uncertainty enters the mean distance undiminished."""
     k = links.size
     _, ata = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k, normals=True)
-    b = np.vstack((xyz[links.obs], links.fixed))
-    g = np.concatenate((links.obs_group, links.fixed_group))
-    q = b - links.origin[g]
+    q, g = _observed(links, xyz)
     x, y = q[:, 0], q[:, 1]
     cnt = np.maximum(np.bincount(g, minlength=k), 1)
     mean = np.column_stack([np.bincount(g, v, k) / cnt for v in (np.ones_like(x), x, y, x * x, x * y, y * y)])
@@ -262,9 +265,7 @@ def geometry_jacobian(
     xyz = georeference_sample(traj, mounting, sample, theta, unknowns)
     k = links.size
     coef, ata = _fit_quadratics(xyz[links.surf] - links.origin[links.surf_group], links.surf_group, k, normals=True)
-    b = np.vstack((xyz[links.obs], links.fixed))
-    g = np.concatenate((links.obs_group, links.fixed_group))
-    q = b - links.origin[g]
+    q, g = _observed(links, xyz)
     cnt = np.maximum(np.bincount(g, minlength=k), 1)[:, None]
     scnt = np.maximum(np.bincount(links.surf_group, minlength=k), 1)[:, None]
     x, y = (np.bincount(g, q[:, i], k) / cnt[:, 0] for i in (0, 1))
@@ -307,6 +308,10 @@ def robust_weights(r: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, float]:
     return base * np.minimum(1.0, 2.0 * sigma / np.maximum(np.abs(z), 1e-12)), sigma
 
 
+#: Why an unknown no observation depends on is held: its error moves nothing, so it biases no other.
+NO_OBSERVATION = "no observation depends on it"
+
+
 def determinability(
     jac: np.ndarray,
     w: np.ndarray,
@@ -333,7 +338,7 @@ def determinability(
         d = np.sqrt(np.clip(np.diag(normal), 0, None))
         dead = [c for c, dd in zip(keep, d, strict=True) if dd <= 1e-12 * max(float(d.max()), 1e-300)]
         if dead:
-            held[dead[0]] = "no observation depends on it"
+            held[dead[0]] = NO_OBSERVATION
             continue
         scaled = normal / np.outer(d, d)
         vals, vecs = np.linalg.eigh(scaled)
@@ -359,37 +364,50 @@ def determinability(
         held[worst] = why
 
 
+def consider(
+    jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, free: list[int], held: list[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The variances of the unknowns *free* (columns of *jac*, then *held*'s), and how far each held one moves them.
+
+    Each held unknown is taken as right to within its own limit (the accuracy the calibration asks of an
+    estimate; the flight cannot say more).  Through the correlation, an error ``e`` of a held unknown moves
+    the estimates by ``-inv(N_ff) N_fh e`` (consider analysis): the shifts, (free, held), for ``e`` its
+    limit.  *w* are the links' weights in units of one point, *sigma* one point's noise.
+    """
+    a, b = jac[:, : len(free)], jac[:, len(free) :]
+    nff = a.T @ (a * w[:, None])
+    vals, vecs = np.linalg.eigh(nff)
+    variance = sigma**2 * np.diag((vecs / np.maximum(vals, 1e-300)) @ vecs.T)
+    if not held:
+        return variance, np.zeros((len(free), 0))
+    shift = np.linalg.lstsq(nff, a.T @ (b * w[:, None]), rcond=None)[0] * unknowns.limit[held]
+    return variance, np.abs(shift)
+
+
 def leakage(
     jac: np.ndarray, w: np.ndarray, sigma: float, unknowns: Unknowns, cols: list[int], held: dict[int, str]
 ) -> tuple[int, str] | None:
     """The estimated unknown that a held one would bias beyond its limit, and why; None when there is none.
 
-    A held unknown stays at its configured value, taken as right to within its own limit (the accuracy the
-    calibration asks of an estimate; the flight cannot say more).  Through the correlation, an error ``e``
-    of the held unknown moves the estimates by ``-inv(N_ff) N_fh e`` (consider analysis).  An estimate
-    whose sigma with that effect added (in quadrature) exceeds its limit cannot be told from the held
-    unknown with these lines.
+    An estimate whose sigma with the held unknowns' effect (:func:`consider`) added in quadrature exceeds
+    its limit cannot be told from the held unknown that moves it most with these lines.
     """
     free = [c for c in cols if c not in held]
-    considered = [c for c in held if c in cols and held[c] != "no observation depends on it"]
+    considered = [c for c in held if c in cols and held[c] != NO_OBSERVATION]
     if not free or not considered:
         return None
-    wn = (w / sigma**2)[:, None]
-    a = jac[:, [cols.index(c) for c in free]]
-    b = jac[:, [cols.index(c) for c in considered]]
-    nff = a.T @ (a * wn)
-    shift = np.linalg.solve(nff, a.T @ (b * wn)) * unknowns.limit[considered]
-    sd = np.sqrt(np.clip(np.diag(np.linalg.inv(nff)), 0, None) + np.sum(shift**2, axis=1))
-    ratio = sd / unknowns.limit[free]
+    order = [cols.index(c) for c in free + considered]
+    variance, shift = consider(jac[:, order], w, sigma, unknowns, free, considered)
+    ratio = np.sqrt(variance + np.sum(shift**2, axis=1)) / unknowns.limit[free]
     worst = int(np.argmax(ratio))
     if ratio[worst] <= 1.0:
         return None
-    h = int(np.argmax(np.abs(shift[worst])))
+    h = int(np.argmax(shift[worst]))
     c, by = free[worst], considered[h]
     return c, (
         f"cannot be told from {unknowns.names[by]} with these lines: an error of "
         f"{_fmt(unknowns.limit[by], by, unknowns)} in the held {unknowns.names[by]} would move it by "
-        f"{_fmt(abs(shift[worst, h]), c, unknowns)}, with its own 1-sigma above the limit "
+        f"{_fmt(shift[worst, h], c, unknowns)}, with its own 1-sigma above the limit "
         f"{_fmt(unknowns.limit[c], c, unknowns)}"
     )
 
@@ -535,9 +553,7 @@ class _GaussNewton:
         are significant), so the decision does not rest on the patches' noise.  Then the held unknowns'
         possible error is carried into the others (:func:`leakage`), one more held at a time.
         """
-        xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
-        base = link_weights(self.links, xyz)
-        _, sigma = robust_weights(residuals(self.links, xyz), base)
+        base, sigma = self._scale(theta)
         jac = geometry_jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, free, sigma)
         held: dict[int, str] = {}
         while True:
@@ -554,27 +570,27 @@ class _GaussNewton:
 
         The first: from :func:`geometry_jacobian` (slopes only where significant) and the residual scale,
         so not lowered by the patches' noise as the formal variance can be.  Each held unknown is taken as
-        right to within its limit; through the geometry's correlations an error of that size moves the
-        estimates by ``inv(N_ff) N_fh e`` (consider analysis, as in :func:`leakage`): the second, and per
-        applied unknown the held one that moves it most and by how much.  All in *applied*'s order.
+        right to within its limit; through the geometry's correlations it moves the estimates
+        (:func:`consider`): the second, and per applied unknown the held one that moves it most and by how
+        much.  All in *applied*'s order.
         """
         if not applied:
             return np.zeros(0), np.zeros(0), {}
-        considered = [c for c in held if held[c] != "no observation depends on it"]
-        xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
-        base = link_weights(self.links, xyz)
-        _, sigma = robust_weights(residuals(self.links, xyz), base)
+        considered = [c for c in held if held[c] != NO_OBSERVATION]
+        base, sigma = self._scale(theta)
         cols = applied + considered
         jac = geometry_jacobian(self.traj, self.mounting, self.sample, self.links, theta, self.unknowns, cols, sigma)
-        a, b = jac[:, : len(applied)], jac[:, len(applied) :]
-        nff = a.T @ (a * base[:, None])
-        vals, vecs = np.linalg.eigh(nff)
-        geometric = sigma**2 * np.diag((vecs / np.maximum(vals, 1e-300)) @ vecs.T)
+        geometric, shift = consider(jac, base, sigma, self.unknowns, applied, considered)
         if not considered:
             return geometric, np.zeros(len(applied)), {}
-        shift = np.abs(np.linalg.lstsq(nff, a.T @ (b * base[:, None]), rcond=None)[0] * self.unknowns.limit[considered])
         effect = {c: (considered[int(np.argmax(shift[i]))], float(shift[i].max())) for i, c in enumerate(applied)}
         return geometric, np.sum(shift**2, axis=1), effect
+
+    def _scale(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
+        """The links' geometric weights (units of one point) and the robust noise of one point at *theta*."""
+        xyz = georeference_sample(self.traj, self.mounting, self.sample, theta, self.unknowns)
+        base = link_weights(self.links, xyz)
+        return base, robust_weights(residuals(self.links, xyz), base)[1]
 
     def drop_insignificant(self, theta: np.ndarray, free: list[int], min_significance: float) -> dict[int, str]:
         """Backward elimination of the estimates that do not differ from zero; which were dropped, and why.

@@ -426,6 +426,25 @@ class Cache:
         shutil.rmtree(workspace, ignore_errors=True)
 
 
+def _sweep_tiles(folder: Path) -> None:
+    """Remove the temporary folders that runs killed while keeping a tile left in *folder*.
+
+    ``.tmp-<pid>-*`` of a process that no longer exists (a reused pid only
+    delays the removal); ``.tmp-old-*`` are damaged entries set aside.
+    """
+    for old in folder.glob(".tmp-*"):
+        pid = old.name.split("-")[1]
+        if pid.isdigit():
+            try:
+                os.kill(int(pid), 0)
+                continue
+            except ProcessLookupError:
+                pass
+            except PermissionError:  # alive, another user's
+                continue
+        _remove_path(old)
+
+
 def _remove_path(path: Path) -> None:
     """Remove a file, a symbolic link (never what it points to) or a folder."""
     if path.is_symlink() or not path.is_dir():
@@ -445,3 +464,116 @@ def _remove(path: Path, aside: Path) -> None:
         return
     os.replace(path, aside)
     shutil.rmtree(aside, ignore_errors=True)
+
+
+#: Name of the record of a tile entry (:class:`TileCache`).
+TILE_RECORD = "tile.json"
+
+
+class TileCache:
+    """Results of single tiles of a tiled stage, kept from one run to the next.
+
+    A stage's entry (:class:`Cache`) is keyed by its whole input, so one
+    changed input file re-runs every tile.  This keeps each tile's result
+    under ``<cache>/tiles/<stage>/<kk>/<key>/``, the key made of *base*
+    (the stage's name, version and settings, without its input) and what the
+    tile's task read (:meth:`key`): a tile whose points did not change is
+    found again, whatever else changed.  An entry holds the files the stage
+    chose to keep and ``tile.json`` (the task's JSON result and every file's
+    SHA-256, checked on reuse: a damaged entry is recomputed).  Entries are
+    made in a temporary folder and renamed in; a link anywhere on the way is
+    never followed (the tile is recomputed, and not kept).  ``--force`` of
+    the stage (*reuse* False) recomputes every tile and keeps the results.
+    """
+
+    def __init__(self, root: Path, stage: str, base: Any, reuse: bool = True, log: Any = None):
+        self.root = Path(root)
+        self.folder = self.root / "tiles" / stage
+        self.base = hash_value(base)
+        self.reuse = reuse
+        self.log = log or logging.getLogger(__name__)
+        self.warned = False
+
+    def key(self, material: Any) -> str:
+        """The key of a tile whose task read *material* (JSON-ready; file contents as their SHA-256)."""
+        return hash_value({"stage": self.base, "tile": material})
+
+    def _entry(self, key: str) -> Path | None:
+        """``<folder>/<kk>/<key>``, its parents made; None when one of them is not a real folder (never followed)."""
+        path = self.root
+        path.mkdir(parents=True, exist_ok=True)
+        for part in ("tiles", self.folder.name, key[:2]):
+            path = path / part
+            with contextlib.suppress(FileExistsError):
+                path.mkdir()  # (made by a concurrent run, or something else in its place: checked below)
+            mode = os.lstat(path).st_mode
+            if not stat.S_ISDIR(mode):
+                if not self.warned:
+                    self.log.warning("%s is %s, not a folder: tiles are not kept there", path, file_kind(mode))
+                    self.warned = True
+                return None
+        return path / key
+
+    def get(self, key: str) -> tuple[Path, Any] | None:
+        """The folder and JSON result of the intact entry *key*; None when there is none (or reuse is off)."""
+        return self.get_intact(key) if self.reuse else None
+
+    def get_intact(self, key: str) -> tuple[Path, Any] | None:
+        """The folder and JSON result of the entry *key* if it is intact, whatever *reuse* says."""
+        folder = self._lookup_folder(key)
+        if folder is None:
+            return None
+        try:
+            fd = os.open(folder / TILE_RECORD, os.O_RDONLY | os.O_NOFOLLOW)
+            with os.fdopen(fd, encoding="utf-8") as fh:
+                record = json.load(fh)
+            for name, digest in record["files"].items():
+                path = folder / name
+                if "/" in name or path.is_symlink() or not path.is_file() or hash_path(path) != digest:
+                    raise ValueError(f"{name} is missing or damaged")
+            return folder, record["result"]
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            self.log.warning("tile entry %s is damaged (%s); it will be recomputed", key[:12], exc)
+            return None
+
+    def _lookup_folder(self, key: str) -> Path | None:
+        path = self.folder / key[:2] / key
+        for part in (self.folder.parent, self.folder, path.parent, path):
+            try:
+                if not stat.S_ISDIR(os.lstat(part).st_mode):
+                    return None
+            except FileNotFoundError:
+                return None
+        return path
+
+    def put(self, key: str, fill: Any) -> None:
+        """Keep a tile's result: ``fill(folder)`` writes its files into a new folder and returns its JSON result.
+
+        Failing to keep a tile (a full disk, a folder that cannot be
+        written) costs only its reuse: one warning, and the run goes on.
+        """
+        try:
+            final = self._entry(key)
+            if final is None:
+                return
+            if os.path.lexists(final):
+                if self._lookup_folder(key) is not None and self.get_intact(key):
+                    return  # kept already (by a concurrent run, or before a --force)
+                _remove(final, final.parent / f".tmp-old-{uuid.uuid4().hex[:8]}")  # damaged: replaced
+            _sweep_tiles(final.parent)
+            tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{os.getpid()}-", dir=final.parent))
+            try:
+                result = fill(tmp)
+                files = {p.name: hash_path(p) for p in sorted(tmp.iterdir()) if p.is_file()}
+                record = {"result": json.loads(canonical_json(result)), "files": files}
+                atomic_write_text(tmp / TILE_RECORD, json.dumps(record, sort_keys=True))
+                os.rename(tmp, final)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        except OSError as exc:
+            if not self.warned:
+                self.log.warning("tiles cannot be kept in %s (%s); this run goes on", self.folder, exc.strerror or exc)
+                self.warned = True

@@ -36,6 +36,7 @@ from pipeline.cache import (
     Cache,
     Entry,
     NotRegularFile,
+    TileCache,
     atomic_write_text,
     exclusive_lock,
     file_kind,
@@ -849,6 +850,7 @@ def _execute(
             executor=executor if executor is not None else LocalExecutor(1),
             upstream_metrics=upstream or {},
             config_keys=tuple(step.stage.config_keys),
+            tile_cache=TileCache(cache.root, step.name, _stage_key(step, config, {}, {}, None), not replace, slog),
         )
         slog.info("running")
         t0 = time.perf_counter()

@@ -73,6 +73,7 @@ class StageContext(Generic[P]):
     metrics: dict[str, Any] = field(default_factory=dict)
     upstream_metrics: dict[str, dict[str, Any]] = field(default_factory=dict)
     config_keys: tuple[str, ...] = ()
+    tile_cache: Any = None
 
     def setting(self, key: str) -> Any:
         """The configuration value at the dotted *key*, which the stage declared in ``config_keys``.

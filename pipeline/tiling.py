@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -192,6 +194,24 @@ def layout_for(config: Any, extent: Sequence[float], buffer: float) -> Layout:
     return Layout.of(extent, tiling.size, buffer)
 
 
+@dataclass(frozen=True)
+class TileMemo:
+    """How a stage keeps the results of its tiles for later runs (:class:`pipeline.cache.TileCache`).
+
+    ``key(task)``: JSON-ready material of everything the task's result
+    depends on besides the stage's settings (the files it reads as their
+    SHA-256; nothing that depends on other tiles, such as positions in the
+    whole survey).  ``save(task, result, folder)``: copy the task's outputs
+    into *folder* and return the JSON-ready result to keep.  ``load(task,
+    folder, kept)``: write the task's outputs from *folder* as the task would
+    have, and return its result.
+    """
+
+    key: Callable[[Any], Any]
+    save: Callable[[Any, Any, Path], Any]
+    load: Callable[[Any, Path, Any], Any]
+
+
 def run_tiled(
     ctx: Any,
     *,
@@ -202,6 +222,7 @@ def run_tiled(
     merge: Callable[[Layout, list[Any], list[Any]], Any],
     what: str = "tiles",
     weight: float | None = None,
+    memo: TileMemo | None = None,
 ) -> Any:
     """Run a stage's work tile by tile on the run's executor; the value of *merge*.
 
@@ -215,6 +236,9 @@ def run_tiled(
     worker); ``merge(layout, tasks, results)`` gets the results in the tasks'
     order.  *weight*, the whole work's in the tasks' unit, lets a light stage
     run in this process (:func:`_runs_here`); the results are the same.
+    With a *memo* and the run's tile cache (``ctx.tile_cache``), a tile whose
+    task reads what a tile of an earlier run read is not run again
+    (:func:`_reusing`).
     """
     executor, here = ctx.executor, _runs_here(ctx.config, weight)
     if here:
@@ -243,10 +267,31 @@ def run_tiled(
                 len(tasks),
                 where,
             )
-        results = map_largest_first(ctx, task, tasks, what)
+        cache = getattr(ctx, "tile_cache", None) if memo is not None else None
+        if cache is None:
+            results = map_largest_first(ctx, task, tasks, what)
+        else:
+            results = _reusing(ctx, cache, memo, task, tasks, what)
         return merge(layout, tasks, results)
     finally:
         ctx.executor = executor
+
+
+def _reusing(ctx: Any, cache: Any, memo: TileMemo, task: Callable[[Any], Any], tasks: list[Any], what: str) -> list:
+    """Run the *tasks* whose results the tile *cache* does not hold, keep theirs, load the others'."""
+    from pipeline.executor import thread_map
+
+    keys = thread_map(lambda t: cache.key(memo.key(t)), tasks, max(int(getattr(ctx, "workers", 1)), 1))
+    kept = [cache.get(k) for k in keys]
+    results: list[Any] = [None if k is None else memo.load(t, *k) for t, k in zip(tasks, kept, strict=True)]
+    todo = [i for i, k in enumerate(kept) if k is None]
+    for i, result in zip(todo, map_largest_first(ctx, task, [tasks[i] for i in todo], what), strict=True):
+        results[i] = result
+        cache.put(keys[i], partial(memo.save, tasks[i], result))
+    ctx.metrics["tiling"].update(reused=len(tasks) - len(todo), ran=len(todo))
+    if len(todo) < len(tasks):
+        ctx.log.info("%d of %d tiles unchanged since an earlier run: reused", len(tasks) - len(todo), len(tasks))
+    return results
 
 
 def _runs_here(config: Any, weight: float | None) -> bool:

@@ -15,8 +15,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from dtm.common.clouds import cloud_info, open_las_writer
-from dtm.common.tile_points import cleanup, split_cloud, task_folder
+from dtm.common.tile_points import (
+    cleanup,
+    column_digests,
+    keep_file,
+    read_column,
+    split_cloud,
+    task_folder,
+    write_result,
+)
 from pipeline.stage import StageContext
+from pipeline.tiling import TileMemo
 
 if TYPE_CHECKING:
     from pipeline.log import Progress
@@ -62,7 +71,9 @@ def classes_by_tile(
         return results
 
     try:
-        return run_tiled(ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge, weight=info.count)
+        return run_tiled(
+            ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge, weight=info.count, memo=MEMO
+        )
     finally:
         cleanup(work)
 
@@ -97,6 +108,31 @@ def point_tasks(rows: dict[int, tuple[int, int]], work: Path, params: dict) -> l
         for t in sorted(rows)
         if rows[t][1]  # a tile with no point of its own has nothing to classify
     ]
+
+
+def _memo_key(task: PointTask) -> dict:
+    """What a tile's classes depend on: its points (not their positions in the survey's file) and parameters."""
+    return {"kind": "classes", "params": task.params, "columns": column_digests(Path(task.source), skip=("idx",))}
+
+
+def _memo_save(task: PointTask, result: dict, folder: Path) -> dict:
+    keep_file(Path(task.result) / "classification.npy", folder / "classification.npy")
+    return result
+
+
+def _memo_load(task: PointTask, folder: Path, kept: dict) -> dict:
+    """The result of a kept tile, its core points' indices those of this run's file."""
+    core = read_column(Path(task.source), "core")
+    idx = read_column(Path(task.source), "idx")[core]
+    classification = np.load(folder / "classification.npy")
+    if len(classification) != len(idx):  # pragma: no cover - the key holds the core column
+        raise RuntimeError(f"a kept tile holds {len(classification)} classes for {len(idx)} core points")
+    write_result(Path(task.result), idx=idx, classification=classification)
+    return {**kept, "tile": task.tile}
+
+
+#: A tile's classes kept for later runs: a tile whose points did not change is not classified again.
+MEMO = TileMemo(_memo_key, _memo_save, _memo_load)
 
 
 class _Run:

@@ -16,6 +16,7 @@ least as wide as its reach; the same code runs untiled as a single tile.
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -279,6 +280,41 @@ def read_tile(folder: Path) -> dict[str, np.ndarray]:
     cols = {name: read_column(folder, name) for name in names if name not in ("x", "y", "z")}
     cols["xyz"] = read_xyz(folder)
     return cols
+
+
+def column_digests(folder: Path, skip: tuple[str, ...] = ()) -> dict[str, str]:
+    """SHA-256 of each column of a tile (:func:`split_cloud`), its parts joined; the columns in *skip* left out.
+
+    The values are hashed with their dtype, not the files: the same points
+    give the same digests however the split cut them into parts.
+    """
+    import hashlib
+
+    parts = tile_parts(folder)
+    out = {}
+    for name in sorted(p.stem for p in parts[0].glob("*.npy")):
+        if name in skip:
+            continue
+        digest = hashlib.sha256()
+        for i, part in enumerate(parts):
+            values = np.load(part / f"{name}.npy")
+            if i == 0:
+                digest.update(values.dtype.str.encode("ascii"))
+            digest.update(np.ascontiguousarray(values).data)
+        out[name] = digest.hexdigest()
+    return out
+
+
+def keep_file(src: Path, dst: Path) -> None:
+    """Put the file *src* at *dst* (a new name): a hard link where the file system allows, else a copy.
+
+    The tile cache and a stage's workspace are on one file system, and
+    neither side writes a kept file again (both write new files).
+    """
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
 
 
 def write_result(folder: Path, **columns: np.ndarray) -> None:

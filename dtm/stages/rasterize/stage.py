@@ -69,6 +69,7 @@ class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
     def run(self, ctx: StageContext[RasterizeParams]) -> None:
         from dtm.common.clouds import cloud_info
         from dtm.common.tile_points import cleanup, task_folder
+        from dtm.stages.rasterize.kept_tiles import MEMO
         from pipeline.tiling import run_tiled
 
         p = ctx.params
@@ -85,6 +86,7 @@ class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
                 task=rasterize_tile,
                 merge=tiles.merge,
                 weight=info.count,
+                memo=MEMO,
             )
         finally:
             cleanup(tiles.work)

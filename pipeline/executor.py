@@ -188,6 +188,8 @@ class DaskExecutor:
             ) from None
         for name in ("distributed", "bokeh", "tornado"):
             logging.getLogger(name).setLevel(logging.ERROR)
+        # a lost scheduler is logged there with a traceback; map() says it in one sentence
+        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         if self.address:
             self._client = self._reach(lambda: Client(self.address, timeout=self.connect_timeout))
             try:
@@ -278,7 +280,10 @@ class DaskExecutor:
 
         A task that raises ``FileNotFoundError`` for a path that exists here
         ran on a worker that does not share this run's filesystem:
-        :meth:`unseen` names the folder.  Other errors are the task's own.
+        :meth:`unseen` names the folder.  Tasks the scheduler cancels (it
+        stopped, or the connection to it was lost) and a task that killed
+        every worker that tried it are ``EnvironmentFailure`` (exit 4).
+        Other errors are the task's own.
         """
         if not tasks:
             return []
@@ -293,6 +298,11 @@ class DaskExecutor:
             if not isinstance(path, str) or not os.path.exists(path):
                 raise
             raise self.unseen(path if os.path.isdir(path) else os.path.dirname(path)) from None
+        except concurrent.futures.CancelledError as exc:  # not ours: _collect raises the failure it cancels for
+            raise EnvironmentFailure(
+                f"executor.address {self.address or 'of the local cluster'}: the Dask scheduler cancelled the "
+                f"tasks ({getattr(exc, 'reason', None) or 'it stopped or the connection to it was lost'}); {_RESUME}"
+            ) from None
         except distributed.KilledWorker:
             raise WorkerLost(
                 "a Dask worker died running a task, on every worker that tried it (often the out-of-memory "

@@ -193,3 +193,56 @@ def test_a_cache_the_workers_cannot_see_stops_the_run_with_exit_4(cluster, surve
     assert "Traceback" not in err
     # and no worker wrote tile parts into the folder it sees at that path, its own (they did before the check)
     assert not (WORKERS_HOME[cluster] / "cache").exists()
+
+
+def stop_scheduler(pid: int) -> int:
+    """A task that kills the scheduler's process group (*pid*), then waits as a long task would."""
+    os.killpg(pid, signal.SIGKILL)
+    time.sleep(60)
+    return pid
+
+
+def test_a_scheduler_lost_during_the_tasks_is_exit_4(tmp_path, capfd):
+    """Its own scheduler and worker: the task kills the scheduler; the run's wait ends in one sentence."""
+    sf = tmp_path / "scheduler.json"
+    scheduler = _start(
+        [
+            str(BIN / "dask"),
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--no-dashboard",
+            "--scheduler-file",
+            str(sf),
+        ],
+        tmp_path / "scheduler.log",
+        tmp_path,
+    )
+    worker = _start(
+        [str(BIN / "dask"), "worker", "--scheduler-file", str(sf), "--host", "127.0.0.1", "--nworkers", "1"]
+        + ["--nthreads", "1", "--no-dashboard", "--local-directory", str(tmp_path / "w")],
+        tmp_path / "worker.log",
+        tmp_path,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not sf.exists() or not sf.read_text().strip():
+            assert time.monotonic() < deadline and scheduler.poll() is None, (tmp_path / "scheduler.log").read_text()
+            time.sleep(0.1)
+        time.sleep(0.1)
+        address = json.loads(sf.read_text())["address"]
+        ex = DaskExecutor(address, 1)
+        with pytest.raises(EnvironmentFailure) as caught:
+            ex.map(stop_scheduler, [scheduler.pid])
+        ex.close()
+    finally:
+        _stop(worker)
+        _stop(scheduler)
+    assert caught.value.exit_code == 4
+    assert str(caught.value) == (
+        f"executor.address {address}: the Dask scheduler cancelled the tasks (scheduler-connection-lost); "
+        "run again to resume: complete stages are reused."
+    )
+    assert "Traceback" not in capfd.readouterr().err

@@ -299,10 +299,9 @@ class DaskExecutor:
                 raise
             raise self.unseen(path if os.path.isdir(path) else os.path.dirname(path)) from None
         except concurrent.futures.CancelledError as exc:  # not ours: _collect raises the failure it cancels for
-            raise EnvironmentFailure(
-                f"executor.address {self.address or 'of the local cluster'}: the Dask scheduler cancelled the "
-                f"tasks ({getattr(exc, 'reason', None) or 'it stopped or the connection to it was lost'}); {_RESUME}"
-            ) from None
+            where = f"executor.address {self.address}" if self.address else "the local Dask cluster"
+            reason = getattr(exc, "reason", None) or "it stopped or the connection to it was lost"
+            raise EnvironmentFailure(f"{where}: the Dask scheduler cancelled the tasks ({reason}); {_RESUME}") from None
         except distributed.KilledWorker:
             raise WorkerLost(
                 "a Dask worker died running a task, on every worker that tried it (often the out-of-memory "

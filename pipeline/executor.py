@@ -4,7 +4,9 @@
 local, workers: N}``; one task, or one worker, runs in this process).
 :class:`DaskExecutor`: a Dask cluster at ``executor.address``, or a local one
 of ``workers`` processes (workers need this package and the cache folder at
-the same path).  Tasks are module-level functions called with a small task
+the same path: a cluster's workers are checked on connecting, and a task
+that cannot find a folder this run sees stops the run with one sentence,
+:meth:`DaskExecutor.unseen`).  Tasks are module-level functions called with a small task
 (paths and parameters, never large arrays) that return something small, in
 task order; the transport is the executors' own, and nothing it serialises
 is stored.  :func:`thread_map` runs a function on threads of this process
@@ -22,6 +24,7 @@ import signal
 import socket
 import threading
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -152,11 +155,19 @@ class LocalExecutor:
 class DaskExecutor:
     """A Dask distributed cluster: the one at ``address``, or a local one started on first use."""
 
-    def __init__(self, address: str | None = None, workers: int = 1, connect_timeout: float = 10.0):
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int = 1,
+        connect_timeout: float = 10.0,
+        shared: Sequence[str | os.PathLike] = (),
+    ):
         self.address = address
         self.workers = max(1, int(workers))
         #: Seconds to wait for the scheduler at ``address`` to answer.
         self.connect_timeout = float(connect_timeout)
+        #: Folders every worker of the cluster at ``address`` must see as this run does (the cache).
+        self.shared = [str(f) for f in shared]
         self._client = None
         self._cluster = None
 
@@ -177,8 +188,16 @@ class DaskExecutor:
             ) from None
         for name in ("distributed", "bokeh", "tornado"):
             logging.getLogger(name).setLevel(logging.ERROR)
+        # a lost scheduler is logged there with a traceback; map() says it in one sentence
+        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         if self.address:
             self._client = self._reach(lambda: Client(self.address, timeout=self.connect_timeout))
+            try:
+                for folder in self.shared:
+                    self._check_shared(self._client, folder)
+            except BaseException:
+                self.close()
+                raise
         else:
             self._cluster = LocalCluster(
                 n_workers=self.workers,
@@ -229,7 +248,43 @@ class DaskExecutor:
             "start it (`dask scheduler`) or correct the address."
         )
 
+    def _check_shared(self, client: Any, folder: str) -> None:
+        """Raise :meth:`unseen` unless every worker connected now reads the probe this run writes in *folder*.
+
+        The probe holds a random token: a worker that sees another folder at
+        the same path (its own disk) does not read it, though the path exists.
+        """
+        token = uuid.uuid4().hex
+        probe = os.path.join(folder, f".dask-probe-{token}")
+        with open(probe, "w") as fh:
+            fh.write(token)
+        try:
+            seen = client.run(_read_probe, probe)
+        finally:
+            with contextlib.suppress(OSError):
+                os.remove(probe)
+        blind = sorted(worker for worker, text in seen.items() if text != token)
+        if blind:
+            raise self.unseen(folder, blind[0])
+
+    def unseen(self, folder: str, worker: str | None = None) -> EnvironmentFailure:
+        """The sentence for a *folder* this run sees and a worker (named, or one) does not (exit 4)."""
+        who = f"worker {worker} of {self.address}" if worker else f"a Dask worker of {self.address or 'the cluster'}"
+        return EnvironmentFailure(
+            f"{who} cannot see the folder {folder}, which this run sees: the cache and its workspaces "
+            "must be on a filesystem every worker mounts at the same path."
+        )
+
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
+        """``[fn(t) for t in tasks]`` on the cluster's workers.
+
+        A task that raises ``FileNotFoundError`` for a path that exists here
+        ran on a worker that does not share this run's filesystem:
+        :meth:`unseen` names the folder.  Tasks the scheduler cancels (it
+        stopped, or the connection to it was lost) and a task that killed
+        every worker that tried it are ``EnvironmentFailure`` (exit 4).
+        Other errors are the task's own.
+        """
         if not tasks:
             return []
         import distributed
@@ -238,6 +293,15 @@ class DaskExecutor:
         futures = client.map(fn, list(tasks), pure=False)
         try:
             return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+        except (FileNotFoundError, NotADirectoryError) as exc:
+            path = exc.filename
+            if not isinstance(path, str) or not os.path.exists(path):
+                raise
+            raise self.unseen(path if os.path.isdir(path) else os.path.dirname(path)) from None
+        except concurrent.futures.CancelledError as exc:  # not ours: _collect raises the failure it cancels for
+            where = f"executor.address {self.address}" if self.address else "the local Dask cluster"
+            reason = getattr(exc, "reason", None) or "it stopped or the connection to it was lost"
+            raise EnvironmentFailure(f"{where}: the Dask scheduler cancelled the tasks ({reason}); {_RESUME}") from None
         except distributed.KilledWorker:
             raise WorkerLost(
                 "a Dask worker died running a task, on every worker that tried it (often the out-of-memory "
@@ -252,6 +316,15 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+def _read_probe(path: str) -> str | None:
+    """On a worker: the text of the file at *path*, None where it cannot be read."""
+    try:
+        with open(path) as fh:
+            return fh.read()
+    except OSError:
+        return None
 
 
 def _speaks_first(address: str, deadline: float) -> bool:
@@ -410,13 +483,17 @@ def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
     """The executor the configuration's ``executor`` block names.
 
     Processes on this machine are at most its usable cores
-    (:func:`capped_workers`); a remote cluster's workers are its own.
+    (:func:`capped_workers`); a remote cluster's workers are its own, and
+    must see the cache folder at the same path (checked on connecting).
     """
+    from pipeline.runner import cache_root  # the runner imports this module
+
     ex = getattr(config, "executor", None)
     if ex is None:
         return LocalExecutor(1)
     log = logging.getLogger(LOGGER_NAME)
     if ex.kind == "dask":
         workers = ex.workers if ex.address else capped_workers(ex.workers, log)
-        return DaskExecutor(ex.address, workers, getattr(ex, "connect_timeout_s", 10.0))
+        shared = [cache_root(config)] if ex.address and hasattr(config, "output") else []
+        return DaskExecutor(ex.address, workers, getattr(ex, "connect_timeout_s", 10.0), shared)
     return LocalExecutor(capped_workers(ex.workers, log))

@@ -99,6 +99,8 @@ LONGEST_FIRST = (
     "tests/commands/test_evaluate_ground_isprs.py",
     "tests/stages/strip_adjust/test_strip_adjust.py",
     "tests/end_to_end/test_tiled_runs.py",
+    "tests/end_to_end/test_dask_cluster.py",
+    "tests/end_to_end/test_incremental.py",
     "tests/stages/parse/test_real_files.py",
     "tests/stages/strip_adjust/test_strip_adjust_no_error.py",
     "tests/stages/parse/test_real_las_metadata.py",

@@ -16,16 +16,19 @@ import os
 import sys
 import traceback
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline import __version__, interrupt
-from pipeline.cache import FULL
-from pipeline.config import load_config
-from pipeline.discovery import load_plugin
+from pipeline.discovery import LazyPlugin, load_plugin
 from pipeline.errors import EXIT_ENVIRONMENT, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, setup_logging
-from pipeline.runner import build_plan, run
-from pipeline.stage import Plugin, config_model
+
+if TYPE_CHECKING:
+    from pipeline.stage import Plugin
+
+# The configuration, the runner and the stages (pydantic, NumPy) are imported by
+# the commands that use them: `pipeline --help` builds its parser without them.
 
 
 class _Parser(argparse.ArgumentParser):
@@ -53,7 +56,7 @@ def _add_log_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("-v", "--verbose", action="count", default=0, help="more detail (debug)")
 
 
-def build_parser(plugin: Plugin) -> argparse.ArgumentParser:
+def build_parser(plugin: Plugin | LazyPlugin) -> argparse.ArgumentParser:
     parser = _Parser(prog="pipeline", description="Staged, cached processing from raw logs to products.")
     parser.add_argument("--version", action="version", version=f"pipeline {__version__} ({plugin.name})")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -94,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "validate":
             return _cmd_validate(args, plugin)
         if args.command == "schema":
+            from pipeline.stage import config_model
+
             print(json.dumps(config_model(plugin).model_json_schema(), indent=2))
             return EXIT_OK
         command = next(c for c in plugin.commands if c.name == args.command)
@@ -114,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except OSError as exc:
+        from pipeline.cache import FULL
+
         if exc.errno in FULL:
             where = f" while writing {exc.filename}" if exc.filename else ""
             print(f"pipeline: error: the disk is full{where}; no partial result was kept.", file=sys.stderr)
@@ -133,7 +140,11 @@ def _internal_error(exc: BaseException, verbose: bool) -> int:
     return EXIT_INTERNAL
 
 
-def _cmd_validate(args: argparse.Namespace, plugin: Plugin) -> int:
+def _cmd_validate(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
+    from pipeline.config import load_config
+    from pipeline.runner import build_plan
+    from pipeline.stage import config_model
+
     config = load_config(args.config, config_model(plugin), args.overrides)
     plan = build_plan(config, plugin)
     names = " -> ".join(s.name for s in plan.steps)
@@ -141,7 +152,11 @@ def _cmd_validate(args: argparse.Namespace, plugin: Plugin) -> int:
     return EXIT_OK
 
 
-def _cmd_run(args: argparse.Namespace, plugin: Plugin) -> int:
+def _cmd_run(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
+    from pipeline.config import load_config
+    from pipeline.runner import run
+    from pipeline.stage import config_model
+
     config = load_config(args.config, config_model(plugin), args.overrides)
     manifest = run(
         config, plugin, config_path=args.config.resolve(), until=args.until, force=args.force, dry_run=args.dry_run

@@ -169,7 +169,8 @@ class Plugin:
     ``name``: shown in ``--version`` and the manifest; ``stages``: the Stage
     classes in their natural order (ties in the graph's order); ``global_fields``:
     extra top-level configuration keys, name -> (annotation, default), as for
-    :func:`pydantic.create_model`; ``commands``: extra sub-commands;
+    :func:`pydantic.create_model`; ``commands``: extra sub-commands (:class:`Command`,
+    or any object with its attributes, e.g. :class:`pipeline.discovery.LazyCommand`);
     ``versions``: ``{package: version}`` of the libraries that shape results,
     for the manifest.
     """
@@ -177,7 +178,7 @@ class Plugin:
     name: str
     stages: list[type[Stage]]
     global_fields: dict[str, tuple[Any, Any]] = field(default_factory=dict)
-    commands: list[Command] = field(default_factory=list)
+    commands: list[Any] = field(default_factory=list)
     versions: Callable[[], dict[str, str]] = dict
 
     def stage(self, name: str) -> type[Stage]:

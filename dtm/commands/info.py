@@ -18,9 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from dtm.common.las_summary import summary
 from pipeline.errors import EXIT_INPUT, ConfigError, InputDataError
-from pipeline.stage import Command
 
 
 def _fmt(values) -> str:
@@ -79,12 +77,14 @@ def _strays(s: dict) -> str:
     )
 
 
-def _add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", type=Path, nargs="+", metavar="FILE", help="LAS/LAZ files")
     parser.add_argument("--json", action="store_true", help="print a JSON list, one object per file")
 
 
-def _run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    from dtm.common.las_summary import summary  # NumPy and laspy: not for `pipeline --help`
+
     for path in args.files:
         if not path.is_file():
             raise ConfigError(f"{path}: file not found.")
@@ -102,8 +102,3 @@ def _run(args: argparse.Namespace) -> int:
     else:
         print("\n\n".join(text(s) for s in found))
     return EXIT_INPUT if failed else 0
-
-
-INFO = Command(
-    name="info", help="summarise LAS/LAZ files (header, CRS, points)", add_arguments=_add_arguments, run=_run
-)

@@ -29,9 +29,13 @@ def hillshade(
     g, h, i = z[2:, :-2], z[2:, 1:-1], z[2:, 2:]
     dzdx = ((c + 2 * f + i) - (a + 2 * d + g)) / (8.0 * resolution)  # east positive
     dzdy = ((g + 2 * h + i) - (a + 2 * b + c)) / (8.0 * resolution)  # south positive
-    slope = np.arctan(np.hypot(dzdx, dzdy))
-    aspect = np.arctan2(dzdy, -dzdx)
+    # Horn's shade cos(zenith) cos(slope) + sin(zenith) sin(slope) cos(azimuth - aspect), with
+    # aspect = atan2(dzdy, -dzdx) and slope = atan(|g|), written without the angles:
+    # cos(slope) = 1 / sqrt(1 + |g|^2), sin(slope) cos(azimuth - aspect) = (-cos(azimuth) dzdx
+    # + sin(azimuth) dzdy) / sqrt(1 + |g|^2) (one square root a cell instead of five
+    # trigonometric functions; equal to a few units in the last place).
     zenith = np.radians(90.0 - altitude)
     azimuth_math = np.radians((360.0 - azimuth + 90.0) % 360.0)
-    shade = np.cos(zenith) * np.cos(slope) + np.sin(zenith) * np.sin(slope) * np.cos(azimuth_math - aspect)
+    tilt = np.cos(zenith) + np.sin(zenith) * (np.sin(azimuth_math) * dzdy - np.cos(azimuth_math) * dzdx)
+    shade = tilt / np.sqrt(1.0 + dzdx * dzdx + dzdy * dzdy)
     return np.clip(255.0 * shade, 0.0, 255.0)

@@ -18,10 +18,9 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ConfigError
-from pipeline.stage import Command
 
 
-def _add_arguments(p: argparse.ArgumentParser) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--altitude", type=float, required=True, metavar="H", help="flying height above ground, metres")
     p.add_argument("--format", choices=["csv", "md"], default="csv", help="table format (default csv)")
     p.add_argument("--catalogue", type=Path, help="YAML with more equipment and systems")
@@ -42,7 +41,7 @@ def _cell(value, md: bool) -> str:
     return f"{value:.2f}" if isinstance(value, float) else str(value)
 
 
-def _run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from dtm.commands.budget.model import BudgetRow, budget_table, load_catalogue
 
     if args.altitude <= 0:
@@ -70,8 +69,3 @@ def _run(args: argparse.Namespace) -> int:
         for path in write_plots(catalogue, args.plots):
             print(f"wrote {path}", file=sys.stderr)
     return 0
-
-
-BUDGET = Command(
-    name="budget", help="seed 2's error budget: systems x flying height", add_arguments=_add_arguments, run=_run
-)

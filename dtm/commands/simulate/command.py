@@ -14,10 +14,9 @@ import sys
 from pathlib import Path
 
 from pipeline.errors import ConfigError
-from pipeline.stage import Command
 
 
-def _add_arguments(p: argparse.ArgumentParser) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", type=Path, help="simulation configuration (YAML)")
     p.add_argument("--out", type=Path, help="folder to write (default: the config's output; with surveys, DIR/<name>)")
     p.add_argument("--only", action="append", default=[], metavar="NAME", help="only this survey (repeatable)")
@@ -25,7 +24,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=overrides)
 
 
-def _run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from dtm.commands.simulate.settings import SimConfigError, SimulateConfig, SimulateFile
     from dtm.commands.simulate.simulator import simulate
     from pipeline.config import load_config, load_yaml
@@ -59,11 +58,3 @@ def _run(args: argparse.Namespace) -> int:
         counts = {k: v for k, v in result.faults.items() if k in ("pulses", "echoes", "ldmrs_mtig", "lmsq")}
         print(f"{name}: {json.dumps(counts)}", file=sys.stderr)
     return 0
-
-
-SIMULATE = Command(
-    name="simulate",
-    help="write a simulated survey in every raw format, with its truth",
-    add_arguments=_add_arguments,
-    run=_run,
-)

@@ -290,25 +290,41 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     ax, ay = p1[:, 0] - p0[:, 0], p1[:, 1] - p0[:, 1]
     bx, by = p2[:, 0] - p0[:, 0], p2[:, 1] - p0[:, 1]
     det = ax * by - ay * bx
-    width = c1 - c0 + 1
-    count = width * (r1 - r0 + 1)
-    count[np.abs(det) < 1e-12] = 0  # degenerate (collinear) triangles draw nothing
-    ends = np.cumsum(count)
+    # The candidate cells: in each row of a triangle's box, the columns from one
+    # before to one after where the row's centre line crosses the triangle (a
+    # superset of the cells the test below accepts, as the test's tolerance is
+    # far below a cell), in the box's row-major order: the cells drawn and their
+    # order are those of the whole box, with about half the candidates.
+    rows_in = r1 - r0 + 1
+    rows_in[np.abs(det) < 1e-12] = 0  # degenerate (collinear) triangles draw nothing
+    pair_end = np.cumsum(rows_in)
+    pair_t = np.repeat(np.arange(len(rows_in)), rows_in)
+    pair_row = r0[pair_t] + np.arange(len(pair_t)) - np.repeat(pair_end - rows_in, rows_in)
+    pair_c0, pair_c1 = c0[pair_t], c1[pair_t]
+    wide = np.flatnonzero(((rows_in > 2) & (c1 - c0 > 2))[pair_t])  # small boxes: every cell (cheaper)
+    if len(wide):
+        lo, hi = _row_spans(xy, s, pair_t[wide], pair_row[wide], res)
+        pair_c0[wide], pair_c1[wide] = np.maximum(lo, pair_c0[wide]), np.minimum(hi, pair_c1[wide])
+    pair_w = np.maximum(pair_c1 - pair_c0 + 1, 0)
+    pair_cells = np.cumsum(pair_w)  # candidates up to each pair's last
+    ends = np.concatenate(([0], pair_cells))[pair_end]  # candidates up to each triangle's last
     total = int(ends[-1]) if len(ends) else 0
     z0, z1, z2 = z[s[:, 0]], z[s[:, 1]], z[s[:, 2]]
     eps = 1e-9
-    used = np.zeros(len(count), dtype=bool)
+    used = np.zeros(len(ends), dtype=bool)
     first = 0
-    while first < len(count):
+    while first < len(ends):
         # triangles [first, last): at most batch_cells candidate cells (at least one triangle)
         base = int(ends[first - 1]) if first else 0
         last = max(first + 1, int(np.searchsorted(ends, base + batch_cells, side="right")))
         n = int(ends[last - 1]) - base
         if n:
-            t = np.repeat(np.arange(first, last), count[first:last])
-            k = np.arange(n) - np.repeat(ends[first:last] - count[first:last] - base, count[first:last])
-            col = c0[t] + k % width[t]
-            row = r0[t] + k // width[t]
+            p_lo, p_hi = (int(pair_end[first - 1]) if first else 0), int(pair_end[last - 1])
+            w = pair_w[p_lo:p_hi]
+            pair = np.repeat(np.arange(p_lo, p_hi), w)
+            col = pair_c0[pair] + np.arange(n) - np.repeat(pair_cells[p_lo:p_hi] - w - base, w)
+            row = pair_row[pair]
+            t = pair_t[pair]
             vx = (col + 0.5) * res - p0[t, 0]
             vy = -(row + 0.5) * res - p0[t, 1]
             l1 = (vx * by[t] - vy * bx[t]) / det[t]
@@ -323,6 +339,36 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     if progress is not None and not total:
         progress.update(grid.rows)
     return s[used]
+
+
+def _row_spans(xy, s, tri: np.ndarray, row: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each (triangle *tri*, grid *row*): the first and last column whose centre may be in the triangle.
+
+    The row's centre line meets the triangle's edges between x_lo and x_hi;
+    the columns returned run from one before the first centre at or right
+    of x_lo to one after the last at or left of x_hi (an edge's crossing is
+    taken at its clamped end when the line misses it by rounding).
+    """
+    y = -(row + 0.5) * res
+    lo = np.full(len(tri), np.inf)
+    hi = np.full(len(tri), -np.inf)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        xa, ya = xy[s[tri, i], 0], xy[s[tri, i], 1]
+        xb, yb = xy[s[tri, j], 0], xy[s[tri, j], 1]
+        dy = yb - ya
+        meets = (np.minimum(ya, yb) - res <= y) & (y <= np.maximum(ya, yb) + res)
+        flat = dy == 0
+        f = np.clip(np.divide(y - ya, dy, out=np.zeros_like(y), where=~flat), 0.0, 1.0)
+        x = xa + f * (xb - xa)
+        x_lo = np.where(flat, np.minimum(xa, xb), x)
+        x_hi = np.where(flat, np.maximum(xa, xb), x)
+        lo = np.where(meets, np.minimum(lo, x_lo), lo)
+        hi = np.where(meets, np.maximum(hi, x_hi), hi)
+    c0 = np.ceil(lo / res - 0.5) - 1
+    c1 = np.floor(hi / res - 0.5) + 1
+    empty = ~(np.isfinite(c0) & np.isfinite(c1))
+    c0[empty], c1[empty] = 0, -1
+    return c0.astype(np.int64), c1.astype(np.int64)
 
 
 def _canonical_boxes(xy, simplices, grid: Grid) -> tuple[np.ndarray, ...]:

@@ -2,7 +2,9 @@
 
 Every map has coordinate ticks in the CRS's units, a scale bar and a
 grid-north arrow; rasters larger than ``max_size`` cells on a side are
-thinned (every n-th cell) before they are drawn.
+thinned (every n-th cell) before they are drawn.  A map is drawn once, in
+a figure sized to it with fixed margins (a crop to the drawn content,
+``bbox_inches="tight"``, or a layout engine draws it twice), outside pyplot.
 """
 
 from __future__ import annotations
@@ -11,6 +13,15 @@ import io
 from dataclasses import dataclass
 
 import numpy as np
+
+#: Resolution of the PNGs, dots per inch.
+DPI = 110
+#: A map's axes: width and largest height, inches (a tall raster's are narrower).
+MAP_WIDTH, MAP_MAX_HEIGHT = 4.4, 7.0
+#: Fixed margins around a map's axes, inches: the northing ticks and label
+#: (left), the rotated easting ticks and label (bottom), the title (top), the
+#: colour bar with its ticks and label or nothing (right).
+MARGIN_LEFT, MARGIN_BOTTOM, MARGIN_TOP, MARGIN_RIGHT_BAR, MARGIN_RIGHT = 0.95, 0.8, 0.3, 1.15, 0.2
 
 RELIEF = "relief"  # matplotlib's terrain without its blue (sea) end: registered by _new_axes
 
@@ -103,28 +114,41 @@ def _decorate(ax, extent, unit: str) -> None:
 
 
 def _render(fig) -> bytes:
+    """The figure as PNG, drawn once: its layout is fixed when it is made (no layout engine, no crop)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
+    fig.savefig(buf, format="png", dpi=DPI)
     return buf.getvalue()
 
 
-def _new_axes(shape, max_size):
-    import matplotlib
+def _new_axes(shape: tuple[int, int], with_bar: bool):
+    """A figure sized to a map of *shape* cells (rows, columns), its axes and the colour bar's axes (or None).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    The map's axes have the raster's aspect, ``MAP_WIDTH`` wide (narrower
+    when that would make them taller than ``MAP_MAX_HEIGHT``), inside fixed
+    margins for the ticks, the labels, the title and the colour bar; the
+    figure is that size, so it is drawn once and needs no crop.
+    """
+    import matplotlib
     from matplotlib.colors import ListedColormap
+    from matplotlib.figure import Figure
 
     if RELIEF not in matplotlib.colormaps:
-        matplotlib.colormaps.register(ListedColormap(plt.cm.terrain(np.linspace(0.25, 1.0, 256)), name=RELIEF))
+        terrain = matplotlib.colormaps["terrain"]
+        matplotlib.colormaps.register(ListedColormap(terrain(np.linspace(0.25, 1.0, 256)), name=RELIEF))
     rows, cols = shape
     aspect = rows / max(cols, 1)
-    width = 6.0
-    fig, ax = plt.subplots(figsize=(width, max(2.5, min(9.0, width * aspect + 0.8))))
-    return fig, ax
+    width = MAP_WIDTH if MAP_WIDTH * aspect <= MAP_MAX_HEIGHT else MAP_MAX_HEIGHT / aspect
+    height = width * aspect
+    right = MARGIN_RIGHT_BAR if with_bar else MARGIN_RIGHT
+    fig_w, fig_h = MARGIN_LEFT + width + right, MARGIN_BOTTOM + height + MARGIN_TOP
+    fig = Figure(figsize=(fig_w, fig_h))
+    ax = fig.add_axes((MARGIN_LEFT / fig_w, MARGIN_BOTTOM / fig_h, width / fig_w, height / fig_h))
+    cax = None
+    if with_bar:  # 0.8 of the map's height, centred, as matplotlib's colorbar(shrink=0.8)
+        bar_h = max(0.8 * height, 0.5)
+        bottom = MARGIN_BOTTOM + (height - bar_h) / 2
+        cax = fig.add_axes(((MARGIN_LEFT + width + 0.15) / fig_w, bottom / fig_h, 0.15 / fig_w, bar_h / fig_h))
+    return fig, ax, cax
 
 
 def raster_map(
@@ -149,7 +173,7 @@ def raster_map(
     *points* ``(x, y, value)`` are drawn as dots coloured on the same scale;
     *lines* ``(x, y, name)`` as labelled lines.
     """
-    fig, ax = _new_axes(values.shape, max_size)
+    fig, ax, cax = _new_axes(_thin(values, max_size)[0].shape, with_bar=True)
     thin, step = _thin(values, max_size)
     extent = frame.extent(thin.shape, step)
     if shade is not None:
@@ -182,7 +206,7 @@ def raster_map(
         )
     if lines:
         _draw_lines(ax, lines)
-    bar = fig.colorbar(mappable, ax=ax, shrink=0.8)
+    bar = fig.colorbar(mappable, cax=cax)
     bar.set_label(label, fontsize=8)
     bar.ax.tick_params(labelsize=7)
     if threshold is not None and lo < threshold < hi:
@@ -226,7 +250,7 @@ def category_map(
     """A map of categories (-1: none) with a legend of ``(value, name, rgb 0-255)``."""
     from matplotlib.patches import Patch
 
-    fig, ax = _new_axes(classes.shape, max_size)
+    fig, ax, _ = _new_axes(_thin(classes, max_size)[0].shape, with_bar=False)
     thin, step = _thin(classes, max_size)
     extent = frame.extent(thin.shape, step)
     rgba = np.zeros(thin.shape + (4,))
@@ -249,12 +273,10 @@ def category_map(
 
 def histogram_png(errors: np.ndarray, labels: np.ndarray) -> bytes:
     """Histogram of check-point errors (metres), one colour per land cover."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.0, 2.8))
+    fig = Figure(figsize=(5.0, 2.8))
+    ax = fig.add_axes((0.13, 0.2, 0.84, 0.76))
     finite = np.isfinite(errors)
     bins = np.linspace(float(np.min(errors[finite])), float(np.max(errors[finite])), 16) if finite.sum() > 1 else 10
     groups = sorted(set(labels[finite].tolist()))

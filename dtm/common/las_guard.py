@@ -222,16 +222,19 @@ def _check_chunk_sizes(path: Path, offset_points: int, table: int, vlr_count: in
         )
 
 
-def open_las(path: Path) -> laspy.LasReader:
+def open_las(path: Path, check: bool = True) -> laspy.LasReader:
     """``laspy.open`` of a checked file (:func:`check_header_sizes`); InputDataError when it is unreadable.
 
     A file the user may not read is one sentence too; an error of the machine
-    (:func:`is_machine_error`) propagates untouched.
+    (:func:`is_machine_error`) propagates untouched.  *check* false skips
+    :func:`check_header_sizes`, for a file whose header was checked in this
+    run already (a header index).
     """
     import laspy
 
     try:
-        check_header_sizes(path)
+        if check:
+            check_header_sizes(path)
         return laspy.open(str(path))
     except PermissionError:
         raise InputDataError(

@@ -118,7 +118,7 @@ def _flatten(value: list[list[Path]]) -> list[Path]:
 def input_files(suffixes: tuple[str, ...]) -> Any:
     """A list of input files given as files, folders or glob patterns (:func:`expand_input_path`).
 
-    *suffixes* (lower case, e.g. ``(".las", ".laz")``) are the file names a
+    *suffixes* (lower case, e.g. ``(".csv", ".csv.gz")``) are the file names a
     folder or a pattern picks.  Validated, the list holds every file in the
     order of its entries, each folder's or pattern's files sorted by path;
     an error names the entry (``key.N``) and its line.

@@ -66,6 +66,11 @@ class HeaderIndex:
 
     files: list[InputHeader]
     _crs: dict[tuple, tuple] = field(default_factory=dict, repr=False)
+    _parsed: dict[tuple, tuple] = field(default_factory=dict, repr=False)
+    _by_path: dict[Path, InputHeader] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        self._by_path = {f.path: f for f in self.files}
 
     @property
     def paths(self) -> list[Path]:
@@ -78,7 +83,7 @@ class HeaderIndex:
 
     def header(self, path: Path) -> laspy.LasHeader:
         """The header of the input *path*."""
-        return self._by_path()[Path(path)].header
+        return self._by_path[Path(path)].header
 
     def total_points(self) -> int:
         """The points the headers announce, together."""
@@ -101,7 +106,7 @@ class HeaderIndex:
         key = (str(path), _crs_key(assign), _crs_key(override))
         if key not in self._crs:
             own = LasReadReport()
-            crs, source = file_crs(Path(path), self.header(path), assign, override, own)
+            crs, source = file_crs(Path(path), self.header(path), assign, override, own, self._header_crs)
             self._crs[key] = (crs, source, own.crs_read_as.get(str(path)), own.crs_notes.get(str(path)))
         crs, source, read_as, note = self._crs[key]
         if report is not None:
@@ -111,8 +116,30 @@ class HeaderIndex:
                 report.crs_notes[str(path)] = note
         return crs, source
 
-    def _by_path(self) -> dict[Path, InputHeader]:
-        return {f.path: f for f in self.files}
+    def _header_crs(self, header) -> tuple:
+        """:func:`dtm.common.crs.header_crs`, parsed once per distinct set of CRS records (pyproj: ~20 ms each)."""
+        from dtm.common.crs import header_crs
+
+        key = _crs_records(header)
+        if key not in self._parsed:
+            try:
+                self._parsed[key] = (header_crs(header), None)
+            except Exception as exc:  # what laspy raises for an unreadable CRS: raised for every file that has it
+                self._parsed[key] = (None, exc)
+        result, error = self._parsed[key]
+        if error is not None:
+            raise error
+        return result
+
+
+def _crs_records(header) -> tuple:
+    """What a header's CRS is read from: its ``LASF_Projection`` (E)VLRs, as bytes."""
+    out = []
+    for v in [*header.vlrs, *(header.evlrs or [])]:
+        if str(v.user_id).strip("\0 ") == "LASF_Projection":
+            data = v.record_data_bytes() if hasattr(v, "record_data_bytes") else bytes(v.record_data)
+            out.append((type(v).__name__, int(v.record_id), bytes(data)))
+    return tuple(out)
 
 
 def _crs_key(crs) -> str | None:

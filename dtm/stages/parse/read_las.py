@@ -71,6 +71,7 @@ def file_crs(
     assign: pyproj.CRS | None,
     override: pyproj.CRS | None = None,
     report: LasReadReport | None = None,
+    read_crs=header_crs,
 ) -> tuple[pyproj.CRS, str]:
     """The CRS of one file's coordinates and where it came from, checked against them.
 
@@ -79,13 +80,15 @@ def file_crs(
     without one — or with one that cannot be read (an empty WKT), noted in
     the *report*.  The coordinates the header's bounds announce must be possible
     in that CRS (:func:`dtm.common.crs.crs_problem`), or the file is refused
-    with the key that fixes it.
+    with the key that fixes it.  *read_crs* reads the header's CRS
+    (:func:`dtm.common.crs.header_crs`; the header index passes one that
+    reads each distinct CRS record once).
     """
     if override is not None:
         crs, source = override, "input.override_crs"
     else:
         try:
-            crs, note = header_crs(header)
+            crs, note = read_crs(header)
             source = "header"
             if note is not None and report is not None:
                 report.crs_read_as[str(path)] = note

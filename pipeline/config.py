@@ -13,6 +13,7 @@ configuration file, never against the current working directory.
 from __future__ import annotations
 
 import difflib
+import glob
 import os
 import stat
 import types
@@ -67,6 +68,66 @@ def _must_be_file(value: Path) -> Path:
 RelPath = Annotated[Path, AfterValidator(_resolve_path)]
 #: A path to an existing file, relative to the configuration file's folder.
 InputFile = Annotated[Path, AfterValidator(_resolve_path), AfterValidator(_must_be_file)]
+
+
+def _has_suffix(path: Path, suffixes: tuple[str, ...]) -> bool:
+    name = path.name.lower()
+    return any(name.endswith(s) for s in suffixes)
+
+
+def expand_input_path(value: Path, info: ValidationInfo, suffixes: tuple[str, ...]) -> list[Path]:
+    """The files one entry of a file list names: itself, a folder's files, or a glob pattern's, sorted.
+
+    *value* is resolved against the configuration file's folder.  An
+    existing file is itself (whatever its name); a folder gives the regular
+    files directly inside it whose names end with one of *suffixes*
+    (case-insensitive; subfolders are not searched); otherwise a name with
+    ``*``, ``?`` or ``[`` is a glob pattern (Python's :mod:`glob`, ``**``
+    matching any depth of folders) giving the regular files it matches with
+    those suffixes.  Folders and patterns give their files sorted by path.
+    Nothing found is a ValueError naming the entry and the way out.
+    """
+    path = _resolve_path(value, info)
+    shown = " or ".join(suffixes)
+    if path.is_dir():
+        found = sorted((p for p in path.iterdir() if p.is_file() and _has_suffix(p, suffixes)), key=str)
+        if not found:
+            raise ValueError(
+                f"the folder {path} holds no {shown} file directly inside it (subfolders are not searched); "
+                f"give a pattern such as {Path(str(value)) / '**' / ('*' + suffixes[-1])} to search them, "
+                "or the files themselves"
+            )
+        return found
+    if not path.exists() and glob.has_magic(str(value)):
+        matched = (Path(p) for p in glob.glob(str(path), recursive=True))
+        found = sorted((p for p in matched if p.is_file() and _has_suffix(p, suffixes)), key=str)
+        if not found:
+            base = (info.context or {}).get("base_dir")
+            where = f" (relative to {base})" if base is not None and not Path(str(value)).is_absolute() else ""
+            raise ValueError(
+                f"the pattern {value}{where} matches no {shown} file; correct the pattern or list the files"
+            )
+        return found
+    return [_must_be_file(path)]
+
+
+def _flatten(value: list[list[Path]]) -> list[Path]:
+    return [path for paths in value for path in paths]
+
+
+def input_files(suffixes: tuple[str, ...]) -> Any:
+    """A list of input files given as files, folders or glob patterns (:func:`expand_input_path`).
+
+    *suffixes* (lower case, e.g. ``(".csv", ".csv.gz")``) are the file names a
+    folder or a pattern picks.  Validated, the list holds every file in the
+    order of its entries, each folder's or pattern's files sorted by path;
+    an error names the entry (``key.N``) and its line.
+    """
+
+    def expand(value: Path, info: ValidationInfo) -> list[Path]:
+        return expand_input_path(value, info, suffixes)
+
+    return Annotated[list[Annotated[Path, AfterValidator(expand)]], AfterValidator(_flatten)]
 
 
 class ExecutorConfig(StrictModel):

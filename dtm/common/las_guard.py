@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import errno
 from collections.abc import Iterator
+from contextlib import nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -85,8 +86,13 @@ def check_header_sizes(path: Path) -> None:
     be usable.  A damaged header then costs one sentence, not gigabytes of memory.
     """
     size = path.stat().st_size
-    with open(path, "rb") as fh:
-        head = fh.read(375)
+    with open(path, "rb") as fh:  # opened once for every check below
+        _check_sizes(path, fh, size)
+
+
+def _check_sizes(path: Path, fh, size: int) -> None:
+    """:func:`check_header_sizes` on the open file *fh* of *size* bytes."""
+    head = fh.read(375)
     if len(head) < 227 or head[:4] != b"LASF":
         return  # laspy reports the missing signature itself
     minor = head[25]
@@ -115,12 +121,12 @@ def check_header_sizes(path: Path) -> None:
             f"{path}, byte 107: the header announces {count:,} points, more than the file's {size:,} bytes can hold."
         )
     if compressed and count and offset_points + 8 <= size:
-        _check_chunk_table(path, offset_points, size, vlr_count, count)
+        _check_chunk_table(path, fh, offset_points, size, vlr_count, count)
     if evlr_count:
         if evlr_start + 60 * evlr_count > size:
             raise InputDataError(f"{path}, byte 235: the extended VLRs start beyond the end of the file.")
         position = evlr_start
-        with open(path, "rb") as fh:
+        with nullcontext(fh):
             for _ in range(evlr_count):
                 fh.seek(position + 20)
                 length = int.from_bytes(fh.read(8), "little")
@@ -152,7 +158,7 @@ def _check_scales(path: Path, scales: np.ndarray, offsets: np.ndarray) -> None:
             )
 
 
-def _check_chunk_table(path: Path, offset_points: int, size: int, vlr_count: int, count: int) -> None:
+def _check_chunk_table(path: Path, fh, offset_points: int, size: int, vlr_count: int, count: int) -> None:
     """Refuse a LAZ chunk table whose offset, chunk count or chunk sizes cannot be right.
 
     LASzip stores the chunk table's offset in the first 8 bytes of the point
@@ -161,7 +167,7 @@ def _check_chunk_table(path: Path, offset_points: int, size: int, vlr_count: int
     (found by fuzzing); every chunk holds at least one byte, so the count is
     at most the file size.
     """
-    with open(path, "rb") as fh:
+    with nullcontext(fh):
         fh.seek(offset_points)
         table = int.from_bytes(fh.read(8), "little", signed=True)
         where = offset_points
@@ -178,14 +184,14 @@ def _check_chunk_table(path: Path, offset_points: int, size: int, vlr_count: int
             f"{path}, byte {table + 4}: the LAZ chunk table announces {chunks:,} chunks, "
             f"more than the file's {size:,} bytes can hold."
         )
-    _check_chunk_sizes(path, offset_points, table, vlr_count, count)
+    _check_chunk_sizes(path, fh, offset_points, table, vlr_count, count)
 
 
 #: Points a LAZ chunk may hold beyond the file's: LASzip's default is 50,000 a chunk.
 MAX_CHUNK_POINTS = 1_000_000
 
 
-def _check_chunk_sizes(path: Path, offset_points: int, table: int, vlr_count: int, count: int) -> None:
+def _check_chunk_sizes(path: Path, fh, offset_points: int, table: int, vlr_count: int, count: int) -> None:
     """Refuse LAZ chunks the decoder would allocate without bound (lazrs aborts the process: 48 GB seen).
 
     The LASzip VLR's chunk size (bytes 12-15 of its data; 0xFFFFFFFF:
@@ -195,7 +201,7 @@ def _check_chunk_sizes(path: Path, offset_points: int, table: int, vlr_count: in
     """
     import lazrs
 
-    with open(path, "rb") as fh:
+    with nullcontext(fh):
         vlr, at = _laszip_vlr(fh, vlr_count), fh.tell()
         if vlr is None or len(vlr) < 34:
             return  # laspy reports a LAZ file without its VLR itself
@@ -222,16 +228,19 @@ def _check_chunk_sizes(path: Path, offset_points: int, table: int, vlr_count: in
         )
 
 
-def open_las(path: Path) -> laspy.LasReader:
+def open_las(path: Path, check: bool = True) -> laspy.LasReader:
     """``laspy.open`` of a checked file (:func:`check_header_sizes`); InputDataError when it is unreadable.
 
     A file the user may not read is one sentence too; an error of the machine
-    (:func:`is_machine_error`) propagates untouched.
+    (:func:`is_machine_error`) propagates untouched.  *check* false skips
+    :func:`check_header_sizes`, for a file whose header was checked in this
+    run already (a header index).
     """
     import laspy
 
     try:
-        check_header_sizes(path)
+        if check:
+            check_header_sizes(path)
         return laspy.open(str(path))
     except PermissionError:
         raise InputDataError(

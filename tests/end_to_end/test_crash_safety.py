@@ -98,6 +98,7 @@ def _killed_child(args: list[str], stage: str, point: str) -> None:
     if point == "products":
 
         def copy_then_die(src, dst):
+            Path(dst).parent.mkdir(parents=True, exist_ok=True)  # as _stage_copy does (qc/input_files.csv)
             shutil.copyfile(src, Path(dst).parent / f".{Path(dst).name}.half.tmp")
             _die()
 
@@ -178,14 +179,14 @@ def test_sigkill_inside_every_stage_then_rerun_equals_uninterrupted(small_job):
             if point != "start":  # the kill left a workspace behind, as a real crash would
                 assert list((cache / stage).glob(".tmp-*")), (stage, point)
     assert _kill(args, "", "products") == -signal.SIGKILL
-    assert list((root / "killed" / "out").glob(".*.tmp")), "the products kill left a partial copy"
+    assert list((root / "killed" / "out").rglob(".*.tmp")), "the products kill left a partial copy"
     assert main(args) == 0
     manifest = json.loads((root / "killed" / "out" / "run.json").read_text())
     # Every stage had completed before the products kill: all are reused.
     assert {s["status"] for s in manifest["stages"] if s["name"] in ran} == {"cached"}
     assert _products(root, "killed") == reference
     # Leftovers of the killed runs are cleaned up by the runs that followed.
-    assert not list((root / "killed" / "out").glob(".*.tmp"))
+    assert not list((root / "killed" / "out").rglob(".*.tmp"))
     assert not [p for p in cache.rglob(".tmp-*")]
     assert kills == (3 if FULL_SWEEP else 1) * len(ran)
 

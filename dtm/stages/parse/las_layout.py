@@ -9,22 +9,28 @@ What is dropped gets a note for the log.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtm.common.clouds import PointLayout
-from dtm.common.las_guard import open_las
+from dtm.stages.parse.las_index import read_headers
 from pipeline.errors import InputDataError
+
+if TYPE_CHECKING:
+    from dtm.stages.parse.las_index import HeaderIndex
 
 #: Dimensions read apart: coordinates (scaled, transformed), the scan angle (two encodings), the GPS time.
 READ_APART = frozenset({"X", "Y", "Z", "scan_angle", "scan_angle_rank", "gps_time"})
 
 
-def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
+def point_layout(paths: list[Path], index: HeaderIndex | None = None) -> tuple[PointLayout, list[str]]:
     """The output point records that keep what every input holds, and a note per thing dropped.
 
     Waveform packets are never kept (the waveform data is not carried).  The
     GPS time type is the inputs' (files without GPS time do not count).
+    The headers are the *index*'s (:mod:`dtm.stages.parse.las_index`; read
+    here when it is not given).
 
     Raises
     ------
@@ -32,10 +38,9 @@ def point_layout(paths: list[Path]) -> tuple[PointLayout, list[str]]:
         When inputs with GPS time disagree on its type: week seconds cannot be
         turned into standard time without the week.
     """
-    headers = []
-    for path in paths:
-        with open_las(path) as reader:
-            headers.append((path, reader.header))
+    if index is None:
+        index = read_headers(paths)
+    headers = index.headers
     dims = [set(h.point_format.standard_dimension_names) for _, h in headers]
     rgb = all("red" in d for d in dims)
     nir = rgb and all("nir" in d for d in dims)

@@ -12,16 +12,26 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator
 
 from dtm.common.crs import check_crs_setting
-from pipeline.config import InputFile, StrictModel
+from pipeline.config import InputFile, StrictModel, input_files
 
 FORMAT_HELP = "input format: las | ldmrs_mtig | lmsq_nmea | lmsq_sbet (SPEC 3.A-3.D)"
+#: The file names a folder or a glob pattern in ``input.paths`` picks (``.copc.laz`` ends with ``.laz``).
+LAS_SUFFIXES = (".las", ".laz")
 
 
 class LasInput(StrictModel):
     """Already georeferenced LAS/LAZ files (SPEC 3.D)."""
 
     format: Literal["las"] = Field(description=FORMAT_HELP)
-    paths: Annotated[list[InputFile], Field(min_length=1, description="LAS/LAZ files, relative to the config file")]
+    paths: Annotated[
+        input_files(LAS_SUFFIXES),
+        Field(
+            min_length=1,
+            description="LAS/LAZ/COPC files, folders (their .las/.laz files directly inside, not in subfolders) "
+            "or glob patterns (tiles/*.laz; ** for any depth: survey/**/*.laz), relative to the config file; "
+            "a folder's or pattern's files in sorted order, which is the order of the points",
+        ),
+    ]
     crs: str | None = Field(
         None,
         description="CRS of input files whose header has none or an unreadable one (PDAL's default_srs); e.g. EPSG:25830",

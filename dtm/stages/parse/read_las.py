@@ -31,6 +31,8 @@ if TYPE_CHECKING:
     import laspy
     import pyproj
 
+    from dtm.stages.parse.las_index import HeaderIndex
+
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
@@ -46,6 +48,8 @@ class LasReadReport:
     gps_time_missing: list[str] = field(default_factory=list)
     #: Per file: points whose return number was 0 (invalid in LAS), read as 1.
     return_number_zero: dict[str, int] = field(default_factory=dict)
+    #: Per file: the points kept in points.las (those read less those outside the header's bounds).
+    kept: dict[str, int] = field(default_factory=dict)
     #: Per file: points outside the header's bounds (damaged records or strays), left out of points.las.
     outside_header_bounds: dict[str, int] = field(default_factory=dict)
     #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
@@ -67,6 +71,7 @@ def file_crs(
     assign: pyproj.CRS | None,
     override: pyproj.CRS | None = None,
     report: LasReadReport | None = None,
+    read_crs=header_crs,
 ) -> tuple[pyproj.CRS, str]:
     """The CRS of one file's coordinates and where it came from, checked against them.
 
@@ -75,13 +80,15 @@ def file_crs(
     without one — or with one that cannot be read (an empty WKT), noted in
     the *report*.  The coordinates the header's bounds announce must be possible
     in that CRS (:func:`dtm.common.crs.crs_problem`), or the file is refused
-    with the key that fixes it.
+    with the key that fixes it.  *read_crs* reads the header's CRS
+    (:func:`dtm.common.crs.header_crs`; the header index passes one that
+    reads each distinct CRS record once).
     """
     if override is not None:
         crs, source = override, "input.override_crs"
     else:
         try:
-            crs, note = header_crs(header)
+            crs, note = read_crs(header)
             source = "header"
             if note is not None and report is not None:
                 report.crs_read_as[str(path)] = note
@@ -139,6 +146,7 @@ def las_chunks(
     progress: Progress | None = None,
     layout: PointLayout | None = None,
     override_crs: pyproj.CRS | None = None,
+    index: HeaderIndex | None = None,
 ) -> Iterator[tuple[pyproj.CRS, dict[str, np.ndarray]]]:
     """Read LAS/LAZ files chunk by chunk, in the output CRS; the *report* is filled as they are read.
 
@@ -154,14 +162,21 @@ def las_chunks(
     ------
     InputDataError
         When a file is not LAS/LAZ, is truncated, or has no usable CRS.
+
+    The headers and CRSs are the *index*'s (:mod:`dtm.stages.parse.las_index`;
+    read here when it is not given): each file is opened once, for its points.
     """
+    from dtm.stages.parse.las_index import read_headers
+
+    if index is None:
+        index = read_headers(paths)
     if layout is None:
-        layout, report.dropped = point_layout(paths)
+        layout, report.dropped = point_layout(paths, index)
     target = None
     for path in paths:
-        with open_las(path) as reader:
+        with open_las(path, check=False) as reader:  # the index checked its header
             header = reader.header
-            src_crs, source = file_crs(path, header, assign_crs, override_crs, report)
+            src_crs, source = index.file_crs(path, assign_crs, override_crs, report)
             report.crs_source[str(path)] = source
             _read_all_records(path, header, report)
             if target is None:
@@ -193,12 +208,13 @@ def _file_chunks(
     if "gps_time" not in dims:
         report.gps_time_missing.append(str(path))
     copied = copied_dimensions(layout)
-    n_read = 0
+    n_read = n_kept = 0
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for chunk in read_chunks(path, reader, chunk_size):
         x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
         n = len(chunk)
         keep = ~_strays(path, header, bounds, (x, y, z), n_read, report)
+        n_kept += int(keep.sum())
         cols = _coordinates(path, (x[keep], y[keep], z[keep]), transformer, n_read, src_crs, target)
         if keep.any():
             xyz = (cols["x"], cols["y"], cols["z"])
@@ -211,6 +227,7 @@ def _file_chunks(
             progress.update(n)
         yield cols
     report.points[str(path)] = n_read
+    report.kept[str(path)] = n_kept
 
 
 def _coordinates(path: Path, xyz: tuple, transformer, first: int, src_crs, target) -> dict[str, np.ndarray]:
@@ -357,7 +374,11 @@ def read_las_files(
 
 
 def header_bounds(
-    paths: list[Path], target: pyproj.CRS, assign_crs: pyproj.CRS | None, override_crs: pyproj.CRS | None = None
+    paths: list[Path],
+    target: pyproj.CRS,
+    assign_crs: pyproj.CRS | None,
+    override_crs: pyproj.CRS | None = None,
+    index: HeaderIndex | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The bounds the headers of *paths* announce, in the CRS *target* (for a writer's offsets).
 
@@ -369,19 +390,25 @@ def header_bounds(
     """
     import pyproj
 
+    from dtm.stages.parse.las_index import read_headers
+
+    if index is None:
+        index = read_headers(paths)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    transformers: dict[str, pyproj.Transformer] = {}
     for path in paths:
-        with open_las(path) as reader:
-            h = reader.header
-            mins, maxs = header_mins_maxs(h)
-            if h.point_count == 0 or not _plausible_bounds(mins, maxs):
-                continue
-            crs, _ = file_crs(path, h, assign_crs, override_crs)
-            if not crs.equals(target):
-                t = pyproj.Transformer.from_crs(crs, target, always_xy=True)
-                x0, y0, x1, y1 = t.transform_bounds(mins[0], mins[1], maxs[0], maxs[1], densify_pts=21)
-                mins, maxs = np.array([x0, y0, mins[2]]), np.array([x1, y1, maxs[2]])
-            lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
+        h = index.header(path)
+        mins, maxs = header_mins_maxs(h)
+        if h.point_count == 0 or not _plausible_bounds(mins, maxs):
+            continue
+        crs, _ = index.file_crs(path, assign_crs, override_crs)
+        if not crs.equals(target):
+            wkt = crs.to_wkt()
+            if wkt not in transformers:
+                transformers[wkt] = pyproj.Transformer.from_crs(crs, target, always_xy=True)
+            x0, y0, x1, y1 = transformers[wkt].transform_bounds(mins[0], mins[1], maxs[0], maxs[1], densify_pts=21)
+            mins, maxs = np.array([x0, y0, mins[2]]), np.array([x1, y1, maxs[2]])
+        lo, hi = np.minimum(lo, mins), np.maximum(hi, maxs)
     return lo, hi
 
 
@@ -401,6 +428,7 @@ def convert_las_files(
     chunk_size: int,
     progress: Progress | None = None,
     override_crs: pyproj.CRS | None = None,
+    index: HeaderIndex | None = None,
 ) -> tuple[pyproj.CRS, LasReadReport, set[int]]:
     """Convert LAS/LAZ files to one uncompressed LAS 1.4 file in the output CRS, chunk by chunk.
 
@@ -410,6 +438,7 @@ def convert_las_files(
     they allow is an error naming the file.  One file already in the
     output's form is copied record for record (:func:`copy_records`).  The
     points far from the survey are then withheld (:func:`withhold_isolated`).
+    The inputs' headers are the *index*'s (read here when it is not given).
 
     Returns
     -------
@@ -418,11 +447,14 @@ def convert_las_files(
     """
 
     from dtm.common.clouds import point_header
+    from dtm.stages.parse.las_index import read_headers
 
+    if index is None:
+        index = read_headers(paths)
     report = LasReadReport()
-    layout, report.dropped = point_layout(paths)
+    layout, report.dropped = point_layout(paths, index)
     strips: set[int] = set()
-    same = _copyable(paths, crs_setting, assign_crs, layout, override_crs)
+    same = _copyable(paths, crs_setting, assign_crs, layout, override_crs, index)
     if same is not None:
         target, grid = copy_records(paths[0], dst, same, report, strips, chunk_size, progress, layout)
         _record_withheld(report, withhold_isolated(dst, counted=grid))
@@ -439,9 +471,10 @@ def convert_las_files(
             progress=progress,
             layout=layout,
             override_crs=override_crs,
+            index=index,
         ):
             if writer is None:
-                header = _output_header(paths, target, cols, layout, assign_crs, override_crs)
+                header = _output_header(paths, target, cols, layout, assign_crs, override_crs, index)
                 writer = open_las_writer(dst, header)
             if not len(cols["x"]):
                 continue
@@ -462,13 +495,13 @@ def convert_las_files(
 
 
 def _output_header(
-    paths: list[Path], target, cols: dict[str, np.ndarray], layout: PointLayout, assign_crs, override_crs
+    paths: list[Path], target, cols: dict[str, np.ndarray], layout: PointLayout, assign_crs, override_crs, index
 ):
     """The converted file's header: offsets and scale from the inputs' header bounds, else from the first chunk."""
     from dtm.common.clouds import point_header
 
     n = len(cols["x"])
-    lo, hi = header_bounds(paths, target, assign_crs, override_crs)
+    lo, hi = header_bounds(paths, target, assign_crs, override_crs, index)
     if not np.isfinite(lo).all():
         lo = np.array([cols[k].min() for k in "xyz"]) if n else None
         hi = np.array([cols[k].max() for k in "xyz"]) if n else None
@@ -516,7 +549,7 @@ def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray
     return lo, hi
 
 
-def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayout, override_crs=None):
+def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayout, override_crs, index: HeaderIndex):
     """The output CRS when the input can be copied record for record, else None.
 
     That is one LAS 1.4 file whose records are those of *layout* (point
@@ -525,23 +558,22 @@ def _copyable(paths: list[Path], crs_setting: str, assign_crs, layout: PointLayo
     """
     if len(paths) != 1:
         return None
-    with open_las(paths[0]) as reader:
-        h = reader.header
-        if str(h.version) != "1.4" or h.point_format.id != layout.point_format:
-            return None
-        if [e.name for e in layout.extra] != list(h.point_format.extra_dimension_names):
-            return None
-        if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
-            return None
-        if (np.asarray(h.scales) < 0).any():
-            return None  # a negative scale (allowed by LAS 1.4): converted to the output's positive scales
-        if override_crs is not None or (_records_held(paths[0], h) or 0) > h.point_count:
-            return None  # the header's CRS or count is not the file's: convert, which handles both
-        src_crs, source = file_crs(paths[0], h, assign_crs)
-        if source != "header" or not src_crs.is_projected:
-            return None
-        target = output_crs(crs_setting, src_crs, None)
-        return target if target.equals(src_crs) else None
+    h = index.header(paths[0])
+    if str(h.version) != "1.4" or h.point_format.id != layout.point_format:
+        return None
+    if [e.name for e in layout.extra] != list(h.point_format.extra_dimension_names):
+        return None
+    if not (np.isfinite(h.mins).all() and np.isfinite(h.maxs).all()) or h.point_count == 0:
+        return None
+    if (np.asarray(h.scales) < 0).any():
+        return None  # a negative scale (allowed by LAS 1.4): converted to the output's positive scales
+    if override_crs is not None or (_records_held(paths[0], h) or 0) > h.point_count:
+        return None  # the header's CRS or count is not the file's: convert, which handles both
+    src_crs, source = index.file_crs(paths[0], assign_crs)
+    if source != "header" or not src_crs.is_projected:
+        return None
+    target = output_crs(crs_setting, src_crs, None)
+    return target if target.equals(src_crs) else None
 
 
 def copy_records(
@@ -565,8 +597,8 @@ def copy_records(
 
     from dtm.common.clouds import point_header
 
-    n_read = 0
-    with open_las(path) as reader:
+    n_read = n_kept = 0
+    with open_las(path, check=False) as reader:  # the header index checked its header
         h = reader.header
         report.crs_source[str(path)] = "header"
         box = header_box(h)
@@ -584,6 +616,7 @@ def copy_records(
                 stray = _strays(path, h, box, (x, y, np.asarray(chunk.z)), n_read, report)
                 if stray.any():
                     chunk, x, y = chunk[~stray], x[~stray], y[~stray]
+                n_kept += len(chunk)
                 if len(chunk):
                     seen |= np.bincount(np.asarray(chunk.point_source_id), minlength=65536) > 0
                     cols = {k: np.asarray(chunk[k]) for k in ("return_number", "number_of_returns")}
@@ -602,6 +635,7 @@ def copy_records(
                 if progress is not None:
                     progress.update(n)
     report.points[str(path)] = n_read
+    report.kept[str(path)] = n_kept
     strips.update(int(v) for v in np.flatnonzero(seen))
     return target, grid
 

@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from dtm.stages.parse.read_lmsq import LmsqCounters
 
 
-class Parse(Stage, name="parse", version="10", params=InputConfig):
+class Parse(Stage, name="parse", version="11", params=InputConfig):
     """read the input files (format from input.format)."""
 
     config_path = "input"
@@ -47,7 +47,10 @@ class Parse(Stage, name="parse", version="10", params=InputConfig):
 
     def declare(self, params: InputConfig, config: BaseModel) -> StageIO:
         if params.format == "las":
-            return StageIO(outputs={"points_georef": "points.las"})
+            return StageIO(
+                outputs={"points_georef": "points.las", "input_files": "input_files.csv"},
+                products={"input_files": "qc/input_files.csv"},
+            )
         return StageIO(outputs={"trajectory": "trajectory", "pulses": "pulses", "qc": "qc"}, products={"qc": "qc"})
 
     def external_files(self, params: InputConfig, config: BaseModel) -> list[Path]:
@@ -149,11 +152,13 @@ class Parse(Stage, name="parse", version="10", params=InputConfig):
         import pyproj
 
         from dtm.common.units import Units
-        from dtm.stages.parse.read_las import convert_las_files, count_points
+        from dtm.stages.parse.las_index import read_headers, write_input_files_csv
+        from dtm.stages.parse.read_las import convert_las_files
 
         params = ctx.params
         paths = distinct_files(list(params.paths), ctx.log)
-        total = count_points(paths)
+        index = read_headers(paths)
+        total = index.total_points()
         assign = pyproj.CRS.from_user_input(params.crs) if params.crs else None
         override = pyproj.CRS.from_user_input(params.override_crs) if params.override_crs else None
         with ctx.progress(total, "reading LAS/LAZ", unit="pt") as bar:
@@ -165,7 +170,13 @@ class Parse(Stage, name="parse", version="10", params=InputConfig):
                 chunk_size=params.chunk_size,
                 progress=bar,
                 override_crs=override,
+                index=index,
             )
+        crs_names = {}
+        for path in paths:
+            if str(path) in report.points:
+                crs_names[str(path)] = index.file_crs(path, assign, override)[0].name
+        write_input_files_csv(ctx.outputs["input_files"], index, report.points, report.kept, crs_names)
         _log_las_report(ctx.log, report, override)
         if not sum(report.points.values()):
             files = ", ".join(str(x) for x in params.paths)
@@ -174,6 +185,7 @@ class Parse(Stage, name="parse", version="10", params=InputConfig):
         ctx.metrics.update(
             points_read=int(sum(report.points.values())),
             points_per_file=report.points,
+            points_kept_per_file=report.kept,
             crs=crs.name,
             crs_epsg=crs.to_epsg(),
             crs_source=report.crs_source,

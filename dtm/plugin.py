@@ -60,6 +60,7 @@ def _stages_plugin() -> Plugin:
     from dtm.stages.rasterize.stage import Rasterize
     from dtm.stages.report.stage import Report
     from dtm.stages.strip_adjust.stage import StripAdjust
+    from dtm.tile_plan import plan_tiles
     from pipeline.stage import Plugin
 
     return Plugin(
@@ -81,6 +82,7 @@ def _stages_plugin() -> Plugin:
         global_fields={"crs": _crs_field()},
         commands=COMMANDS,
         versions=_versions,
+        plan_tiles=plan_tiles,
     )
 
 

@@ -163,10 +163,10 @@ def _cmd_run(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
     )
     if args.dry_run:
         width = max((len(s["name"]) for s in manifest["stages"]), default=5)
-        print(f"{'stage':<{width}}  status          key")
+        print(f"{'stage':<{width}}  status          key           tiles")
         for s in manifest["stages"]:
             key = s.get("key", "")[:12]
-            print(f"{s['name']:<{width}}  {s['status']:<14}  {key}")
+            print(f"{s['name']:<{width}}  {s['status']:<14}  {key:<12}  {s.get('tiles', '')}".rstrip())
         return EXIT_OK
     summary = ", ".join(f"{s['name']} {s['status']}" for s in manifest["stages"])
     logging.getLogger(LOGGER_NAME).info("%s", summary)

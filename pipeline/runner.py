@@ -366,6 +366,7 @@ def run(
             records[step.name] = {"name": step.name, "status": step.note or "disabled"}
         manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]
         if dry_run:
+            _plan_tiles(plugin, config, output, manifest)
             return manifest
         executor.close()
         _finish(manifest, started)
@@ -512,6 +513,23 @@ def _check_product_link(place: Path, name: str, output: Path, inputs: list[Path]
         output,
         os.readlink(place),
     )
+
+
+def _plan_tiles(plugin: Plugin, config: BaseModel, output: Path, manifest: dict[str, Any]) -> None:
+    """Dry run: the plugin's note on the tiles each stage will run, when input files changed since the last run."""
+    hook = getattr(plugin, "plan_tiles", None)
+    previous = _read_manifest(output)
+    if hook is None or not previous.get("inputs"):
+        return
+    now, before = manifest["inputs"], previous["inputs"]
+    changed = {p: ("new" if p not in before else "changed") for p, h in now.items() if before.get(p) != h}
+    changed.update({p: "removed" for p in before if p not in now})
+    if not changed:
+        return
+    notes = hook(config, changed, previous, output)
+    for record in manifest["stages"]:
+        if record["name"] in notes and record.get("status", "").startswith("run"):
+            record["tiles"] = notes[record["name"]]
 
 
 def _read_manifest(output: Path) -> dict[str, Any]:

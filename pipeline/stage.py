@@ -172,7 +172,10 @@ class Plugin:
     :func:`pydantic.create_model`; ``commands``: extra sub-commands (:class:`Command`,
     or any object with its attributes, e.g. :class:`pipeline.discovery.LazyCommand`);
     ``versions``: ``{package: version}`` of the libraries that shape results,
-    for the manifest.
+    for the manifest; ``plan_tiles``: in a dry run after input files changed,
+    ``plan_tiles(config, changed, previous, output) -> {stage: note}`` says
+    how many tiles each tiled stage will run (*changed*: path -> "changed",
+    "new" or "removed" against the last run's ``run.json``, *previous*).
     """
 
     name: str
@@ -180,6 +183,7 @@ class Plugin:
     global_fields: dict[str, tuple[Any, Any]] = field(default_factory=dict)
     commands: list[Any] = field(default_factory=list)
     versions: Callable[[], dict[str, str]] = dict
+    plan_tiles: Callable[..., dict[str, str]] | None = None
 
     def stage(self, name: str) -> type[Stage]:
         for stage in self.stages:

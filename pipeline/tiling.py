@@ -249,6 +249,7 @@ def run_tiled(
     try:
         layout = layout_for(ctx.config, extent, buffer)
         ctx.metrics["tiling"] = {
+            "extent": [round(v, 3) for v in layout.extent],
             "tiles": len(layout),
             "size": layout.size,
             "buffer": layout.buffer,

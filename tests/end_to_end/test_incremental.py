@@ -12,7 +12,10 @@ run on an empty cache, byte for byte.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import re
 from pathlib import Path
 
 import laspy
@@ -42,7 +45,7 @@ def _cut(folder: Path) -> list[Path]:
     return paths
 
 
-def _run(tmp: Path, paths: list[Path], out: str, cache: str) -> dict:
+def _run(tmp: Path, paths: list[Path], out: str, cache: str, dry_run: bool = False) -> dict | str:
     config = tmp / "project.yaml"
     config.write_text(
         "input: {format: las, paths: [" + ", ".join(str(p) for p in paths) + "]}\n"
@@ -53,6 +56,11 @@ def _run(tmp: Path, paths: list[Path], out: str, cache: str) -> dict:
         "  classify_ground: {one_grid_cells: 0}\n"
         "  hillshade: {enabled: false}\n  contours: {enabled: false}\n  report: {enabled: false}\n"
     )
+    if dry_run:
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            assert main(["run", str(config), "-q", "--dry-run"]) == 0
+        return printed.getvalue()
     assert main(["run", str(config), "-q"]) == 0
     return json.loads((tmp / out / "run.json").read_text())
 
@@ -83,13 +91,14 @@ def runs(tmp_path_factory):
     last = laspy.read(paths[3])
     last.z = np.asarray(last.z) + 0.3
     last.write(paths[3])
+    plan = _run(tmp, paths, "first", "cache", dry_run=True)
     again = _run(tmp, paths, "again", "cache")
     fresh = _run(tmp, paths, "fresh", "fresh-cache")
-    return first, again, fresh
+    return first, again, fresh, plan
 
 
 def test_products_equal_a_run_on_an_empty_cache(runs):
-    _, again, fresh = runs
+    _, again, fresh, _ = runs
     assert {n: p["sha256"] for n, p in again["products"].items()} == {
         n: p["sha256"] for n, p in fresh["products"].items()
     }
@@ -97,7 +106,7 @@ def test_products_equal_a_run_on_an_empty_cache(runs):
 
 @pytest.mark.parametrize("stage", ["denoise", "classify_ground", "rasterize"])
 def test_only_tiles_reaching_a_changed_point_run_again(runs, stage):
-    first, again, _ = runs
+    first, again, _, _ = runs
     buffer = _stage(again, stage)["tile_buffer"]
     x = _changed_x(first, again, stage)
     assert len(x) > 0
@@ -107,3 +116,18 @@ def test_only_tiles_reaching_a_changed_point_run_again(runs, stage):
     assert (tiling["ran"], tiling["reused"]) == (expected, 4 - expected)
     assert expected < 4, "the claim needs a tile that is reused"
     assert _stage(first, stage)["metrics"]["tiling"]["ran"] == 4
+
+
+def test_the_dry_run_says_how_many_tiles_will_run(runs):
+    """Before the re-run, from the changed file's header: exact for the first tiled stage, a bound after it."""
+    _, again, _, plan = runs
+    said = {
+        m["stage"]: int(m["n"])
+        for m in re.finditer(
+            r"^(?P<stage>\w+)\s+run \(upstream\)\s+at most (?P<n>\d+) of 4 tiles \(1 file changed\)$", plan, re.M
+        )
+    }
+    assert set(said) == {"denoise", "classify_ground", "rasterize"}, plan
+    ran = {name: _stage(again, name)["metrics"]["tiling"]["ran"] for name in said}
+    assert said["denoise"] == ran["denoise"], "nothing upstream spreads the change: the header's bounds tell exactly"
+    assert all(said[name] >= ran[name] for name in said)

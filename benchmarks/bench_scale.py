@@ -116,7 +116,8 @@ def _make(laz: Path, points: float) -> None:
         del scene
     writer.close()
     part.unlink()
-    (laz.parent / "blocks.json").write_text(json.dumps({"width": width, "height": height, "cols": cols}))
+    layout = {"width": width, "height": height, "cols": cols, "blocks": blocks}
+    (laz.parent / "blocks.json").write_text(json.dumps(layout))
     emit(points=n)
 
 
@@ -193,8 +194,10 @@ def _rmse(dtm: Path) -> float:
     rows, cols = np.mgrid[0 : z.shape[0], 0 : z.shape[1]]
     x, y = t.c + (cols + 0.5) * t.a - SAMPLE_ORIGIN[0], t.f + (rows + 0.5) * t.e - SAMPLE_ORIGIN[1]
     blocks = dtm.parent.parent / "blocks.json"
-    if blocks.exists():  # a survey of blocks: each block's terrain from its corner
+    if blocks.exists():  # a survey of blocks: each block's terrain from its corner; none where no block lies
         b = json.loads(blocks.read_text())
+        block = (y // b["height"]) * b["cols"] + x // b["width"]
+        z[(x < 0) | (y < 0) | (x >= b["cols"] * b["width"]) | (block >= b.get("blocks", b["cols"] ** 2))] = np.nan
         x, y = x % b["width"], y % b["height"]
     e = z - terrain(x, y)
     return float(np.sqrt(np.nanmean(e**2)))

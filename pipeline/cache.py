@@ -569,7 +569,12 @@ class TileCache:
                 files = {p.name: hash_path(p) for p in sorted(tmp.iterdir()) if p.is_file()}
                 record = {"result": json.loads(canonical_json(result)), "files": files}
                 atomic_write_text(tmp / TILE_RECORD, json.dumps(record, sort_keys=True))
-                os.rename(tmp, final)
+                try:
+                    os.rename(tmp, final)
+                except OSError as exc:
+                    if exc.errno not in (errno.EEXIST, errno.ENOTEMPTY):
+                        raise
+                    shutil.rmtree(tmp, ignore_errors=True)  # kept meanwhile by a concurrent run: the same tile
             except BaseException:
                 shutil.rmtree(tmp, ignore_errors=True)
                 raise

@@ -142,3 +142,20 @@ def test_what_a_killed_run_left_while_keeping_a_tile_is_removed(tmp_path):
     assert not dead.exists() and alive.exists()
     folder, kept = cache.get(key)
     assert kept == {"total": 3} and Path(folder, "sum").read_text() == "3"
+
+
+def test_a_tile_kept_meanwhile_by_another_run_is_left_as_it_is(tmp_path, caplog):
+    cache = TileCache(tmp_path / "cache", "sum", {"stage": "sum"})
+    key = cache.key({"source": "y"})
+
+    def fill(folder):  # another run keeps the same tile while this one writes it
+        other = TileCache(tmp_path / "cache", "sum", {"stage": "sum"})
+        other.put(key, lambda f: (Path(f, "sum").write_text("5"), {"total": 5})[1])
+        Path(folder, "sum").write_text("5")
+        return {"total": 5}
+
+    with caplog.at_level(logging.WARNING):
+        cache.put(key, fill)
+    assert caplog.text == "", "no warning: the tile is kept"
+    assert cache.get(key)[1] == {"total": 5}
+    assert not [p for p in (tmp_path / "cache" / "tiles" / "sum").rglob(".tmp-*")]

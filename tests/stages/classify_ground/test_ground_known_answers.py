@@ -146,6 +146,21 @@ def test_inpainting_at_the_grid_edge_has_no_flux_across_it():
     np.testing.assert_allclose(inpaint(grid), surface, atol=1e-9)
 
 
+def test_inpainting_fills_every_cell_with_its_neighbours_mean():
+    """Random heights with random holes, some joined into a large one at a corner (a survey's missing
+    block): each filled cell is the mean of its neighbours inside the grid, the known cells unchanged."""
+    rng = np.random.default_rng(3)
+    grid = rng.normal(100.0, 5.0, (60, 70))
+    grid[rng.random(grid.shape) < 0.1] = np.nan
+    grid[35:, 45:] = np.nan  # a corner block: two edges and the known cells bound it
+    filled = inpaint(grid)
+    padded = np.pad(filled, 1, constant_values=np.nan)
+    neighbours = np.stack((padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]))
+    hole = np.isnan(grid)
+    np.testing.assert_allclose(filled[hole], np.nanmean(neighbours, axis=0)[hole], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(filled[~hole], grid[~hole])
+
+
 def test_pmf_keeps_a_plain_slope_gentler_than_s():
     """A plain 10 % slope, 2 points/m2 at random, 2 cm noise, PMF s = 0.15: every point is ground.
 

@@ -559,7 +559,7 @@ class TileCache:
             if final is None:
                 return
             if os.path.lexists(final):
-                if self._lookup_folder(key) is not None and self.get_intact(key):
+                if self.get_intact(key) is not None:
                     return  # kept already (by a concurrent run, or before a --force)
                 _remove(final, final.parent / f".tmp-old-{uuid.uuid4().hex[:8]}")  # damaged: replaced
             _sweep_tiles(final.parent)

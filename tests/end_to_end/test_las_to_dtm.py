@@ -218,17 +218,20 @@ def test_accuracy_at_check_points(run_dir):
 def test_report_is_self_contained(run_dir):
     import base64
     import re
+    from xml.etree import ElementTree
 
     out, _ = run_dir
     page = (out / "out" / "report.html").read_text()
     for section in ("acceptance", "summary", "inputs", "maps", "classes", "strips", "accuracy"):
         assert f'<section id="{section}">' in page
-    images = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    figures = re.findall(r"<figure>(<svg .*?</svg>)<figcaption>", page, flags=re.S)
     # relief, pulse and point density, strips, voids, check-point residuals, error histogram (the sample's
     # three strips do not overlap on planar patches: no strip-difference maps)
-    assert len(images) == 7
-    for img in images:
-        assert base64.b64decode(img)[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(figures) == 7
+    for svg in figures:
+        ElementTree.fromstring(svg)  # well-formed
+        for png in re.findall(r'href="data:image/png;base64,([^"]+)"', svg):
+            assert base64.b64decode(png)[:8] == b"\x89PNG\r\n\x1a\n"
     assert "http://" not in page and "https://" not in page  # opens offline
     assert "306,405" in page  # points read
     assert "RMSEz" in page

@@ -90,8 +90,8 @@ def relief_figure(cv: Canvas) -> str:
     )
 
 
-def relief_map(cv: Canvas, title: str, lines: list[tuple[np.ndarray, np.ndarray, str]] | None = None) -> bytes:
-    """The DTM in colour relief over its hillshade as PNG, with *lines* ``(x, y, name)`` drawn on it."""
+def relief_map(cv: Canvas, title: str, lines: list[tuple[np.ndarray, np.ndarray, str]] | None = None) -> str:
+    """The DTM in colour relief over its hillshade as SVG, with *lines* ``(x, y, name)`` drawn on it."""
     return raster_map(
         cv.dtm,
         cv.frame,
@@ -110,7 +110,7 @@ def pulse_density_figure(cv: Canvas, first_returns: np.ndarray, density: np.ndar
     """First returns per m² in squares of about 5 m, with the specification's *limit* drawn (contour and bar)."""
     per_m2, k, frame = cv.per_square_m(first_returns.astype(float))
     vmax = float(np.nanpercentile(per_m2, 99)) if np.isfinite(per_m2).any() else 1.0
-    png = density_map(
+    svg = density_map(
         cv,
         per_m2,
         frame,
@@ -127,7 +127,7 @@ def pulse_density_figure(cv: Canvas, first_returns: np.ndarray, density: np.ndar
     )
     mean_pts = float(np.nansum(density)) / max(float(np.isfinite(density).sum()), 1.0) / cv.cell_m**2
     return figure(
-        png,
+        svg,
         "pulse density",
         f"First returns (noise and withheld excluded) per m², in squares of {k * cv.cell_m:.1f} m"
         f"{limit_txt}. All points: {mean_pts:.2f} per m² on average over the DTM grid.",
@@ -140,9 +140,9 @@ def point_density_figure(cv: Canvas, density: np.ndarray) -> str:
     if not np.isfinite(pts_m2).any():
         return ""
     vmax = max(float(np.nanpercentile(pts_m2, 99)), 1.0)
-    png = density_map(cv, pts_m2, frame, "points per m²", "point density (all returns)", vmax)
+    svg = density_map(cv, pts_m2, frame, "points per m²", "point density (all returns)", vmax)
     return figure(
-        png,
+        svg,
         "point density",
         f"Points of every return (density.tif; noise and withheld excluded) per m², in "
         f"squares of {k * cv.cell_m:.1f} m.",
@@ -158,8 +158,8 @@ def density_map(
     vmax: float,
     threshold: float | None = None,
     threshold_label: str = "",
-) -> bytes:
-    """A density per m² as PNG, coloured from 0 to *vmax*, with the *threshold* drawn when one is given."""
+) -> str:
+    """A density per m² as SVG, coloured from 0 to *vmax*, with the *threshold* drawn when one is given."""
     return raster_map(
         per_m2,
         frame,
@@ -185,8 +185,8 @@ def strips_figure(cv: Canvas, cloud: CloudSummary) -> str:
     names = [
         (i, f"strip {s}" if s > 0 else "not a strip (0)", tuple(STRIP_COLOURS[i % 10])) for i, s in enumerate(unique)
     ][:20]
-    png = category_map(idx, cv.frame, names, title="flight strips (point_source_id)", max_size=cv.max_size)
-    return figure(png, "flight strip coverage", "Flight strips: the strip of the last point read in each DTM cell.")
+    svg = category_map(idx, cv.frame, names, title="flight strips (point_source_id)", max_size=cv.max_size)
+    return figure(svg, "flight strip coverage", "Flight strips: the strip of the last point read in each DTM cell.")
 
 
 def difference_figures(cv: Canvas, before: np.ndarray, after: np.ndarray, frame: MapFrame) -> str:
@@ -196,7 +196,7 @@ def difference_figures(cv: Canvas, before: np.ndarray, after: np.ndarray, frame:
     for label, arr in (("before", before), ("after", after)):
         if not np.isfinite(arr).any():
             continue  # no planar overlap between strips: nothing to draw (the strip table says why)
-        png = raster_map(
+        svg = raster_map(
             arr,
             frame,
             cmap="RdBu_r",
@@ -208,7 +208,7 @@ def difference_figures(cv: Canvas, before: np.ndarray, after: np.ndarray, frame:
             shade=None,
         )
         out += figure(
-            png,
+            svg,
             f"strip differences {label} adjustment",
             f"Mean signed distance between overlapping strips at planar patches, {label} "
             f"adjustment (strip_difference_{label}.tif), ±{scale:.3g} {cv.vu} (±16 cm); "
@@ -232,9 +232,9 @@ def voids_figure(cv: Canvas, void_mask: np.ndarray, side_m: float, count: int) -
         (1, "DTM nodata inside the area", (255, 170, 0)),
         (2, f"void ≥ {side_m:.1f} m square", (200, 0, 0)),
     ]
-    png = category_map(cats, cv.frame, legend, title="voids", max_size=cv.max_size, shade=cv.shade)
+    svg = category_map(cats, cv.frame, legend, title="voids", max_size=cv.max_size, shade=cv.shade)
     return figure(
-        png,
+        svg,
         "voids",
         f"Voids: DTM nodata cells enclosed by the DTM (orange), and squares of "
         f"{side_m:.1f} m (4 × the measured pulse spacing) without a first "
@@ -249,7 +249,7 @@ def checkpoints_figure(cv: Canvas, cp: dict) -> str:
     err = cp["error"]
     # colour scale: the 95th percentile of |error|, so one blunder does not wash out the others
     span = max(float(np.nanpercentile(np.abs(err), 95)), 0.01) if np.isfinite(err).any() else 0.1
-    png = raster_map(
+    svg = raster_map(
         np.full(cv.dtm.shape, np.nan),
         cv.frame,
         cmap="RdBu_r",
@@ -262,7 +262,7 @@ def checkpoints_figure(cv: Canvas, cp: dict) -> str:
         points=(cp["x"][np.isfinite(err)], cp["y"][np.isfinite(err)], err[np.isfinite(err)]),
     )
     return figure(
-        png,
+        svg,
         "check-point residuals",
         f"Check points coloured by DTM − check point (metres, scale ±{span:.3f} m: the 95th percentile "
         "of |error|; larger errors take the end colours), over the hillshade.",
@@ -272,7 +272,7 @@ def checkpoints_figure(cv: Canvas, cp: dict) -> str:
 def uncertainty_figure(cv: Canvas, u: np.ndarray) -> str:
     """The DTM's propagated 1-sigma, coloured from its 1st to its 99th percentile."""
     ulo, uhi = (float(np.nanpercentile(u, 1)), float(np.nanpercentile(u, 99))) if np.isfinite(u).any() else (0, 1)
-    png = raster_map(
+    svg = raster_map(
         u,
         cv.frame,
         cmap="viridis",
@@ -283,7 +283,7 @@ def uncertainty_figure(cv: Canvas, u: np.ndarray) -> str:
         vmax=uhi,
     )
     return figure(
-        png,
+        svg,
         "DTM uncertainty",
         f"DTM uncertainty (dtm_uncertainty.tif), 1 σ in {cv.vu}, propagated from the "
         f"georeferencing errors; colours from the 1st ({ulo:.3f}) to the 99th ({uhi:.3f}) percentile.",
@@ -292,5 +292,5 @@ def uncertainty_figure(cv: Canvas, u: np.ndarray) -> str:
 
 def flight_lines_figure(cv: Canvas, lines: list[tuple[np.ndarray, np.ndarray, str]]) -> str:
     """The flight lines over the DTM's relief, one colour a line."""
-    png = relief_map(cv, "flight lines", lines)
-    return figure(png, "flight lines", "Trajectory over the survey: one colour per flight line (qc/trajectory.gpkg).")
+    svg = relief_map(cv, "flight lines", lines)
+    return figure(svg, "flight lines", "Trajectory over the survey: one colour per flight line (qc/trajectory.gpkg).")

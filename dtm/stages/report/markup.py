@@ -1,8 +1,7 @@
-"""The report's HTML pieces: values as the page prints them, tables, embedded figures, sections."""
+"""The report's HTML pieces: values as the page prints them, tables, inline figures, sections."""
 
 from __future__ import annotations
 
-import base64
 import html
 
 import numpy as np
@@ -28,13 +27,10 @@ def fmt(value: object) -> str:
     return "—" if value is None else str(value)
 
 
-def _img(png: bytes, alt: str) -> str:
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
-
-
-def figure(png: bytes, alt: str, caption: str) -> str:
-    """A PNG embedded as base64 in a ``<figure>`` with its caption (HTML, not escaped)."""
-    return f"<figure>{_img(png, alt)}<figcaption>{caption}</figcaption></figure>"
+def figure(svg: str, alt: str, caption: str) -> str:
+    """An SVG drawing inline in a ``<figure>``, named *alt* for screen readers, with its caption (HTML, not escaped)."""
+    labelled = svg.replace("<svg ", f'<svg role="img" aria-label="{html.escape(alt)}" ', 1)
+    return f"<figure>{labelled}<figcaption>{caption}</figcaption></figure>"
 
 
 def table(rows: list[tuple[str, object]]) -> str:

@@ -26,7 +26,7 @@ body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1300px;color:#22
 h1{margin-bottom:0} .sub{color:#666;margin-top:.2em}
 section{margin:1.5em 0} table{border-collapse:collapse;margin:.5em 0} th,td{padding:.25em .8em;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}
 th{font-weight:600;color:#444} .maps{display:flex;flex-wrap:wrap;gap:1.5em} figure{margin:0;max-width:620px}
-img{max-width:100%;border:1px solid #ccc} figcaption{color:#555;font-size:.9em}
+figure svg{max-width:100%;height:auto;border:1px solid #ccc} figcaption{color:#555;font-size:.9em}
 table.wide td{font-size:.85em} .pass{color:#17692d} .fail{color:#b00020} .incomplete,.not{color:#8a5a00}
 tr.pass td:nth-child(4){background:#e6f4ea} tr.fail td:nth-child(4){background:#fce8e6} tr.not td:nth-child(4){background:#fff4e0}
 </style>"""

@@ -15,7 +15,7 @@ from dtm.common import glossary
 from dtm.stages.report.acceptance import MEASURES
 from dtm.stages.report.cloud import CloudSummary
 from dtm.stages.report.figures import Canvas
-from dtm.stages.report.maps import histogram_png
+from dtm.stages.report.maps import histogram_svg
 from dtm.stages.report.markup import figure, fmt, grid, section, table
 
 PAIR_HEADER = ["strips", "overlap (m²)", "patches", "points", "RMS before (m)", "RMS after (m)"]
@@ -360,7 +360,7 @@ def checkpoints_html(cp: dict) -> str:
     out = ""
     if np.isfinite(err).any():
         out += figure(
-            histogram_png(err, np.asarray(cp["land_cover"], dtype=object)),
+            histogram_svg(err, np.asarray(cp["land_cover"], dtype=object)),
             "check-point error histogram",
             "Errors DTM − check point (metres), stacked by land cover.",
         )

@@ -1,6 +1,6 @@
 """Stage ``report``: ``report.html``, one self-contained QC page a reviewer signs off.
 
-Everything is inside the file (images as base64 PNG, CSS inline), so it opens
+Everything is inside the file (maps as inline SVG, CSS inline), so it opens
 offline, can be mailed, and is archived with the products.  Figures are in
 the survey's units (the CRS's) unless a heading says metres; accuracy figures
 are in metres whatever the CRS.  The page is a list of sections
@@ -42,7 +42,7 @@ def _enabled(config, name: str) -> bool:
     return params is not None and bool(getattr(params, "enabled", True))
 
 
-class Report(Stage, name="report", version="8", params=ReportParams):
+class Report(Stage, name="report", version="9", params=ReportParams):
     """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
 
     inputs = ("dtm", "density", "points_classified")

@@ -257,7 +257,7 @@ def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
     for section in ("acceptance", "summary", "inputs", "maps", "classes", "raw", "strips", "accuracy"):
         assert f'<section id="{section}">' in page
     figures = re.findall(r"<figure>(.*?)</figure>", page, flags=re.S)
-    images = re.findall(r"<img ", page)
+    images = re.findall(r"<figure><svg ", page)
     # relief, pulse and point density, strips, 2 differences, voids, residuals, uncertainty, flight lines, histogram
     assert len(figures) == len(images) == 11
     for fig in figures:

@@ -106,7 +106,8 @@ def simulate(cfg: SimulateConfig) -> SimResult:
     files.update(write_navigation(cfg, out, nav, flight, start))
     if "lmsq" in faults:
         faults["lmsq"]["nmea_bad_checksums"] = cfg.faults.nmea_bad_checksums
-    files.update(_write_truth(cfg, out, world, frame, crs, extent, flight, rng))
+    ground_xy = np.concatenate(sinks.ground_on_lines) if sinks.ground_on_lines else np.zeros((0, 2))
+    files.update(_write_truth(cfg, out, world, frame, crs, extent, rng, ground_xy))
     faults["files"] = files
     (out / "truth" / "faults.json").write_text(json.dumps(faults, indent=2) + "\n")
     return SimResult(out, faults, files, nav, start)
@@ -233,14 +234,14 @@ def _write_truth(
     frame: Earth,
     crs: pyproj.CRS,
     extent: tuple[float, float, float, float],
-    flight: Flight,
     rng: np.random.Generator,
+    ground_xy: np.ndarray,
 ) -> dict[str, str]:
-    """The true terrain and land cover, and the check points; the files written."""
+    """The true terrain and land cover, and the check points (where *ground_xy*, the lines' ground echoes, are);
+    the files written."""
     files = {"truth_terrain": "truth/terrain.tif", "truth_land_cover": "truth/land_cover.tif"}
     write_truth_terrain(out / "truth", world, frame, crs, extent, cfg.truth_resolution)
     if cfg.checkpoints:
-        on_lines = flight.pos[flight.line > 0]
-        write_checkpoints(out / "checkpoints.csv", world, frame, crs, on_lines, cfg.checkpoints, rng)
+        write_checkpoints(out / "checkpoints.csv", world, frame, crs, ground_xy, cfg.checkpoints, rng)
         files["checkpoints"] = "checkpoints.csv"
     return files

@@ -275,6 +275,7 @@ class Sinks:
         crs = to_map.crs
         self.files: dict[str, str] = {}
         self.counts = {"pulses": 0, "echoes": 0, "echoes_by_class": {}}
+        self.ground_on_lines: list[np.ndarray] = []  # local (e, n) of recorded ground echoes on the lines
         (out / "truth").mkdir(parents=True, exist_ok=True)
         self.truth = LasSink(out / "truth" / "points.laz", crs, to_map, extra_fault=True)
         self.files["truth_points"] = "truth/points.laz"
@@ -318,6 +319,7 @@ class Sinks:
         }
         sel = {k: v[keep] for k, v in cols.items()}
         self.truth.add(e["hit"][keep], classification=e["cls"][keep], fault=fault[keep], **sel)
+        self.ground_on_lines.append(e["hit"][keep & (e["cls"] == sc.GROUND) & (strip > 0), :2])
         if self.las is not None:
             ok_for_las = keep & (fault != FAULT_CODES["invalid_quality"])  # after a missed PPS: dated by the counter
             # what the vendor's software wrote: the echoes georeferenced from the recorded navigation

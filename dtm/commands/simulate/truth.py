@@ -31,18 +31,27 @@ def ground_height(
 
 
 def write_checkpoints(
-    path: Path, world: sc.Scene, frame: Earth, crs: pyproj.CRS, on_lines: np.ndarray, n: int, rng: np.random.Generator
+    path: Path,
+    world: sc.Scene,
+    frame: Earth,
+    crs: pyproj.CRS,
+    ground_xy: np.ndarray,
+    n: int,
+    rng: np.random.Generator,
 ) -> None:
-    """GNSS-style check points on the true terrain: two thirds in the open, one third under trees.
+    """GNSS-style check points on the true terrain, spread over the survey: two thirds in the open, one third under trees.
 
-    Drawn under the flown lines (so the DTM covers them), at least 5 m from
-    buildings, water, the bridge, breaklines and slopes over 20 %, as a
-    surveyor would place them.
+    Where the flown lines recorded ground echoes (*ground_xy*, local east and
+    north: so the DTM covers them), at least 5 m from buildings, water, the
+    bridge, breaklines and slopes over 20 %, as a surveyor would place them;
+    each as far as it can be from those placed before, so that they sample
+    every part of the survey and every land cover, the ground beside the
+    channel included.
     """
     import pyproj
 
-    rows = _checkpoint_places(world, on_lines, n, rng)
-    local = np.array([[r[0], r[1], 0.0] for r in rows])
+    rows = _checkpoint_places(world, ground_xy, n, rng)
+    local = np.array([[r[0], r[1], 0.0] for r in rows]).reshape(-1, 3)
     ecef = frame.to_ecef(local)
     x, y, _ = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True).transform(
         ecef[:, 0], ecef[:, 1], ecef[:, 2]
@@ -55,29 +64,54 @@ def write_checkpoints(
             fh.write(f"CP{i:03d},{xi:.3f},{yi:.3f},{zi:.3f},{r[2]}\n")
 
 
-def _checkpoint_places(
-    world: sc.Scene, on_lines: np.ndarray, n: int, rng: np.random.Generator
-) -> list[tuple[float, float, str]]:
-    """(e, n, land cover) of *n* check points within 20 m of the flown positions *on_lines*, every third under trees."""
-    from scipy.ndimage import binary_dilation
+#: Check points stay this far (m) inside the area the lines' ground echoes cover.
+COVERAGE_MARGIN_M = 3.0
 
+
+def _checkpoint_places(
+    world: sc.Scene, ground_xy: np.ndarray, n: int, rng: np.random.Generator
+) -> list[tuple[float, float, str]]:
+    """(e, n, land cover) of *n* check points, every third under trees, spread by farthest-point sampling.
+
+    The candidates are the scene's cells with the lines' ground echoes
+    around them (gaps of a few metres between scan lines closed,
+    ``COVERAGE_MARGIN_M`` inside the edge), 5 m clear of structures and steep
+    ground; the first point is drawn at random, each next one is the
+    candidate of the wanted land cover farthest from every point placed so
+    far, jittered inside its cell.
+    """
+    from scipy.ndimage import binary_closing, binary_dilation, binary_erosion
+
+    shape = world.cls.shape
     gy, gx = np.gradient(world.ground, world.cell)
     steep = np.hypot(gx, gy) > 0.2  # breaklines and steep slopes: no check point within 5 m (ASPRS practice)
     structures = binary_dilation((world.cls != sc.GROUND) | steep, iterations=int(5 / world.cell))
     trees = world.canopy > world.solid + 0.5
-    rows = []
-    tries = 0
-    while len(rows) < n and tries < 200 * n:
-        tries += 1
-        k = int(rng.integers(len(on_lines)))
-        e, nn = on_lines[k, 0] + rng.uniform(-20, 20), on_lines[k, 1] + rng.uniform(-20, 20)
-        ix, iy = int((e - world.e0) / world.cell), int((nn - world.n0) / world.cell)
-        if not (0 <= iy < world.cls.shape[0] and 0 <= ix < world.cls.shape[1]) or structures[iy, ix]:
+    hit = np.zeros(shape, dtype=bool)
+    col = np.floor((ground_xy[:, 0] - world.e0) / world.cell).astype(np.int64)
+    row = np.floor((ground_xy[:, 1] - world.n0) / world.cell).astype(np.int64)
+    inside = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+    hit[row[inside], col[inside]] = True
+    gap = max(1, int(round(3.0 / world.cell)))
+    covered = binary_erosion(
+        binary_closing(hit, iterations=gap), iterations=max(1, int(round(COVERAGE_MARGIN_M / world.cell)))
+    )
+    iy, ix = np.nonzero(covered & ~structures)
+    e = world.e0 + (ix + 0.5) * world.cell
+    nn = world.n0 + (iy + 0.5) * world.cell
+    tree = trees[iy, ix]
+    rows: list[tuple[float, float, str]] = []
+    far = np.full(len(e), np.inf)  # each candidate's distance to the nearest point placed
+    for k in range(n):
+        want_tree = k % 3 == 2
+        pool = np.flatnonzero(tree == want_tree)
+        if not len(pool):
             continue
-        want_tree = len(rows) % 3 == 2
-        if bool(trees[iy, ix]) != want_tree:
-            continue
-        rows.append((e, nn, "vegetated" if want_tree else "open"))
+        pick = int(rng.choice(pool)) if not rows else int(pool[np.argmax(far[pool])])
+        pe = e[pick] + rng.uniform(-0.5, 0.5) * world.cell
+        pn = nn[pick] + rng.uniform(-0.5, 0.5) * world.cell
+        rows.append((pe, pn, "vegetated" if want_tree else "open"))
+        far = np.minimum(far, np.hypot(e - pe, nn - pn))
     return rows
 
 

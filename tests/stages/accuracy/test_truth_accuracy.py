@@ -156,7 +156,7 @@ def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
     args = ["run", str(ROOT / "configs" / "flight.yaml"), "--until", "accuracy", "-q"]
     assert main(args + [a for s in sets for a in ("--set", s)]) == 0
     acc = json.loads((tmp_path / "out" / "accuracy.json").read_text())
-    assert acc["n"] == 29  # the check points are still there
+    assert acc["n"] == 30 and acc["outside"] == 0  # every check point on the DTM (the simulator places them there)
     direct = truth_accuracy(
         *truth_on_dtm_cells(
             tmp_path / "out" / "dtm.tif", ROOT / "data_samples" / "flight_ldmrs" / "truth" / "terrain.tif"

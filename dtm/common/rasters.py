@@ -14,8 +14,20 @@ from pathlib import Path
 
 import numpy as np
 
-#: Nodata value of every float raster (documented in docs/PRODUCTS.md).
+#: Nodata value of the float rasters (documented in docs/PRODUCTS.md) but the DEMs of a USGS LBS deliverable.
 NODATA = -9999.0
+#: Nodata value of the DEM the USGS Lidar Base Specification asks for (GeoTIFF, 32-bit float, GDAL_NODATA tag):
+#: ``rasterize``'s rasters when ``stages.report.specification`` is an LBS quality level.
+LBS_NODATA = -999999.0
+
+
+def dem_nodata(specification: str | None) -> float:
+    """The nodata value of the elevation rasters for acceptance against *specification* (a report specification name).
+
+    >>> dem_nodata("usgs-lbs-ql2"), dem_nodata("asprs-2023-10cm")
+    (-999999.0, -9999.0)
+    """
+    return LBS_NODATA if (specification or "").startswith("usgs-lbs") else NODATA
 
 
 #: Internal tile size of the Cloud Optimized GeoTIFFs.

@@ -40,7 +40,7 @@ def test_dtm_is_a_cloud_optimized_geotiff(run_dir):
     with rasterio.open(out / "out" / "dtm.tif") as ds:
         assert ds.crs.to_epsg() == 25830
         assert ds.dtypes[0] == "float32"
-        assert ds.nodata == -9999.0
+        assert ds.nodata == -999999.0  # the USGS LBS's DEM nodata: the default specification is LBS QL2
         assert ds.profile["tiled"] and ds.block_shapes[0] == (256, 256)
         assert ds.overviews(1), "COG must carry overviews"
         assert ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
@@ -58,7 +58,7 @@ def test_dtm_matches_the_true_terrain(run_dir):
         rows, cols = np.indices(dtm.shape)
         x, y = rasterio.transform.xy(ds.transform, rows.ravel(), cols.ravel())
     truth = terrain(np.asarray(x) - SAMPLE_ORIGIN[0], np.asarray(y) - SAMPLE_ORIGIN[1]).reshape(dtm.shape)
-    valid = dtm != -9999.0
+    valid = dtm != -999999.0
     assert valid.mean() > 0.99
     err = (dtm - truth)[valid]
     rmse = float(np.sqrt(np.mean(err**2)))
@@ -162,7 +162,7 @@ def test_every_raster_product_is_a_cog_with_crs_and_nodata(run_dir, name):
             assert ds.dtypes[0] == "uint8" and ds.nodata == 0 and ds.units == (None,)
             assert ds.read(1).max() > 1  # lit cells
         else:
-            assert ds.dtypes[0] == "float32" and ds.nodata == -9999.0
+            assert ds.dtypes[0] == "float32" and ds.nodata == -999999.0
             # heights name their unit (EPSG:25830: metres); a point count has none
             assert ds.units == ((None,) if name == "density.tif" else ("metre",))
         assert ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"

@@ -39,3 +39,8 @@ class RasterizeParams(StageParams):
     nodata_distance: float = glossary.nodata_distance(50.0)
     idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
     tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")
+    nodata: float | None = Field(
+        None,
+        description="nodata value of the rasters; none: -999999 when stages.report.specification is a USGS LBS "
+        "quality level (the LBS's DEM requirement), else -9999",
+    )

@@ -6,7 +6,7 @@ cell), ``ndsm.tif`` (DSM - DTM, at least 0), ``density.tif`` (points per
 cell) and, when the points carry ``sigma_vertical``, ``dtm_uncertainty.tif``.
 The grid covers all usable points, cell-aligned to multiples of
 ``resolution``; the rasters are Cloud Optimized GeoTIFF, float32, nodata
--9999, in the CRS's units (parameters in metres; :mod:`dtm.common.units`).
+-999999 under a USGS LBS specification (else -9999; ``nodata``), in the CRS's units (parameters in metres; :mod:`dtm.common.units`).
 The survey is rasterized tile by tile (:mod:`dtm.stages.rasterize.tile_rasters`),
 each tile's cells bit for bit those of an untiled run.  Each raster in
 detail: docs/stages/rasterize.md.
@@ -22,6 +22,7 @@ import numpy as np
 
 from dtm.common import glossary
 from dtm.common.grid import Grid, check_grid_size
+from dtm.common.rasters import dem_nodata
 from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import survey_figures
 from dtm.stages.rasterize.tile_rasters import (
@@ -47,7 +48,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="6", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_classified",)
@@ -61,7 +62,7 @@ class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
             outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
         return StageIO(tuple(self.inputs), outputs, products)
 
-    config_keys = ("tiling.buffer",)
+    config_keys = ("tiling.buffer", "stages.report.specification")
 
     def tile_buffer(self, params: RasterizeParams) -> float:
         return reach(params)
@@ -103,6 +104,7 @@ class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
         ctx.metrics.update(
             method=p.method,
             resolution=p.resolution,
+            nodata=tiles.nodata,
             cols=grid.cols,
             rows=grid.rows,
             origin=[tiles.transform.c, tiles.transform.f],
@@ -142,6 +144,8 @@ class _Tiles:
     def __init__(self, ctx: StageContext[RasterizeParams], src: Path, info: CloudInfo, work: Path):
         self.ctx, self.src, self.info, self.work = ctx, src, info, work
         self.names = [n for n in RASTERS if n in ctx.outputs]
+        p = ctx.params
+        self.nodata = p.nodata if p.nodata is not None else dem_nodata(ctx.setting("stages.report.specification"))
         self.grid: Grid | None = None
         self.ground = 0
         self.transform = None
@@ -176,6 +180,7 @@ class _Tiles:
             "%s DTM from %d ground points on %d x %d cells", p.method, self.ground, self.grid.cols, self.grid.rows
         )
         params = p.model_dump(mode="json")
+        params["nodata"] = self.nodata
         tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
         if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
             check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
@@ -187,7 +192,7 @@ class _Tiles:
         self.transform = self.info.units.transform_from_metres(self.grid.transform)
         paths = {n: ctx.outputs[n] for n in self.names}
         cache_mb = 64 // (ctx.executor.workers if len(layout) > 1 else 1)
-        jobs = mosaic_jobs(paths, self.grid, self.transform, self.info.crs, layout, tasks, cache_mb)
+        jobs = mosaic_jobs(paths, self.grid, self.transform, self.info.crs, layout, tasks, cache_mb, self.nodata)
         if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
             ctx.executor.map(mosaic_raster, jobs, what="rasters")
         else:

@@ -21,7 +21,7 @@ import numpy as np
 from dtm.common import glossary
 from dtm.common.grid import Grid, cell_max_count
 from dtm.common.mosaic import core_window
-from dtm.common.rasters import HEIGHT, NODATA
+from dtm.common.rasters import HEIGHT
 from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import TileCloud, tile_figures, tile_rasters
 from pipeline.errors import ConfigError, InputDataError
@@ -200,7 +200,7 @@ def rasterize_tile(task: RasterTask) -> dict:
     """The rasters of one tile's core cells, from its points (core plus buffer); its figures.
 
     Runs in a worker process; writes one ``.npy`` per raster (in the CRS's
-    height unit, nodata -9999) to ``task.result`` and returns
+    height unit, nodata ``params.nodata``) to ``task.result`` and returns
     :func:`dtm.stages.rasterize.products.tile_figures`.
     """
     params = RasterizeParams.model_validate(task.params)
@@ -212,7 +212,7 @@ def rasterize_tile(task: RasterTask) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     for name in task.outputs:
         values = rasters[name] if name == "density" else rasters[name] / vertical
-        np.save(folder / f"{name}.npy", np.where(np.isnan(values), NODATA, values).astype(np.float32))
+        np.save(folder / f"{name}.npy", np.where(np.isnan(values), params.nodata, values).astype(np.float32))
     return {"tile": task.tile, **tile_figures(rasters, vertical)}
 
 
@@ -272,7 +272,7 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
 class MosaicJob:
     """One raster of the survey to assemble from its tiles' windows (runs in a worker: :func:`mosaic_raster`).
 
-    *path*, *rows*, *cols*, *transform*, *crs*, *fill*, *unit*: those of
+    *path*, *rows*, *cols*, *transform*, *crs*, *nodata*, *fill*, *unit*: those of
     :class:`dtm.common.mosaic.RasterMosaic`; *windows*: ``((r0, r1, c0,
     c1), npy file)`` of each tile; *empty*: the windows no tile wrote;
     *cache_mb*: GDAL's block cache.
@@ -283,6 +283,7 @@ class MosaicJob:
     cols: int
     transform: Any
     crs: Any
+    nodata: float
     fill: float
     unit: str | None
     windows: tuple[tuple[tuple[int, int, int, int], str], ...]
@@ -298,6 +299,7 @@ def mosaic_jobs(
     layout: Layout,
     tasks: list[RasterTask],
     cache_mb: int,
+    nodata: float,
 ) -> list[MosaicJob]:
     """One job per raster of *paths* (name -> file): the windows of *tasks*, and fill for the tiles without one."""
     done = {t.tile for t in tasks}
@@ -309,7 +311,8 @@ def mosaic_jobs(
             cols=grid.cols,
             transform=transform,
             crs=crs,
-            fill=0.0 if name == "density" else NODATA,
+            nodata=nodata,
+            fill=0.0 if name == "density" else nodata,
             unit=None if name == "density" else HEIGHT,
             windows=tuple((t.window, str(Path(t.result) / f"{name}.npy")) for t in tasks),
             empty=empty,
@@ -333,7 +336,7 @@ def mosaic_raster(job: MosaicJob) -> None:
             cols=job.cols,
             transform=job.transform,
             crs=job.crs,
-            nodata=NODATA,
+            nodata=job.nodata,
             fill=job.fill,
             unit=job.unit,
         )

@@ -39,7 +39,7 @@ class Limit:
     """One requirement: ``measure`` compared with ``value`` (``min``: at least; ``max``: at most)."""
 
     measure: str  # key of the measured value (see MEASURES)
-    bound: str  # "min" or "max"
+    bound: str  # "min", "max" or "eq" (exactly)
     value: float | None  # None: reported only, no pass/fail
     unit: str
     source: Source
@@ -57,6 +57,9 @@ MEASURES = {
     "after strip adjustment",
     "swath_overlap_max": "swath overlap difference, largest |mean difference| of a cell of strip_difference_after.tif",
     "voids": "data voids: empty squares of side 4 × ANPS (first returns) inside the covered area",
+    "class_0": "points left in class 0 (never classified) and not flagged withheld, in the classified point cloud",
+    "dem_float_bits": "DEM (dtm.tif) cell type: bits of its floating-point type (0: not floating point)",
+    "dem_nodata": "DEM (dtm.tif) nodata value (GeoTIFF GDAL_NODATA tag)",
 }
 
 _T1 = "Table 1 (aggregate nominal pulse spacing and density)"
@@ -64,6 +67,8 @@ _T2 = "Table 2 (relative vertical accuracy for lidar swath data)"
 _T4 = "Table 4 (absolute vertical accuracy for lidar data and DEMs)"
 _VOIDS = "Collection: Data Voids ((4 × ANPS)², first returns)"
 _A72 = "Table 7.2 (vertical accuracy classes for digital elevation data), 10-cm class"
+_CLASSES = "Point Classification (Table 5, minimum classification scheme)"
+_DEM = "Deliverables: Bare-Earth Surface (Raster DEM)"
 # How each figure was checked for this code (the standards themselves are not in the repository; the search
 # tool's stored copies of public pages were searched on 2026-12-01, and neither the LBS tables nor the ASPRS
 # Edition 2 tables were among them).
@@ -94,6 +99,18 @@ _SEEN_VOIDS = (
     "Specification: Figures' (LBS 2024 rev. A online, Figures 1-3); the (4 x ANPS)^2 first-return rule: as "
     "commonly quoted, not found by search"
 )
+_SEEN_CLASSES = (
+    "'No points in the classified LAS deliverable may remain assigned to Class 0': the LBS v. 2.1 revision history "
+    "(a copy of the online text, https://ru.scribd.com/document/453206938/Lidar-Base-Specification-version-2-1); "
+    "withheld points may carry any class, class 0 included: usgs.gov 'Lidar Base Specification Appendix 1: Maximum "
+    "Surface Height Rasters' (2024 rev. A, https://www.usgs.gov/core-science-systems/ngp/ss/"
+    "lidar-base-specification-appendix-1-maximum-surface-height-rasters); Table 5 itself not read"
+)
+_SEEN_DEM = (
+    "'32-bit floating-point GeoTIFF raster format' and 'The NODATA value of -999999 shall be defined in GDAL_NODATA "
+    "tag #42113': the LBS v. 2.1 revision history (a copy of the online text, "
+    "https://ru.scribd.com/document/453206938/Lidar-Base-Specification-version-2-1); later editions not read"
+)
 _SEEN_ASPRS = (
     "Edition 2 drops the 95 % figures and the VVA pass/fail: gpsworld.com 'ASPRS approves edition 2 of the ASPRS "
     "Positional Accuracy Standards for Digital Geospatial Data' (2023-12-06, https://www.gpsworld.com/"
@@ -103,7 +120,14 @@ _SEEN_ASPRS = (
 
 
 def _lbs(table: str) -> Source:
-    checked = {_T1: _SEEN_T1, _T2: _SEEN_T2, _T4: _SEEN_T4, _VOIDS: _SEEN_VOIDS}[table]
+    checked = {
+        _T1: _SEEN_T1,
+        _T2: _SEEN_T2,
+        _T4: _SEEN_T4,
+        _VOIDS: _SEEN_VOIDS,
+        _CLASSES: _SEEN_CLASSES,
+        _DEM: _SEEN_DEM,
+    }[table]
     return Source(LBS, LBS_EDITION, table, checked)
 
 
@@ -120,6 +144,9 @@ def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
         Limit("swath_overlap_rmsdz", "max", 0.08, "m", _lbs(_T2)),
         Limit("swath_overlap_max", "max", 0.16, "m", _lbs(_T2)),
         Limit("voids", "max", 0, "squares", _lbs(_VOIDS)),
+        Limit("class_0", "max", 0, "points", _lbs(_CLASSES)),
+        Limit("dem_float_bits", "eq", 32, "bits", _lbs(_DEM)),
+        Limit("dem_nodata", "eq", -999999.0, "", _lbs(_DEM)),
     )
 
 
@@ -140,6 +167,74 @@ SPECIFICATIONS: dict[str, tuple[str, tuple[Limit, ...]]] = {
     "none": ("no specification (measured values only)", ()),
 }
 DEFAULT_SPECIFICATION = "usgs-lbs-ql2"
+
+#: Fewest check points an accuracy assessment rests on: the ASPRS Positional Accuracy Standards, Edition 2 (2023),
+#: raised it from 20 to 30 (gpsworld.com, 'ASPRS approves edition 2 ...', 2023-12-06; the standard's own text not
+#: read).  The report warns below it, whatever the specification.
+MIN_CHECKPOINTS = 30
+#: Share of the covered area the check points' convex hull should reach at least: below it they sample one part of
+#: the survey only (issue 34's rule of thumb, not a specification's).
+MIN_HULL_SHARE = 0.5
+
+
+def checkpoint_warnings(x_m: np.ndarray, y_m: np.ndarray, covered_m2: float | None) -> list[str]:
+    """Sentences on check points (on the DTM, metres) too few or bunched in one part of the covered area.
+
+    >>> checkpoint_warnings(np.array([0.0, 10, 0]), np.array([0.0, 0, 10]), 100.0)[0][:23]
+    'Only 3 check points lie'
+    """
+    out = []
+    n = len(x_m)
+    if n < MIN_CHECKPOINTS:
+        out.append(
+            f"Only {n} check point{'s' if n != 1 else ''} lie on the DTM, fewer than the {MIN_CHECKPOINTS} the "
+            "ASPRS Positional Accuracy Standards (Edition 2, 2023) ask of an accuracy assessment: the NVA and VVA "
+            "rest on too few points."
+        )
+    if n and covered_m2:
+        share = hull_area(x_m, y_m) / covered_m2
+        if share < MIN_HULL_SHARE:
+            out.append(
+                f"The check points' convex hull covers {100 * share:.0f} % of the covered area "
+                f"({covered_m2 / 1e4:,.2f} ha), under {100 * MIN_HULL_SHARE:.0f} %: the NVA and VVA describe one "
+                "part of the survey only; spread the check points over all of it."
+            )
+    return out
+
+
+def hull_area(x: np.ndarray, y: np.ndarray) -> float:
+    """Area of the convex hull of the points (0 for fewer than 3, or all on one line)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(x) < 3:
+        return 0.0
+    try:
+        return float(ConvexHull(np.column_stack((x, y))).volume)  # a 2-D hull's "volume" is its area
+    except QhullError:  # collinear
+        return 0.0
+
+
+def truth_disagreement(verdict: dict, truth: dict | None) -> str | None:
+    """One sentence when the check points' NVA verdict and the DTM against the true terrain disagree, else None.
+
+    *truth*: ``accuracy``'s ``truth`` metrics; its open-ground cells (land
+    cover named ``ground``) are judged as the NVA is: 1.96 × their RMSE
+    against the NVA limit.
+    """
+    nva = next((c for c in verdict["checks"] if c["measure"] == "nva_95"), None)
+    ground = next((v for v in ((truth or {}).get("by_land_cover") or {}).values() if v.get("name") == "ground"), None)
+    if nva is None or nva["status"] not in ("PASS", "FAIL") or not ground or not ground.get("n"):
+        return None
+    from_truth = 1.96 * float(ground["rmse"])
+    truth_status = "PASS" if from_truth <= nva["limit"] else "FAIL"
+    if truth_status == nva["status"]:
+        return None
+    return (
+        f"The check points {'pass' if nva['status'] == 'PASS' else 'fail'} the NVA ({nva['measured']:.3f} m against "
+        f"{nva['limit']:g} m), but the DTM against the true terrain ({truth.get('file', 'truth_dtm')}) gives "
+        f"1.96 × RMSE = {from_truth:.3f} m on its {int(ground['n']):,} open-ground cells, which "
+        f"{'passes' if truth_status == 'PASS' else 'fails'}: the check points do not sample the survey's errors."
+    )
 
 
 def evaluate(name: str, measured: dict[str, float | None], notes: dict[str, str] | None = None) -> dict:
@@ -167,13 +262,15 @@ def evaluate(name: str, measured: dict[str, float | None], notes: dict[str, str]
             status = "NOT MEASURED"
         elif lim.bound == "min":
             status = "PASS" if value >= lim.value else "FAIL"
+        elif lim.bound == "eq":
+            status = "PASS" if value == lim.value else "FAIL"
         else:
             status = "PASS" if value <= lim.value else "FAIL"
         checks.append(
             {
                 "measure": lim.measure,
                 "description": MEASURES[lim.measure],
-                "bound": "at least" if lim.bound == "min" else "at most",
+                "bound": {"min": "at least", "max": "at most", "eq": "exactly"}[lim.bound],
                 "limit": lim.value,
                 "unit": lim.unit,
                 "measured": value,
@@ -189,25 +286,25 @@ def evaluate(name: str, measured: dict[str, float | None], notes: dict[str, str]
     return {"specification": name, "title": title, "status": overall, "checks": checks, "measured": dict(measured)}
 
 
-def pulse_density(first_returns: np.ndarray, cell_m: float, block_m: float = 5.0) -> tuple[float | None, np.ndarray]:
-    """Aggregate nominal pulse density (first returns per m²) and the covered blocks.
+def pulse_density(first_returns: np.ndarray, cell_m: float, block_m: float = 5.0) -> tuple[float | None, float]:
+    """Aggregate nominal pulse density (first returns per m²) and the covered area (m²).
 
     *first_returns*: first returns per cell of a grid of *cell_m* metres.  The
     covered area is counted in squares of about *block_m* metres (a whole
     number of cells, at least one) that hold a first return; why 5 m:
     ``docs/stages/report.md``.  Returns the density (None: no first return)
-    and the covered squares (bool).
+    and the covered area.
 
     >>> grid = np.zeros((10, 10)); grid[:5, :] = 2.0   # 2 per 1-m cell on half the grid
-    >>> round(pulse_density(grid, 1.0, 5.0)[0], 6)
-    2.0
+    >>> [round(v, 6) for v in pulse_density(grid, 1.0, 5.0)]
+    [2.0, 50.0]
     """
     k = max(1, int(round(block_m / cell_m)))
-    blocks = block_sum(first_returns, k)
-    covered = blocks > 0
-    if not covered.any():
-        return None, covered
-    return float(first_returns.sum() / (covered.sum() * (k * cell_m) ** 2)), covered
+    covered = int((block_sum(first_returns, k) > 0).sum())
+    area = covered * (k * cell_m) ** 2
+    if not covered:
+        return None, 0.0
+    return float(first_returns.sum() / area), float(area)
 
 
 def voids(first_returns: np.ndarray, cell_m: float, anps_m: float) -> tuple[int, np.ndarray, float]:

@@ -39,6 +39,7 @@ class CloudSummary:
     repeatability_m: float | None = None  # smooth surface repeatability (see MEASURES), metres
     repeatability_cells: int = 0
     header: dict = field(default_factory=dict)  # lasinfo-like figures of the file
+    class_0_kept: int = 0  # points in class 0 (never classified) not flagged withheld
 
 
 def las_info(path: str | Path, gps_range: tuple[float, float] | None = None) -> dict:
@@ -86,6 +87,7 @@ class CloudTally:
     seen: set[int] = field(default_factory=set)
     counts: np.ndarray = field(default_factory=lambda: np.zeros(256, dtype=np.int64))
     points: int = 0
+    class_0_kept: int = 0
     tmin: float = np.inf
     tmax: float = -np.inf
 
@@ -100,7 +102,9 @@ class CloudTally:
         self.seen.update(int(v) for v in np.unique(sid))
         self.counts += np.bincount(cls, minlength=256)
         self.points += len(chunk)
-        usable = glossary.usable(cls, chunk.withheld)
+        withheld = np.asarray(chunk.withheld, dtype=bool)
+        self.class_0_kept += int(((cls == 0) & ~withheld).sum())
+        usable = glossary.usable(cls, withheld)
         t = np.asarray(chunk.gps_time)
         t = t[np.isfinite(t)]
         if len(t):
@@ -241,4 +245,5 @@ def summarise_cloud(
         repeat,
         cells,
         las_info(path, (tally.tmin, tally.tmax)),
+        tally.class_0_kept,
     )

@@ -28,6 +28,8 @@ class ReportInputs:
     checkpoints: dict | None = None  # id, x, y, z, land_cover, dtm, error (m)
     trajectory: list[tuple[np.ndarray, np.ndarray, str]] | None = None  # flight lines in map coordinates
     specification: str = DEFAULT_SPECIFICATION
+    dem_float_bits: int = 32  # of dtm.tif's cell type (0: not floating point)
+    dem_nodata: float | None = None  # dtm.tif's nodata value
 
 
 def checkpoint_rows(path: str | Path, land_cover_column: str, dtm_path: str | Path) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.report.acceptance import MEASURES, pulse_density, voids
+from dtm.stages.report.acceptance import MEASURES, checkpoint_warnings, pulse_density, voids
 from dtm.stages.report.inputs import ReportInputs
 
 
@@ -19,15 +19,19 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
     why : dict
         Measure key -> why it was not measured.
     extra : dict
-        ``void_mask`` (per DTM cell) and ``void_side_m`` when voids were counted.
+        ``void_mask`` (per DTM cell) and ``void_side_m`` when voids were counted;
+        ``covered_m2``, the covered area.
     """
     units = data.cloud.units
     cell_m = data.frame.cell * units.horizontal
     out: dict = dict.fromkeys(MEASURES)
     why: dict = {}
     extra: dict = {}
-    anpd, _ = pulse_density(data.cloud.first_returns, cell_m) if data.cloud.first_returns is not None else (None, None)
+    anpd, covered = (
+        pulse_density(data.cloud.first_returns, cell_m) if data.cloud.first_returns is not None else (None, 0.0)
+    )
     out["anpd"] = anpd
+    extra["covered_m2"] = covered
     if anpd:
         count, mask, side = voids(data.cloud.first_returns, cell_m, 1.0 / np.sqrt(anpd))
         out["voids"] = count
@@ -44,7 +48,22 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
     why.update(reasons)
     if out["anpd"] is None:
         why["anpd"] = why["voids"] = "no first return"
+    out["class_0"] = data.cloud.class_0_kept
+    out["dem_float_bits"] = data.dem_float_bits
+    out["dem_nodata"] = data.dem_nodata
+    if data.dem_nodata is None:
+        why["dem_nodata"] = "dtm.tif declares no nodata value"
     return out, why, extra
+
+
+def sampling_warnings(data: ReportInputs, covered_m2: float) -> list[str]:
+    """Sentences on check points too few or bunched (:func:`~dtm.stages.report.acceptance.checkpoint_warnings`)."""
+    cp = data.checkpoints
+    if cp is None:
+        return []
+    on = np.isfinite(cp["error"])
+    metres = data.cloud.units.horizontal
+    return checkpoint_warnings(np.asarray(cp["x"])[on] * metres, np.asarray(cp["y"])[on] * metres, covered_m2)
 
 
 def checkpoint_measures(accuracy: dict | None) -> tuple[dict, dict]:

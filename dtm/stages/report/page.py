@@ -5,10 +5,10 @@ from __future__ import annotations
 import html
 import time
 
-from dtm.stages.report.acceptance import evaluate
+from dtm.stages.report.acceptance import evaluate, truth_disagreement
 from dtm.stages.report.figures import Canvas, map_figures
 from dtm.stages.report.inputs import ReportInputs
-from dtm.stages.report.measures import measure
+from dtm.stages.report.measures import measure, sampling_warnings
 from dtm.stages.report.sections import (
     acceptance_section,
     accuracy_section,
@@ -28,7 +28,7 @@ section{margin:1.5em 0} table{border-collapse:collapse;margin:.5em 0} th,td{padd
 th{font-weight:600;color:#444} .maps{display:flex;flex-wrap:wrap;gap:1.5em} figure{margin:0;max-width:620px}
 figure svg{max-width:100%;height:auto;border:1px solid #ccc} figcaption{color:#555;font-size:.9em}
 table.wide td{font-size:.85em} .pass{color:#17692d} .fail{color:#b00020} .incomplete,.not{color:#8a5a00}
-tr.pass td:nth-child(4){background:#e6f4ea} tr.fail td:nth-child(4){background:#fce8e6} tr.not td:nth-child(4){background:#fff4e0}
+ul.warn li{color:#8a5a00} tr.pass td:nth-child(4){background:#e6f4ea} tr.fail td:nth-child(4){background:#fce8e6} tr.not td:nth-child(4){background:#fff4e0}
 </style>"""
 
 
@@ -48,6 +48,10 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     """
     measured, why, voids = measure(metrics, data)
     verdict = evaluate(data.specification, measured, why)
+    verdict["warnings"] = sampling_warnings(data, voids["covered_m2"])
+    disagree = truth_disagreement(verdict, (metrics.get("accuracy") or {}).get("truth"))
+    if disagree:
+        verdict["warnings"].append(disagree)
     anpd_limit = next((c["limit"] for c in verdict["checks"] if c["measure"] == "anpd"), None)
     cv = Canvas.of(data.dtm, data.frame, data.cloud.units, max_size)
     sections = [

@@ -41,16 +41,25 @@ def acceptance_section(verdict: dict, measured: dict) -> str:
         f"{html.escape(verdict['specification'])}</code>): "
         f'<b class="{verdict["status"].lower()}">{verdict["status"]}</b>. Also in <code>qc/acceptance.json</code>.</p>'
         "<table><tr><th>requirement (what is measured)</th><th>limit</th><th>measured</th><th>verdict</th>"
-        "<th>source</th></tr>" + rows + "</table>",
+        "<th>source</th></tr>" + rows + "</table>" + _warnings(verdict.get("warnings") or []),
     )
+
+
+def _warnings(sentences: list[str]) -> str:
+    """What the verdict rests on that a reviewer should doubt (too few or bunched check points, a truth that disagrees)."""
+    if not sentences:
+        return ""
+    items = "".join(f"<li>{html.escape(s)}</li>" for s in sentences)
+    return f'<p><b>Warnings</b> (they do not change the verdict):</p><ul class="warn">{items}</ul>'
 
 
 def _acceptance_row(c: dict) -> str:
     """One check of :func:`~dtm.stages.report.acceptance.evaluate` as a table row, coloured by its status."""
     src = c["source"]
-    limit = "reported only" if c["limit"] is None else f"{c['bound']} {fmt(c['limit'])} {c['unit']}"
+    number = (lambda v: f"{float(v):g}") if not c["unit"] else (lambda v: fmt(float(v)))  # a code: no separators
+    limit = "reported only" if c["limit"] is None else f"{c['bound']} {number(c['limit'])} {c['unit']}".rstrip()
     value = c["measured"]
-    shown = "—" if value is None else f"{fmt(float(value))} {c['unit']}"
+    shown = "—" if value is None else f"{number(value)} {c['unit']}".rstrip()
     note = "<br><small>" + html.escape(c["note"]) + "</small>" if c["note"] else ""
     return (
         f'<tr class="{c["status"].split()[0].lower()}"><td>{html.escape(c["description"])}</td>'

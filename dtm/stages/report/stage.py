@@ -42,7 +42,7 @@ def _enabled(config, name: str) -> bool:
     return params is not None and bool(getattr(params, "enabled", True))
 
 
-class Report(Stage, name="report", version="9", params=ReportParams):
+class Report(Stage, name="report", version="10", params=ReportParams):
     """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
 
     inputs = ("dtm", "density", "points_classified")
@@ -76,7 +76,7 @@ class Report(Stage, name="report", version="9", params=ReportParams):
         )
         ctx.outputs["report"].write_text(page, encoding="utf-8")
         ctx.outputs["acceptance"].write_text(json.dumps(verdict, indent=2, default=float) + "\n")
-        ctx.metrics.update(bytes=len(page), images=page.count("<img"), acceptance=verdict["status"])
+        ctx.metrics.update(bytes=len(page), images=page.count("<figure>"), acceptance=verdict["status"])
         ctx.log.info("acceptance against %s: %s", verdict["title"], verdict["status"])
 
 
@@ -104,6 +104,7 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
         input_files=input_files(inp),
         specification=ctx.params.specification,
     )
+    data.dem_float_bits, data.dem_nodata = dem_format(ctx.inputs["dtm"])
     if inp.format == "las":
         data.input_info = [las_info(p) for p in inp.paths]
     if "strip_corrections" in ctx.inputs:
@@ -119,6 +120,16 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
     if acc is not None and acc.enabled and acc.checkpoints and ctx.upstream_metrics.get("accuracy"):
         data.checkpoints = checkpoint_rows(acc.checkpoints, acc.land_cover_column, ctx.inputs["dtm"])
     return data
+
+
+def dem_format(path: Path) -> tuple[int, float | None]:
+    """The DEM's floating-point bits (0: not floating point) and its nodata value, as its GeoTIFF tags say."""
+    import numpy as np
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        dtype = np.dtype(ds.dtypes[0])
+        return (dtype.itemsize * 8 if dtype.kind == "f" else 0), ds.nodata
 
 
 def input_files(inp) -> list[tuple[str, str]]:

@@ -1,0 +1,138 @@
+"""Deliverable conformance under the USGS LBS: class 0, the DEM's format and nodata, and how far the check points
+can be trusted (too few, bunched, contradicted by the true terrain).  Each rule broken on purpose."""
+
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+from affine import Affine
+
+from dtm.common.rasters import LBS_NODATA, NODATA, dem_nodata, write_cog
+from dtm.stages.report.acceptance import MIN_CHECKPOINTS, checkpoint_warnings, evaluate, truth_disagreement
+from dtm.stages.report.stage import dem_format
+from tests.stages.report.test_report import _check, _dtm, _report, _survey, _text
+
+
+def _with_class_0(path, n: int, withheld: bool):
+    """The survey at *path* with its first *n* points put back in class 0 (withheld or not)."""
+    las = laspy.read(str(path))
+    cls = np.asarray(las.classification).copy()
+    cls[:n] = 0
+    las.classification = cls
+    flags = np.zeros(len(cls), dtype=bool)
+    flags[:n] = withheld
+    las.withheld = flags
+    las.write(str(path))
+    return path
+
+
+def test_a_point_left_in_class_0_fails_the_lbs(tmp_path):
+    las = _with_class_0(_survey(tmp_path), 5, withheld=False)
+    page, verdict, *_ = _report(tmp_path, las, _dtm())
+    row = _check(verdict, "class_0")
+    assert (row["measured"], row["status"]) == (5, "FAIL")
+    assert "class 0" in _text(page)
+
+
+def test_class_0_flagged_withheld_is_allowed(tmp_path):
+    """LBS Appendix 1: a withheld point may carry any class, class 0 included."""
+    las = _with_class_0(_survey(tmp_path), 5, withheld=True)
+    _, verdict, *_ = _report(tmp_path, las, _dtm())
+    assert (_check(verdict, "class_0")["measured"], _check(verdict, "class_0")["status"]) == (0, "PASS")
+
+
+@pytest.mark.parametrize(
+    ("bits", "nodata", "status"),
+    [(32, LBS_NODATA, "PASS"), (32, NODATA, "FAIL"), (64, LBS_NODATA, "FAIL"), (0, LBS_NODATA, "FAIL")],
+)
+def test_the_dem_must_be_32_bit_float_with_nodata_minus_999999(bits, nodata, status):
+    verdict = evaluate("usgs-lbs-ql2", {"dem_float_bits": bits, "dem_nodata": nodata})
+    states = {_check(verdict, "dem_float_bits")["status"], _check(verdict, "dem_nodata")["status"]}
+    assert ("FAIL" in states) == (status == "FAIL")
+
+
+def test_dem_format_is_read_from_the_geotiff_tags(tmp_path):
+    path = tmp_path / "dtm.tif"
+    write_cog(path, np.full((4, 4), NODATA), transform=Affine(1, 0, 0, 0, -1, 4), crs=pyproj.CRS.from_epsg(25830))
+    assert dem_format(path) == (32, NODATA)
+    write_cog(
+        path,
+        np.zeros((4, 4)),
+        transform=Affine(1, 0, 0, 0, -1, 4),
+        crs=pyproj.CRS.from_epsg(25830),
+        dtype="uint8",
+        nodata=0,
+    )
+    assert dem_format(path) == (0, 0.0)
+
+
+def test_only_lbs_levels_change_the_dem_nodata():
+    assert dem_nodata("usgs-lbs-ql1") == dem_nodata("usgs-lbs-ql2") == -999999.0
+    assert dem_nodata("asprs-2023-10cm") == dem_nodata("none") == -9999.0
+
+
+def _grid_points(n: int, side: float) -> tuple[np.ndarray, np.ndarray]:
+    cols = int(np.ceil(np.sqrt(n)))
+    x, y = np.meshgrid(np.linspace(0.0, side, cols), np.linspace(0.0, side, -(-n // cols)))
+    return x.ravel()[:n], y.ravel()[:n]
+
+
+def test_thirty_check_points_over_the_survey_raise_no_warning():
+    x, y = _grid_points(MIN_CHECKPOINTS, 100.0)
+    assert checkpoint_warnings(x, y, covered_m2=100.0 * 100.0) == []
+
+
+def test_fewer_check_points_than_the_asprs_minimum_are_named():
+    x, y = _grid_points(MIN_CHECKPOINTS - 1, 100.0)
+    (warning,) = checkpoint_warnings(x, y, covered_m2=100.0 * 100.0)
+    assert warning.startswith(f"Only {MIN_CHECKPOINTS - 1} check points") and "ASPRS" in warning
+
+
+def test_check_points_in_one_corner_are_named():
+    """30 points spread over 45 m x 45 m of a 100 m x 100 m survey: their hull is 20 % of it."""
+    x, y = _grid_points(MIN_CHECKPOINTS, 45.0)
+    (warning,) = checkpoint_warnings(x, y, covered_m2=100.0 * 100.0)
+    assert "convex hull covers 20 %" in warning
+
+
+def _nva_verdict(nva: float) -> dict:
+    return evaluate("usgs-lbs-ql2", {"nva_95": nva})
+
+
+def test_truth_that_fails_where_check_points_pass_is_said():
+    truth = {"file": "terrain.tif", "by_land_cover": {"2": {"name": "ground", "n": 1000, "rmse": 0.7}}}
+    sentence = truth_disagreement(_nva_verdict(0.055), truth)
+    assert "pass the NVA (0.055 m" in sentence and "1.372 m" in sentence and "1,000 open-ground cells" in sentence
+
+
+def test_truth_that_agrees_says_nothing():
+    truth = {"by_land_cover": {"2": {"name": "ground", "n": 1000, "rmse": 0.05}}}
+    assert truth_disagreement(_nva_verdict(0.055), truth) is None
+    assert (
+        truth_disagreement(_nva_verdict(0.5), {"by_land_cover": {"2": {"name": "ground", "n": 10, "rmse": 0.5}}})
+        is None
+    )
+
+
+def test_truth_that_passes_where_check_points_fail_is_said():
+    truth = {"file": "t.tif", "by_land_cover": {"2": {"name": "ground", "n": 50, "rmse": 0.05}}}
+    assert "fail the NVA" in truth_disagreement(_nva_verdict(0.3), truth)
+
+
+def test_the_report_lists_the_warnings_beside_the_verdict(tmp_path):
+    """Three check points in a corner of the plain survey: both warnings on the page and in acceptance.json."""
+    cp = {
+        "id": ["1", "2", "3"],
+        "land_cover": ["open"] * 3,
+        "x": np.array([1001.0, 1005.0, 1001.0]),
+        "y": np.array([2001.0, 2001.0, 2005.0]),
+        "z": np.full(3, 650.0),
+        "dtm": np.full(3, 650.0),
+        "error": np.zeros(3),
+    }
+    page, verdict, *_ = _report(tmp_path, _survey(tmp_path), _dtm(), checkpoints=cp)
+    assert len(verdict["warnings"]) == 2
+    text = _text(page)
+    assert "Only 3 check points lie on the DTM" in text and "convex hull covers 0 %" in text

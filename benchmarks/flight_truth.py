@@ -136,7 +136,44 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"| {name} | {flat['n']:,}, {100 * flat['off_1m']:.2f} % | {steep['n']:,}, {100 * steep['off_1m']:.2f} % |"
         )
+    print()
+    print(by_cover_table(dtm, perfect, truth, land_cover))
     return 0
+
+
+#: The truth's land cover codes (truth/land_cover.tif) the cover table shows.
+COVERS = {2: "open ground", 5: "under trees", 6: "building footprint", 9: "water", 17: "bridge deck"}
+
+
+def by_cover_table(dtm: np.ndarray, perfect: np.ndarray, truth: np.ndarray, land_cover: np.ndarray) -> str:
+    """Markdown: RMS against the truth by land cover, on the cells where the truth is not steep (issue 34's
+    targets: bridge deck within 0.3 m, water within 0.15 m and flat), ours beside the perfect DTM; and the
+    spread (standard deviation) of each DTM's values over the water cells, which hydro-flattening makes 0
+    per water body."""
+    from dtm.stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
+
+    level = truth_relief(truth) < TRUTH_STEEP_M
+    lines = [
+        "| land cover (truth relief < 2 m) | cells | ours RMS m | perfect RMS m | ours / perfect |",
+        "|---|---|---|---|---|",
+    ]
+    for code, name in COVERS.items():
+        cells = level & (land_cover == code) & np.isfinite(dtm) & np.isfinite(perfect) & np.isfinite(truth)
+        if not cells.any():
+            continue
+        ours = float(np.sqrt(np.mean((dtm[cells] - truth[cells]) ** 2)))
+        best = float(np.sqrt(np.mean((perfect[cells] - truth[cells]) ** 2)))
+        lines.append(
+            f"| {code} {name} | {int(cells.sum()):,} | {ours:.3f} | {best:.3f} | {ours / max(best, 1e-9):.1f} |"
+        )
+    water = level & (land_cover == 9) & np.isfinite(dtm) & np.isfinite(perfect)
+    if water.any():
+        lines.append("")
+        lines.append(
+            f"Water cells' spread (std of the DTM over them): ours {np.std(dtm[water]):.3f} m, "
+            f"perfect {np.std(perfect[water]):.3f} m, truth {np.std(truth[water]):.3f} m."
+        )
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

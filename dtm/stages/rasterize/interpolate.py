@@ -270,6 +270,17 @@ def _far_from(xy: np.ndarray, grid: Grid, distance: float) -> np.ndarray:
     return far
 
 
+def triangle_cover(xy: np.ndarray, simplices: np.ndarray, grid: Grid) -> np.ndarray:
+    """Which cells of *grid* (rows, cols) have their centre inside one of the triangles *simplices* of *xy*.
+
+    *xy* relative to the grid's anchor, as :func:`_draw_triangles` takes them.
+    """
+    out = np.full(grid.rows * grid.cols, np.nan)
+    if len(simplices):
+        _draw_triangles(xy, np.ones(len(xy)), simplices, grid, out, 1 << 22, None)
+    return np.isfinite(out).reshape(grid.rows, grid.cols)
+
+
 def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: int, progress) -> np.ndarray:
     """Fill *out* (flat, rows * cols) with each triangle's plane at the cell centres inside it.
 

@@ -9,8 +9,11 @@ makes again only the tiles whose points changed.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import astuple
 from pathlib import Path
+
+import numpy as np
 
 from dtm.common.tile_points import column_digests, keep_file
 from dtm.stages.rasterize.tile_rasters import RasterTask, tile_windows
@@ -19,7 +22,10 @@ from pipeline.tiling import TileMemo
 
 def _key(task: RasterTask) -> dict:
     core, wide, _ = tile_windows(task.grid, task.window, task.buffer)
+    inside = task.inside(core)  # the outline where this tile's cells are: what it cuts here
+    inside = np.packbits(inside) if inside is not None else np.zeros(0, np.uint8)
     return {
+        "outline": hashlib.sha256(inside.tobytes()).hexdigest(),
         "kind": "rasters",
         "params": task.params,
         "core": astuple(core),

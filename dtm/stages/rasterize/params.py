@@ -39,6 +39,13 @@ class RasterizeParams(StageParams):
     nodata_distance: float = glossary.nodata_distance(50.0)
     idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
     tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")
+    outline_edge: float = Field(
+        20.0,
+        ge=0,
+        description="the survey's outline (docs/stages/rasterize.md): cells outside the coverage's concave hull, "
+        "peeled from outside along edges longer than this (metres; at least 4 x the median edge of 5-m occupied "
+        "cells), are nodata in the DTM, DSM and nDSM; 0: none (the TIN fills the convex hull)",
+    )
     nodata: float | None = Field(
         None,
         description="nodata value of the rasters; none: -999999 when stages.report.specification is a USGS LBS "

@@ -55,7 +55,12 @@ class TileCloud:
 
 
 def tile_rasters(
-    cloud: TileCloud, core: Grid, wide: Grid, crop: tuple[slice, slice], params: RasterizeParams
+    cloud: TileCloud,
+    core: Grid,
+    wide: Grid,
+    crop: tuple[slice, slice],
+    params: RasterizeParams,
+    inside: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
@@ -63,8 +68,10 @@ def tile_rasters(
     filled from the nearest cell within ``nodata_distance``, else the DTM),
     ``ndsm`` (DSM - DTM, at least 0), ``density`` (points per cell) and,
     with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
-    the DSM's, where the DTM has a value).  With the TIN and no sigma, the
-    ground points are handed over: *cloud* no longer holds them.
+    the DSM's, where the DTM has a value).  Core cells not *inside* the
+    survey's outline (:mod:`dtm.stages.rasterize.outline`) are nodata in all
+    but the density.  With the TIN and no sigma, the ground points are handed
+    over: *cloud* no longer holds them.
     """
     max_cells = params.nodata_distance / params.resolution
     dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
@@ -74,10 +81,15 @@ def tile_rasters(
         if params.method == "tin" and cloud.sigma is None:
             ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
         dtm = interpolate_dtm(ground, core, params)  # collinear or coincident ground points: all nodata
+    if inside is not None:
+        dtm[~inside] = np.nan
+        dsm = np.where(inside, dsm, np.nan)
     dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
     ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
     density = cloud.count[crop].astype(np.float64)
     out = {"dtm": dtm, "dsm": dsm, "ndsm": ndsm, "density": density}
+    if inside is not None:
+        out["outside_outline"] = int((~inside).sum())
     if cloud.sigma is not None:
         unc = fill_nearest(cell_mean(ground, cloud.sigma, wide), max_cells=max_cells)[crop]
         out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
@@ -90,6 +102,7 @@ def tile_figures(rasters: dict[str, np.ndarray], vertical: float) -> dict:
     finite = np.isfinite(dtm)
     return {
         "cells": int(dtm.size),
+        "outside_outline": int(rasters.get("outside_outline", 0)),
         "nodata_cells": int((~finite).sum()),
         "dtm_min": float(dtm[finite].min()) / vertical if finite.any() else None,
         "dtm_max": float(dtm[finite].max()) / vertical if finite.any() else None,
@@ -110,6 +123,7 @@ def survey_figures(results: list[dict], cells: int) -> dict:
     ndsm = [r["ndsm_max"] for r in results if r["ndsm_max"] is not None]
     return {
         "nodata_cells": int(empty),
+        "outside_outline_cells": int(sum(r.get("outside_outline", 0) for r in results)),
         "nodata_fraction": round(empty / cells, 4),
         "dtm_min": float(min(mins)) if mins else None,
         "dtm_max": float(max(maxs)) if maxs else None,

@@ -23,6 +23,7 @@ import numpy as np
 from dtm.common import glossary
 from dtm.common.grid import Grid, check_grid_size
 from dtm.common.rasters import dem_nodata
+from dtm.stages.rasterize.outline import survey_outline
 from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import survey_figures
 from dtm.stages.rasterize.tile_rasters import (
@@ -48,7 +49,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="6", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="7", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_classified",)
@@ -181,7 +182,11 @@ class _Tiles:
         )
         params = p.model_dump(mode="json")
         params["nodata"] = self.nodata
-        tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
+        outline = survey_outline(usable.cells, p.outline_edge)
+        self.work.mkdir(parents=True, exist_ok=True)
+        outline.save(self.work / "outline.npy")
+        where = (str(self.work / "outline.npy"), outline.ix0, outline.iy1)
+        tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names, where)
         if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
             check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
         return tasks

@@ -21,7 +21,8 @@ import numpy as np
 from dtm.common import glossary
 from dtm.common.grid import Grid, cell_max_count
 from dtm.common.mosaic import core_window
-from dtm.common.rasters import HEIGHT
+from dtm.common.rasters import HEIGHT, NODATA
+from dtm.stages.rasterize.outline import Outline, occupied_cells
 from dtm.stages.rasterize.params import RasterizeParams
 from dtm.stages.rasterize.products import TileCloud, tile_figures, tile_rasters
 from pipeline.errors import ConfigError, InputDataError
@@ -70,18 +71,26 @@ class Usable:
     classes: np.ndarray  # points per class 0..255
     lo: np.ndarray  # xmin, ymin (inf: none usable)
     hi: np.ndarray  # xmax, ymax
+    cells: np.ndarray  # the outline's cells holding a usable point (outline.occupied_cells)
 
     @classmethod
     def of(cls, cols: dict[str, np.ndarray]) -> Usable:
         usable = glossary.usable(cols["classification"], cols["withheld"])
         lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+        cells = np.zeros(0, dtype=np.int64)
         if usable.any():
             x, y = cols["x"][usable], cols["y"][usable]
             lo, hi = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
-        return cls(np.bincount(cols["classification"], minlength=256), lo, hi)
+            cells = occupied_cells(x, y)
+        return cls(np.bincount(cols["classification"], minlength=256), lo, hi, cells)
 
     def __add__(self, other: Usable) -> Usable:
-        return Usable(self.classes + other.classes, np.minimum(self.lo, other.lo), np.maximum(self.hi, other.hi))
+        return Usable(
+            self.classes + other.classes,
+            np.minimum(self.lo, other.lo),
+            np.maximum(self.hi, other.hi),
+            np.union1d(self.cells, other.cells),
+        )
 
     def box(self) -> tuple[float, float, float, float]:
         if not np.isfinite(self.lo).all():
@@ -97,7 +106,8 @@ class RasterTask:
     survey's *grid*; *source*: the tile's columns; *result*: where its
     ``.npy`` windows go; *weight*: its points; *params*: the stage's
     ``model_dump``; *vertical*: metres per height unit of the CRS;
-    *outputs*: the rasters to write.
+    *outputs*: the rasters to write; *outline*: the survey's outline
+    (:class:`~dtm.stages.rasterize.outline.Outline` saved) and its corner.
     """
 
     tile: int
@@ -110,6 +120,15 @@ class RasterTask:
     buffer: float
     vertical: float
     outputs: tuple[str, ...]
+    outline: tuple[str, int, int] | None = None  # None: no outline
+
+    def inside(self, core: Grid) -> np.ndarray | None:
+        """Which of the *core* cells lie inside the survey's outline (None: every one)."""
+        if self.outline is None:
+            return None
+        path, ix0, iy1 = self.outline
+        x, y = core.centres()
+        return Outline.load(Path(path), ix0, iy1).contains(x, y)
 
 
 def raster_tasks(
@@ -120,6 +139,7 @@ def raster_tasks(
     params: dict,
     vertical: float,
     outputs: Sequence[str],
+    outline: tuple[str, int, int],
 ) -> list[RasterTask]:
     """One task per tile holding points (*rows*: :func:`dtm.common.tile_points.split_cloud`'s), its columns in *work*."""
     return [
@@ -134,6 +154,7 @@ def raster_tasks(
             buffer=layout.buffer,
             vertical=vertical,
             outputs=tuple(outputs),
+            outline=outline,
         )
         for tile in layout.tiles
         if tile.index in rows
@@ -206,13 +227,14 @@ def rasterize_tile(task: RasterTask) -> dict:
     params = RasterizeParams.model_validate(task.params)
     core, wide, crop = tile_windows(task.grid, task.window, task.buffer)
     cloud = read_tile_cloud(Path(task.source), wide, sigma="dtm_uncertainty" in task.outputs)
-    rasters = tile_rasters(cloud, core, wide, crop, params)
+    rasters = tile_rasters(cloud, core, wide, crop, params, task.inside(core))
     vertical = task.vertical
     folder = Path(task.result)
     folder.mkdir(parents=True, exist_ok=True)
     for name in task.outputs:
         values = rasters[name] if name == "density" else rasters[name] / vertical
-        np.save(folder / f"{name}.npy", np.where(np.isnan(values), params.nodata, values).astype(np.float32))
+        nodata = NODATA if params.nodata is None else params.nodata
+        np.save(folder / f"{name}.npy", np.where(np.isnan(values), nodata, values).astype(np.float32))
     return {"tile": task.tile, **tile_figures(rasters, vertical)}
 
 

@@ -65,6 +65,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)
+    p = sub.add_parser("classes", help="every class against a labelled LAS/LAZ: recall, precision, kappa")
+    p.add_argument("reference", type=Path, help="labelled LAS/LAZ file (ASPRS classes)")
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="RUN.yaml",
+        help="use this run configuration's settings (its input replaced by the reference file); default: "
+        "every stage's defaults",
+    )
+    p.add_argument("--crs", metavar="CRS", help="input.crs: the CRS of a file whose header has none, e.g. EPSG:2992")
+    p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    _hidden_log_args(p)
     p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
     p.add_argument("dtm", type=Path, help="DTM GeoTIFF")
     ref = p.add_mutually_exclusive_group(required=True)

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-import pyproj
 import pytest
 
 from dtm.commands.evaluate.scores import class_scores
 from pipeline.cli import main
+from tests.commands.test_evaluate_ground import labelled_block
 
 
 def test_class_scores_by_hand():
@@ -30,28 +30,9 @@ def test_class_scores_by_hand():
     assert s.kappa == pytest.approx((6 / 8 - pe) / (1 - pe))
 
 
-def _labelled(path: Path) -> Path:
-    """A plane (class 2) with a flat-roofed block 6 m high (class 6): 8,000 points, 16 m x 12 m of roof."""
-    rng = np.random.default_rng(5)
-    n = 8000
-    x, y = rng.uniform(0, 60, n), rng.uniform(0, 60, n)
-    z = 100 + 0.05 * x + rng.normal(0, 0.03, n)
-    box = (np.abs(x - 30) < 8) & (np.abs(y - 30) < 6)
-    z[box] += 6.0
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.array([0.001] * 3)
-    header.offsets = np.array([500000.0, 4000000.0, 0.0])
-    header.add_crs(pyproj.CRS.from_epsg(32630))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = x + 500000, y + 4000000, z
-    las.classification = np.where(box, 6, 2).astype(np.uint8)
-    las.write(str(path))
-    return path
-
-
 @pytest.fixture(scope="module")
 def scored(tmp_path_factory) -> tuple[Path, dict]:
-    ref = _labelled(tmp_path_factory.mktemp("classes") / "ref.laz")
+    ref = labelled_block(tmp_path_factory.mktemp("classes") / "ref.laz", building=6)
     return ref, json.loads(_run(ref, "--json"))
 
 
@@ -73,7 +54,9 @@ def test_every_class_of_either_labelling_has_a_row(scored):
     assert rows[6]["reference"] == int((truth == 6).sum())
     assert sum(r["predicted"] for r in rows.values()) == result["n"] == 8000
     assert rows[2]["recall"] > 0.99  # the plane is ground
+    assert rows[6]["recall"] > 0.95 and rows[6]["precision"] > 0.95  # the block is a building
     assert result["ground"]["type_1"] < 0.01 and result["ground"]["type_2"] < 0.01  # the roof is not ground
+    assert result["scores"]["kappa"] > 0.9
 
 
 def test_the_table_and_its_errors(scored, tmp_path, capsys):

@@ -10,7 +10,7 @@
 
 ``dtm``: RMSEz, mean error, NVA and VVA (stages.accuracy), with ``--truth``
 also the cells far off.  ``ground``: the engine itself runs ``parse`` to
-``classify_ground`` on the labelled file (class 2 = reference ground) with
+``classify_objects`` on the labelled file (class 2 = reference ground) with
 the stage defaults or ``--config``'s settings, once per algorithm; prints
 Type I, Type II, total error and kappa, then the DTM check
 (:func:`dtm.commands.evaluate.scores.dtm_check`).  ``classes``: the same
@@ -38,8 +38,16 @@ from dtm.common.las_guard import las_parse_errors, open_las
 from dtm.stages.classify_ground.params import ALGORITHMS
 from pipeline.errors import ConfigError, InputDataError
 
-#: The last stage that classifies points: its ``points_classified`` is what ``evaluate`` scores.
-LAST_CLASSIFICATION = "classify_ground"
+#: The stages that classify points, last first, and their clouds: ``evaluate`` scores the last one enabled.
+CLASSIFICATIONS = (("classify_objects", "points_objects"), ("classify_ground", "points_classified"))
+
+
+def last_classification(settings) -> tuple[str, str]:
+    """The last classification stage the run's *settings* enable, and the name of its cloud."""
+    for name, output in CLASSIFICATIONS:
+        if getattr(getattr(settings.stages, name), "enabled", True):
+            return name, output
+    return CLASSIFICATIONS[-1]
 
 
 def _algorithm(name: str, params: list[str]):
@@ -147,7 +155,7 @@ def evaluate_ground(
     Returns
     -------
     rows, classes : list of dict, dict
-        Per algorithm: name, parameters, seconds (``denoise`` and ``classify_ground``), the scores
+        Per algorithm: name, parameters, seconds (``denoise``, ``classify_ground``, ``classify_objects``), the scores
         (:class:`~dtm.commands.evaluate.scores.GroundScore`) and, with *dtm*, ``dtm_check``;
         algorithm name -> the classes the run gave every point, in file order.
     """
@@ -175,7 +183,7 @@ def evaluate_ground(
                 stages = _run_stages(data, algorithm, denoise=denoise, write=saving)
                 values = {**data, "stages": stages, "output": str(work / "out"), "cache": str(work / "cache")}
                 settings = _validated(model, values, base, config or Path(path), lines)
-                until = "export_las" if saving is not None else LAST_CLASSIFICATION
+                until = "export_las" if saving is not None else last_classification(settings)[0]
                 manifest = _run_until(settings, plugin, until, crs_hint=config is None and crs is None)
                 row, cls = _scored_run(manifest, settings, reference, dtm_cell if dtm else None, dtm_max_edge)
                 rows.append(row)
@@ -213,15 +221,16 @@ def evaluate_classes(path: Path, *, config: Path | None = None, crs: str | None 
         values = {**data, "output": str(work / "out"), "cache": str(work / "cache")}
         settings = _validated(config_model(plugin), values, base, config or Path(path), lines)
         with _inner_runs_quiet():
-            manifest = _run_until(settings, plugin, LAST_CLASSIFICATION, crs_hint=config is None and crs is None)
+            last, output = last_classification(settings)
+            manifest = _run_until(settings, plugin, last, crs_hint=config is None and crs is None)
         records = {r["name"]: r for r in manifest["stages"]}
-        classified = Path(records[LAST_CLASSIFICATION]["outputs"]["points_classified"]["file"])
+        classified = Path(records[last]["outputs"][output]["file"])
         predicted = np.asarray(laspy.read(str(classified)).classification, dtype=np.uint8)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     if len(predicted) != len(reference):  # pragma: no cover - parse keeps every point, in order
         raise RuntimeError(f"{len(predicted)} points classified of {len(reference)} read")
-    filters = ("denoise", "classify_ground", LAST_CLASSIFICATION)
+    filters = ("denoise", "classify_ground", "classify_objects")
     return {
         "n": int(len(reference)),
         "seconds": sum(records[n].get("seconds") or 0.0 for n in dict.fromkeys(filters) if n in records),
@@ -317,13 +326,16 @@ def _scored_run(
     from dtm.common.clouds import cloud_info
 
     records = {r["name"]: r for r in manifest["stages"]}
-    classified = Path(records[LAST_CLASSIFICATION]["outputs"]["points_classified"]["file"])
+    last, output = last_classification(settings)
+    classified = Path(records[last]["outputs"][output]["file"])
     las = laspy.read(str(classified))
     cls = np.asarray(las.classification, dtype=np.uint8)
     if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
         raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
     used = settings.stages.classify_ground.algorithm
-    seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
+    seconds = sum(
+        records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground", "classify_objects") if n in records
+    )
     s = score(reference, cls == glossary.GROUND)
     row = {"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()}
     if cell is not None:

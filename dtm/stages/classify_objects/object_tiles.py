@@ -49,7 +49,7 @@ def survey_cell(params: ClassifyObjectsParams, info: CloudInfo) -> float:
     """The grid cell (m): ``cell_size``, or ``sparse_cells`` nominal spacings (count over extent), whole cells.
 
     >>> from types import SimpleNamespace
-    >>> survey_cell(ClassifyObjectsParams(), SimpleNamespace(extent=(0, 0, 100, 100), count=10_000))
+    >>> survey_cell(ClassifyObjectsParams(), SimpleNamespace(extent=(0, 0, 100, 100), count=40_000))
     1.0
     >>> survey_cell(ClassifyObjectsParams(), SimpleNamespace(extent=(0, 0, 100, 100), count=1_000))
     5.0

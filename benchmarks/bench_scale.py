@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _isolated import emit, machine, run_child  # noqa: E402
 
-STAGES = ["parse", "denoise", "classify_ground", "rasterize", "export_las"]
+STAGES = ["parse", "denoise", "classify_ground", "classify_objects", "rasterize", "export_las"]
 JOBS = {
     "idw": {"denoise": "false", "method": "idw"},
     "tin": {"denoise": "false", "method": "tin"},
@@ -331,10 +331,10 @@ def main() -> None:
             pairs(points, args.workdir, args.job or ["idw"], args.pairs)
         return
     print(
-        "| points | job | parse s | denoise s | classify_ground s | rasterize s | export_las s | whole job s "
+        "| points | job | parse s | denoise s | classify_ground s | classify_objects s | rasterize s | export_las s | whole job s "
         "| peak PSS MB (process tree) | / I/O floor | DTM RMSE m | load (1 min) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for points in args.points or [10e6]:
         bench(points, args.workdir, args.job or list(JOBS))
 

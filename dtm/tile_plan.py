@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 #: The stages that keep their tiles, in the order of the graph.
-TILED = ("denoise", "classify_ground", "rasterize")
+TILED = ("denoise", "classify_ground", "classify_objects", "rasterize")
 
 
 def plan_tiles(config: Any, changed: dict[str, str], previous: dict[str, Any], output: Path) -> dict[str, str]:

@@ -12,8 +12,8 @@ import pyproj
 from pipeline.cli import main
 
 
-def _labelled(path: Path) -> Path:
-    """A plane with a building, labelled: class 2 ground, class 1 building."""
+def labelled_block(path: Path, building: int = 1) -> Path:
+    """A plane with a 16 m x 12 m flat-roofed block 6 m high, labelled: class 2 ground, *building* the block."""
     rng = np.random.default_rng(5)
     n = 8000
     x, y = rng.uniform(0, 60, n), rng.uniform(0, 60, n)
@@ -26,13 +26,13 @@ def _labelled(path: Path) -> Path:
     header.add_crs(pyproj.CRS.from_epsg(32630))
     las = laspy.LasData(header)
     las.x, las.y, las.z = x + 500000, y + 4000000, z
-    las.classification = np.where(box, 1, 2).astype(np.uint8)
+    las.classification = np.where(box, building, 2).astype(np.uint8)
     las.write(str(path))
     return path
 
 
 def test_evaluate_prints_metrics_and_writes_the_cloud(tmp_path, capsys):
-    ref = _labelled(tmp_path / "ref.laz")
+    ref = labelled_block(tmp_path / "ref.laz")
     out = tmp_path / "classified.laz"
     assert main(["evaluate", "ground", str(ref), "--compare", "pmf", "--write", str(out)]) == 0
     text = capsys.readouterr().out
@@ -51,17 +51,23 @@ def test_evaluate_prints_metrics_and_writes_the_cloud(tmp_path, capsys):
 
 
 def test_evaluate_json_and_params(tmp_path, capsys):
-    ref = _labelled(tmp_path / "ref.laz")
+    ref = labelled_block(tmp_path / "ref.laz")
     args = ["evaluate", "ground", str(ref), "--algorithm", "pmf", "--param", "max_window_size=5", "--json"]
     assert main(args) == 0
     rows = json.loads(capsys.readouterr().out)
     assert rows[0]["algorithm"] == "pmf" and rows[0]["params"]["max_window_size"] == 5
-    # a 5 m window cannot remove a 16 m x 12 m building
+    # a 5 m window cannot remove a 16 m x 12 m building, but classify_objects takes the roof off the ground ...
+    assert rows[0]["type_2"] < 0.01
+    # ... and without it the roof stays ground
+    config = tmp_path / "run.yaml"
+    config.write_text("stages:\n  classify_objects: {enabled: false}\n")
+    assert main([*args, "--config", str(config)]) == 0
+    rows = json.loads(capsys.readouterr().out)
     assert rows[0]["type_2"] > 0.5
 
 
 def test_evaluate_errors_exit_with_one_sentence(tmp_path, capsys):
-    ref = _labelled(tmp_path / "ref.laz")
+    ref = labelled_block(tmp_path / "ref.laz")
     assert main(["evaluate", "ground", str(ref), "--param", "slope=steep"]) == 2
     assert "--param slope" in capsys.readouterr().err
     assert main(["evaluate", "ground", str(tmp_path / "none.laz")]) == 2

@@ -127,7 +127,7 @@ def test_the_dry_run_says_how_many_tiles_will_run(runs):
             r"^(?P<stage>\w+)\s+run \(upstream\)\s+at most (?P<n>\d+) of 4 tiles \(1 file changed\)$", plan, re.M
         )
     }
-    assert set(said) == {"denoise", "classify_ground", "rasterize"}, plan
+    assert set(said) == {"denoise", "classify_ground", "classify_objects", "rasterize"}, plan
     ran = {name: _stage(again, name)["metrics"]["tiling"]["ran"] for name in said}
     assert said["denoise"] == ran["denoise"], "nothing upstream spreads the change: the header's bounds tell exactly"
     assert all(said[name] >= ran[name] for name in said)

@@ -75,7 +75,8 @@ def test_points_laz_is_las14_with_crs_and_ground_class(run_dir):
     assert las.header.global_encoding.wkt  # LAS 1.4: the CRS is WKT, not GeoTIFF keys
     assert any(type(v).__name__ == "WktCoordinateSystemVlr" for v in las.header.vlrs)
     cls = np.asarray(las.classification)
-    assert set(np.unique(cls)) <= {1, 2, 7, 18}
+    assert set(np.unique(cls)) <= {1, 2, 3, 4, 5, 6, 7, 18}
+    assert {5, 6} <= set(np.unique(cls))  # the scene's trees and buildings
     scene = make_scene()
     assert len(cls) == len(scene.x)
     np.testing.assert_allclose(np.asarray(las.gps_time), scene.gps_time, atol=1e-6)
@@ -111,6 +112,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
             "strip_adjust": "cached",
             "denoise": "cached",
             "classify_ground": "cached",
+            "classify_objects": "cached",
             "rasterize": "ran",
             "hillshade": "ran",
             "contours": "ran",

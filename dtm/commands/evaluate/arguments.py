@@ -19,14 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="what", required=True)
     p = sub.add_parser("ground", help="ground classification against a labelled LAS/LAZ (class 2 = ground)")
     p.add_argument("reference", type=Path, help="labelled LAS/LAZ file")
-    p.add_argument(
-        "--config",
-        type=Path,
-        metavar="RUN.yaml",
-        help="use this run configuration's settings (its input replaced by the reference file); default: "
-        "every stage's defaults",
-    )
-    p.add_argument("--crs", metavar="CRS", help="input.crs: the CRS of a file whose header has none, e.g. EPSG:2992")
+    _run_args(p)
     p.add_argument(
         "--algorithm",
         choices=ALGORITHM_NAMES,
@@ -65,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)
+    p = sub.add_parser("classes", help="every class against a labelled LAS/LAZ: recall, precision, kappa")
+    p.add_argument("reference", type=Path, help="labelled LAS/LAZ file (ASPRS classes)")
+    _run_args(p)
+    p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    _hidden_log_args(p)
     p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
     p.add_argument("dtm", type=Path, help="DTM GeoTIFF")
     ref = p.add_mutually_exclusive_group(required=True)
@@ -74,6 +72,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--vegetated", nargs="+", default=["vegetated"], help="land-cover values counted as vegetated")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     _hidden_log_args(p)
+
+
+def _run_args(p: argparse.ArgumentParser) -> None:
+    """``--config`` and ``--crs``: the run that classifies the reference file."""
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="RUN.yaml",
+        help="use this run configuration's settings (its input replaced by the reference file); default: "
+        "every stage's defaults",
+    )
+    p.add_argument("--crs", metavar="CRS", help="input.crs: the CRS of a file whose header has none, e.g. EPSG:2992")
 
 
 def _hidden_log_args(p: argparse.ArgumentParser) -> None:

@@ -1,4 +1,4 @@
-"""``pipeline evaluate ground|dtm``: measure accuracy against reference data.
+"""``pipeline evaluate ground|classes|dtm``: measure accuracy against reference data.
 
     pipeline evaluate dtm DTM.tif (--truth TRUTH.tif | --checkpoints CP.csv)
                               [--land-cover-column NAME] [--vegetated VALUE ...] [--json]
@@ -6,13 +6,17 @@
                                      [--algorithm NAME] [--param k=v ...]
                                      [--no-denoise] [--compare csf] [--write OUT.laz]
                                      [--no-dtm-check] [--dtm-cell 1] [--dtm-max-edge 20] [--json]
+    pipeline evaluate classes REF.laz [--config RUN.yaml] [--crs EPSG:nnnn] [--json]
 
 ``dtm``: RMSEz, mean error, NVA and VVA (stages.accuracy), with ``--truth``
 also the cells far off.  ``ground``: the engine itself runs ``parse`` to
-``classify_ground`` on the labelled file (class 2 = reference ground) with
+``classify_objects`` on the labelled file (class 2 = reference ground) with
 the stage defaults or ``--config``'s settings, once per algorithm; prints
 Type I, Type II, total error and kappa, then the DTM check
-(:func:`dtm.commands.evaluate.scores.dtm_check`).  How and why: docs/GROUND.md.
+(:func:`dtm.commands.evaluate.scores.dtm_check`).  ``classes``: the same
+run once, to the last classification stage; recall and precision per ASPRS
+class, overall accuracy, Cohen's kappa and the ground's Type I and II.
+How and why: docs/GROUND.md.
 """
 
 from __future__ import annotations
@@ -34,6 +38,17 @@ from dtm.common.las_guard import las_parse_errors, open_las
 from dtm.stages.classify_ground.params import ALGORITHMS
 from pipeline.errors import ConfigError, InputDataError
 
+#: The stages that classify points, last first, and their clouds: ``evaluate`` scores the last one enabled.
+CLASSIFICATIONS = (("classify_objects", "points_objects"), ("classify_ground", "points_classified"))
+
+
+def last_classification(settings) -> tuple[str, str]:
+    """The last classification stage the run's *settings* enable, and the name of its cloud."""
+    for name, output in CLASSIFICATIONS:
+        if getattr(getattr(settings.stages, name), "enabled", True):
+            return name, output
+    return CLASSIFICATIONS[-1]
+
 
 def _algorithm(name: str, params: list[str]):
     values: dict = {"name": name}
@@ -50,23 +65,34 @@ def _algorithm(name: str, params: list[str]):
         raise ConfigError(f"--param {where}: {err['msg']}.") from None
 
 
-def reference_ground(path: Path) -> np.ndarray:
-    """Whether each point of a labelled LAS/LAZ is reference ground (class 2), read in chunks.
+def reference_classes(path: Path) -> np.ndarray:
+    """The class of each point of a labelled LAS/LAZ, read in chunks.
 
     Raises
     ------
     InputDataError
-        When the file cannot be read, or no point has class 2.
+        When the file cannot be read.
     """
 
     parts = []
     with open_las(Path(path)) as reader:
         try:
             for chunk in reader.chunk_iterator(1_000_000):
-                parts.append(np.asarray(chunk.classification) == glossary.GROUND)
+                parts.append(np.asarray(chunk.classification, dtype=np.uint8))
         except las_parse_errors() as exc:
             raise InputDataError(f"{path}: unreadable after point {sum(map(len, parts))} ({exc}).") from None
-    reference = np.concatenate(parts) if parts else np.zeros(0, dtype=bool)
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=np.uint8)
+
+
+def reference_ground(path: Path) -> np.ndarray:
+    """Whether each point of a labelled LAS/LAZ is reference ground (class 2).
+
+    Raises
+    ------
+    InputDataError
+        When the file cannot be read, or no point has class 2.
+    """
+    reference = reference_classes(path) == glossary.GROUND
     if not reference.any():
         raise InputDataError(f"{path}: no point has class 2, so there is no reference ground to compare with.")
     return reference
@@ -129,7 +155,7 @@ def evaluate_ground(
     Returns
     -------
     rows, classes : list of dict, dict
-        Per algorithm: name, parameters, seconds (``denoise`` and ``classify_ground``), the scores
+        Per algorithm: name, parameters, seconds (``denoise``, ``classify_ground``, ``classify_objects``), the scores
         (:class:`~dtm.commands.evaluate.scores.GroundScore`) and, with *dtm*, ``dtm_check``;
         algorithm name -> the classes the run gave every point, in file order.
     """
@@ -157,7 +183,7 @@ def evaluate_ground(
                 stages = _run_stages(data, algorithm, denoise=denoise, write=saving)
                 values = {**data, "stages": stages, "output": str(work / "out"), "cache": str(work / "cache")}
                 settings = _validated(model, values, base, config or Path(path), lines)
-                until = "export_las" if saving is not None else "classify_ground"
+                until = "export_las" if saving is not None else last_classification(settings)[0]
                 manifest = _run_until(settings, plugin, until, crs_hint=config is None and crs is None)
                 row, cls = _scored_run(manifest, settings, reference, dtm_cell if dtm else None, dtm_max_edge)
                 rows.append(row)
@@ -167,6 +193,76 @@ def evaluate_ground(
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return rows, classes
+
+
+def evaluate_classes(path: Path, *, config: Path | None = None, crs: str | None = None) -> dict:
+    """Classify a labelled file with the run's stages up to the last classification; its scores per class.
+
+    The same run as :func:`evaluate_ground` (*config*, *crs* as there), once.
+    Returns ``n``, ``seconds`` (the filter stages), ``scores``
+    (:class:`~dtm.commands.evaluate.scores.ClassScores` as a dict: every
+    class present in either labelling) and ``ground`` (Type I and II of
+    class 2, :class:`~dtm.commands.evaluate.scores.GroundScore`).
+    """
+    import shutil
+    import tempfile
+
+    import laspy
+
+    from dtm.commands.evaluate.scores import class_scores, score
+    from pipeline.discovery import load_plugin
+    from pipeline.stage import config_model
+
+    reference = reference_classes(path)
+    data, base, lines = run_settings(path, config=config, crs=crs)
+    plugin = load_plugin()
+    work = Path(tempfile.mkdtemp(prefix="pipeline-evaluate-"))
+    try:
+        values = {**data, "output": str(work / "out"), "cache": str(work / "cache")}
+        settings = _validated(config_model(plugin), values, base, config or Path(path), lines)
+        with _inner_runs_quiet():
+            last, output = last_classification(settings)
+            manifest = _run_until(settings, plugin, last, crs_hint=config is None and crs is None)
+        records = {r["name"]: r for r in manifest["stages"]}
+        classified = Path(records[last]["outputs"][output]["file"])
+        predicted = np.asarray(laspy.read(str(classified)).classification, dtype=np.uint8)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    if len(predicted) != len(reference):  # pragma: no cover - parse keeps every point, in order
+        raise RuntimeError(f"{len(predicted)} points classified of {len(reference)} read")
+    filters = ("denoise", "classify_ground", "classify_objects")
+    return {
+        "n": int(len(reference)),
+        "seconds": sum(records[n].get("seconds") or 0.0 for n in dict.fromkeys(filters) if n in records),
+        "scores": class_scores(reference, predicted, glossary.class_name).as_dict(),
+        "ground": score(reference == glossary.GROUND, predicted == glossary.GROUND).as_dict(),
+    }
+
+
+def _run_classes(args: argparse.Namespace) -> int:
+    """``pipeline evaluate classes``: the table per class, accuracy, kappa and the ground's errors."""
+    for path, what in ((args.reference, "file"), (args.config, "configuration file")):
+        if path is not None and not path.is_file():
+            raise ConfigError(f"{path}: {what} not found.")
+    result = evaluate_classes(args.reference, config=args.config, crs=args.crs)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    s, g = result["scores"], result["ground"]
+    print(f"{args.reference}: {result['n']} points")
+    print(f"{'class':<5} {'name':<26} {'reference':>9} {'predicted':>9} {'recall %':>8} {'precision %':>11}")
+
+    def pc(value) -> str:
+        return "—" if value is None else f"{100 * value:.2f}"
+
+    for r in s["classes"]:
+        print(
+            f"{r['code']:<5} {r['name']:<26} {r['reference']:9d} {r['predicted']:9d} "
+            f"{pc(r['recall']):>8} {pc(r['precision']):>11}"
+        )
+    print(f"overall accuracy {pc(s['accuracy'])} %, kappa {pc(s['kappa'])} %")
+    print(f"ground (class 2): type I {pc(g['type_1'])} %, type II {pc(g['type_2'])} %, total {pc(g['total'])} %")
+    return 0
 
 
 @contextmanager
@@ -230,13 +326,16 @@ def _scored_run(
     from dtm.common.clouds import cloud_info
 
     records = {r["name"]: r for r in manifest["stages"]}
-    classified = Path(records["classify_ground"]["outputs"]["points_classified"]["file"])
+    last, output = last_classification(settings)
+    classified = Path(records[last]["outputs"][output]["file"])
     las = laspy.read(str(classified))
     cls = np.asarray(las.classification, dtype=np.uint8)
     if len(cls) != len(reference):  # pragma: no cover - parse keeps every point, in order
         raise RuntimeError(f"{len(cls)} points classified of {len(reference)} read")
     used = settings.stages.classify_ground.algorithm
-    seconds = sum(records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground") if n in records)
+    seconds = sum(
+        records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground", "classify_objects") if n in records
+    )
     s = score(reference, cls == glossary.GROUND)
     row = {"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()}
     if cell is not None:
@@ -318,6 +417,8 @@ def _run_dtm(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     if args.what == "dtm":
         return _run_dtm(args)
+    if args.what == "classes":
+        return _run_classes(args)
     if not args.reference.is_file():
         raise ConfigError(f"{args.reference}: file not found.")
     if args.config is not None and not args.config.is_file():

@@ -8,6 +8,7 @@ doi:10.1016/j.isprsjprs.2004.05.004
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -215,3 +216,68 @@ def _in_long_triangles(xy: np.ndarray, grid, max_edge: float, batch_cells: int =
         out[row[inside], col[inside]] = True
         first = last
     return out
+
+
+@dataclass(frozen=True)
+class ClassRow:
+    """One ASPRS class of a multi-class comparison: counts, and recall and precision as fractions (None: 0 / 0)."""
+
+    code: int
+    name: str
+    reference: int  # points of this class in the reference
+    predicted: int  # points the classification gave this class
+    correct: int  # points of this class in both
+    recall: float | None  # correct / reference
+    precision: float | None  # correct / predicted
+
+
+@dataclass(frozen=True)
+class ClassScores:
+    """A classification against reference labels: per class, overall accuracy and Cohen's kappa (fractions)."""
+
+    n: int
+    classes: list[ClassRow]
+    accuracy: float
+    kappa: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def class_scores(reference: np.ndarray, predicted: np.ndarray, name: Callable[[int], str] = str) -> ClassScores:
+    """Per-class recall and precision, overall accuracy and Cohen's kappa of two labellings.
+
+    Every class present in either labelling has a row (ascending codes),
+    named by *name* (e.g. :func:`dtm.common.glossary.class_name`).
+    Kappa is Cohen's over the full confusion matrix (Cohen 1960,
+    doi:10.1177/001316446002000104).
+
+    >>> s = class_scores(np.array([2, 2, 6, 6]), np.array([2, 6, 6, 6]))
+    >>> [(r.code, r.recall, r.precision) for r in s.classes], s.accuracy, s.kappa
+    ([(2, 0.5, 1.0), (6, 1.0, 0.6666666666666666)], 0.75, 0.5)
+    """
+    ref = np.asarray(reference).astype(np.int64)
+    pred = np.asarray(predicted).astype(np.int64)
+    if ref.shape != pred.shape:
+        raise ValueError("reference and prediction differ in length")
+    n = ref.size
+    codes = np.union1d(ref, pred)
+    r_idx, p_idx = np.searchsorted(codes, ref), np.searchsorted(codes, pred)
+    matrix = np.bincount(r_idx * len(codes) + p_idx, minlength=len(codes) ** 2).reshape(len(codes), len(codes))
+    ref_n, pred_n, diag = matrix.sum(axis=1), matrix.sum(axis=0), np.diag(matrix)
+    observed = float(diag.sum() / n) if n else 0.0
+    expected = float((ref_n * pred_n).sum() / (n * n)) if n else 0.0
+    kappa = (observed - expected) / (1.0 - expected) if expected < 1.0 else 1.0
+    rows = [
+        ClassRow(
+            code=int(c),
+            name=name(int(c)),
+            reference=int(ref_n[i]),
+            predicted=int(pred_n[i]),
+            correct=int(diag[i]),
+            recall=float(diag[i] / ref_n[i]) if ref_n[i] else None,
+            precision=float(diag[i] / pred_n[i]) if pred_n[i] else None,
+        )
+        for i, c in enumerate(codes)
+    ]
+    return ClassScores(n=int(n), classes=rows, accuracy=observed, kappa=float(kappa))

@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 class Rasterize(Stage, name="rasterize", version="7", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
-    inputs = ("points_classified",)
+    inputs = ("points_objects",)
     outputs: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
     products: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
 
@@ -75,7 +75,7 @@ class Rasterize(Stage, name="rasterize", version="7", params=RasterizeParams):
         from pipeline.tiling import run_tiled
 
         p = ctx.params
-        src = ctx.inputs["points_classified"]
+        src = ctx.inputs["points_objects"]
         info = cloud_info(src)
         _check_points(ctx, info)
         tiles = _Tiles(ctx, src, info, task_folder(ctx.workdir, self.name))

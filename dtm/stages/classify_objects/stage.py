@@ -1,0 +1,66 @@
+"""Stage ``classify_objects``: buildings (6) and vegetation (3, 4, 5) among the points above the ground.
+
+After ``classify_ground``: on a grid of the surface (the highest point per
+cell), roofs are planar regions with a step down (walls) along most of
+their edge, large enough and of single returns
+(:func:`dtm.stages.classify_objects.objects.building_cells`); their points
+become 6, even those the ground filter took for ground (a roof wider than
+its window), so the DTM is interpolated across the footprint.  The other
+points above the ground where pulses return several times (or, in a
+single-return survey, the surface is rough) become vegetation 3 / 4 / 5 by
+their height above the ground; the rest stays 1.  Tile by tile with a
+buffer wider than the widest building.  Method and departures:
+docs/stages/classify_objects.md.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from dtm.stages.classify_objects.object_tiles import (
+    COUNTS,
+    objects_columns,
+    objects_tile,
+    reach,
+    several_returns,
+    survey_cell,
+)
+from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from pipeline.stage import Stage, StageContext
+
+
+class ClassifyObjects(Stage, name="classify_objects", version="1", params=ClassifyObjectsParams):
+    """buildings (6) and vegetation (3, 4, 5) above the ground."""
+
+    inputs = ("points_classified",)
+    outputs: ClassVar = {"points_objects": "points.las"}
+    passthrough: ClassVar = {"points_objects": "points_classified"}
+    config_keys = ("tiling.buffer",)
+
+    def tile_buffer(self, params: ClassifyObjectsParams) -> float:
+        return reach(params)
+
+    def run(self, ctx: StageContext[ClassifyObjectsParams]) -> None:
+        from dtm.common.clouds import cloud_info
+        from dtm.common.tile_classes import classes_by_tile
+
+        src, dst = ctx.inputs["points_classified"], ctx.outputs["points_objects"]
+        cell, multi = survey_cell(ctx.params, cloud_info(src)), several_returns(src)
+        results = classes_by_tile(
+            ctx,
+            src,
+            dst,
+            buffer=self.tile_buffer(ctx.params),
+            columns=objects_columns,
+            task=objects_tile,
+            params={"params": ctx.params.model_dump(mode="json"), "cell": cell, "multi_echo": multi},
+        )
+        counts = {k: int(sum(r[k] for r in results)) for k in COUNTS}
+        ctx.metrics.update(cell_m=cell, several_returns=multi, **counts)
+        ctx.log.info(
+            "%d building and %d vegetation points of %d (%d roof points taken from the ground)",
+            counts["buildings"],
+            counts["low_vegetation"] + counts["medium_vegetation"] + counts["high_vegetation"],
+            counts["points"],
+            counts["roof_was_ground"],
+        )

@@ -1,0 +1,127 @@
+"""Buildings and vegetation on hand-made clouds whose answer is known from their geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dtm.stages.classify_objects.objects import object_classes, plane_residual
+from dtm.stages.classify_objects.params import ClassifyObjectsParams
+
+PARAMS = ClassifyObjectsParams()
+
+
+def _cloud(z_of, size: float = 80.0, density: float = 6.0, seed: int = 3):
+    """Points on a surface ``z_of(x, y)`` (uniform in plan), 3 cm of noise; classes 2, single returns."""
+    rng = np.random.default_rng(seed)
+    n = int(size * size * density)
+    x, y = rng.uniform(0, size, n), rng.uniform(0, size, n)
+    z = z_of(x, y) + rng.normal(0, 0.03, n)
+    return np.column_stack((x, y, z)), np.full(n, 2, np.uint8), np.ones(n, np.uint8)
+
+
+def _classes(xyz, cls, nret, multi_echo=False, params=PARAMS):
+    new, _ = object_classes(xyz, cls, nret, np.ones(len(cls), bool), params, 1.0, multi_echo)
+    return new
+
+
+def _block(x, y):
+    return (np.abs(x - 40) < 12) & (np.abs(y - 40) < 9)
+
+
+def test_plane_residual_sees_a_step_and_not_a_slope():
+    z = np.add.outer(np.arange(6.0), 0.7 * np.arange(6.0))  # a 35-degree plane: residual 0
+    assert np.nanmax(plane_residual(z)) < 1e-6  # float cancellation
+    z[:, 3:] += 3.0  # a 3 m wall between columns 2 and 3
+    r = plane_residual(z)
+    assert np.all(r[1:-1, 2:4] > 0.5)
+    hole = z.copy()
+    hole[0:2, 0:2] = np.nan  # a corner cell with 5 of 9 neighbours: no plane
+    assert np.isnan(plane_residual(hole)[0, 0]) and np.isfinite(plane_residual(hole)[2, 2])
+
+
+def test_a_roof_taken_for_ground_leaves_class_2():
+    # a 24 m x 18 m flat roof 6 m above a gentle slope, every point called ground by the filter
+    xyz, cls, nret = _cloud(lambda x, y: 100 + 0.05 * x + 6.0 * _block(x, y))
+    new = _classes(xyz, cls, nret)
+    roof = _block(xyz[:, 0], xyz[:, 1])
+    inner = (np.abs(xyz[:, 0] - 40) < 11) & (np.abs(xyz[:, 1] - 40) < 8)
+    assert np.all(new[inner] == 6)
+    assert np.mean(new[roof] == 6) > 0.97
+    assert np.all(new[~roof] == 2)  # the ground around keeps its class
+
+
+def test_a_gabled_roof_left_by_the_filter_is_a_building():
+    def z(x, y):
+        ridge = 6.0 + 3.0 - 0.5 * np.abs(y - 40)  # 27-degree pitches from a 9 m ridge to 4.5 m eaves
+        return 100 + np.where(_block(x, y), ridge, 0.0)
+
+    xyz, cls, nret = _cloud(z)
+    roof = _block(xyz[:, 0], xyz[:, 1])
+    cls[roof] = 1
+    new = _classes(xyz, cls, nret)
+    assert np.mean(new[roof] == 6) > 0.95
+    assert np.all(new[~roof] == 2)
+
+
+@pytest.mark.parametrize(
+    "surface",
+    [
+        # a 3 m terrace: the upper level joins the slope above it; the riser is 45 degrees
+        lambda x, y: 100 + 0.1 * x + np.clip(x - 40, 0, 3),
+        # a flat-topped hill: a 30 m plateau 5 m up, 30-degree flanks
+        lambda x, y: 100 + np.clip(5.0 - 0.58 * (np.maximum(np.abs(x - 40), np.abs(y - 40)) - 15), 0, 5),
+        # an embankment: a road 4 m up, 1:1.5 sides
+        lambda x, y: 100 + np.clip(4.0 - (np.abs(x - 40) - 5) / 1.5, 0, 4),
+    ],
+    ids=["terrace", "flat-topped hill", "embankment"],
+)
+def test_terrain_is_no_building(surface):
+    xyz, cls, nret = _cloud(surface)
+    assert np.all(_classes(xyz, cls, nret) == 2)
+
+
+def test_a_small_object_stays_1():
+    # a car: planar, single returns, in a survey with several returns per pulse (in a single-return survey its
+    # rough edges make it low vegetation: docs/stages/classify_objects.md)
+    car = lambda x, y: (np.abs(x - 40) < 2.2) & (np.abs(y - 40) < 0.9)  # noqa: E731
+    xyz, cls, nret = _cloud(lambda x, y: 100 + 1.5 * car(x, y))
+    on = car(xyz[:, 0], xyz[:, 1])
+    cls[on] = 1
+    new = _classes(xyz, cls, nret, multi_echo=True)
+    assert np.all(new[on] == 1) and np.all(new[~on] == 2)
+
+
+def _trees(multi: bool):
+    """A flat field with a domed 14 m crown (radius 5 m) seen at every height; with *multi*, half are 2nd returns."""
+    rng = np.random.default_rng(8)
+    xyz, cls, nret = _cloud(lambda x, y: 100 + 0 * x)
+    n = 3000
+    r, a = 5 * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    top = 14.0 * np.sqrt(1.0 - (r / 5.0) ** 2)
+    crown = np.column_stack((40 + r * np.cos(a), 40 + r * np.sin(a), 100 + rng.uniform(0.2, 1.0, n) * top))
+    crown_ret = np.where(rng.uniform(0, 1, n) < 0.5, 2, 1).astype(np.uint8) if multi else np.ones(n, np.uint8)
+    return (
+        np.vstack((xyz, crown)),
+        np.concatenate((cls, np.ones(n, np.uint8))),
+        np.concatenate((nret, crown_ret)),
+        crown[:, 2] - 100,
+    )
+
+
+@pytest.mark.parametrize("multi", [True, False], ids=["several returns", "single returns"])
+def test_vegetation_by_height(multi):
+    xyz, cls, nret, height = _trees(multi)
+    new = _classes(xyz, cls, nret, multi_echo=multi)[-len(height) :]
+    expected = np.select([height >= 5.0, height >= 2.0, height >= 0.5], [5, 4, 3], 1)
+    assert np.mean(new == expected) > 0.95
+    assert not np.any(new == 6)
+    assert np.all(_classes(xyz, cls, nret, multi_echo=multi)[: -len(height)] == 2)
+
+
+def test_disabled_parts_leave_classes():
+    xyz, cls, nret = _cloud(lambda x, y: 100 + 6.0 * _block(x, y))
+    off = ClassifyObjectsParams.model_validate({"buildings": {"enabled": False}})
+    assert np.all(_classes(xyz, cls, nret, params=off) == 2)
+    with pytest.raises(ValueError, match="ascending"):
+        ClassifyObjectsParams.model_validate({"vegetation": {"breaks": [2.0, 0.5, 5.0]}})

@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> classify_objects -> rasterize -> hillshade, contours, accuracy;
+parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> classify_objects -> rasterize -> hillshade, contours, footprints, accuracy;
 export_las, export_tiles; report (last: it reads every stage's metrics).
 """
 
@@ -55,6 +55,7 @@ def _stages_plugin() -> Plugin:
     from dtm.stages.denoise.stage import Denoise
     from dtm.stages.export_las.stage import ExportLas
     from dtm.stages.export_tiles.stage import ExportTiles
+    from dtm.stages.footprints.stage import Footprints
     from dtm.stages.georeference.stage import Georeference
     from dtm.stages.hillshade.stage import Hillshade
     from dtm.stages.parse.stage import Parse
@@ -76,6 +77,7 @@ def _stages_plugin() -> Plugin:
             Rasterize,
             Hillshade,
             Contours,
+            Footprints,
             Accuracy,
             ExportLas,
             ExportTiles,

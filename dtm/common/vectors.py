@@ -1,4 +1,4 @@
-"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) line layers written with pyogrio."""
+"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) layers written with pyogrio."""
 
 from __future__ import annotations
 
@@ -20,8 +20,16 @@ def line_wkb(xy: np.ndarray) -> bytes:
     return struct.pack("<BII", 1, 2, len(coords)) + coords.tobytes()
 
 
-def write_gpkg(path: Path, geometry: list[bytes], fields: dict[str, np.ndarray], *, crs, layer: str) -> None:
-    """Write WKB LineStrings with attribute columns to a GeoPackage, reproducibly.
+def write_gpkg(
+    path: Path,
+    geometry: list[bytes],
+    fields: dict[str, np.ndarray],
+    *,
+    crs,
+    layer: str,
+    geometry_type: str = "LineString",
+) -> None:
+    """Write WKB geometries (all of *geometry_type*) with attribute columns to a GeoPackage, reproducibly.
 
     The GeoPackage's ``last_change`` timestamps are fixed (GDAL's
     ``OGR_CURRENT_DATE``) so the same lines give the same bytes on every run:
@@ -42,7 +50,7 @@ def write_gpkg(path: Path, geometry: list[bytes], fields: dict[str, np.ndarray],
         fields=list(fields),
         layer=layer,
         driver="GPKG",
-        geometry_type="LineString",
+        geometry_type=geometry_type,
         crs=wkt,
         dataset_options={"VERSION": GPKG_VERSION},
     )

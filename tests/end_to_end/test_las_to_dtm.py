@@ -116,6 +116,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
             "rasterize": "ran",
             "hillshade": "ran",
             "contours": "ran",
+            "footprints": "ran",
             "accuracy": "ran",
             "export_las": "cached",
             "export_tiles": "not applicable",
@@ -253,3 +254,23 @@ def test_evaluate_dtm_against_truth_and_checkpoints(run_dir, capsys):
     with pytest.raises(SystemExit) as exc:  # argparse: --truth or --checkpoints is required
         main(["evaluate", "dtm", dtm])
     assert exc.value.code == 2
+
+
+def test_building_outlines_and_canopy_height_are_products(run_dir):
+    """The sample's scene has buildings and trees: outlines as a GeoPackage 1.2 layer, canopy above the DTM."""
+    import sqlite3
+
+    import pyogrio
+
+    out, _ = run_dir
+    info = pyogrio.read_info(str(out / "out" / "buildings.gpkg"))
+    assert info["features"] > 0 and info["geometry_type"] == "MultiPolygon" and info["crs"] == "EPSG:25830"
+    meta, _, _, fields = pyogrio.raw.read(str(out / "out" / "buildings.gpkg"))
+    height = fields[list(meta["fields"]).index("height")]
+    assert (height > 2.0).all()  # a roof stands above its ground
+    with sqlite3.connect(out / "out" / "buildings.gpkg") as db:
+        assert db.execute("PRAGMA application_id").fetchone()[0] == 0x47504B47  # 'GPKG'
+        assert db.execute("PRAGMA user_version").fetchone()[0] == 10200  # GeoPackage 1.2
+    with rasterio.open(out / "out" / "canopy_height.tif") as ds:
+        chm = ds.read(1, masked=True)
+        assert ds.nodata == -999999.0 and chm.count() > 0 and chm.min() >= 0.0

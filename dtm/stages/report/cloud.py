@@ -40,6 +40,8 @@ class CloudSummary:
     repeatability_cells: int = 0
     header: dict = field(default_factory=dict)  # lasinfo-like figures of the file
     class_0_kept: int = 0  # points in class 0 (never classified) not flagged withheld
+    class_by_strip: dict[int, np.ndarray] = field(default_factory=dict)  # point_source_id -> points per class
+    class_grid: np.ndarray | None = None  # class of the highest point in each DTM cell (-1: none)
 
 
 def las_info(path: str | Path, gps_range: tuple[float, float] | None = None) -> dict:
@@ -88,6 +90,9 @@ class CloudTally:
     counts: np.ndarray = field(default_factory=lambda: np.zeros(256, dtype=np.int64))
     points: int = 0
     class_0_kept: int = 0
+    by_strip: dict[int, np.ndarray] = field(default_factory=dict)
+    top_z: np.ndarray | None = None  # highest z per cell, flat (-inf: none)
+    top_class: np.ndarray | None = None  # its class (-1: none)
     tmin: float = np.inf
     tmax: float = -np.inf
 
@@ -102,9 +107,13 @@ class CloudTally:
         self.seen.update(int(v) for v in np.unique(sid))
         self.counts += np.bincount(cls, minlength=256)
         self.points += len(chunk)
+        for s in np.unique(sid):
+            here = np.bincount(cls[sid == s], minlength=256)
+            self.by_strip[int(s)] = self.by_strip.get(int(s), 0) + here
         withheld = np.asarray(chunk.withheld, dtype=bool)
         self.class_0_kept += int(((cls == 0) & ~withheld).sum())
         usable = glossary.usable(cls, withheld)
+        self._highest((r * self.cols + c)[usable], np.asarray(chunk.z)[usable], cls[usable])
         t = np.asarray(chunk.gps_time)
         t = t[np.isfinite(t)]
         if len(t):
@@ -113,6 +122,15 @@ class CloudTally:
         one = usable & (ret <= 1)
         self.first += np.bincount((r * self.cols + c)[one], minlength=self.rows * self.cols)
         return one
+
+    def _highest(self, cell: np.ndarray, z: np.ndarray, cls: np.ndarray) -> None:
+        """Keep each cell's highest point (noise and withheld left out by the caller) and its class."""
+        if self.top_z is None:
+            self.top_z = np.full(self.rows * self.cols, -np.inf)
+            self.top_class = np.full(self.rows * self.cols, -1, dtype=np.int16)
+        np.maximum.at(self.top_z, cell, z)
+        top = z == self.top_z[cell]
+        self.top_class[cell[top]] = cls[top]
 
 
 class StripSpans:
@@ -246,4 +264,6 @@ def summarise_cloud(
         cells,
         las_info(path, (tally.tmin, tally.tmax)),
         tally.class_0_kept,
+        tally.by_strip,
+        tally.top_class.reshape(rows, cols) if tally.top_class is not None else None,
     )

@@ -68,6 +68,8 @@ def map_figures(cv: Canvas, data: ReportInputs, measured: dict, voids: dict, anp
         figures.append(pulse_density_figure(cv, data.cloud.first_returns, data.density, anpd_limit))
     figures.append(point_density_figure(cv, data.density))
     figures.append(strips_figure(cv, data.cloud))
+    if data.cloud.class_grid is not None:
+        figures.append(classes_figure(cv, data.cloud.class_grid))
     if data.differences is not None:
         figures.append(difference_figures(cv, *data.differences))
     if "void_mask" in voids:
@@ -187,6 +189,39 @@ def strips_figure(cv: Canvas, cloud: CloudSummary) -> str:
     ][:20]
     svg = category_map(idx, cv.frame, names, title="flight strips (point_source_id)", max_size=cv.max_size)
     return figure(svg, "flight strip coverage", "Flight strips: the strip of the last point read in each DTM cell.")
+
+
+#: Colours of the ASPRS classes on the class map (RGB 0-255), as common viewers show them; others black.
+CLASS_COLOURS = {
+    1: (170, 170, 170),
+    2: (166, 124, 82),
+    3: (186, 228, 179),
+    4: (116, 196, 118),
+    5: (35, 139, 69),
+    6: (227, 26, 28),
+    9: (49, 130, 189),
+    17: (255, 170, 0),
+    20: (204, 204, 102),
+}
+
+
+def classes_figure(cv: Canvas, class_grid: np.ndarray) -> str:
+    """The class of the highest point (noise and withheld left out) in each DTM cell, over the hillshade."""
+    from dtm.common import glossary
+
+    present = [int(k) for k in np.unique(class_grid) if k >= 0]
+    if not present:
+        return ""
+    names = [(k, f"{k} {glossary.class_name(k)}", CLASS_COLOURS.get(k, (0, 0, 0))) for k in present]
+    svg = category_map(
+        class_grid, cv.frame, names, title="classes (highest point)", max_size=cv.max_size, shade=cv.shade
+    )
+    return figure(
+        svg,
+        "point classes",
+        "ASPRS class of the highest point in each DTM cell (noise and withheld left out): what stands on the "
+        "ground as classified, seen from above.",
+    )
 
 
 def difference_figures(cv: Canvas, before: np.ndarray, after: np.ndarray, frame: MapFrame) -> str:

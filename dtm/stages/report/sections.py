@@ -145,13 +145,21 @@ def maps_section(figures: list[str]) -> str:
 
 
 def classes_section(cloud: CloudSummary) -> str:
-    """Points per ASPRS class of the delivered cloud, and their share."""
+    """Points per ASPRS class of the delivered cloud and their share; with two strips or more, per strip too."""
     classes = np.flatnonzero(cloud.class_counts)
     rows = [
         [int(k), glossary.class_name(int(k)), int(n), f"{100 * n / max(cloud.points, 1):.2f} %"]
         for k, n in zip(classes, cloud.class_counts[classes], strict=True)
     ]
-    return section("classes", "Classification", grid(["class", "name", "points", "share"], rows))
+    body = grid(["class", "name", "points", "share"], rows)
+    if len(cloud.class_by_strip) > 1:
+        header = ["strip (point_source_id)"] + [f"{int(k)} {glossary.class_name(int(k))}" for k in classes] + ["all"]
+        per_strip = [
+            [s, *(int(counts[k]) for k in classes), int(counts.sum())]
+            for s, counts in sorted(cloud.class_by_strip.items())
+        ]
+        body += "<h3>Per strip (points)</h3>" + grid(header, per_strip, "wide")
+    return section("classes", "Classification", body)
 
 
 # --------------------------------------------------------------------------- raw flight, strip adjustment

@@ -136,3 +136,24 @@ def test_the_report_lists_the_warnings_beside_the_verdict(tmp_path):
     assert len(verdict["warnings"]) == 2
     text = _text(page)
     assert "Only 3 check points lie on the DTM" in text and "convex hull covers 0 %" in text
+
+
+def test_classes_per_strip_and_the_class_of_the_highest_point(tmp_path):
+    """Three strips of ground; a 10 m x 10 m block of strip 2 raised 5 m and called building (6)."""
+    path = _survey(tmp_path, strips=(1, 2, 3))
+    las = laspy.read(str(path))
+    x, y = np.asarray(las.x) - 1000.0, np.asarray(las.y) - 2000.0
+    roof = (x >= 25) & (x < 35) & (y >= 25) & (y < 35)
+    cls = np.asarray(las.classification).copy()
+    cls[roof] = 6
+    las.classification = cls
+    las.z = np.asarray(las.z) + np.where(roof, 5.0, 0.0)
+    las.write(str(path))
+    page, verdict, data, _ = _report(tmp_path, path, _dtm())
+    by_strip = data.cloud.class_by_strip
+    assert sorted(by_strip) == [1, 2, 3]
+    assert by_strip[2][6] == int(roof.sum()) and by_strip[1][6] == by_strip[3][6] == 0
+    assert sum(int(c[2]) for c in by_strip.values()) == int((~roof).sum())
+    assert "Per strip (points)" in page and "6 building" in page
+    grid = data.cloud.class_grid
+    assert (grid == 6).sum() == 100 and set(np.unique(grid)) == {2, 6}  # 1-m cells: the block's 100

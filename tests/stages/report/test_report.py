@@ -258,8 +258,9 @@ def test_every_section_is_there_and_every_image_has_a_legend(tmp_path):
         assert f'<section id="{section}">' in page
     figures = re.findall(r"<figure>(.*?)</figure>", page, flags=re.S)
     images = re.findall(r"<figure><svg ", page)
-    # relief, pulse and point density, strips, 2 differences, voids, residuals, uncertainty, flight lines, histogram
-    assert len(figures) == len(images) == 11
+    # relief, pulse and point density, strips, classes, 2 differences, voids, residuals, uncertainty, flight lines,
+    # histogram
+    assert len(figures) == len(images) == 12
     for fig in figures:
         caption = re.search(r"<figcaption>(.+?)</figcaption>", fig, flags=re.S)
         assert caption and len(caption.group(1)) > 20

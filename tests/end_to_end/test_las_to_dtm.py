@@ -228,9 +228,9 @@ def test_report_is_self_contained(run_dir):
     for section in ("acceptance", "summary", "inputs", "maps", "classes", "strips", "accuracy"):
         assert f'<section id="{section}">' in page
     figures = re.findall(r"<figure>(<svg .*?</svg>)<figcaption>", page, flags=re.S)
-    # relief, pulse and point density, strips, voids, check-point residuals, error histogram (the sample's
-    # three strips do not overlap on planar patches: no strip-difference maps)
-    assert len(figures) == 7
+    # relief, pulse and point density, strips, classes, voids, check-point residuals, error histogram (the
+    # sample's three strips do not overlap on planar patches: no strip-difference maps)
+    assert len(figures) == 8
     for svg in figures:
         ElementTree.fromstring(svg)  # well-formed
         for png in re.findall(r'href="data:image/png;base64,([^"]+)"', svg):

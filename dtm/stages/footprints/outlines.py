@@ -12,6 +12,7 @@ point (classes 3, 4, 5) above the DTM.  Heights are in the CRS's unit.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,11 +68,17 @@ def building_rows(labels: np.ndarray, count: int, tally: CellTally, dtm: np.ndar
     import shapely
     from scipy import ndimage
 
+    if count == 0:
+        empty = np.zeros(0)
+        fields = {"ground_z": empty, "roof_z": empty, "highest_z": empty, "height": empty}
+        return {"geometry": [], "fields": {**fields, "points": np.zeros(0, np.int64), "area": empty}}
     shape = labels.shape
     roof_count = tally.roof_count.reshape(shape)
     roof_top = np.where(roof_count > 0, tally.roof_top.reshape(shape), np.nan)
     index = np.arange(1, count + 1)
-    ground = ndimage.labeled_comprehension(dtm, labels, index, np.nanmedian, float, np.nan)
+    with warnings.catch_warnings():  # a building wholly off the DTM (nodata under it): its ground_z is NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ground = ndimage.labeled_comprehension(dtm, labels, index, np.nanmedian, float, np.nan)
     roof = ndimage.labeled_comprehension(roof_top, labels, index, np.nanmedian, float, np.nan)
     highest = ndimage.labeled_comprehension(roof_top, labels, index, np.nanmax, float, np.nan)
     points = ndimage.sum(roof_count, labels, index).astype(np.int64)

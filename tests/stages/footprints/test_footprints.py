@@ -70,3 +70,17 @@ def test_canopy_height_is_the_vegetation_above_the_dtm(survey):
     chm = canopy_height(tally, dtm)
     assert np.isfinite(chm).sum() == 100  # 10 m x 10 m of trees
     np.testing.assert_allclose(chm[np.isfinite(chm)], 4.0)
+
+
+def test_a_survey_without_buildings_gives_an_empty_layer(tmp_path):
+    x, y, z, cls = _block(1000, 1100, 2000, 2100, 100.0, 2, spacing=2.0)
+    tally = CellTally.empty(SHAPE)
+    tally.add(flat_cells(x, y, TRANSFORM, SHAPE), z, cls)
+    labels, count = building_labels(tally.roof_count.reshape(SHAPE))
+    rows = building_rows(labels, count, tally, np.full(SHAPE, 100.0), TRANSFORM)
+    path = tmp_path / "buildings.gpkg"
+    crs = pyproj.CRS.from_epsg(25830)
+    write_gpkg(path, rows["geometry"], rows["fields"], crs=crs, layer="buildings", geometry_type="MultiPolygon")
+    info = pyogrio.read_info(str(path))
+    assert count == 0 and info["features"] == 0 and info["geometry_type"] == "MultiPolygon"
+    assert list(info["fields"]) == ["ground_z", "roof_z", "highest_z", "height", "points", "area"]

@@ -1,0 +1,43 @@
+"""Parameters of ``classify_water``: detection from the points, and the optional polygon layer."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from dtm.common import glossary
+from pipeline.config import InputFile, StrictModel
+from pipeline.stage import StageParams
+
+
+class DetectParams(StrictModel):
+    """Water found in the ground points (:func:`dtm.stages.classify_water.water.water_from_points`)."""
+
+    enabled: bool = Field(True, description="look for water in the ground points")
+    cell_size: float = glossary.cell_size(1.0)
+    window: float = Field(
+        3.0, gt=0, description="half-width (m) of the square window of cells a plane is fitted to around each cell"
+    )
+    min_points: int = Field(10, ge=3, description="fewest ground points in a window for its plane to count")
+    max_slope: float = Field(0.008, ge=0, description="steepest fitted plane (rise over run) that can be water")
+    max_rms: float = Field(0.1, gt=0, description="largest RMS (m) of the ground points about their plane")
+    step: float = Field(0.1, ge=0, description="largest height step (m) between neighbouring cells of one water body")
+    min_area: float = Field(100.0, ge=0, description="smallest water body (m2) kept")
+    grow: float = Field(
+        4.0, ge=0, description="points this far (m) beyond a water body's cells, at its level, are water too"
+    )
+    tolerance: float = Field(0.15, ge=0, description="a water point lies within this height (m) of the water level")
+
+
+class ClassifyWaterParams(StageParams):
+    detect: DetectParams = Field(default_factory=DetectParams, description="water found in the ground points")
+    polygons: InputFile | None = Field(
+        None,
+        description="GeoPackage or shapefile of water polygons (e.g. a hydrography layer), in the points' CRS; "
+        "none = no polygons",
+    )
+    polygon_height: float = Field(
+        0.3, ge=0, description="inside a polygon, points within this height (m) of the water level become water"
+    )
+    polygon_window: float = Field(
+        10.0, gt=0, description="inside a polygon, the water level is the lowest ground within this distance (m)"
+    )

@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> rasterize -> hillshade, contours, accuracy;
+parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> classify_water -> rasterize -> hillshade, contours, accuracy;
 export_las, export_tiles; report (last: it reads every stage's metrics).
 """
 
@@ -50,6 +50,7 @@ def _stages_plugin() -> Plugin:
     """The whole plugin: imports every stage (and with them NumPy, pydantic, SciPy, ...)."""
     from dtm.stages.accuracy.stage import Accuracy
     from dtm.stages.classify_ground.stage import ClassifyGround
+    from dtm.stages.classify_water.stage import ClassifyWater
     from dtm.stages.contours.stage import Contours
     from dtm.stages.denoise.stage import Denoise
     from dtm.stages.export_las.stage import ExportLas
@@ -71,6 +72,7 @@ def _stages_plugin() -> Plugin:
             StripAdjust,
             Denoise,
             ClassifyGround,
+            ClassifyWater,
             Rasterize,
             Hillshade,
             Contours,

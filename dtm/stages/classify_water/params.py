@@ -21,7 +21,7 @@ class DetectParams(StrictModel):
     max_slope: float = Field(0.008, ge=0, description="steepest fitted plane (rise over run) that can be water")
     max_rms: float = Field(0.1, gt=0, description="largest RMS (m) of the ground points about their plane")
     step: float = Field(0.1, ge=0, description="largest height step (m) between neighbouring cells of one water body")
-    min_area: float = Field(100.0, ge=0, description="smallest water body (m2) kept")
+    min_area: float = Field(70.0, ge=0, description="smallest water body (m2) kept")
     grow: float = Field(
         4.0, ge=0, description="points this far (m) beyond a water body's cells, at its level, are water too"
     )

@@ -39,7 +39,7 @@ class ExportLasParams(StageParams):
 class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
     """classified points to points.laz."""
 
-    inputs = ("points_classified",)
+    inputs = ("points_water",)
     outputs: ClassVar = {"points_export": "points.laz"}
     products: ClassVar = {"points_export": "points.laz"}
 
@@ -61,7 +61,7 @@ class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
 
         from dtm.common.clouds import open_las_writer
 
-        src_path = ctx.inputs["points_classified"]
+        src_path = ctx.inputs["points_water"]
         if "points_per_input" in ctx.outputs:
             write_per_input(ctx, src_path, ctx.outputs["points_per_input"])
             if "points_copc" in ctx.outputs:

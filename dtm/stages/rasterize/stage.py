@@ -1,6 +1,6 @@
 """Stage ``rasterize``: the elevation rasters of the survey.
 
-``dtm.tif`` (bare earth from the ground points by ``method``: ``tin``,
+``dtm.tif`` (bare earth from the ground and water points, classes 2 and 9, by ``method``: ``tin``,
 ``idw`` or ``nearest``), ``dsm.tif`` (the highest non-noise return per
 cell), ``ndsm.tif`` (DSM - DTM, at least 0), ``density.tif`` (points per
 cell) and, when the points carry ``sigma_vertical``, ``dtm_uncertainty.tif``.
@@ -47,10 +47,10 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="6", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
-    inputs = ("points_classified",)
+    inputs = ("points_water",)
     outputs: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
     products: ClassVar = {"dtm": "dtm.tif", "dsm": "dsm.tif", "ndsm": "ndsm.tif", "density": "density.tif"}
 
@@ -73,7 +73,7 @@ class Rasterize(Stage, name="rasterize", version="5", params=RasterizeParams):
         from pipeline.tiling import run_tiled
 
         p = ctx.params
-        src = ctx.inputs["points_classified"]
+        src = ctx.inputs["points_water"]
         info = cloud_info(src)
         _check_points(ctx, info)
         tiles = _Tiles(ctx, src, info, task_folder(ctx.workdir, self.name))

@@ -242,7 +242,7 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
     masks = []
     for part in parts:
         cls = np.load(part / "classification.npy")
-        masks.append((cls == glossary.GROUND, glossary.usable(cls, np.load(part / "withheld.npy"))))
+        masks.append((np.isin(cls, glossary.BARE_EARTH), glossary.usable(cls, np.load(part / "withheld.npy"))))
     del cls
     ground = np.empty((sum(int(is_ground.sum()) for is_ground, _ in masks), 3))
     highest = count = None

@@ -45,7 +45,7 @@ def _enabled(config, name: str) -> bool:
 class Report(Stage, name="report", version="9", params=ReportParams):
     """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
 
-    inputs = ("dtm", "density", "points_classified")
+    inputs = ("dtm", "density", "points_water")
     outputs: ClassVar = {"report": "report.html", "acceptance": "acceptance.json"}
     products: ClassVar = {"report": "report.html", "acceptance": "qc/acceptance.json"}
     reads_metrics = True
@@ -88,7 +88,7 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
     dtm, transform, _, resolution = read_raster(ctx.inputs["dtm"])
     density, _, _, _ = read_raster(ctx.inputs["density"])
     cloud = summarise_cloud(
-        ctx.inputs["points_classified"],
+        ctx.inputs["points_water"],
         origin=(transform.c, transform.f),
         resolution=resolution,
         shape=dtm.shape,

@@ -85,7 +85,7 @@ def test_rough_ground_at_one_level_is_not_water():
 @pytest.mark.parametrize(("side", "kept"), [(12.0, False), (24.0, True)])
 def test_a_level_patch_is_water_only_above_the_minimum_area(side, kept):
     """Level cells are those whose whole window is level: a square patch of side s has about (s - 6)**2 m2 of them,
-    36 m2 for 12 m (under the 100 m2 minimum), 324 m2 for 24 m."""
+    36 m2 for 12 m (under the 70 m2 minimum), 324 m2 for 24 m."""
     rng = np.random.default_rng(3)
     x, y = rng.uniform(0, 60, 8000), rng.uniform(0, 60, 8000)
     patch = (np.abs(x - 30) < side / 2) & (np.abs(y - 30) < side / 2)
@@ -109,7 +109,7 @@ def test_only_unclassified_and_ground_points_become_water():
 
 
 def test_reach_covers_the_window_the_growth_and_the_minimum_area():
-    assert reach(1.0, 3.0, 100.0, 4.0) == 4.0 + 3.0 + 2.0 + 100.0 + 1.0
+    assert reach(1.0, 3.0, 70.0, 4.0) == 4.0 + 3.0 + 2.0 + 70.0 + 1.0
     assert reach(2.0, 4.0, 100.0, 0.0) == 4.0 + 4.0 + 50.0 + 1.0
 
 

@@ -1,4 +1,4 @@
-"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) line layers written with pyogrio."""
+"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) layers written with pyogrio; polygon layers read."""
 
 from __future__ import annotations
 
@@ -20,8 +20,10 @@ def line_wkb(xy: np.ndarray) -> bytes:
     return struct.pack("<BII", 1, 2, len(coords)) + coords.tobytes()
 
 
-def write_gpkg(path: Path, geometry: list[bytes], fields: dict[str, np.ndarray], *, crs, layer: str) -> None:
-    """Write WKB LineStrings with attribute columns to a GeoPackage, reproducibly.
+def write_gpkg(
+    path: Path, geometry: list[bytes], fields: dict[str, np.ndarray], *, crs, layer: str, kind: str = "LineString"
+) -> None:
+    """Write WKB geometries of type *kind* (GDAL's name) with attribute columns to a GeoPackage, reproducibly.
 
     The GeoPackage's ``last_change`` timestamps are fixed (GDAL's
     ``OGR_CURRENT_DATE``) so the same lines give the same bytes on every run:
@@ -34,7 +36,7 @@ def write_gpkg(path: Path, geometry: list[bytes], fields: dict[str, np.ndarray],
     pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
     wkb = np.empty(len(geometry), dtype=object)
     wkb[:] = list(geometry)
-    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
+    wkt = None if crs is None else crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
     pyogrio.raw.write(
         str(path),
         geometry=wkb,
@@ -42,7 +44,7 @@ def write_gpkg(path: Path, geometry: list[bytes], fields: dict[str, np.ndarray],
         fields=list(fields),
         layer=layer,
         driver="GPKG",
-        geometry_type="LineString",
+        geometry_type=kind,
         crs=wkt,
         dataset_options={"VERSION": GPKG_VERSION},
     )
@@ -52,6 +54,17 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
     """Write 2D line strings with an ``elevation`` attribute to a GeoPackage (:func:`write_gpkg`)."""
     elevation = np.array([level for level, _ in lines], dtype=np.float64)
     write_gpkg(path, [line_wkb(xy) for _, xy in lines], {"elevation": elevation}, crs=crs, layer=layer)
+
+
+def polygon_z_wkb(rings: list[np.ndarray], z: float) -> bytes:
+    """A PolygonZ as ISO WKB (type 1003): *rings* of (n, 2) coordinates, every vertex at height *z*."""
+    import struct
+
+    out = [struct.pack("<BII", 1, 1003, len(rings))]
+    for ring in rings:
+        xyz = np.column_stack((np.asarray(ring, dtype=np.float64)[:, :2], np.full(len(ring), float(z))))
+        out.append(struct.pack("<I", len(xyz)) + np.ascontiguousarray(xyz, dtype="<f8").tobytes())
+    return b"".join(out)
 
 
 def wkb_polygons(wkb: bytes) -> list[list[np.ndarray]]:

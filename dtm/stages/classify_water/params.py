@@ -26,10 +26,35 @@ class DetectParams(StrictModel):
         4.0, ge=0, description="points this far (m) beyond a water body's cells, at its level, are water too"
     )
     tolerance: float = Field(0.15, ge=0, description="a water point lies within this height (m) of the water level")
+    min_bank: float = Field(
+        0.15,
+        description="a water body whose banks (the ground around it) rise less than this (m, their median) above its "
+        "level is no water: its points get their class back",
+    )
+
+
+class BodiesParams(StrictModel):
+    """Water bodies: the outlines of the water points, one level each (:func:`dtm.common.water_bodies.water_bodies`)."""
+
+    enabled: bool = Field(
+        True, description="outline the water bodies in water.gpkg; rasterize flattens the DTM in them"
+    )
+    cell_size: float = glossary.cell_size(1.0)
+    close: int = Field(
+        2, ge=0, description="cells of a morphological closing that join a body's water points across dropouts"
+    )
+    min_area: float = Field(200.0, ge=0, description="smallest water body (m2) outlined")
+    max_spread: float = Field(
+        0.3,
+        ge=0,
+        description="a body whose water heights spread more (m, 5th to 95th percentile) is outlined but not "
+        "flattened (a river that falls)",
+    )
 
 
 class ClassifyWaterParams(StageParams):
     detect: DetectParams = Field(default_factory=DetectParams, description="water found in the ground points")
+    bodies: BodiesParams = Field(default_factory=BodiesParams, description="water bodies and hydro-flattening")
     polygons: InputFile | None = Field(
         None,
         description="GeoPackage or shapefile of water polygons (e.g. a hydrography layer), in the points' CRS; "

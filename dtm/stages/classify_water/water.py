@@ -17,6 +17,8 @@ and the region growing of Höfle et al. (2009, doi:10.1002/esp.1853):
 4. points within ``tolerance`` of the level of a water cell, in it or within
    ``grow`` of it, become water (:func:`water_points`).
 
+A fifth step, the banks of each body (water lies below them), needs whole
+bodies and runs after the tiles (:mod:`dtm.stages.classify_water.bodies`).
 Departures (docs/stages/classify_water.md): no intensity and no dropout
 model (both tried on lidR's Topography.laz: water returns there are bright,
 near-nadir specular echoes); cells instead of points; one pass of growth.

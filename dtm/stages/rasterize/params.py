@@ -39,3 +39,8 @@ class RasterizeParams(StageParams):
     nodata_distance: float = glossary.nodata_distance(50.0)
     idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
     tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")
+    hydro_flatten: bool = Field(
+        True,
+        description="DTM cells whose centre lies in a flat water body of classify_water's water.gpkg take the "
+        "body's level (hydro-flattening)",
+    )

@@ -55,7 +55,12 @@ class TileCloud:
 
 
 def tile_rasters(
-    cloud: TileCloud, core: Grid, wide: Grid, crop: tuple[slice, slice], params: RasterizeParams
+    cloud: TileCloud,
+    core: Grid,
+    wide: Grid,
+    crop: tuple[slice, slice],
+    params: RasterizeParams,
+    flat: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
@@ -64,7 +69,9 @@ def tile_rasters(
     ``ndsm`` (DSM - DTM, at least 0), ``density`` (points per cell) and,
     with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
     the DSM's, where the DTM has a value).  With the TIN and no sigma, the
-    ground points are handed over: *cloud* no longer holds them.
+    ground points are handed over: *cloud* no longer holds them.  *flat*:
+    a water level per core cell (NaN: none) that the DTM takes there
+    (hydro-flattening, :mod:`dtm.common.water_bodies`).
     """
     max_cells = params.nodata_distance / params.resolution
     dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
@@ -74,6 +81,8 @@ def tile_rasters(
         if params.method == "tin" and cloud.sigma is None:
             ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
         dtm = interpolate_dtm(ground, core, params)  # collinear or coincident ground points: all nodata
+    if flat is not None:
+        dtm = np.where(np.isfinite(flat), flat, dtm)
     dsm = np.where(np.isnan(dsm), dtm, dsm)  # no return at all: the surface is the ground
     ndsm = np.where(np.isnan(dsm) | np.isnan(dtm), np.nan, np.maximum(dsm - dtm, 0.0))
     density = cloud.count[crop].astype(np.float64)

@@ -56,10 +56,11 @@ class Rasterize(Stage, name="rasterize", version="6", params=RasterizeParams):
 
     def declare(self, params: RasterizeParams, config: BaseModel) -> StageIO:
         outputs, products = dict(self.outputs), dict(self.products)
+        inputs = tuple(self.inputs) + (("water_bodies",) if _flattens(params, config) else ())
         geo = getattr(config.stages, "georeference", None)
         if config.input.format != "las" and geo is not None and geo.uncertainty is not None:
             outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
-        return StageIO(tuple(self.inputs), outputs, products)
+        return StageIO(inputs, outputs, products)
 
     config_keys = ("tiling.buffer",)
 
@@ -115,12 +116,29 @@ class Rasterize(Stage, name="rasterize", version="6", params=RasterizeParams):
         )
 
 
+def _flattens(params: RasterizeParams, config: BaseModel) -> bool:
+    """Whether the DTM is flattened in ``classify_water``'s water bodies (that stage and its bodies enabled)."""
+    water = getattr(config.stages, "classify_water", None)
+    return params.hydro_flatten and water is not None and water.enabled and water.bodies.enabled
+
+
 def _check_points(ctx: StageContext[RasterizeParams], info: CloudInfo) -> None:
     """Refuse an empty cloud, and points without the sigmas an uncertainty raster needs."""
     if info.count == 0:
         raise InputDataError(f"{glossary.input_names(ctx.config)}: the point cloud is empty: there is nothing to grid.")
     if "dtm_uncertainty" in ctx.outputs and "sigma_vertical" not in info.dimensions:
         raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
+
+
+def _with_water(tasks: list[RasterTask], path: Path, units: Units) -> list[RasterTask]:
+    """The tasks with the water bodies to flatten the DTM in (the file's digest in their kept tiles' key)."""
+    import hashlib
+    from dataclasses import replace
+
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return [
+        replace(t, water=str(path), water_digest=digest, water_units=(units.horizontal, units.vertical)) for t in tasks
+    ]
 
 
 def _median_sigma(path: Path, units: Units) -> float | None:
@@ -177,6 +195,8 @@ class _Tiles:
         )
         params = p.model_dump(mode="json")
         tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names)
+        if "water_bodies" in ctx.inputs:
+            tasks = _with_water(tasks, Path(ctx.inputs["water_bodies"]), info.units)
         if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
             check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
         return tasks

@@ -97,7 +97,9 @@ class RasterTask:
     survey's *grid*; *source*: the tile's columns; *result*: where its
     ``.npy`` windows go; *weight*: its points; *params*: the stage's
     ``model_dump``; *vertical*: metres per height unit of the CRS;
-    *outputs*: the rasters to write.
+    *outputs*: the rasters to write; *water*: ``water.gpkg`` to flatten
+    the DTM in (its SHA-256 *water_digest*; *water_units*: metres per
+    horizontal and vertical unit of its coordinates).
     """
 
     tile: int
@@ -110,6 +112,9 @@ class RasterTask:
     buffer: float
     vertical: float
     outputs: tuple[str, ...]
+    water: str | None = None
+    water_digest: str | None = None
+    water_units: tuple[float, float] = (1.0, 1.0)
 
 
 def raster_tasks(
@@ -206,7 +211,14 @@ def rasterize_tile(task: RasterTask) -> dict:
     params = RasterizeParams.model_validate(task.params)
     core, wide, crop = tile_windows(task.grid, task.window, task.buffer)
     cloud = read_tile_cloud(Path(task.source), wide, sigma="dtm_uncertainty" in task.outputs)
-    rasters = tile_rasters(cloud, core, wide, crop, params)
+    flat = None
+    if task.water is not None:
+        from dtm.common.units import Units
+        from dtm.common.water_bodies import burn_levels, read_water_bodies
+
+        bodies = read_water_bodies(Path(task.water), Units(*task.water_units))
+        flat = burn_levels(bodies, (core.rows, core.cols), core.transform)
+    rasters = tile_rasters(cloud, core, wide, crop, params, flat=flat)
     vertical = task.vertical
     folder = Path(task.result)
     folder.mkdir(parents=True, exist_ok=True)

@@ -64,14 +64,49 @@ def test_the_lake_is_water_and_the_valley_ground(one_lake):
     assert m["water"] == m["from_points"] == m["ground_to_water"] == lake.sum() and m["from_polygons"] == 0
 
 
-def test_the_dtm_keeps_the_water_surface(one_lake):
-    root, stages, _ = one_lake
-    dtm, transform, *_ = read_raster(root / "out" / "dtm.tif")
+def _centre_cells(root: Path, product: str = "dtm.tif") -> np.ndarray:
+    dtm, transform, *_ = read_raster(root / product)
     col = int((X0 + 60.0 - transform.c) / transform.a)
     row = int((Y0 + 60.0 - transform.f) / transform.e)
-    centre = dtm[row - 15 : row + 15, col - 15 : col + 15]  # 15 m around the centre: all lake
-    assert np.all(np.abs(centre - LEVEL) < 0.1)
-    assert stages["rasterize"]["metrics"]["ground_points"] > 0
+    return dtm[row - 15 : row + 15, col - 15 : col + 15]  # 15 m around the centre: all lake
+
+
+def test_the_dtm_is_flat_at_the_water_level_over_the_lake(one_lake):
+    root, stages, _ = one_lake
+    centre = _centre_cells(root / "out")
+    assert len(np.unique(centre)) == 1 and abs(float(centre[0, 0]) - LEVEL) < 0.01
+    bodies = stages["classify_water"]["metrics"]["bodies"]
+    assert bodies["polygons"] == bodies["flattened"] == 1
+    assert float(centre[0, 0]) == np.float32(bodies["levels_m"][0])
+
+
+def test_water_gpkg_is_one_polygon_z_at_the_level_in_a_geopackage_1_2(one_lake):
+    import sqlite3
+
+    import pyogrio
+    import pyogrio.raw
+
+    path = one_lake[0] / "out" / "water.gpkg"
+    info = pyogrio.read_info(path)
+    assert info["geometry_type"] == "Polygon Z" and info["features"] == 1 and info["crs"] == "EPSG:25830"
+    with sqlite3.connect(path) as db:
+        assert db.execute("pragma user_version").fetchone()[0] == 10200  # GeoPackage 1.2
+    meta, _, geometry, values = pyogrio.raw.read(path, columns=["level", "flattened", "area_m2"])
+    fields = dict(zip(meta["fields"], values, strict=True))
+    wkb = bytes(geometry[0])
+    n = int(np.frombuffer(wkb, "<u4", 1, 9)[0])
+    xyz = np.frombuffer(wkb, "<f8", 3 * n, 13).reshape(n, 3)
+    assert np.all(xyz[:, 2] == fields["level"][0]) and fields["flattened"][0] == 1
+    assert abs(fields["area_m2"][0] - np.pi * 25**2) < 2 * np.pi * 25  # within a metre of the shore
+    r = np.hypot(xyz[:, 0] - X0 - 60, xyz[:, 1] - Y0 - 60)
+    assert np.all((r > 22) & (r < 27))
+
+
+def test_without_hydro_flattening_the_dtm_follows_the_water_points(one_lake):
+    root, _, _ = one_lake
+    run_until(root / "water.yaml", "rasterize", root / "rough", "stages.rasterize.hydro_flatten=false")
+    centre = _centre_cells(root / "rough")
+    assert len(np.unique(centre)) > 100 and np.all(np.abs(centre - LEVEL) < 0.1)
 
 
 def test_disabled_the_stage_passes_the_ground_classes_on(one_lake):
@@ -90,12 +125,15 @@ def test_tiled_equals_untiled_with_lakes_astride_the_tile_edges(tmp_path):
     xyz, lake = _lakes(300.0, lakes)
     las = write_las(tmp_path / "lakes.las", xyz)
     config = _config(tmp_path, las)
-    untiled = run_until(config, "classify_water", tmp_path / "untiled", "tiling.enabled=false")
-    tiled = run_until(config, "classify_water", tmp_path / "tiled", "tiling.size=100")
+    untiled = run_until(config, "rasterize", tmp_path / "untiled", "tiling.enabled=false")
+    tiled = run_until(config, "rasterize", tmp_path / "tiled", "tiling.size=100")
     assert tiled["classify_water"]["metrics"]["tiling"]["tiles"] == 9
     a, b = _classes(untiled["classify_water"]), _classes(tiled["classify_water"])
     assert (a[lake] == 9).mean() > 0.99 and (a[~lake] == 9).mean() < 0.001
     np.testing.assert_array_equal(b, a)
+    np.testing.assert_array_equal(
+        read_raster(tmp_path / "tiled" / "dtm.tif")[0], read_raster(tmp_path / "untiled" / "dtm.tif")[0]
+    )
     narrow = run_until(config, "classify_water", tmp_path / "narrow", "tiling.size=100", "tiling.buffer=5")
     shore = lake & (xyz[:, 1] < 100)
     assert np.any(_classes(narrow["classify_water"])[shore] != 9) and np.all(a[shore] == 9)
@@ -157,3 +195,28 @@ def test_polygons_in_another_crs_are_one_sentence_exit_3(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert "water.gpkg" in err and "ETRS89 / UTM zone 31N" in err and "reproject" in err
     assert json.loads((tmp_path / "out" / "run.json").read_text())["status"] == "failed"
+
+
+def test_a_level_car_park_is_given_its_ground_class_back(tmp_path):
+    """A level 40 m x 40 m paved square draining away at 2 % on every side: level enough to be found, but its
+    banks do not rise above it, so its points are ground again; the lake beside it stays water."""
+    rng = np.random.default_rng(4)
+    xyz, lake = _lakes(160.0, [(120.0, 80.0, 25.0)])
+    x, y = xyz[:, 0], xyz[:, 1]
+    d = np.maximum(np.abs(x - 40), np.abs(y - 80))
+    park = (d < 20) & ~lake
+    near = (d < 60) & (x < 90)
+    xyz[near, 2] = np.where(park[near], 103.0, 103.0 - 0.02 * (d[near] - 20)) + rng.normal(0, 0.02, near.sum())
+    las = write_las(tmp_path / "park.las", xyz)
+    got = run_until(_config(tmp_path, las), "classify_water", tmp_path / "out")
+    cls = _classes(got["classify_water"])
+    assert not np.any(cls[park] == 9) and np.mean(cls[park] == 2) > 0.99
+    assert np.all(cls[lake] == 9)
+    m = got["classify_water"]["metrics"]
+    assert m["given_back"] >= park.sum() * 0.9 and m["water"] == int((cls == 9).sum())
+    assert m["bodies"]["refused_cells"] > 1000
+    # without the banks' test the square is found: level, 1,600 m2
+    loose = run_until(
+        _config(tmp_path, las), "classify_water", tmp_path / "loose", "stages.classify_water.detect.min_bank=-100"
+    )
+    assert np.mean(_classes(loose["classify_water"])[park] == 9) > 0.95

@@ -20,7 +20,7 @@ CENTRE, RADIUS, LEVEL = (60.0, 60.0), 25.0, 100.6
 
 
 def _detect(**changes) -> dict:
-    return DetectParams(**changes).model_dump(exclude={"enabled"})
+    return DetectParams(**changes).model_dump(exclude={"enabled", "min_bank"})  # min_bank: the bodies step
 
 
 def _valley(seed: int = 0, tilt: float = 0.0, density: float = 2.0, noise: float = 0.02):

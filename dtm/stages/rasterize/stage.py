@@ -35,6 +35,7 @@ from dtm.stages.rasterize.tile_rasters import (
     raster_tasks,
     rasterize_tile,
     reach,
+    tile_windows,
 )
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
@@ -131,14 +132,27 @@ def _check_points(ctx: StageContext[RasterizeParams], info: CloudInfo) -> None:
 
 
 def _with_water(tasks: list[RasterTask], path: Path, units: Units) -> list[RasterTask]:
-    """The tasks with the water bodies to flatten the DTM in (the file's digest in their kept tiles' key)."""
+    """The tasks with the water bodies to flatten the DTM in; each kept tile's key holds the bodies over its cells."""
     import hashlib
     from dataclasses import replace
 
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    return [
-        replace(t, water=str(path), water_digest=digest, water_units=(units.horizontal, units.vertical)) for t in tasks
-    ]
+    from dtm.common.water_bodies import read_water_bodies
+
+    bodies = read_water_bodies(path, units)
+    boxes = [(rings[0].min(axis=0), rings[0].max(axis=0)) for rings, _ in bodies]
+    out = []
+    for t in tasks:
+        core, _, _ = tile_windows(t.grid, t.window, t.buffer)
+        res = core.resolution
+        x0, y1 = core.xmin + core.col0 * res, core.ymax - core.row0 * res
+        x1, y0 = x0 + core.cols * res, y1 - core.rows * res
+        digest = hashlib.sha256()
+        for (lo, hi), (rings, level) in zip(boxes, bodies, strict=True):
+            if lo[0] <= x1 and hi[0] >= x0 and lo[1] <= y1 and hi[1] >= y0:
+                digest.update(np.float64(level).tobytes() + b"".join(np.ascontiguousarray(r).tobytes() for r in rings))
+        units_pair = (units.horizontal, units.vertical)
+        out.append(replace(t, water=str(path), water_digest=digest.hexdigest(), water_units=units_pair))
+    return out
 
 
 def _median_sigma(path: Path, units: Units) -> float | None:

@@ -11,7 +11,9 @@
   class is its echo's in ``truth/points.laz`` (matched by GPS time, channel,
   return and scan angle): recall and precision of class 9, and the same on
   the true water echoes within 0.3 m of the water level (the truth classes
-  the echoes on the river's vertical banks by their plan position).
+  the echoes on the river's vertical banks by their plan position); and the
+  hydro-flattened DTM against the true terrain on the water and open
+  ground cells (``accuracy.json``'s figures by land cover).
 
 Run from the repository root::
 
@@ -118,7 +120,8 @@ def flight(work: Path) -> dict:
     text = (ROOT / "configs" / "flight.yaml").read_text()
     text = text.replace("../data_samples/flight_ldmrs", str(work / "flight_ldmrs"))
     (work / "flight.yaml").write_text(text)
-    stages = _run(work / "flight.yaml", work / "flight", "classify_water")
+    stages = _run(work / "flight.yaml", work / "flight", "accuracy")
+    cover = json.loads((work / "flight" / "accuracy.json").read_text())["truth"]["by_land_cover"]
     points = laspy.read(stages["classify_water"]["outputs"]["points_water"]["file"])
     cls, z = _truth_of(points, laspy.read(str(work / "flight_ldmrs" / "truth" / "points.laz")))
     found, truth = np.asarray(points.classification) == 9, cls == 9
@@ -129,6 +132,9 @@ def flight(work: Path) -> dict:
         **scores(found, truth),
         "reference_on_level": int(on_level.sum()),
         "recall_on_level": round(100.0 * (found & on_level).sum() / max(on_level.sum(), 1), 2),
+        "dtm_water_rms_m": round(cover["9"]["rmse"], 3),
+        "dtm_water_mean_m": round(cover["9"]["mean"], 3),
+        "dtm_ground_rms_m": round(cover["2"]["rmse"], 3),
     }
 
 
@@ -153,6 +159,10 @@ def main(argv: list[str] | None = None) -> int:
         if "recall_on_level" in r:
             print(
                 f"  true water echoes within 0.3 m of the level: {r['reference_on_level']:,}, recall {r['recall_on_level']:.2f} %"
+            )
+            print(
+                f"  DTM - truth: water cells RMS {r['dtm_water_rms_m']:.3f} m (mean {r['dtm_water_mean_m']:+.3f} m), "
+                f"open ground RMS {r['dtm_ground_rms_m']:.3f} m"
             )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")

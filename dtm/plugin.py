@@ -1,7 +1,7 @@
 """The airborne LiDAR -> DTM stages, registered with the engine as one plugin.
 
 Stage order (the natural order of the graph):
-parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> classify_objects -> rasterize -> hillshade, contours, footprints, accuracy;
+parse -> georeference (raw formats) -> strip_adjust -> denoise -> classify_ground -> classify_water -> classify_objects -> rasterize -> hillshade, contours, footprints, accuracy;
 export_las, export_tiles; report (last: it reads every stage's metrics).
 """
 
@@ -51,6 +51,7 @@ def _stages_plugin() -> Plugin:
     from dtm.stages.accuracy.stage import Accuracy
     from dtm.stages.classify_ground.stage import ClassifyGround
     from dtm.stages.classify_objects.stage import ClassifyObjects
+    from dtm.stages.classify_water.stage import ClassifyWater
     from dtm.stages.contours.stage import Contours
     from dtm.stages.denoise.stage import Denoise
     from dtm.stages.export_las.stage import ExportLas
@@ -73,6 +74,7 @@ def _stages_plugin() -> Plugin:
             StripAdjust,
             Denoise,
             ClassifyGround,
+            ClassifyWater,
             ClassifyObjects,
             Rasterize,
             Hillshade,

@@ -16,8 +16,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-#: The stages that keep their tiles, in the order of the graph.
-TILED = ("denoise", "classify_ground", "classify_objects", "rasterize")
+#: The stages that keep their tiles, in the order of the graph.  ``classify_water`` also judges whole water
+#: bodies after its tiles: a change that reaches a body may change it beyond the reach counted here.
+TILED = ("denoise", "classify_ground", "classify_water", "classify_objects", "rasterize")
 
 
 def plan_tiles(config: Any, changed: dict[str, str], previous: dict[str, Any], output: Path) -> dict[str, str]:

@@ -307,3 +307,24 @@ def check_crs_setting(value: str | None) -> str | None:
     except pyproj.exceptions.CRSError:
         raise ValueError(f"'{value}' is not a CRS pyproj knows (use e.g. EPSG:25830 or auto-utm)") from None
     return value
+
+
+def horizontal_crs_matches(layer_crs: str | None, points_crs: pyproj.CRS | None) -> str | None:
+    """Why a vector layer's CRS does not fit the points' (their horizontal parts compared); None when it does."""
+    import pyproj
+
+    if points_crs is None:
+        return None  # points without a CRS: nothing to compare with
+    if not layer_crs:
+        return f"the layer has no CRS; write it in the points' CRS ({points_crs.name})"
+    try:
+        layer = pyproj.CRS.from_user_input(layer_crs)
+    except pyproj.exceptions.CRSError:
+        return f"its CRS ({layer_crs[:60]}) cannot be read"
+
+    def horizontal(crs):
+        return crs.sub_crs_list[0] if crs.is_compound else crs
+
+    if horizontal(layer).equals(horizontal(points_crs), ignore_axis_order=True):
+        return None
+    return f"its CRS is {layer.name}, the points' {horizontal(points_crs).name}; reproject the layer"

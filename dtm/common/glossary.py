@@ -21,6 +21,9 @@ LOW_NOISE = 7
 WATER = 9
 HIGH_NOISE = 18
 
+#: The classes the DTM is made of: the bare earth is the ground and the water surface on it.
+BARE_EARTH = (GROUND, WATER)
+
 #: ASPRS class names (LAS 1.4 R15, Table 17)
 CLASS_NAMES = {
     0: "created, never classified",

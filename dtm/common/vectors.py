@@ -1,4 +1,4 @@
-"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) layers written with pyogrio."""
+"""Vector products: GeoPackage 1.2 (:data:`GPKG_VERSION`) layers written with pyogrio; polygon layers read."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def write_gpkg(
     pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
     wkb = np.empty(len(geometry), dtype=object)
     wkb[:] = list(geometry)
-    wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
+    wkt = None if crs is None else crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
     pyogrio.raw.write(
         str(path),
         geometry=wkb,
@@ -60,3 +60,74 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
     """Write 2D line strings with an ``elevation`` attribute to a GeoPackage (:func:`write_gpkg`)."""
     elevation = np.array([level for level, _ in lines], dtype=np.float64)
     write_gpkg(path, [line_wkb(xy) for _, xy in lines], {"elevation": elevation}, crs=crs, layer=layer)
+
+
+def polygon_z_wkb(rings: list[np.ndarray], z: float) -> bytes:
+    """A PolygonZ as ISO WKB (type 1003): *rings* of (n, 2) coordinates, every vertex at height *z*."""
+    import struct
+
+    out = [struct.pack("<BII", 1, 1003, len(rings))]
+    for ring in rings:
+        xyz = np.column_stack((np.asarray(ring, dtype=np.float64)[:, :2], np.full(len(ring), float(z))))
+        out.append(struct.pack("<I", len(xyz)) + np.ascontiguousarray(xyz, dtype="<f8").tobytes())
+    return b"".join(out)
+
+
+def wkb_polygons(wkb: bytes) -> list[list[np.ndarray]]:
+    """The polygons of a WKB Polygon or MultiPolygon (ISO or EWKB, any of Z and M): each a list of (n, 2) rings."""
+    import struct
+
+    def geometry(at: int) -> tuple[list[list[np.ndarray]], int]:
+        order = "<" if wkb[at] == 1 else ">"
+        (kind,) = struct.unpack_from(order + "I", wkb, at + 1)
+        at += 5
+        dims = 2 + bool(kind & 0x80000000) + bool(kind & 0x40000000)  # EWKB flags
+        kind &= 0x0FFFFFFF
+        if kind >= 1000:  # ISO: 1000 Z, 2000 M, 3000 ZM
+            dims, kind = 2 + (kind // 1000 in (1, 2)) + 2 * (kind // 1000 == 3), kind % 1000
+        if kind == 3:
+            (nrings,) = struct.unpack_from(order + "I", wkb, at)
+            at += 4
+            rings = []
+            for _ in range(nrings):
+                (n,) = struct.unpack_from(order + "I", wkb, at)
+                coords = np.frombuffer(wkb, dtype=order + "f8", count=n * dims, offset=at + 4).reshape(n, dims)
+                rings.append(coords[:, :2].astype(np.float64))
+                at += 4 + 8 * n * dims
+            return [rings], at
+        if kind == 6:
+            (parts,) = struct.unpack_from(order + "I", wkb, at)
+            at += 4
+            out = []
+            for _ in range(parts):
+                got, at = geometry(at)
+                out += got
+            return out, at
+        raise ValueError(f"a geometry of WKB type {kind}, not a polygon")
+
+    return geometry(0)[0]
+
+
+def read_polygons(path: Path) -> tuple[list[list[np.ndarray]], str | None]:
+    """The polygons of the first layer of a GeoPackage or shapefile, and the layer's CRS (None when it has none).
+
+    Each polygon is a list of (n, 2) rings in the layer's units, its outer
+    ring first, then its holes; a MultiPolygon gives one polygon per part.
+
+    Raises
+    ------
+    ValueError
+        A geometry that is not a (multi)polygon, or a file GDAL cannot read.
+    """
+    import pyogrio.raw
+    from pyogrio.errors import DataLayerError, DataSourceError
+
+    try:
+        meta, _, geometry, _ = pyogrio.raw.read(str(path), columns=[])
+    except (DataSourceError, DataLayerError) as exc:
+        raise ValueError(f"cannot read it as a vector layer ({exc})") from None
+    polygons = []
+    for wkb in geometry:
+        if wkb is not None:
+            polygons += wkb_polygons(bytes(wkb))
+    return polygons, meta.get("crs")

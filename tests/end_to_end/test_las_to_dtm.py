@@ -112,6 +112,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
             "strip_adjust": "cached",
             "denoise": "cached",
             "classify_ground": "cached",
+            "classify_water": "cached",
             "classify_objects": "cached",
             "rasterize": "ran",
             "hillshade": "ran",

@@ -77,7 +77,13 @@ def test_water_classified_by_the_provider_stays_water(tmp_path):
     cls = np.asarray(out.classification)[order]
     assert np.all(cls[lake[ref]] == 9)
     assert np.mean(cls[~lake[ref]] == 2) > 0.95
-    # keep_water: false -> the flat lake surface is ground again, as any filter would call it
-    assert _run(tmp_path, "shore", **{"stages.classify_ground.keep_water": "false"}) == 0
+    # keep_water: false -> the flat lake surface is ground again, as any filter would call it ...
+    off = {"stages.classify_ground.keep_water": "false", "stages.classify_water.enabled": "false"}
+    assert _run(tmp_path, "shore", **off) == 0
     out = laspy.read(tmp_path / "out" / "points.laz")
     assert np.mean(np.asarray(out.classification)[np.lexsort((out.y, out.x))][lake[ref]] == 2) > 0.95
+    # ... and classify_water finds it water: level, 40 m x 100 m; the 1 % slope beside it stays ground
+    assert _run(tmp_path, "shore", **{"stages.classify_ground.keep_water": "false"}) == 0
+    out = laspy.read(tmp_path / "out" / "points.laz")
+    cls = np.asarray(out.classification)[np.lexsort((out.y, out.x))]
+    assert np.all(cls[lake[ref]] == 9) and np.mean(cls[~lake[ref]] == 2) > 0.95

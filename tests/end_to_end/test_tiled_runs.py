@@ -58,7 +58,7 @@ def _stage(manifest: dict, name: str) -> dict:
 
 def test_tiles_were_used(runs):
     _, m = runs
-    for name in ("denoise", "classify_ground", "rasterize"):
+    for name in ("denoise", "classify_ground", "classify_water", "rasterize"):
         assert _stage(m["untiled"], name)["metrics"]["tiling"]["tiles"] == 1
         tiling = _stage(m["local"], name)["metrics"]["tiling"]
         assert tiling["tiles"] == 6 and tiling["tasks"] == 6
@@ -73,7 +73,7 @@ def test_tiled_products_equal_untiled_byte_for_byte(runs):
     assert _products(m["local"]) == untiled
     assert _products(m["dask"]) == untiled
     # the intermediates too: same noise and ground class for every point, in the same order
-    for name in ("denoise", "classify_ground"):
+    for name in ("denoise", "classify_ground", "classify_water"):
         sha = {k: _stage(v, name)["outputs"] for k, v in m.items()}
         assert _same_files(sha["local"], sha["untiled"])
         assert _same_files(sha["dask"], sha["untiled"])

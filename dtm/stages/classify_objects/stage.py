@@ -1,6 +1,6 @@
 """Stage ``classify_objects``: buildings (6) and vegetation (3, 4, 5) among the points above the ground.
 
-After ``classify_ground``: on a grid of the surface (the highest point per
+After ``classify_ground`` and ``classify_water``: on a grid of the surface (the highest point per
 cell), roofs are planar regions with a step down (walls) along most of
 their edge, large enough and of single returns
 (:func:`dtm.stages.classify_objects.objects.building_cells`); their points
@@ -32,9 +32,9 @@ from pipeline.stage import Stage, StageContext
 class ClassifyObjects(Stage, name="classify_objects", version="1", params=ClassifyObjectsParams):
     """buildings (6) and vegetation (3, 4, 5) above the ground."""
 
-    inputs = ("points_classified",)
+    inputs = ("points_water",)
     outputs: ClassVar = {"points_objects": "points.las"}
-    passthrough: ClassVar = {"points_objects": "points_classified"}
+    passthrough: ClassVar = {"points_objects": "points_water"}
     config_keys = ("tiling.buffer",)
 
     def tile_buffer(self, params: ClassifyObjectsParams) -> float:
@@ -44,7 +44,7 @@ class ClassifyObjects(Stage, name="classify_objects", version="1", params=Classi
         from dtm.common.clouds import cloud_info
         from dtm.common.tile_classes import classes_by_tile
 
-        src, dst = ctx.inputs["points_classified"], ctx.outputs["points_objects"]
+        src, dst = ctx.inputs["points_water"], ctx.outputs["points_objects"]
         cell, multi = survey_cell(ctx.params, cloud_info(src)), several_returns(src)
         results = classes_by_tile(
             ctx,

@@ -32,6 +32,7 @@ def _key(task: RasterTask) -> dict:
         "wide": astuple(wide),
         "vertical": task.vertical,
         "outputs": list(task.outputs),
+        "water": [task.water_digest, list(task.water_units)] if task.water is not None else None,
         "columns": column_digests(Path(task.source)),
     }
 

@@ -51,3 +51,8 @@ class RasterizeParams(StageParams):
         description="nodata value of the rasters; none: -999999 when stages.report.specification is a USGS LBS "
         "quality level (the LBS's DEM requirement), else -9999",
     )
+    hydro_flatten: bool = Field(
+        True,
+        description="DTM cells whose centre lies in a flat water body of classify_water's water.gpkg take the "
+        "body's level (hydro-flattening)",
+    )

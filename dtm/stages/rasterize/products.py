@@ -61,6 +61,7 @@ def tile_rasters(
     crop: tuple[slice, slice],
     params: RasterizeParams,
     inside: np.ndarray | None = None,
+    flat: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
@@ -68,10 +69,12 @@ def tile_rasters(
     filled from the nearest cell within ``nodata_distance``, else the DTM),
     ``ndsm`` (DSM - DTM, at least 0), ``density`` (points per cell) and,
     with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
-    the DSM's, where the DTM has a value).  Core cells not *inside* the
-    survey's outline (:mod:`dtm.stages.rasterize.outline`) are nodata in all
-    but the density.  With the TIN and no sigma, the ground points are handed
-    over: *cloud* no longer holds them.
+    the DSM's, where the DTM has a value).  *flat*: a water level per core
+    cell (NaN: none) that the DTM takes there (hydro-flattening,
+    :mod:`dtm.common.water_bodies`).  Core cells not *inside* the survey's
+    outline (:mod:`dtm.stages.rasterize.outline`) are nodata in all but the
+    density.  With the TIN and no sigma, the ground points are handed over:
+    *cloud* no longer holds them.
     """
     max_cells = params.nodata_distance / params.resolution
     dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
@@ -81,6 +84,8 @@ def tile_rasters(
         if params.method == "tin" and cloud.sigma is None:
             ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
         dtm = interpolate_dtm(ground, core, params)  # collinear or coincident ground points: all nodata
+    if flat is not None:
+        dtm = np.where(np.isfinite(flat), flat, dtm)
     if inside is not None:
         dtm[~inside] = np.nan
         dsm = np.where(inside, dsm, np.nan)

@@ -1,6 +1,6 @@
 """Stage ``rasterize``: the elevation rasters of the survey.
 
-``dtm.tif`` (bare earth from the ground points by ``method``: ``tin``,
+``dtm.tif`` (bare earth from the ground and water points, classes 2 and 9, by ``method``: ``tin``,
 ``idw`` or ``nearest``), ``dsm.tif`` (the highest non-noise return per
 cell), ``ndsm.tif`` (DSM - DTM, at least 0), ``density.tif`` (points per
 cell) and, when the points carry ``sigma_vertical``, ``dtm_uncertainty.tif``.
@@ -37,6 +37,7 @@ from dtm.stages.rasterize.tile_rasters import (
     raster_tasks,
     rasterize_tile,
     reach,
+    tile_windows,
 )
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
@@ -49,7 +50,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="7", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="8", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_objects",)
@@ -58,10 +59,11 @@ class Rasterize(Stage, name="rasterize", version="7", params=RasterizeParams):
 
     def declare(self, params: RasterizeParams, config: BaseModel) -> StageIO:
         outputs, products = dict(self.outputs), dict(self.products)
+        inputs = tuple(self.inputs) + (("water_bodies",) if _flattens(params, config) else ())
         geo = getattr(config.stages, "georeference", None)
         if config.input.format != "las" and geo is not None and geo.uncertainty is not None:
             outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
-        return StageIO(tuple(self.inputs), outputs, products)
+        return StageIO(inputs, outputs, products)
 
     config_keys = ("tiling.buffer", "stages.report.specification")
 
@@ -118,12 +120,42 @@ class Rasterize(Stage, name="rasterize", version="7", params=RasterizeParams):
         )
 
 
+def _flattens(params: RasterizeParams, config: BaseModel) -> bool:
+    """Whether the DTM is flattened in ``classify_water``'s water bodies (that stage and its bodies enabled)."""
+    water = getattr(config.stages, "classify_water", None)
+    return params.hydro_flatten and water is not None and water.enabled and water.bodies.enabled
+
+
 def _check_points(ctx: StageContext[RasterizeParams], info: CloudInfo) -> None:
     """Refuse an empty cloud, and points without the sigmas an uncertainty raster needs."""
     if info.count == 0:
         raise InputDataError(f"{glossary.input_names(ctx.config)}: the point cloud is empty: there is nothing to grid.")
     if "dtm_uncertainty" in ctx.outputs and "sigma_vertical" not in info.dimensions:
         raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
+
+
+def _with_water(tasks: list[RasterTask], path: Path, units: Units) -> list[RasterTask]:
+    """The tasks with the water bodies to flatten the DTM in; each kept tile's key holds the bodies over its cells."""
+    import hashlib
+    from dataclasses import replace
+
+    from dtm.common.water_bodies import read_water_bodies
+
+    bodies = read_water_bodies(path, units)
+    boxes = [(rings[0].min(axis=0), rings[0].max(axis=0)) for rings, _ in bodies]
+    out = []
+    for t in tasks:
+        core, _, _ = tile_windows(t.grid, t.window, t.buffer)
+        res = core.resolution
+        x0, y1 = core.xmin + core.col0 * res, core.ymax - core.row0 * res
+        x1, y0 = x0 + core.cols * res, y1 - core.rows * res
+        digest = hashlib.sha256()
+        for (lo, hi), (rings, level) in zip(boxes, bodies, strict=True):
+            if lo[0] <= x1 and hi[0] >= x0 and lo[1] <= y1 and hi[1] >= y0:
+                digest.update(np.float64(level).tobytes() + b"".join(np.ascontiguousarray(r).tobytes() for r in rings))
+        units_pair = (units.horizontal, units.vertical)
+        out.append(replace(t, water=str(path), water_digest=digest.hexdigest(), water_units=units_pair))
+    return out
 
 
 def _median_sigma(path: Path, units: Units) -> float | None:
@@ -187,6 +219,8 @@ class _Tiles:
         outline.save(self.work / "outline.npy")
         where = (str(self.work / "outline.npy"), outline.ix0, outline.iy1)
         tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names, where)
+        if "water_bodies" in ctx.inputs:
+            tasks = _with_water(tasks, Path(ctx.inputs["water_bodies"]), info.units)
         if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
             check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
         return tasks

@@ -107,7 +107,10 @@ class RasterTask:
     ``.npy`` windows go; *weight*: its points; *params*: the stage's
     ``model_dump``; *vertical*: metres per height unit of the CRS;
     *outputs*: the rasters to write; *outline*: the survey's outline
-    (:class:`~dtm.stages.rasterize.outline.Outline` saved) and its corner.
+    (:class:`~dtm.stages.rasterize.outline.Outline` saved) and its corner;
+    *water*: ``water.gpkg`` to flatten the DTM in (its SHA-256
+    *water_digest*; *water_units*: metres per horizontal and vertical unit
+    of its coordinates).
     """
 
     tile: int
@@ -120,6 +123,9 @@ class RasterTask:
     buffer: float
     vertical: float
     outputs: tuple[str, ...]
+    water: str | None = None
+    water_digest: str | None = None
+    water_units: tuple[float, float] = (1.0, 1.0)
     outline: tuple[str, int, int] | None = None  # None: no outline
 
     def inside(self, core: Grid) -> np.ndarray | None:
@@ -227,7 +233,14 @@ def rasterize_tile(task: RasterTask) -> dict:
     params = RasterizeParams.model_validate(task.params)
     core, wide, crop = tile_windows(task.grid, task.window, task.buffer)
     cloud = read_tile_cloud(Path(task.source), wide, sigma="dtm_uncertainty" in task.outputs)
-    rasters = tile_rasters(cloud, core, wide, crop, params, task.inside(core))
+    flat = None
+    if task.water is not None:
+        from dtm.common.units import Units
+        from dtm.common.water_bodies import burn_levels, read_water_bodies
+
+        bodies = read_water_bodies(Path(task.water), Units(*task.water_units))
+        flat = burn_levels(bodies, (core.rows, core.cols), core.transform)
+    rasters = tile_rasters(cloud, core, wide, crop, params, task.inside(core), flat=flat)
     vertical = task.vertical
     folder = Path(task.result)
     folder.mkdir(parents=True, exist_ok=True)
@@ -264,7 +277,7 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
     masks = []
     for part in parts:
         cls = np.load(part / "classification.npy")
-        masks.append((cls == glossary.GROUND, glossary.usable(cls, np.load(part / "withheld.npy"))))
+        masks.append((np.isin(cls, glossary.BARE_EARTH), glossary.usable(cls, np.load(part / "withheld.npy"))))
     del cls
     ground = np.empty((sum(int(is_ground.sum()) for is_ground, _ in masks), 3))
     highest = count = None

@@ -1,0 +1,90 @@
+"""The water bodies of a classified file (its water points and the ground around them), and the points of those
+taken for no water given back their class: the survey-wide steps after the tiles."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dtm.common import glossary
+from dtm.common.water_bodies import CellMask, WaterBody, water_bodies
+from dtm.stages.classify_water.params import ClassifyWaterParams
+
+#: Points read at a time.
+CHUNK = 1_000_000
+
+
+def _points(path: Path, units, keep) -> np.ndarray:
+    """The points of the LAS *path* (metres) for which ``keep(classes, xyz)`` holds, read in chunks."""
+    import laspy
+
+    from dtm.common.clouds import chunk_xyz_metres
+
+    parts = [np.zeros((0, 3))]
+    with laspy.open(str(path)) as reader:
+        for chunk in reader.chunk_iterator(CHUNK):
+            xyz = chunk_xyz_metres(chunk, units)
+            cls = np.asarray(chunk.classification)
+            usable = glossary.usable(cls, chunk.withheld)
+            parts.append(np.ascontiguousarray(xyz[usable & keep(cls, xyz)]))
+    return np.concatenate(parts)
+
+
+def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[WaterBody], CellMask]:
+    """The water bodies of the classified LAS *path* and the cells of those that are no water.
+
+    :func:`dtm.common.water_bodies.water_bodies` on two passes: the water
+    points, then the ground points within the water's box plus a margin.
+    Without detection (polygons only) no body is refused for its banks.
+    """
+    b = params.bodies
+    water = _points(path, units, lambda cls, xyz: cls == glossary.WATER)
+    margin = (b.close + 4) * b.cell_size
+    lo = water[:, :2].min(axis=0) - margin if len(water) else np.zeros(2)
+    hi = water[:, :2].max(axis=0) + margin if len(water) else np.zeros(2)
+
+    def near(cls, xyz):
+        return (cls == glossary.GROUND) & np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
+
+    ground = _points(path, units, near) if len(water) else np.zeros((0, 3))
+    return water_bodies(
+        water,
+        ground,
+        cell=b.cell_size,
+        min_area=b.min_area,
+        close=b.close,
+        max_spread=b.max_spread,
+        min_bank=params.detect.min_bank if params.detect.enabled else -np.inf,
+    )
+
+
+def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | None) -> tuple[int, int]:
+    """Water points of *dst* in *refused* cells (and outside the *polygons*, metres) get their class in *src* back.
+
+    *src* and *dst* hold the same points in the same order; *dst* is
+    rewritten (through a temporary file).  Returns the points given back
+    and how many of them were ground.
+    """
+    import laspy
+
+    from dtm.common.clouds import chunk_xyz_metres, open_las_writer
+    from dtm.stages.classify_water.water import inside_polygons
+
+    tmp = dst.with_name(f".{dst.name}.tmp")
+    back = ground = 0
+    with laspy.open(str(src)) as before, laspy.open(str(dst)) as after, open_las_writer(tmp, after.header) as out:
+        for old, chunk in zip(before.chunk_iterator(CHUNK), after.chunk_iterator(CHUNK), strict=True):
+            cls = np.asarray(chunk.classification).copy()
+            xyz = chunk_xyz_metres(chunk, units)
+            undo = (cls == glossary.WATER) & refused.holds(xyz[:, :2])
+            if polygons and undo.any():
+                undo[undo] = ~inside_polygons(xyz[undo, :2], polygons)
+            was = np.asarray(old.classification)
+            cls[undo] = was[undo]
+            back += int(undo.sum())
+            ground += int((undo & (was == glossary.GROUND)).sum())
+            chunk.classification = cls
+            out.write_points(chunk)
+    tmp.replace(dst)
+    return back, ground

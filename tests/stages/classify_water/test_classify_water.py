@@ -1,0 +1,222 @@
+"""The ``classify_water`` stage in runs: classes, the DTM over water, tiles, polygons and their CRS (issue 34)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+
+from dtm.common.rasters import read_raster
+from pipeline.cli import main
+from tests.conftest import run_until
+from tests.stages.denoise.test_noise_classes import X0, Y0, write_las
+
+LEVEL = 100.6
+
+
+def _lakes(size: float, lakes: list[tuple[float, float, float]], seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A square survey of side *size* (local metres, 2 points/m2): valleys at least 4 % steep around round lakes
+    (x, y, radius) whose water lies 0.4 m under their shore.  Returns the points and which are on a lake."""
+    rng = np.random.default_rng(seed)
+    n = int(size * size * 2)
+    x, y = rng.uniform(0, size, n), rng.uniform(0, size, n)
+    z = np.full(n, np.inf)
+    lake = np.zeros(n, bool)
+    for cx, cy, r in lakes:
+        z = np.minimum(z, LEVEL + 0.4 + 0.04 * np.maximum(np.abs(x - cx) + np.abs(y - cy) - r, 0.0))
+        lake |= np.hypot(x - cx, y - cy) < r
+    z = np.where(lake, LEVEL, z) + rng.normal(0, 0.02, n)
+    return np.column_stack((x, y, z)), lake
+
+
+def _config(root: Path, las: Path, stages: str = "") -> Path:
+    config = root / "water.yaml"
+    config.write_text(
+        f"name: water\ninput: {{format: las, paths: [{las}]}}\noutput: out\ncache: cache\n"
+        "executor: {kind: local, workers: 1}\nstages:\n  rasterize: {resolution: 1.0}\n" + stages
+    )
+    return config
+
+
+def _classes(stage: dict) -> np.ndarray:
+    return np.asarray(laspy.read(stage["outputs"]["points_water"]["file"]).classification)
+
+
+@pytest.fixture(scope="module")
+def one_lake(tmp_path_factory):
+    root = tmp_path_factory.mktemp("lake")
+    xyz, lake = _lakes(120.0, [(60.0, 60.0, 25.0)])
+    las = write_las(root / "lake.las", xyz)
+    stages = run_until(_config(root, las), "rasterize", root / "out")
+    return root, stages, lake
+
+
+def test_the_lake_is_water_and_the_valley_ground(one_lake):
+    _, stages, lake = one_lake
+    cls = _classes(stages["classify_water"])
+    assert np.all(cls[lake] == 9)
+    assert np.mean(cls[~lake] == 2) > 0.99
+    m = stages["classify_water"]["metrics"]
+    assert m["water"] == m["from_points"] == m["ground_to_water"] == lake.sum() and m["from_polygons"] == 0
+
+
+def _centre_cells(root: Path, product: str = "dtm.tif") -> np.ndarray:
+    dtm, transform, *_ = read_raster(root / product)
+    col = int((X0 + 60.0 - transform.c) / transform.a)
+    row = int((Y0 + 60.0 - transform.f) / transform.e)
+    return dtm[row - 15 : row + 15, col - 15 : col + 15]  # 15 m around the centre: all lake
+
+
+def test_the_dtm_is_flat_at_the_water_level_over_the_lake(one_lake):
+    root, stages, _ = one_lake
+    centre = _centre_cells(root / "out")
+    assert len(np.unique(centre)) == 1 and abs(float(centre[0, 0]) - LEVEL) < 0.01
+    bodies = stages["classify_water"]["metrics"]["bodies"]
+    assert bodies["polygons"] == bodies["flattened"] == 1
+    assert float(centre[0, 0]) == np.float32(bodies["levels_m"][0])
+
+
+def test_water_gpkg_is_one_polygon_z_at_the_level_in_a_geopackage_1_2(one_lake):
+    import sqlite3
+
+    import pyogrio
+    import pyogrio.raw
+
+    path = one_lake[0] / "out" / "water.gpkg"
+    info = pyogrio.read_info(path)
+    assert info["geometry_type"] == "Polygon Z" and info["features"] == 1 and info["crs"] == "EPSG:25830"
+    with sqlite3.connect(path) as db:
+        assert db.execute("pragma user_version").fetchone()[0] == 10200  # GeoPackage 1.2
+    meta, _, geometry, values = pyogrio.raw.read(path, columns=["level", "flattened", "area_m2"])
+    fields = dict(zip(meta["fields"], values, strict=True))
+    wkb = bytes(geometry[0])
+    n = int(np.frombuffer(wkb, "<u4", 1, 9)[0])
+    xyz = np.frombuffer(wkb, "<f8", 3 * n, 13).reshape(n, 3)
+    assert np.all(xyz[:, 2] == fields["level"][0]) and fields["flattened"][0] == 1
+    assert abs(fields["area_m2"][0] - np.pi * 25**2) < 2 * np.pi * 25  # within a metre of the shore
+    r = np.hypot(xyz[:, 0] - X0 - 60, xyz[:, 1] - Y0 - 60)
+    assert np.all((r > 22) & (r < 27))
+
+
+def test_without_hydro_flattening_the_dtm_follows_the_water_points(one_lake):
+    root, _, _ = one_lake
+    run_until(root / "water.yaml", "rasterize", root / "rough", "stages.rasterize.hydro_flatten=false")
+    centre = _centre_cells(root / "rough")
+    assert len(np.unique(centre)) > 100 and np.all(np.abs(centre - LEVEL) < 0.1)
+
+
+def test_disabled_the_stage_passes_the_ground_classes_on(one_lake):
+    root, _, _ = one_lake
+    stages = run_until(root / "water.yaml", "rasterize", root / "off", "stages.classify_water.enabled=false")
+    ground = stages["classify_ground"]["outputs"]["points_classified"]["sha256"]
+    assert stages["rasterize"]["inputs"]["points_water"] == ground
+    assert stages["classify_water"]["status"] == "disabled"
+
+
+def test_tiled_equals_untiled_with_lakes_astride_the_tile_edges(tmp_path):
+    """Lakes cut by the tile edges x, y = 100, 200 m.  The one centred at (150, 118), 20 m wide, reaches 2 m into
+    the tile below y = 100: its shore there is water because the lake's level cells beyond the edge make a body of
+    70 m2 or more.  A tile that sees 5 m across the edge sees under 70 m2 of them and leaves the shore ground."""
+    lakes = [(100.0, 150.0, 30.0), (200.0, 200.0, 12.0), (150.0, 118.0, 20.0), (260.0, 60.0, 40.0)]
+    xyz, lake = _lakes(300.0, lakes)
+    las = write_las(tmp_path / "lakes.las", xyz)
+    config = _config(tmp_path, las)
+    untiled = run_until(config, "rasterize", tmp_path / "untiled", "tiling.enabled=false")
+    tiled = run_until(config, "rasterize", tmp_path / "tiled", "tiling.size=100")
+    assert tiled["classify_water"]["metrics"]["tiling"]["tiles"] == 9
+    a, b = _classes(untiled["classify_water"]), _classes(tiled["classify_water"])
+    assert (a[lake] == 9).mean() > 0.99 and (a[~lake] == 9).mean() < 0.001
+    np.testing.assert_array_equal(b, a)
+    np.testing.assert_array_equal(
+        read_raster(tmp_path / "tiled" / "dtm.tif")[0], read_raster(tmp_path / "untiled" / "dtm.tif")[0]
+    )
+    narrow = run_until(config, "classify_water", tmp_path / "narrow", "tiling.size=100", "tiling.buffer=5")
+    shore = lake & (xyz[:, 1] < 100)
+    assert np.any(_classes(narrow["classify_water"])[shore] != 9) and np.all(a[shore] == 9)
+
+
+def _polygon_layer(path: Path, rings: list[np.ndarray], epsg: int) -> Path:
+    """A GeoPackage of one PolygonZ (z = 0) with *rings* in local metres."""
+    import struct
+
+    import pyogrio.raw
+
+    parts = [struct.pack("<BII", 1, 1003, len(rings))]
+    for ring in rings:
+        xyz = np.column_stack((ring[:, 0] + X0, ring[:, 1] + Y0, np.zeros(len(ring))))
+        parts.append(struct.pack("<I", len(ring)) + xyz.astype("<f8").tobytes())
+    geometry = np.empty(1, dtype=object)
+    geometry[0] = b"".join(parts)
+    pyogrio.raw.write(
+        str(path),
+        geometry=geometry,
+        field_data=[np.array([1])],
+        fields=["id"],
+        layer="water",
+        driver="GPKG",
+        geometry_type="Polygon Z",
+        crs=pyproj.CRS.from_epsg(epsg).to_wkt(),
+    )
+    return path
+
+
+def _circle(cx: float, cy: float, r: float) -> np.ndarray:
+    t = np.linspace(0, 2 * np.pi, 73)
+    return np.column_stack((cx + r * np.cos(t), cy + r * np.sin(t)))
+
+
+def test_polygons_make_water_without_detection(tmp_path):
+    """A polygon 5 m wider than the lake, with an island (a hole): the lake's points are water, its shore (0.4 m
+    above) and the island's points (at the water level, but outside the polygon) are not."""
+    xyz, lake = _lakes(120.0, [(60.0, 60.0, 25.0)])
+    island = np.hypot(xyz[:, 0] - 60, xyz[:, 1] - 60) < 4
+    layer = _polygon_layer(tmp_path / "water.gpkg", [_circle(60, 60, 30), _circle(60, 60, 4.5)[::-1]], 25830)
+    las = write_las(tmp_path / "lake.las", xyz)
+    stages = f"  classify_water: {{polygons: {layer}, detect: {{enabled: false}}, polygon_height: 0.3}}\n"
+    got = run_until(_config(tmp_path, las, stages), "classify_water", tmp_path / "out")
+    cls = _classes(got["classify_water"])
+    within = lake & ~(np.hypot(xyz[:, 0] - 60, xyz[:, 1] - 60) < 4.5)
+    assert np.all(cls[within] == 9)
+    assert not np.any(cls[~lake] == 9) and not np.any(cls[island] == 9)
+    assert got["classify_water"]["metrics"]["from_polygons"] == within.sum()
+
+
+def test_polygons_in_another_crs_are_one_sentence_exit_3(tmp_path, capsys):
+    xyz, _ = _lakes(60.0, [(30.0, 30.0, 10.0)])
+    layer = _polygon_layer(tmp_path / "water.gpkg", [_circle(30, 30, 12)], 25831)
+    las = write_las(tmp_path / "lake.las", xyz)
+    config = _config(tmp_path, las, f"  classify_water: {{polygons: {layer}}}\n")
+    assert main(["run", str(config), "-q", "--until", "classify_water"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert "water.gpkg" in err and "ETRS89 / UTM zone 31N" in err and "reproject" in err
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["status"] == "failed"
+
+
+def test_a_level_car_park_is_given_its_ground_class_back(tmp_path):
+    """A level 40 m x 40 m paved square draining away at 2 % on every side: level enough to be found, but its
+    banks do not rise above it, so its points are ground again; the lake beside it stays water."""
+    rng = np.random.default_rng(4)
+    xyz, lake = _lakes(160.0, [(120.0, 80.0, 25.0)])
+    x, y = xyz[:, 0], xyz[:, 1]
+    d = np.maximum(np.abs(x - 40), np.abs(y - 80))
+    park = (d < 20) & ~lake
+    near = (d < 60) & (x < 90)
+    xyz[near, 2] = np.where(park[near], 103.0, 103.0 - 0.02 * (d[near] - 20)) + rng.normal(0, 0.02, near.sum())
+    las = write_las(tmp_path / "park.las", xyz)
+    got = run_until(_config(tmp_path, las), "classify_water", tmp_path / "out")
+    cls = _classes(got["classify_water"])
+    assert not np.any(cls[park] == 9) and np.mean(cls[park] == 2) > 0.99
+    assert np.all(cls[lake] == 9)
+    m = got["classify_water"]["metrics"]
+    assert m["given_back"] >= park.sum() * 0.9 and m["water"] == int((cls == 9).sum())
+    assert m["bodies"]["refused_cells"] > 1000
+    # without the banks' test the square is found: level, 1,600 m2
+    loose = run_until(
+        _config(tmp_path, las), "classify_water", tmp_path / "loose", "stages.classify_water.detect.min_bank=-100"
+    )
+    assert np.mean(_classes(loose["classify_water"])[park] == 9) > 0.95

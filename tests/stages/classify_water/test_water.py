@@ -1,0 +1,130 @@
+"""Water found in the points and given by polygons: known answers from geometry (issue 34)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dtm.stages.classify_water.params import DetectParams
+from dtm.stages.classify_water.water import (
+    cells_of,
+    inside_polygons,
+    reach,
+    water_from_points,
+    water_from_polygons,
+    window_planes,
+)
+
+#: The lake of :func:`_valley`: centre, radius (m) and water level.
+CENTRE, RADIUS, LEVEL = (60.0, 60.0), 25.0, 100.6
+
+
+def _detect(**changes) -> dict:
+    return DetectParams(**changes).model_dump(exclude={"enabled", "min_bank"})  # min_bank: the bodies step
+
+
+def _valley(seed: int = 0, tilt: float = 0.0, density: float = 2.0, noise: float = 0.02):
+    """A 120 m square valley whose sides rise at 4 % and more, a round lake in it (level, or tilted by *tilt*).
+
+    Returns the points (all ground, class 2) and which of them are on the lake.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(120 * 120 * density)
+    x, y = rng.uniform(0, 120, n), rng.uniform(0, 120, n)
+    dx, dy = x - CENTRE[0], y - CENTRE[1]
+    lake = np.hypot(dx, dy) < RADIUS
+    z = 100.0 + 0.04 * (np.abs(dx) + np.abs(dy))  # at least 101.0 on the shore: 0.4 m above the water
+    z = np.where(lake, LEVEL + tilt * dx, z) + rng.normal(0, noise, n)
+    return np.column_stack((x, y, z)), lake
+
+
+def test_window_planes_of_a_plane_give_its_slope_and_no_residual():
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(0, 20, (4000, 2)) + 440_000.0  # far from the origin, as projected coordinates are
+    z = 700.0 + 0.03 * (xy[:, 0] - 440_000.0) - 0.04 * (xy[:, 1] - 440_000.0)
+    i, j, shape = cells_of(xy, 1.0)
+    planes = window_planes(i, j, shape, xy, z, 1.0, 3)
+    inner = planes["window"] > 440  # whole windows: 49 cells of 10 points
+    assert inner.sum() > 50
+    np.testing.assert_allclose(planes["slope"][inner], 0.05, atol=1e-9)  # hypot(0.03, 0.04)
+    assert np.nanmax(planes["rms"][inner]) < 1e-7
+    assert np.all(planes["spread"][inner] > 1.5)  # a 7 m window filled: about 7 / sqrt(12) = 2 m
+
+
+def test_window_planes_rms_is_the_noise_about_the_plane():
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(0, 30, (30_000, 2))
+    z = 50.0 + 0.01 * xy[:, 0] + rng.normal(0, 0.05, len(xy))
+    i, j, shape = cells_of(xy, 1.0)
+    planes = window_planes(i, j, shape, xy, z, 1.0, 3)
+    inner = planes["window"] > 1000
+    assert abs(np.median(planes["rms"][inner]) - 0.05) < 0.003
+    assert abs(np.median(planes["slope"][inner]) - 0.01) < 0.002
+
+
+def test_a_level_lake_in_a_valley_is_water_and_nothing_else():
+    xyz, lake = _valley()
+    cls = np.full(len(xyz), 2, np.uint8)
+    found = water_from_points(xyz, cls, np.ones(len(xyz), bool), **_detect())
+    assert found[lake].all()  # every echo of the lake, its shore included (grown)
+    assert not found[~lake].any()  # the shore rises 0.4 m at once: none of it
+
+
+def test_a_tilted_surface_is_not_water():
+    xyz, _ = _valley(tilt=0.02)  # a 2 % slope: a road's cross-fall, not water
+    found = water_from_points(xyz, np.full(len(xyz), 2, np.uint8), np.ones(len(xyz), bool), **_detect())
+    assert not found.any()
+
+
+def test_rough_ground_at_one_level_is_not_water():
+    xyz, _ = _valley(noise=0.25)  # a level field of boulders: 0.25 m about its plane
+    found = water_from_points(xyz, np.full(len(xyz), 2, np.uint8), np.ones(len(xyz), bool), **_detect())
+    assert not found.any()
+
+
+@pytest.mark.parametrize(("side", "kept"), [(12.0, False), (24.0, True)])
+def test_a_level_patch_is_water_only_above_the_minimum_area(side, kept):
+    """Level cells are those whose whole window is level: a square patch of side s has about (s - 6)**2 m2 of them,
+    36 m2 for 12 m (under the 70 m2 minimum), 324 m2 for 24 m."""
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(0, 60, 8000), rng.uniform(0, 60, 8000)
+    patch = (np.abs(x - 30) < side / 2) & (np.abs(y - 30) < side / 2)
+    z = np.where(patch, 99.0, 100.0 + 0.05 * np.hypot(x - 30, y - 30)) + rng.normal(0, 0.02, len(x))
+    found = water_from_points(
+        np.column_stack((x, y, z)), np.full(len(x), 2, np.uint8), np.ones(len(x), bool), **_detect()
+    )
+    assert found[patch].mean() > 0.99 if kept else not found.any()
+
+
+def test_only_unclassified_and_ground_points_become_water():
+    xyz, lake = _valley()
+    cls = np.full(len(xyz), 2, np.uint8)
+    boat = lake & (np.hypot(xyz[:, 0] - 60, xyz[:, 1] - 60) < 2)
+    cls[boat] = 6  # a class another stage gave: kept
+    withheld = np.zeros(len(xyz), bool)
+    withheld[np.flatnonzero(lake)[:10]] = True
+    found = water_from_points(xyz, cls, ~withheld, **_detect())
+    assert not found[boat].any() and not found[withheld].any()
+    assert found[lake & ~boat & ~withheld].all()
+
+
+def test_reach_covers_the_window_the_growth_and_the_minimum_area():
+    assert reach(1.0, 3.0, 70.0, 4.0) == 4.0 + 3.0 + 2.0 + 70.0 + 1.0
+    assert reach(2.0, 4.0, 100.0, 0.0) == 4.0 + 4.0 + 50.0 + 1.0
+
+
+def test_inside_polygons_leaves_out_the_holes():
+    outer = np.array([[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]], float)
+    hole = np.array([[4, 4], [6, 4], [6, 6], [4, 6], [4, 4]], float)
+    far = outer + 20.0
+    pts = np.array([[2, 2], [5, 5], [11, 5], [25, 25], [15, 15]], float)
+    np.testing.assert_array_equal(inside_polygons(pts, [[outer, hole], [far]]), [True, False, False, True, False])
+
+
+def test_polygons_make_water_the_points_near_the_level_inside_them():
+    xyz, lake = _valley()
+    cls = np.full(len(xyz), 2, np.uint8)
+    d = np.hypot(xyz[:, 0] - 60, xyz[:, 1] - 60)
+    inside = d < RADIUS + 5.0  # the polygon takes 5 m of shore too: 0.4 m above the water and more
+    found = water_from_polygons(xyz, cls, np.ones(len(xyz), bool), inside, cell_size=1.0, window=10.0, height=0.3)
+    np.testing.assert_array_equal(found, lake)

@@ -45,7 +45,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from _isolated import emit, machine, run_child  # noqa: E402
 
-STAGES = ["parse", "denoise", "classify_ground", "classify_objects", "rasterize", "export_las"]
+STAGES = [
+    "parse",
+    "denoise",
+    "classify_ground",
+    "classify_water",
+    "classify_objects",
+    "rasterize",
+    "footprints",
+    "export_las",
+]
 JOBS = {
     "idw": {"denoise": "false", "method": "idw"},
     "tin": {"denoise": "false", "method": "tin"},
@@ -250,7 +259,7 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     load = _load()
     floor, loop = _floor_process(laz, work / "copy.laz")
     rows = [
-        f"| {n:,} | I/O floor (laspy + lazrs read + write; loop {loop['seconds']:.1f} s) | | | | | | "
+        f"| {n:,} | I/O floor (laspy + lazrs read + write; loop {loop['seconds']:.1f} s) |{' |' * len(STAGES)} "
         f"{floor[0]:.1f} | {floor[2]:,.0f} | 1 × | | {load} |"
     ]
     print(rows[-1], flush=True)
@@ -330,11 +339,11 @@ def main() -> None:
         for points in args.points or [10e6]:
             pairs(points, args.workdir, args.job or ["idw"], args.pairs)
         return
+    stage_cells = " | ".join(f"{name} s" for name in STAGES)
     print(
-        "| points | job | parse s | denoise s | classify_ground s | classify_objects s | rasterize s | export_las s | whole job s "
-        "| peak PSS MB (process tree) | / I/O floor | DTM RMSE m | load (1 min) |"
+        f"| points | job | {stage_cells} | whole job s | peak PSS MB (process tree) | / I/O floor | DTM RMSE m | load (1 min) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|" + "---|" * (len(STAGES) + 7))
     for points in args.points or [10e6]:
         bench(points, args.workdir, args.job or list(JOBS))
 

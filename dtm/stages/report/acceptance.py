@@ -60,6 +60,8 @@ MEASURES = {
     "class_0": "points left in class 0 (never classified) and not flagged withheld, in the classified point cloud",
     "dem_float_bits": "DEM (dtm.tif) cell type: bits of its floating-point type (0: not floating point)",
     "dem_nodata": "DEM (dtm.tif) nodata value (GeoTIFF GDAL_NODATA tag)",
+    "unflat_water": "hydro-flattening: flattened water bodies of water.gpkg whose DTM cells depart more than 1 cm "
+    "from the body's level",
 }
 
 _T1 = "Table 1 (aggregate nominal pulse spacing and density)"
@@ -69,6 +71,7 @@ _VOIDS = "Collection: Data Voids ((4 × ANPS)², first returns)"
 _A72 = "Table 7.2 (vertical accuracy classes for digital elevation data), 10-cm class"
 _CLASSES = "Point Classification (Table 5, minimum classification scheme)"
 _DEM = "Deliverables: Bare-Earth Surface (Raster DEM)"
+_HYDRO = "Digital Elevation Model Surface Treatments: Hydro-Flattening"
 # How each figure was checked for this code (the standards themselves are not in the repository; the search
 # tool's stored copies of public pages were searched on 2026-12-01, and neither the LBS tables nor the ASPRS
 # Edition 2 tables were among them).
@@ -111,6 +114,12 @@ _SEEN_DEM = (
     "tag #42113': the LBS v. 2.1 revision history (a copy of the online text, "
     "https://ru.scribd.com/document/453206938/Lidar-Base-Specification-version-2-1); later editions not read"
 )
+_SEEN_HYDRO = (
+    "hydro-flattened water bodies flat at one level: the LBS table of contents, sections 'Hydro-Flattening' and "
+    "'Appendix 2: Hydro-Flattening Reference' (usgs.gov, https://www.usgs.gov/ngp-standards-and-specifications/"
+    "lidar-base-specification-online-table-contents); the section's text not read; rivers (monotonic downstream) "
+    "not judged here"
+)
 _SEEN_ASPRS = (
     "Edition 2 drops the 95 % figures and the VVA pass/fail: gpsworld.com 'ASPRS approves edition 2 of the ASPRS "
     "Positional Accuracy Standards for Digital Geospatial Data' (2023-12-06, https://www.gpsworld.com/"
@@ -127,6 +136,7 @@ def _lbs(table: str) -> Source:
         _VOIDS: _SEEN_VOIDS,
         _CLASSES: _SEEN_CLASSES,
         _DEM: _SEEN_DEM,
+        _HYDRO: _SEEN_HYDRO,
     }[table]
     return Source(LBS, LBS_EDITION, table, checked)
 
@@ -147,6 +157,7 @@ def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
         Limit("class_0", "max", 0, "points", _lbs(_CLASSES)),
         Limit("dem_float_bits", "eq", 32, "bits", _lbs(_DEM)),
         Limit("dem_nodata", "eq", -999999.0, "", _lbs(_DEM)),
+        Limit("unflat_water", "max", 0, "bodies", _lbs(_HYDRO)),
     )
 
 
@@ -175,6 +186,29 @@ MIN_CHECKPOINTS = 30
 #: Share of the covered area the check points' convex hull should reach at least: below it they sample one part of
 #: the survey only (issue 34's rule of thumb, not a specification's).
 MIN_HULL_SHARE = 0.5
+
+
+#: How far (m) a flattened water body's DTM cell may lie from its level: float32 rounding at 10 km, with room.
+FLAT_TOLERANCE_M = 0.01
+
+
+def unflat_water_bodies(dtm_m: np.ndarray, bodies: list, transform_m) -> int:
+    """How many flattened water bodies (rings and level in metres) have a DTM cell (metres) off their level.
+
+    >>> from affine import Affine
+    >>> ring = [np.array([[0.0, 0], [4, 0], [4, 4], [0, 4], [0, 0]])]
+    >>> dtm = np.full((4, 4), 10.0); t = Affine(1, 0, 0, 0, -1, 4)
+    >>> unflat_water_bodies(dtm, [(ring, 10.0)], t), unflat_water_bodies(dtm + np.eye(4), [(ring, 10.0)], t)
+    (0, 1)
+    """
+    from dtm.common.water_bodies import burn_levels
+
+    bad = 0
+    for body in bodies:
+        level = burn_levels([body], dtm_m.shape, transform_m)
+        cells = np.isfinite(level) & np.isfinite(dtm_m)
+        bad += int(cells.any() and float(np.max(np.abs(dtm_m[cells] - level[cells]))) > FLAT_TOLERANCE_M)
+    return bad
 
 
 def checkpoint_warnings(x_m: np.ndarray, y_m: np.ndarray, covered_m2: float | None) -> list[str]:

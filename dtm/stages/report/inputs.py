@@ -30,6 +30,7 @@ class ReportInputs:
     specification: str = DEFAULT_SPECIFICATION
     dem_float_bits: int = 32  # of dtm.tif's cell type (0: not floating point)
     dem_nodata: float | None = None  # dtm.tif's nodata value
+    water_bodies: list | None = None  # the flattened bodies of water.gpkg: (rings, level) in metres; None: no file
 
 
 def checkpoint_rows(path: str | Path, land_cover_column: str, dtm_path: str | Path) -> dict:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.report.acceptance import MEASURES, checkpoint_warnings, pulse_density, voids
+from dtm.stages.report.acceptance import MEASURES, checkpoint_warnings, pulse_density, unflat_water_bodies, voids
 from dtm.stages.report.inputs import ReportInputs
 
 
@@ -53,6 +53,14 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
     out["dem_nodata"] = data.dem_nodata
     if data.dem_nodata is None:
         why["dem_nodata"] = "dtm.tif declares no nodata value"
+    if data.water_bodies is not None:
+        from affine import Affine
+
+        f = data.frame
+        transform_m = units.transform_to_metres(Affine(f.cell, 0.0, f.x0, 0.0, -f.cell, f.y1))
+        out["unflat_water"] = unflat_water_bodies(data.dtm * units.vertical, data.water_bodies, transform_m)
+    else:
+        why["unflat_water"] = "no water bodies (stages.classify_water and its bodies, stages.rasterize.hydro_flatten)"
     return out, why, extra
 
 

@@ -42,7 +42,7 @@ def _enabled(config, name: str) -> bool:
     return params is not None and bool(getattr(params, "enabled", True))
 
 
-class Report(Stage, name="report", version="11", params=ReportParams):
+class Report(Stage, name="report", version="12", params=ReportParams):
     """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
 
     inputs = ("dtm", "density", "points_objects")
@@ -55,6 +55,9 @@ class Report(Stage, name="report", version="11", params=ReportParams):
         inputs = list(self.inputs)
         if _enabled(config, "strip_adjust"):
             inputs += ["strip_corrections", "strip_difference_before", "strip_difference_after"]
+        water, raster = get_dotted(config, "stages.classify_water"), get_dotted(config, "stages.rasterize")
+        if water is not None and water.enabled and water.bodies.enabled and raster.hydro_flatten:
+            inputs.append("water_bodies")  # the flattened bodies, to judge the DTM flat in them
         geo = get_dotted(config, "stages.georeference")
         if config.input.format != "las":
             inputs.append("trajectory_lines")
@@ -114,6 +117,10 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
         data.differences = (before, after, MapFrame(t.c, t.f, res, hu))
     if "dtm_uncertainty" in ctx.inputs:
         data.uncertainty = read_raster(ctx.inputs["dtm_uncertainty"])[0]
+    if "water_bodies" in ctx.inputs:
+        from dtm.common.water_bodies import read_water_bodies
+
+        data.water_bodies = read_water_bodies(Path(ctx.inputs["water_bodies"]), cloud.units)
     if "trajectory_lines" in ctx.inputs:
         data.trajectory = read_flight_lines(ctx.inputs["trajectory_lines"])
     acc = ctx.setting("stages.accuracy")

@@ -157,3 +157,28 @@ def test_classes_per_strip_and_the_class_of_the_highest_point(tmp_path):
     assert "Per strip (points)" in page and "6 building" in page
     grid = data.cloud.class_grid
     assert (grid == 6).sum() == 100 and set(np.unique(grid)) == {2, 6}  # 1-m cells: the block's 100
+
+
+def _lake(level: float) -> list:
+    """One flattened water body: a 20 m x 20 m square at x 1010-1030, y 2010-2030, at *level* (metres)."""
+    ring = np.array([[1010.0, 2010.0], [1030.0, 2010.0], [1030.0, 2030.0], [1010.0, 2030.0], [1010.0, 2010.0]])
+    return [([ring], level)]
+
+
+def test_a_flattened_lake_on_its_level_passes(tmp_path):
+    dtm = _dtm()
+    dtm[30:50, 10:30] = 650.2  # rows 30-49 are y 2030-2010: the lake's cells at its level
+    _, verdict, *_ = _report(tmp_path, _survey(tmp_path), dtm, water_bodies=_lake(650.2))
+    assert (_check(verdict, "unflat_water")["measured"], _check(verdict, "unflat_water")["status"]) == (0, "PASS")
+
+
+def test_a_lake_with_a_tilt_fails(tmp_path):
+    """The plain DTM rises 1 cm a metre: a lake left on it spans 20 cm."""
+    _, verdict, *_ = _report(tmp_path, _survey(tmp_path), _dtm(), water_bodies=_lake(650.2))
+    assert (_check(verdict, "unflat_water")["measured"], _check(verdict, "unflat_water")["status"]) == (1, "FAIL")
+
+
+def test_without_water_bodies_flatness_is_not_measured(tmp_path):
+    _, verdict, *_ = _report(tmp_path, _survey(tmp_path), _dtm())
+    row = _check(verdict, "unflat_water")
+    assert row["status"] == "NOT MEASURED" and "classify_water" in row["note"]

@@ -45,12 +45,12 @@ class CellTally:
 
 
 def flat_cells(x: np.ndarray, y: np.ndarray, transform, shape: tuple[int, int]) -> np.ndarray:
-    """Flat index of the DTM cell of each point (-1 off the grid); *transform* north-up."""
-    col = np.floor((x - transform.c) / transform.a).astype(np.int64)
-    row = np.floor((y - transform.f) / transform.e).astype(np.int64)
+    """Flat index of the DTM cell of each point (-1 off the grid); *transform* north-up (:func:`~dtm.common.grid.cell_of`)."""
+    from dtm.common.grid import Grid, cell_of
+
     rows, cols = shape
-    inside = (col >= 0) & (col < cols) & (row >= 0) & (row < rows)
-    return np.where(inside, row * cols + col, -1)
+    row, col = cell_of(np.column_stack((x, y)), Grid(transform.c, transform.f, transform.a, cols, rows))
+    return np.where(row >= 0, row * cols + col, -1)
 
 
 def building_labels(roof_count: np.ndarray) -> tuple[np.ndarray, int]:

@@ -107,9 +107,10 @@ class CloudTally:
         self.seen.update(int(v) for v in np.unique(sid))
         self.counts += np.bincount(cls, minlength=256)
         self.points += len(chunk)
-        for s in np.unique(sid):
-            here = np.bincount(cls[sid == s], minlength=256)
-            self.by_strip[int(s)] = self.by_strip.get(int(s), 0) + here
+        strips, which = np.unique(sid, return_inverse=True)
+        per_strip = np.bincount(which * 256 + cls, minlength=len(strips) * 256).reshape(len(strips), 256)
+        for s, counts in zip(strips, per_strip, strict=True):
+            self.by_strip[int(s)] = self.by_strip.get(int(s), 0) + counts
         withheld = np.asarray(chunk.withheld, dtype=bool)
         self.class_0_kept += int(((cls == 0) & ~withheld).sum())
         usable = glossary.usable(cls, withheld)

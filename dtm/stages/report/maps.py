@@ -64,6 +64,13 @@ class MapFrame:
     cell: float
     unit: str
 
+    @property
+    def transform(self):
+        """The raster's north-up affine transform (CRS units)."""
+        from affine import Affine
+
+        return Affine(self.cell, 0.0, self.x0, 0.0, -self.cell, self.y1)
+
     def extent(self, shape: tuple[int, int], step: int = 1) -> tuple[float, float, float, float]:
         rows, cols = shape
         return (self.x0, self.x0 + cols * step * self.cell, self.y1 - rows * step * self.cell, self.y1)

@@ -54,10 +54,7 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
     if data.dem_nodata is None:
         why["dem_nodata"] = "dtm.tif declares no nodata value"
     if data.water_bodies is not None:
-        from affine import Affine
-
-        f = data.frame
-        transform_m = units.transform_to_metres(Affine(f.cell, 0.0, f.x0, 0.0, -f.cell, f.y1))
+        transform_m = units.transform_to_metres(data.frame.transform)
         out["unflat_water"] = unflat_water_bodies(data.dtm * units.vertical, data.water_bodies, transform_m)
     else:
         why["unflat_water"] = "no water bodies (stages.classify_water and its bodies, stages.rasterize.hydro_flatten)"

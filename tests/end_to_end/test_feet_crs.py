@@ -19,6 +19,7 @@ import numpy as np
 import pyproj
 import pytest
 import rasterio
+from scipy import ndimage
 
 from dtm.common.units import METRE, Units
 from pipeline.cli import main
@@ -169,7 +170,13 @@ def test_raw_flight_georeferenced_into_a_feet_crs(tmp_path):
         dm, df = m.read(1), f.read(1)
         assert dm.shape == df.shape
         valid = dm != m.nodata
-        np.testing.assert_array_equal(valid, df != f.nodata)
+        # A cell whose centre lies on the survey's edge is inside the last triangle or not as the points are
+        # rounded to 1 mm or 1/1000 ft: a few such cells may differ, each beside nodata in both runs
+        differ = valid != (df != f.nodata)
+        assert differ.sum() <= 3, f"{differ.sum()} cells have a value in one run only"
+        edge = ndimage.binary_dilation(~valid) & ndimage.binary_dilation(df == f.nodata)
+        assert np.all(edge[differ])
+        valid &= df != f.nodata
         assert valid.sum() > 10000
         # The points are stored at 1 mm in one run and 1/1000 ft in the other, and the strip adjustment
         # sees those rounded points: a handful of borderline points may change class at a roof edge.

@@ -64,7 +64,7 @@ def echoes(
     veg = ok & (
         world.sample(world.canopy, hit[:, 0], hit[:, 1]) > world.sample(world.solid, hit[:, 0], hit[:, 1]) + 0.3
     )
-    cls1 = np.where(veg, sc.VEGETATION, world.class_at(hit[:, 0], hit[:, 1]))
+    cls1 = np.where(veg, sc.VEGETATION, world.class_of_hit(hit[:, 0], hit[:, 1], hit[:, 2]))
     # water: most pulses are not returned (specular)
     ok &= ~((cls1 == sc.WATER) & (rng.random(len(t)) < 0.5))
     # vegetation: half the pulses also reach the surface below
@@ -75,7 +75,7 @@ def echoes(
         second[idx] = sc.cast(world, world.solid, origin[idx], d[idx], t_min=first[idx] + 1.5)
     has2 = np.isfinite(second) & (second <= scanner.max_range_m)
     hit2 = origin + d * np.nan_to_num(second)[:, None]
-    cls2 = world.class_at(hit2[:, 0], hit2[:, 1])
+    cls2 = world.class_of_hit(hit2[:, 0], hit2[:, 1], hit2[:, 2])
     pulse_id = pulse_base + np.arange(len(t))
     dust = np.isin(pulse_id, list(plan.dust_pulses)) if plan.dust_pulses else np.zeros(len(t), bool)
     if dust.any():  # the pulse is answered by a dust cloud 3-30 m away, and nothing else

@@ -20,6 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 GROUND, VEGETATION, BUILDING, NOISE, WATER, BRIDGE = 2, 5, 6, 7, 9, 17
+
+#: A step (m) between neighbouring cells of the solid surface that stands for a wall, not a slope (a
+#: 30-degree slope rises 0.29 m between 0.5 m cells); an echo on it more than FOOT (m) up is the wall's.
+WALL, FOOT = 1.0, 0.1
+
+#: Thickness (m) of the bridge deck: the solid surface draws a deck as a block down to the ground.
+DECK = 1.0
 CLASS_NAMES = {
     GROUND: "ground",
     VEGETATION: "vegetation",
@@ -55,6 +62,32 @@ class Scene:
         v = (flat[k] * (1 - ax) + flat[k + 1] * ax) * (1 - ay) + (flat[k + nx] * (1 - ax) + flat[k + nx + 1] * ax) * ay
         return np.where(inside, v, np.nan)
 
+    def class_of_hit(self, e: np.ndarray, n: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Class of an echo of the solid surface at (e, n, z): :meth:`class_at`, except on a wall.
+
+        Between the centres of a low and a high cell the bilinear surface is a
+        ramp, which stands for a vertical wall: where the 2 x 2 cells around
+        (e, n) differ by more than ``WALL`` m, an echo more than ``FOOT`` m
+        above the lowest of them is the high cell's (a building's or a
+        deck's side, as a labeller would call it), not the ground's; more
+        than ``DECK`` m below a deck it is what lies under the deck.
+        """
+        cls = self.class_at(e, n)
+        ny, nx = self.solid.shape
+        fx = np.clip(np.nan_to_num((np.asarray(e) - self.e0) / self.cell - 0.5), 0, nx - 1.000001)
+        fy = np.clip(np.nan_to_num((np.asarray(n) - self.n0) / self.cell - 0.5), 0, ny - 1.000001)
+        k = fy.astype(np.int64) * nx + fx.astype(np.int64)
+        corners = np.stack([k, k + 1, k + nx, k + nx + 1])
+        z4 = self.solid.ravel()[corners]
+        z, low, top = np.asarray(z), z4.min(axis=0), z4.argmax(axis=0)
+        high, c4 = z4.max(axis=0), self.cls.ravel()[corners]
+        wall = (high - low > WALL) & (z > low + FOOT)
+        # a deck is DECK m thick: below it, open air down to what lies under it (the lowest cell's class)
+        under = wall & (c4[top, np.arange(len(k))] == BRIDGE) & (z < high - DECK)
+        return np.where(
+            under, c4[z4.argmin(axis=0), np.arange(len(k))], np.where(wall, c4[top, np.arange(len(k))], cls)
+        )
+
     def class_at(self, e: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Class of the solid surface at (e, n) (nearest cell)."""
         ny, nx = self.cls.shape
@@ -84,10 +117,7 @@ def make_scene(
     cls = np.full(ground.shape, GROUND, np.uint8)
     cls[river] = WATER
     solid = ground.copy()
-    # a bridge deck crossing the river, 4 m above the water
-    bridge = banks & (np.abs(g.E - (g.e_min + 0.62 * g.w)) < 3.0)
-    solid[bridge] = level + 4.0
-    cls[bridge] = BRIDGE
+    _add_bridge(g, ground, solid, cls, banks, level)
     # buildings: flat and gabled, away from the river and the slope band
     free = ~banks
     _add_buildings(g, rng, ground, solid, cls, free)
@@ -163,6 +193,26 @@ def _river(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     ground = np.where(banks & ~river, np.minimum(ground, level + 1.5), ground)
     ground = np.where(river, level, ground)
     return ground, river, banks, level
+
+
+def _add_bridge(g: _Lattice, ground: np.ndarray, solid: np.ndarray, cls: np.ndarray, banks: np.ndarray, level: float):
+    """A 6 m deck across the river's banks, joining the ground at both ends (in *solid* and *cls*, in place).
+
+    The deck is level across and straight from the ground just south of the
+    banks to the ground just north of them (its approaches), and at least
+    4 m above the water.
+    """
+    across = np.abs(g.E - (g.e_min + 0.62 * g.w)) < 3.0
+    bridge = banks & across
+    if not bridge.any():
+        return
+    rows = np.flatnonzero(bridge.any(axis=1))
+    south, north = max(rows[0] - 1, 0), min(rows[-1] + 1, len(ground) - 1)
+    z_s, z_n = float(ground[south][across[south]].mean()), float(ground[north][across[north]].mean())
+    along = (g.N[:, :1] - g.N[south, 0]) / max(g.N[north, 0] - g.N[south, 0], g.cell)
+    deck = np.maximum(z_s + (z_n - z_s) * along, level + 4.0) * np.ones_like(ground)
+    solid[bridge] = deck[bridge]
+    cls[bridge] = BRIDGE
 
 
 def _add_buildings(

@@ -19,6 +19,7 @@ UNCLASSIFIED = 1
 GROUND = 2
 LOW_NOISE = 7
 WATER = 9
+BRIDGE_DECK = 17
 HIGH_NOISE = 18
 
 #: The classes the DTM is made of: the bare earth is the ground and the water surface on it.

@@ -11,12 +11,14 @@ import numpy as np
 from dtm.common import glossary
 from dtm.common.tile_classes import PointTask
 from dtm.stages.classify_objects.objects import (
+    BRIDGE,
     BUILDING,
     HIGH_VEGETATION,
     LOW_VEGETATION,
     MEDIUM_VEGETATION,
     RING,
     SHADOW,
+    WALLS,
     object_classes,
 )
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
@@ -30,7 +32,15 @@ if TYPE_CHECKING:
 MAX_CELL = 5.0
 
 #: The counts every tile returns, summed by the driver.
-COUNTS = ("points", "buildings", "roof_was_ground", "low_vegetation", "medium_vegetation", "high_vegetation")
+COUNTS = (
+    "points",
+    "buildings",
+    "roof_was_ground",
+    "bridge_decks",
+    "low_vegetation",
+    "medium_vegetation",
+    "high_vegetation",
+)
 
 
 def reach(params: ClassifyObjectsParams) -> float:
@@ -42,7 +52,7 @@ def reach(params: ClassifyObjectsParams) -> float:
     edge is wider than ``max_size`` in the tile as in the survey, so it is
     no roof in either (docs/stages/classify_objects.md).
     """
-    return params.buildings.max_size + SHADOW + (RING + 2) * max(params.cell_size, MAX_CELL)
+    return params.buildings.max_size + SHADOW + WALLS + (RING + 2) * max(params.cell_size, MAX_CELL)
 
 
 def survey_cell(params: ClassifyObjectsParams, info: CloudInfo) -> float:
@@ -106,6 +116,7 @@ def objects_tile(task: PointTask) -> dict:
         "points": int(core.sum()),
         "buildings": int((c == BUILDING).sum()),
         "roof_was_ground": int(((c == BUILDING) & (was == glossary.GROUND)).sum()),
+        "bridge_decks": int((c == BRIDGE).sum()),
         "low_vegetation": int((c == LOW_VEGETATION).sum()),
         "medium_vegetation": int((c == MEDIUM_VEGETATION).sum()),
         "high_vegetation": int((c == HIGH_VEGETATION).sum()),

@@ -23,13 +23,17 @@ from dtm.common.grid import Grid, cell_of, fill_nearest
 
 #: The classes this stage may change: what the ground filter left (1) and took for ground (2).
 CANDIDATES = (glossary.UNCLASSIFIED, glossary.GROUND)
-BUILDING, LOW_VEGETATION, MEDIUM_VEGETATION, HIGH_VEGETATION = 6, 3, 4, 5
+BUILDING, LOW_VEGETATION, MEDIUM_VEGETATION, HIGH_VEGETATION, BRIDGE = 6, 3, 4, 5, 17
 
 #: A building point stands at least this high (m) above the ground under it (the foot of a wall stays).
 WALL_FOOT = 0.5
 
 #: Cells around a roof looked at for its walls: this many cells out.
 RING = 1
+
+#: How far (m) around a roof's planar cells its walls and eaves may lie: its planar cells stop a cell
+#: short of its edge, and on cells of a metre or less its wall's points lie in the edge cell or the one beyond.
+WALLS = 2.0
 
 #: Widest wall shadow (m): an empty cell takes the lowest point seen this far beyond it (:func:`seen_below`).
 SHADOW = 6.0
@@ -285,8 +289,9 @@ def object_classes(
     withheld; *params*: :class:`~dtm.stages.classify_objects.params.ClassifyObjectsParams`;
     *cell*: the grid's cell (m); *multi_echo*: whether the survey records
     several returns per pulse (then vegetation is told by them, else by
-    roughness).  Points of class 1 or 2 may become 6; of class 1, 3, 4 or
-    5; every other class stays.
+    roughness).  Points of class 1 or 2 may become 6 or 17 (bridge decks,
+    :mod:`dtm.stages.classify_objects.bridges`); of class 1, 3, 4 or 5;
+    every other class stays.
     """
     out = np.asarray(classification, dtype=np.uint8).copy()
     in_building = np.zeros(len(out), dtype=bool)
@@ -298,22 +303,37 @@ def object_classes(
 
     b = params.buildings
     roofs = building_cells(s, b) if b.enabled else np.zeros(s.top.shape, dtype=bool)
-    edges = ndimage.binary_dilation(roofs, structure=np.ones((3, 3), bool)) if roofs.any() else roofs
+    decks = np.zeros(s.top.shape, dtype=bool)
+    if params.bridges.enabled:
+        from dtm.stages.classify_objects.bridges import deck_cells
+
+        decks = deck_cells(s, params.bridges, b.planarity, b.min_area)
+        roofs &= ~decks
+    rings = max(1, round(WALLS / cell))
+    edges = ndimage.binary_dilation(roofs, np.ones((3, 3), bool), iterations=rings) if roofs.any() else roofs
     cls = out[usable]
-    ground = ground_under(pts, cls == glossary.GROUND, s, edges, b.max_size / cell)
+    ground = ground_under(pts, cls == glossary.GROUND, s, edges | decks, b.max_size / cell)
     k = (s.row, s.col)
     height = pts[:, 2] - ground[k]
     # a roof's own cells take ground points too (a roof the filter took for ground); the cells at its edge
-    # (eaves, walls) take what the filter left above a wall's foot, and its ground points min_height up
-    foot = np.where(cls == glossary.GROUND, b.min_height, WALL_FOOT)
-    may = np.where(roofs[k], np.isin(cls, CANDIDATES), edges[k] & np.isin(cls, CANDIDATES) & ~(height < foot))
+    # (eaves, walls) take the single returns the filter left above a wall's foot, and its ground points
+    # min_height up (a tree beside a wall returns several times)
+    single = np.asarray(number_of_returns)[usable] <= 1
+    wall = edges[k] & np.isin(cls, CANDIDATES) & ~(height < WALL_FOOT) & single
+    may = np.where(roofs[k], np.isin(cls, CANDIDATES), wall)
     building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides
     new = cls.copy()
     new[building] = BUILDING
+    if decks.any():  # the deck's points, not what lies under it: near its top
+        deck_top = ndimage.maximum_filter(np.where(decks, s.top, -np.inf), size=3)[k]
+        near_top = pts[:, 2] >= deck_top - 0.5 * params.bridges.clearance
+        on_deck = decks[k] & np.isin(cls, CANDIDATES) & near_top
+        new[on_deck] = BRIDGE
+        building &= ~on_deck
     v = params.vegetation
     if v.enabled:
         if multi_echo:  # a canopy: a share of the pulses around returned more than once
-            several = 1.0 - s.single / np.maximum(s.count, 1)
+            several = np.where(s.count > 0, 1.0 - s.single / np.maximum(s.count, 1), 0.0)  # a void is no canopy
             rough = (
                 ndimage.uniform_filter(several, 3, mode="constant")
                 * 9
@@ -324,7 +344,7 @@ def object_classes(
         else:  # single-echo sensors: a rough surface, or points seen at every height down a cell (a crown)
             rough = ~(s.residual[k] <= v.roughness) | (s.top - s.bottom >= v.breaks[1])[k]
         rough |= np.asarray(number_of_returns)[usable] > 1
-        veg = (cls == glossary.UNCLASSIFIED) & ~building & rough & (height >= v.breaks[0])
+        veg = (new == glossary.UNCLASSIFIED) & rough & (height >= v.breaks[0])
         new[veg] = np.where(
             height[veg] >= v.breaks[2],
             HIGH_VEGETATION,

@@ -33,6 +33,18 @@ class BuildingParams(StrictModel):
     )
 
 
+class BridgeParams(StrictModel):
+    """Bridge decks: planar surfaces over a gap, open beneath their sides, joined to the ground at both ends."""
+
+    enabled: bool = Field(True, description="look for bridge decks (class 17)")
+    clearance: float = Field(
+        2.0, gt=0, description="a deck stands at least this high (m) above the ground or water on both its sides"
+    )
+    max_width: float = Field(
+        40.0, gt=0, description="widest deck (m): the ground or water below is looked for this far on each side"
+    )
+
+
 class VegetationParams(StrictModel):
     """Vegetation by height above the ground, where the surface is rough or the pulse returned several times."""
 
@@ -70,4 +82,5 @@ class ClassifyObjectsParams(StageParams):
         1.5, gt=0, description="cells are at least this many nominal point spacings wide (a sparse survey's cells grow)"
     )
     buildings: BuildingParams = Field(default_factory=BuildingParams, description="buildings (class 6)")
+    bridges: BridgeParams = Field(default_factory=BridgeParams, description="bridge decks (class 17)")
     vegetation: VegetationParams = Field(default_factory=VegetationParams, description="vegetation (classes 3, 4, 5)")

@@ -1,11 +1,14 @@
-"""Stage ``classify_objects``: buildings (6) and vegetation (3, 4, 5) among the points above the ground.
+"""Stage ``classify_objects``: buildings (6), bridge decks (17) and vegetation (3, 4, 5) above the ground.
 
 After ``classify_ground`` and ``classify_water``: on a grid of the surface (the highest point per
 cell), roofs are planar regions with a step down (walls) along most of
 their edge, large enough and of single returns
 (:func:`dtm.stages.classify_objects.objects.building_cells`); their points
 become 6, even those the ground filter took for ground (a roof wider than
-its window), so the DTM is interpolated across the footprint.  The other
+its window), so the DTM is interpolated across the footprint.  Planar
+surfaces over a gap, open beneath their sides and joined level to the
+ground at both ends are bridge decks (17,
+:func:`dtm.stages.classify_objects.bridges.deck_cells`).  The other
 points above the ground where pulses return several times (or, in a
 single-return survey, the surface is rough) become vegetation 3 / 4 / 5 by
 their height above the ground; the rest stays 1.  Tile by tile with a
@@ -29,8 +32,8 @@ from dtm.stages.classify_objects.params import ClassifyObjectsParams
 from pipeline.stage import Stage, StageContext
 
 
-class ClassifyObjects(Stage, name="classify_objects", version="1", params=ClassifyObjectsParams):
-    """buildings (6) and vegetation (3, 4, 5) above the ground."""
+class ClassifyObjects(Stage, name="classify_objects", version="2", params=ClassifyObjectsParams):
+    """buildings (6), bridge decks (17) and vegetation (3, 4, 5) above the ground."""
 
     inputs = ("points_water",)
     outputs: ClassVar = {"points_objects": "points.las"}
@@ -58,8 +61,9 @@ class ClassifyObjects(Stage, name="classify_objects", version="1", params=Classi
         counts = {k: int(sum(r[k] for r in results)) for k in COUNTS}
         ctx.metrics.update(cell_m=cell, several_returns=multi, **counts)
         ctx.log.info(
-            "%d building and %d vegetation points of %d (%d roof points taken from the ground)",
+            "%d building, %d bridge-deck and %d vegetation points of %d (%d roof points taken from the ground)",
             counts["buildings"],
+            counts["bridge_decks"],
             counts["low_vegetation"] + counts["medium_vegetation"] + counts["high_vegetation"],
             counts["points"],
             counts["roof_was_ground"],

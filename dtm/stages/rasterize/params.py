@@ -51,6 +51,16 @@ class RasterizeParams(StageParams):
         description="nodata value of the rasters; none: -999999 when stages.report.specification is a USGS LBS "
         "quality level (the LBS's DEM requirement), else -9999",
     )
+    bridge_decks: bool = Field(
+        True,
+        description="DTM cells under a bridge deck (class 17 points) interpolated across the deck from the terrain "
+        "either side of it, as the USGS LBS asks; false: the TIN of the ground around it",
+    )
+    max_deck_width: float = Field(
+        40.0,
+        gt=0,
+        description="widest bridge deck (m): the terrain either side is looked for this far; widens the tiles' buffer",
+    )
     hydro_flatten: bool = Field(
         True,
         description="DTM cells whose centre lies in a flat water body of classify_water's water.gpkg take the "

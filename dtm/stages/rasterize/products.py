@@ -17,6 +17,8 @@ from dtm.stages.rasterize.interpolate import idw, nearest, tin
 from dtm.stages.rasterize.params import RasterizeParams
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from pipeline.log import Progress
 
 
@@ -52,6 +54,7 @@ class TileCloud:
     highest: np.ndarray
     count: np.ndarray
     sigma: np.ndarray | None = None
+    decks: np.ndarray | None = None  # bridge-deck points (class 17) per cell; None: none in the tile
 
 
 def tile_rasters(
@@ -61,7 +64,7 @@ def tile_rasters(
     crop: tuple[slice, slice],
     params: RasterizeParams,
     inside: np.ndarray | None = None,
-    flat: np.ndarray | None = None,
+    flat: Callable[[Grid], np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
@@ -69,9 +72,12 @@ def tile_rasters(
     filled from the nearest cell within ``nodata_distance``, else the DTM),
     ``ndsm`` (DSM - DTM, at least 0), ``density`` (points per cell) and,
     with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
-    the DSM's, where the DTM has a value).  *flat*: a water level per core
-    cell (NaN: none) that the DTM takes there (hydro-flattening,
-    :mod:`dtm.common.water_bodies`).  Core cells not *inside* the survey's
+    the DSM's, where the DTM has a value).  *flat*: the water level of
+    each cell of a grid (NaN: none), that the DTM takes there
+    (hydro-flattening, :mod:`dtm.common.water_bodies`).  Under bridge decks
+    (``cloud.decks``, when ``params.bridge_decks``) the DTM is interpolated
+    across each deck (:mod:`dtm.stages.rasterize.decks`), on the core and
+    ``max_deck_width`` around it.  Core cells not *inside* the survey's
     outline (:mod:`dtm.stages.rasterize.outline`) are nodata in all but the
     density.  With the TIN and no sigma, the ground points are handed over:
     *cloud* no longer holds them.
@@ -79,13 +85,24 @@ def tile_rasters(
     max_cells = params.nodata_distance / params.resolution
     dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
     ground = cloud.ground
-    dtm = np.full((core.rows, core.cols), np.nan)
+    decks = cloud.decks is not None and params.bridge_decks and bool(cloud.decks.any())
+    grid, sub = _around(core, wide, crop, params.max_deck_width if decks else 0.0)
+    dtm = np.full((grid.rows, grid.cols), np.nan)
     if core.rows and core.cols and len(ground) >= (3 if params.method == "tin" else 1):
         if params.method == "tin" and cloud.sigma is None:
             ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
-        dtm = interpolate_dtm(ground, core, params)  # collinear or coincident ground points: all nodata
-    if flat is not None:
-        dtm = np.where(np.isfinite(flat), flat, dtm)
+        dtm = interpolate_dtm(ground, grid, params)  # collinear or coincident ground points: all nodata
+    levels = flat(grid) if flat is not None else None
+    if levels is not None:
+        dtm = np.where(np.isfinite(levels), levels, dtm)
+    if decks:
+        from dtm.stages.rasterize.decks import across_decks, deck_footprint
+
+        feet = deck_footprint(cloud.decks)[sub_of(wide, grid)]  # on the wide grid: the closing's edge is far
+        dtm = across_decks(dtm, feet, params.max_deck_width / params.resolution)
+        if levels is not None:  # a water body under a deck's edge keeps its level
+            dtm = np.where(np.isfinite(levels), levels, dtm)
+    dtm = dtm[sub]
     if inside is not None:
         dtm[~inside] = np.nan
         dsm = np.where(inside, dsm, np.nan)
@@ -99,6 +116,22 @@ def tile_rasters(
         unc = fill_nearest(cell_mean(ground, cloud.sigma, wide), max_cells=max_cells)[crop]
         out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
     return out
+
+
+def _around(core: Grid, wide: Grid, crop: tuple[slice, slice], margin: float) -> tuple[Grid, tuple[slice, slice]]:
+    """The cells of *core* and *margin* m around it, within *wide* (a window of it); the core's slice of them."""
+    if margin <= 0:
+        return core, (slice(0, core.rows), slice(0, core.cols))
+    m = int(np.ceil(margin / wide.resolution))
+    r0, c0 = max(crop[0].start - m, 0), max(crop[1].start - m, 0)
+    grid = wide.window(r0, min(crop[0].stop + m, wide.rows), c0, min(crop[1].stop + m, wide.cols))
+    return grid, (slice(crop[0].start - r0, crop[0].stop - r0), slice(crop[1].start - c0, crop[1].stop - c0))
+
+
+def sub_of(outer: Grid, inner: Grid) -> tuple[slice, slice]:
+    """The slice of *outer* that is *inner* (a window of it)."""
+    r0, c0 = inner.row0 - outer.row0, inner.col0 - outer.col0
+    return slice(r0, r0 + inner.rows), slice(c0, c0 + inner.cols)
 
 
 def tile_figures(rasters: dict[str, np.ndarray], vertical: float) -> dict:

@@ -50,7 +50,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="8", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="9", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_objects",)

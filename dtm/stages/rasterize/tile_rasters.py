@@ -46,7 +46,8 @@ def reach(params: RasterizeParams) -> float:
     ``nodata_distance`` from both sides): twice ``nodata_distance``.
     """
     far = 2.0 if params.method == "tin" else 1.0
-    return far * params.nodata_distance + 2.0 * params.resolution
+    decks = params.max_deck_width if params.bridge_decks else 0.0  # the DTM beside a deck, under it
+    return far * params.nodata_distance + 2.0 * params.resolution + decks
 
 
 def raster_columns(chunk: laspy.ScaleAwarePointRecord, *, sigma: bool = False) -> dict[str, np.ndarray]:
@@ -239,7 +240,10 @@ def rasterize_tile(task: RasterTask) -> dict:
         from dtm.common.water_bodies import burn_levels, read_water_bodies
 
         bodies = read_water_bodies(Path(task.water), Units(*task.water_units))
-        flat = burn_levels(bodies, (core.rows, core.cols), core.transform)
+
+        def flat(grid: Grid) -> np.ndarray:
+            return burn_levels(bodies, (grid.rows, grid.cols), grid.transform)
+
     rasters = tile_rasters(cloud, core, wide, crop, params, task.inside(core), flat=flat)
     vertical = task.vertical
     folder = Path(task.result)
@@ -274,10 +278,16 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
     from dtm.common.tile_points import tile_parts
 
     parts = tile_parts(folder)  # the tile's points in file order, a range of records each
-    masks = []
+    masks, decks = [], None
     for part in parts:
         cls = np.load(part / "classification.npy")
-        masks.append((np.isin(cls, glossary.BARE_EARTH), glossary.usable(cls, np.load(part / "withheld.npy"))))
+        usable = glossary.usable(cls, np.load(part / "withheld.npy"))
+        masks.append((np.isin(cls, glossary.BARE_EARTH), usable))
+        deck = usable & (cls == glossary.BRIDGE_DECK)
+        if deck.any():
+            xyz = [np.load(part / f"{a}.npy", mmap_mode="r")[deck] for a in "xyz"]
+            n = cell_max_count(xyz, wide)[1]
+            decks = n if decks is None else decks + n
     del cls
     ground = np.empty((sum(int(is_ground.sum()) for is_ground, _ in masks), 3))
     highest = count = None
@@ -297,10 +307,9 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
         del xyz, high, n
     del masks
     if sigma:
-        return TileCloud(
-            ground, highest, count, sigma_parts[0] if len(sigma_parts) == 1 else np.concatenate(sigma_parts)
-        )
-    return TileCloud(ground, highest, count)
+        sigmas = sigma_parts[0] if len(sigma_parts) == 1 else np.concatenate(sigma_parts)
+        return TileCloud(ground, highest, count, sigmas, decks)
+    return TileCloud(ground, highest, count, decks=decks)
 
 
 @dataclass(frozen=True)

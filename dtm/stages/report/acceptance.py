@@ -62,6 +62,8 @@ MEASURES = {
     "dem_nodata": "DEM (dtm.tif) nodata value (GeoTIFF GDAL_NODATA tag)",
     "unflat_water": "hydro-flattening: flattened water bodies of water.gpkg whose DTM cells depart more than 1 cm "
     "from the body's level",
+    "decks_in_dem": "bridge decks left in the DEM: decks (cells whose highest point is class 17) with half or more "
+    "of their cells' DTM within 1 m below the deck",
 }
 
 _T1 = "Table 1 (aggregate nominal pulse spacing and density)"
@@ -72,6 +74,7 @@ _A72 = "Table 7.2 (vertical accuracy classes for digital elevation data), 10-cm 
 _CLASSES = "Point Classification (Table 5, minimum classification scheme)"
 _DEM = "Deliverables: Bare-Earth Surface (Raster DEM)"
 _HYDRO = "Digital Elevation Model Surface Treatments: Hydro-Flattening"
+_BRIDGES = "Bridge and Saddle Requirements (bridges removed from the bare-earth surface)"
 # How each figure was checked for this code (the standards themselves are not in the repository; the search
 # tool's stored copies of public pages were searched on 2026-12-01, and neither the LBS tables nor the ASPRS
 # Edition 2 tables were among them).
@@ -120,6 +123,14 @@ _SEEN_HYDRO = (
     "lidar-base-specification-online-table-contents); the section's text not read; rivers (monotonic downstream) "
     "not judged here"
 )
+_SEEN_BRIDGES = (
+    "'The bare-earth surface below the bridge shall be a continuous, logical interpolation of the apparent terrain "
+    "lateral to the bridge deck', 'Where abutments are clearly visible, the bare-earth interpolation shall begin at "
+    "the junction of the bridge deck and approach structure': usgs.gov 'Lidar Base Specification' (NGP Standards "
+    "and Specifications page, its note on the Bridge and Saddle Requirements update, "
+    "https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification); the 1 m and half-the-cells test "
+    "is ours"
+)
 _SEEN_ASPRS = (
     "Edition 2 drops the 95 % figures and the VVA pass/fail: gpsworld.com 'ASPRS approves edition 2 of the ASPRS "
     "Positional Accuracy Standards for Digital Geospatial Data' (2023-12-06, https://www.gpsworld.com/"
@@ -137,6 +148,7 @@ def _lbs(table: str) -> Source:
         _CLASSES: _SEEN_CLASSES,
         _DEM: _SEEN_DEM,
         _HYDRO: _SEEN_HYDRO,
+        _BRIDGES: _SEEN_BRIDGES,
     }[table]
     return Source(LBS, LBS_EDITION, table, checked)
 
@@ -158,6 +170,7 @@ def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
         Limit("dem_float_bits", "eq", 32, "bits", _lbs(_DEM)),
         Limit("dem_nodata", "eq", -999999.0, "", _lbs(_DEM)),
         Limit("unflat_water", "max", 0, "bodies", _lbs(_HYDRO)),
+        Limit("decks_in_dem", "max", 0, "decks", _lbs(_BRIDGES)),
     )
 
 
@@ -209,6 +222,38 @@ def unflat_water_bodies(dtm_m: np.ndarray, bodies: list, transform_m) -> int:
         cells = np.isfinite(level) & np.isfinite(dtm_m)
         bad += int(cells.any() and float(np.max(np.abs(dtm_m[cells] - level[cells]))) > FLAT_TOLERANCE_M)
     return bad
+
+
+#: A DEM cell under a deck within this (m) below the deck's highest point in it is the deck (a removed deck's
+#: cells lie the deck's clearance lower, but at its abutments, where the ground meets it).
+DECK_TOLERANCE_M = 1.0
+
+
+def decks_in_dem(dtm_m: np.ndarray, top_class: np.ndarray, top_m: np.ndarray) -> int | None:
+    """How many bridge decks (8-connected cells whose highest point is class 17) the DEM (metres) still carries.
+
+    A deck is carried when half or more of its cells with a DTM value lie
+    within :data:`DECK_TOLERANCE_M` below their highest point (*top_m*).
+    None when no cell's highest point is a deck's.
+
+    >>> cls = np.full((5, 5), 2); cls[1:4, 1:4] = 17
+    >>> top = np.where(cls == 17, 18.0, 10.0)
+    >>> decks_in_dem(np.full((5, 5), 10.0), cls, top), decks_in_dem(top - 0.1, cls, top)
+    (0, 1)
+    """
+    from scipy import ndimage
+
+    from dtm.common.glossary import BRIDGE_DECK
+
+    deck = top_class == BRIDGE_DECK
+    if not deck.any():
+        return None
+    labels, n = ndimage.label(deck, np.ones((3, 3), bool))
+    valued = np.isfinite(dtm_m) & deck
+    near = valued & (dtm_m >= top_m - DECK_TOLERANCE_M)
+    cells = np.bincount(labels[valued], minlength=n + 1)[1:]
+    carried = np.bincount(labels[near], minlength=n + 1)[1:]
+    return int(np.sum((cells > 0) & (2 * carried >= cells)))
 
 
 def checkpoint_warnings(x_m: np.ndarray, y_m: np.ndarray, covered_m2: float | None) -> list[str]:

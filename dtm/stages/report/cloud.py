@@ -42,6 +42,7 @@ class CloudSummary:
     class_0_kept: int = 0  # points in class 0 (never classified) not flagged withheld
     class_by_strip: dict[int, np.ndarray] = field(default_factory=dict)  # point_source_id -> points per class
     class_grid: np.ndarray | None = None  # class of the highest point in each DTM cell (-1: none)
+    top_grid: np.ndarray | None = None  # the highest point's z in each DTM cell (NaN: none), CRS units
 
 
 def las_info(path: str | Path, gps_range: tuple[float, float] | None = None) -> dict:
@@ -267,4 +268,7 @@ def summarise_cloud(
         tally.class_0_kept,
         tally.by_strip,
         tally.top_class.reshape(rows, cols) if tally.top_class is not None else None,
+        np.where(np.isfinite(tally.top_z), tally.top_z, np.nan).reshape(rows, cols)
+        if tally.top_z is not None
+        else None,
     )

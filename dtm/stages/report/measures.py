@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.report.acceptance import MEASURES, checkpoint_warnings, pulse_density, unflat_water_bodies, voids
+from dtm.stages.report.acceptance import (
+    MEASURES,
+    checkpoint_warnings,
+    decks_in_dem,
+    pulse_density,
+    unflat_water_bodies,
+    voids,
+)
 from dtm.stages.report.inputs import ReportInputs
 
 
@@ -58,6 +65,12 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
         out["unflat_water"] = unflat_water_bodies(data.dtm * units.vertical, data.water_bodies, transform_m)
     else:
         why["unflat_water"] = "no water bodies (stages.classify_water and its bodies, stages.rasterize.hydro_flatten)"
+    cloud = data.cloud
+    if cloud.class_grid is not None and cloud.top_grid is not None:
+        v = units.vertical
+        out["decks_in_dem"] = decks_in_dem(data.dtm * v, cloud.class_grid, cloud.top_grid * v)
+    if out["decks_in_dem"] is None:
+        why["decks_in_dem"] = "no bridge deck (class 17, stages.classify_objects.bridges) in the classified points"
     return out, why, extra
 
 

@@ -182,3 +182,36 @@ def test_without_water_bodies_flatness_is_not_measured(tmp_path):
     _, verdict, *_ = _report(tmp_path, _survey(tmp_path), _dtm())
     row = _check(verdict, "unflat_water")
     assert row["status"] == "NOT MEASURED" and "classify_water" in row["note"]
+
+
+def _deck_survey(tmp_path):
+    """The plain survey with a 6 m x 20 m bridge deck (class 17) 8 m above the ground at x 1020-1026, y 2010-2030."""
+    path = _survey(tmp_path)
+    las = laspy.read(str(path))
+    x, y = np.asarray(las.x) - 1000.0, np.asarray(las.y) - 2000.0
+    deck = (x >= 20) & (x < 26) & (y >= 10) & (y < 30)
+    cls = np.asarray(las.classification).copy()
+    cls[deck] = 17
+    las.classification = cls
+    las.z = np.asarray(las.z) + np.where(deck, 8.0, 0.0)
+    las.write(str(path))
+    return path, (slice(30, 50), slice(20, 26))  # the deck's DTM cells: rows 30-49 are y 2030-2010
+
+
+def test_a_deck_removed_from_the_dem_passes(tmp_path):
+    path, _ = _deck_survey(tmp_path)
+    _, verdict, *_ = _report(tmp_path, path, _dtm())  # the DTM runs under the deck, on the ground
+    assert (_check(verdict, "decks_in_dem")["measured"], _check(verdict, "decks_in_dem")["status"]) == (0, "PASS")
+
+
+def test_a_deck_left_in_the_dem_fails(tmp_path):
+    path, cells = _deck_survey(tmp_path)
+    dtm = _dtm()
+    dtm[cells] += 8.0  # the deck taken for ground
+    _, verdict, *_ = _report(tmp_path, path, dtm)
+    assert (_check(verdict, "decks_in_dem")["measured"], _check(verdict, "decks_in_dem")["status"]) == (1, "FAIL")
+
+
+def test_without_decks_the_bridges_are_not_measured(tmp_path):
+    row = _check(_report(tmp_path, _survey(tmp_path), _dtm())[1], "decks_in_dem")
+    assert row["status"] == "NOT MEASURED" and "class 17" in row["note"]

@@ -21,11 +21,15 @@ LOW_NOISE = 7
 WATER = 9
 BRIDGE_DECK = 17
 HIGH_NOISE = 18
+IGNORED_GROUND = 20
+
+#: The ground, the DTM's or not (ignored ground lies near a breakline): what ground scores count as ground.
+GROUNDS = (GROUND, IGNORED_GROUND)
 
 #: The classes the DTM is made of: the bare earth is the ground and the water surface on it.
 BARE_EARTH = (GROUND, WATER)
 
-#: ASPRS class names (LAS 1.4 R15, Table 17)
+#: ASPRS class names (LAS 1.4 R15, Table 17; 19-22 added by R15)
 CLASS_NAMES = {
     0: "created, never classified",
     1: "unclassified",
@@ -46,11 +50,15 @@ CLASS_NAMES = {
     16: "wire connector",
     17: "bridge deck",
     18: "high noise",
+    19: "overhead structure",
+    20: "ignored ground",
+    21: "snow",
+    22: "temporal exclusion",
 }
 
 
 def class_name(code: int) -> str:
-    """The ASPRS name of a classification code ("reserved" 19-63, "user defined" 64-255)."""
+    """The ASPRS name of a classification code ("reserved" 23-63, "user defined" 64-255)."""
     return CLASS_NAMES.get(code, "user defined" if code >= 64 else "reserved")
 
 

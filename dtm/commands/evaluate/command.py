@@ -235,7 +235,7 @@ def evaluate_classes(path: Path, *, config: Path | None = None, crs: str | None 
         "n": int(len(reference)),
         "seconds": sum(records[n].get("seconds") or 0.0 for n in dict.fromkeys(filters) if n in records),
         "scores": class_scores(reference, predicted, glossary.class_name).as_dict(),
-        "ground": score(reference == glossary.GROUND, predicted == glossary.GROUND).as_dict(),
+        "ground": score(reference == glossary.GROUND, np.isin(predicted, glossary.GROUNDS)).as_dict(),
     }
 
 
@@ -336,7 +336,7 @@ def _scored_run(
     seconds = sum(
         records[n].get("seconds") or 0.0 for n in ("denoise", "classify_ground", "classify_objects") if n in records
     )
-    s = score(reference, cls == glossary.GROUND)
+    s = score(reference, np.isin(cls, glossary.GROUNDS))
     row = {"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()}
     if cell is not None:
         xyz = cloud_info(classified).units.to_metres(np.column_stack((las.x, las.y, las.z)))
@@ -344,7 +344,7 @@ def _scored_run(
         row["dtm_check"] = dtm_check(
             xyz,
             reference,
-            cls == glossary.GROUND,
+            np.isin(cls, glossary.GROUNDS),
             cell=cell,
             max_edge=max_edge,
             nodata_distance=grid.nodata_distance,

@@ -88,3 +88,39 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
             out.write_points(chunk)
     tmp.replace(dst)
     return back, ground
+
+
+def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units) -> int:
+    """Ground points of *dst* within *distance* (m) of a flattened body's outline become ignored ground (20).
+
+    The outlines are the hydro breaklines the DTM is flattened to: the
+    ground points on them would pull the TIN across the shore (LBS class
+    20, "breakline proximity").  *dst* is rewritten through a temporary
+    file; returns the points changed.
+    """
+    import laspy
+    import shapely
+
+    from dtm.common.clouds import chunk_xyz_metres, open_las_writer
+
+    shores = [shapely.Polygon(b.rings[0], b.rings[1:]).boundary for b in bodies if b.flat]
+    if not shores or distance <= 0:
+        return 0
+    zone = shapely.union_all([line.buffer(distance) for line in shores])
+    shapely.prepare(zone)
+    x0, y0, x1, y1 = zone.bounds
+    tmp = dst.with_name(f".{dst.name}.tmp")
+    changed = 0
+    with laspy.open(str(dst)) as reader, open_las_writer(tmp, reader.header) as out:
+        for chunk in reader.chunk_iterator(CHUNK):
+            cls = np.asarray(chunk.classification).copy()
+            xy = chunk_xyz_metres(chunk, units)[:, :2]
+            near = (cls == glossary.GROUND) & (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+            if near.any():
+                near[near] = shapely.contains_xy(zone, xy[near, 0], xy[near, 1])
+                cls[near] = glossary.IGNORED_GROUND
+                changed += int(near.sum())
+                chunk.classification = cls
+            out.write_points(chunk)
+    tmp.replace(dst)
+    return changed

@@ -50,6 +50,13 @@ class BodiesParams(StrictModel):
         description="a body whose water heights spread more (m, 5th to 95th percentile) is outlined but not "
         "flattened (a river that falls)",
     )
+    ignored_ground: float = Field(
+        0.7,
+        ge=0,
+        description="ground points within this distance (m) of a flattened body's outline (a hydro breakline) become "
+        "class 20, ignored ground, and stay out of the DTM (USGS LBS); default: the largest nominal pulse spacing "
+        "of quality level 2 (0.71 m); 0: none",
+    )
 
 
 class ClassifyWaterParams(StageParams):

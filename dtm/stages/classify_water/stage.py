@@ -29,7 +29,7 @@ from pipeline.stage import Stage, StageContext, StageIO
 COUNTS = ("points", "water", "from_points", "from_polygons", "ground_to_water")
 
 
-class ClassifyWater(Stage, name="classify_water", version="1", params=ClassifyWaterParams):
+class ClassifyWater(Stage, name="classify_water", version="2", params=ClassifyWaterParams):
     """water (class 9) from the points and from polygons."""
 
     inputs = ("points_classified",)
@@ -82,7 +82,7 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
     """The water bodies of the whole survey: those whose banks do not rise given back, the others to water.gpkg."""
     from dtm.common.clouds import cloud_info
     from dtm.common.water_bodies import write_water_bodies
-    from dtm.stages.classify_water.bodies import bodies_of, give_back
+    from dtm.stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores
 
     dst = ctx.outputs["points_water"]
     info = cloud_info(dst)
@@ -100,6 +100,7 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
     if "water_bodies" in ctx.outputs:
         write_water_bodies(ctx.outputs["water_bodies"], bodies, crs=info.crs, units=info.units)
         flat = [b for b in bodies if b.flat]
+        counts["ignored_ground"] = ignore_near_shores(dst, flat, ctx.params.bodies.ignored_ground, info.units)
         ctx.metrics["bodies"] = {
             "polygons": len(bodies),
             "flattened": len(flat),

@@ -59,7 +59,7 @@ def test_the_lake_is_water_and_the_valley_ground(one_lake):
     _, stages, lake = one_lake
     cls = _classes(stages["classify_water"])
     assert np.all(cls[lake] == 9)
-    assert np.mean(cls[~lake] == 2) > 0.99
+    assert np.mean(np.isin(cls[~lake], (2, 20))) > 0.99  # ground, or ignored ground at the shore
     m = stages["classify_water"]["metrics"]
     assert m["water"] == m["from_points"] == m["ground_to_water"] == lake.sum() and m["from_polygons"] == 0
 
@@ -100,6 +100,23 @@ def test_water_gpkg_is_one_polygon_z_at_the_level_in_a_geopackage_1_2(one_lake):
     assert abs(fields["area_m2"][0] - np.pi * 25**2) < 2 * np.pi * 25  # within a metre of the shore
     r = np.hypot(xyz[:, 0] - X0 - 60, xyz[:, 1] - Y0 - 60)
     assert np.all((r > 22) & (r < 27))
+
+
+def test_ground_at_the_shore_is_ignored_ground_and_the_rest_stays(one_lake):
+    """Class 20 within 0.7 m (``ignored_ground``) of the lake's outline in water.gpkg, the hydro breakline."""
+    import pyogrio.raw
+    import shapely
+
+    root, stages, lake = one_lake
+    cls = _classes(stages["classify_water"])
+    geometry = pyogrio.raw.read(root / "out" / "water.gpkg")[2]
+    shore = shapely.from_wkb(bytes(geometry[0])).boundary
+    las = laspy.read(str(root / "lake.las"))
+    d = shapely.distance(shore, shapely.points(np.asarray(las.x), np.asarray(las.y)))
+    ground = np.isin(cls, (2, 20))  # not water
+    assert np.all(cls[ground & (d < 0.69)] == 20)
+    assert not np.any(cls[d > 0.71] == 20)
+    assert stages["classify_water"]["metrics"]["ignored_ground"] == int((cls == 20).sum()) > 100
 
 
 def test_without_hydro_flattening_the_dtm_follows_the_water_points(one_lake):

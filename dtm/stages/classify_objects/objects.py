@@ -79,20 +79,40 @@ class CellSums:
         self.ground_count += np.bincount(k[ground], minlength=size)
 
     def surface(self) -> Surface:
-        """The :class:`Surface` of the points added."""
+        """The :class:`Surface` of the points added; it takes over these arrays (add no more points)."""
         shape = (self.grid.rows, self.grid.cols)
         empty = self.count == 0
-        top, bottom = np.where(empty, np.nan, self.top).reshape(shape), np.where(empty, np.nan, self.bottom)
+        self.top[empty] = np.nan
+        self.bottom[empty] = np.nan
+        top = self.top.reshape(shape)
         return Surface(
             self.grid,
             top,
-            bottom.reshape(shape),
+            self.bottom.reshape(shape),
             self.count.reshape(shape),
             self.single.astype(np.float64).reshape(shape),
-            plane_residual(top),
+            banded_residual(top),
             self.ground_sum.reshape(shape),
             self.ground_count.reshape(shape),
         )
+
+
+#: Rows of the grid :func:`banded_residual` computes at a time.
+BAND_ROWS = 256
+
+
+def banded_residual(top: np.ndarray, rows: int = BAND_ROWS) -> np.ndarray:
+    """:func:`plane_residual` of *top*, *rows* rows at a time (each band read with a row on either side).
+
+    The same values (each depends on its 3 x 3 cells only); its temporaries,
+    about 200 bytes a cell, take a band's size instead of the grid's.
+    """
+    out = np.empty(top.shape)
+    for r0 in range(0, top.shape[0], rows):
+        r1 = min(r0 + rows, top.shape[0])
+        a, b = max(r0 - 1, 0), min(r1 + 1, top.shape[0])
+        out[r0:r1] = plane_residual(top[a:b])[r0 - a : r0 - a + r1 - r0]
+    return out
 
 
 def cell_index(xyz: np.ndarray, grid: Grid) -> np.ndarray:

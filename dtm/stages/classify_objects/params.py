@@ -73,8 +73,8 @@ class ClassifyObjectsParams(StageParams):
         8_000_000,
         ge=0,
         description="the whole survey is classified on one grid, in two passes over the points, when the grid has "
-        "at most this many cells (8 km2 of 1 m cells); larger surveys are cut into tiles with the buffer; 0: always "
-        "tiles",
+        "at most this many cells (8 km2 of 1 m cells; about 220 bytes a cell at the peak); larger surveys are cut "
+        "into tiles with the buffer; 0: always tiles",
     )
     buildings: BuildingParams = Field(default_factory=BuildingParams, description="buildings (class 6)")
     vegetation: VegetationParams = Field(default_factory=VegetationParams, description="vegetation (classes 3, 4, 5)")

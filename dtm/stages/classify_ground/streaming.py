@@ -18,10 +18,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dtm.common import glossary
+from dtm.common.grid_classes import (
+    RecordRange,
+    classes_here,
+    classes_on_workers,
+    grids_of,
+    las_chunks,
+    rewrite_range,
+    workers_layout,
+)
 from dtm.stages.classify_ground.ground_classes import candidates_of, classify_columns, new_classes
 from dtm.stages.classify_ground.params import ClassifyGroundParams, SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, grid_corner
-from pipeline.errors import InputDataError
 
 if TYPE_CHECKING:
     from pipeline.executor import DaskExecutor, LocalExecutor
@@ -29,22 +37,11 @@ if TYPE_CHECKING:
 
 
 def _chunks(path: Path, work, *, chunk_size: int = 1_000_000):
-    """``work(chunk, xyz, columns)`` of each chunk of a LAS file, in file order.
+    """``work(chunk, xyz, columns)`` of each chunk of a LAS file, in file order (:func:`las_chunks`).
 
-    ``xyz`` are the chunk's coordinates in metres and ``columns`` what
-    :func:`classify` needs, as :func:`dtm.common.tile_points.split_cloud` reads them.
-    (Two threads sharing the chunks were slower, 24 s against 16 s on 37.5 M
-    points with the other core busy, and held 1.6 times the memory.)
+    ``columns`` are what :func:`classify` needs, as :func:`dtm.common.tile_points.split_cloud` reads them.
     """
-    import laspy
-
-    from dtm.common.clouds import chunk_xyz_metres, cloud_crs
-    from dtm.common.units import Units
-
-    with laspy.open(str(path)) as reader:
-        units = Units.of(cloud_crs(reader))
-        for chunk in reader.chunk_iterator(chunk_size):
-            yield work(chunk, chunk_xyz_metres(chunk, units), classify_columns(chunk))
+    return las_chunks(path, lambda chunk, xyz: work(chunk, xyz, classify_columns(chunk)), chunk_size=chunk_size)
 
 
 def _anchored(lo, hi, cell: float) -> tuple[float, float, int, int]:
@@ -133,11 +130,7 @@ def smrf_one_grid(
     from dtm.common.clouds import cloud_info
 
     info = cloud_info(src)
-    records = None  # where the records lie, for the workers to write them in place
-    if executor is not None and executor.workers > 1 and workdir is not None and info.count >= 2 * chunk_size:
-        records = _record_layout(src)
-    if records is not None:
-        executor.prepare(classes_range)  # the workers start while this process finds the grid
+    records = workers_layout(src, info.count, executor, workdir, chunk_size, classes_range)
     lowest = lowest_grid(src, params, info.extent, progress, chunk_size)
     if lowest is None:
         return None
@@ -221,22 +214,11 @@ def survey_surfaces(
 
 def _classes_here(src, dst, params, grid, surfaces, chunk_size, progress) -> list[int]:
     """Step 3 of :func:`smrf_one_grid` in this process: *dst* written a chunk at a time; :data:`COUNTS`."""
-    import laspy
 
-    from dtm.common.clouds import open_las_writer
+    def classes(chunk, xyz):
+        return _chunk_classes(xyz, classify_columns(chunk), params, grid, surfaces)
 
-    def classes(chunk, xyz, cols):
-        chunk.classification, numbers = _chunk_classes(xyz, cols, params, grid, surfaces)
-        return chunk, numbers
-
-    totals = [0] * len(COUNTS)
-    with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
-        for chunk, numbers in _chunks(src, classes, chunk_size=chunk_size):
-            writer.write_points(chunk)
-            totals = [a + b for a, b in zip(totals, numbers, strict=True)]
-            if progress is not None:
-                progress.update(numbers[0])
-    return totals
+    return classes_here(src, dst, classes, len(COUNTS), chunk_size=chunk_size, progress=progress)
 
 
 def _chunk_classes(xyz, cols, params, grid, surfaces) -> tuple[np.ndarray, tuple[int, int, int, int]]:
@@ -259,120 +241,57 @@ def _chunk_classes(xyz, cols, params, grid, surfaces) -> tuple[np.ndarray, tuple
     return cls, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
 
 
-def _record_layout(path: Path) -> tuple[int, int, int] | None:
-    """``(offset to the first record, record length, record count)`` of a LAS file the workers may rewrite in place.
-
-    None when the classification is not a byte of its own (point formats
-    0-5 keep it in five bits of a byte shared with three flags), the file
-    is compressed, or anything follows the records (EVLRs, which laspy's
-    writer does not copy): such a file is written by laspy's writer.
-    """
-    import laspy
-
-    with laspy.open(str(path)) as reader:
-        header = reader.header
-        if header.are_points_compressed:
-            return None
-        fields = header.point_format.dtype().fields
-        if "classification" not in fields or fields["classification"][0] != np.uint8:
-            return None
-        offset, size, count = int(header.offset_to_point_data), int(header.point_format.size), int(header.point_count)
-        if Path(path).stat().st_size != offset + count * size:
-            return None
-        return offset, size, count
-
-
 def _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size) -> list[int]:
-    """Step 3 of :func:`smrf_one_grid` on the workers: *dst* is *src* with the new classes.
+    """Step 3 of :func:`smrf_one_grid` on the workers, a range of records each (:func:`classes_on_workers`).
 
-    This process writes *src*'s header and VLRs to *dst* and sizes it for
-    the records; the workers each classify a range of records
-    (:func:`classes_range`, the grids read from ``.npy`` files in
-    *workdir*) and write the range's records, their classification byte
-    replaced, at their place in *dst*.  Only the classification changes, so
-    *src*'s header (bounds, returns, counts) is the one laspy's writer gives
-    the same points (a test compares the bytes); *src* has nothing after
-    its records (*records*: :func:`_record_layout`).  Returns :data:`COUNTS`.
+    The DEM and slope are read from ``.npy`` files in *workdir*; a test
+    compares the file with the one this process writes, byte for byte.
+    Returns :data:`COUNTS`.
     """
-    import shutil
-
-    offset, size, count = records
-    folder = Path(workdir) / ".smrf-one-grid"
-    shutil.rmtree(folder, ignore_errors=True)
-    folder.mkdir(parents=True)
-    try:
-        np.save(folder / "dem.npy", surfaces[0])
-        np.save(folder / "slope.npy", surfaces[1])
-        with open(src, "rb") as head, open(dst, "wb") as out:
-            out.write(head.read(offset))  # header and VLRs
-            out.truncate(offset + count * size)
-        pieces = 2 * executor.workers
-        bounds = [count * k // pieces for k in range(pieces + 1)]
-        tasks = [
-            RangeTask(
-                path=str(src),
-                start=bounds[k],
-                stop=bounds[k + 1],
-                params=params.model_dump(mode="json"),
-                grid=(grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols),
-                surfaces=(str(folder / "dem.npy"), str(folder / "slope.npy")),
-                dst=str(dst),
-                offset=offset + bounds[k] * size,
-                chunk_size=max(chunk_size // executor.workers, 1),  # the workers' chunks together: one process's
-            )
-            for k in range(pieces)
-        ]
-        results = executor.map(classes_range, tasks, what="point test")
-        return [sum(r[k] for r in results) for k in range(len(COUNTS))]
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
+    return classes_on_workers(
+        src,
+        dst,
+        records,
+        executor,
+        folder=Path(workdir) / ".smrf-one-grid",
+        grids={"dem": surfaces[0], "slope": surfaces[1]},
+        task=lambda r, paths: RangeTask(
+            records=r,
+            params=params.model_dump(mode="json"),
+            grid=(grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols),
+            surfaces=paths,
+        ),
+        run=classes_range,
+        chunk_size=chunk_size,
+        what="point test",
+    )
 
 
 @dataclass(frozen=True)
 class RangeTask:
-    """Step 3 of :func:`smrf_one_grid` on records ``start:stop`` of *path*, in a worker (:func:`classes_range`).
+    """Step 3 of :func:`smrf_one_grid` on one range of records, in a worker (:func:`classes_range`).
 
     *grid*: ``(x0, y0, cell, rows, cols)`` of the filtered grid;
-    *surfaces*: its DEM and slope as ``.npy`` files; *offset*: where the
-    range's records go in *dst*; *params*: the stage's ``model_dump``.
+    *surfaces*: its DEM and slope as ``.npy`` files (``dem``, ``slope``);
+    *params*: the stage's ``model_dump``.
     """
 
-    path: str
-    start: int
-    stop: int
+    records: RecordRange
     params: dict
     grid: tuple[float, float, float, int, int]
-    surfaces: tuple[str, str]
-    dst: str
-    offset: int
-    chunk_size: int
+    surfaces: dict[str, str]
 
 
 def classes_range(task: RangeTask) -> list[int]:
     """Step 3 of :func:`smrf_one_grid` on one range of records (runs in a worker; see :func:`_classes_on_workers`)."""
-    import laspy
-
-    from dtm.common.clouds import chunk_xyz_metres, cloud_crs
-    from dtm.common.tile_points import record_chunks
-    from dtm.common.units import Units
-
     params = ClassifyGroundParams.model_validate(task.params)
     x0, y0, cell, rows, cols = task.grid
     empty = np.zeros(0, np.int64)
     grid = CellIndex(x0, y0, cell, int(rows), int(cols), empty, empty)
-    surfaces = tuple(np.load(p, mmap_mode="r") for p in task.surfaces)
-    start, stop = task.start, task.stop
-    totals = [0] * len(COUNTS)
-    # the file exists at its full size: each range writes its own bytes (r+: no truncation)
-    with laspy.open(task.path) as reader, open(task.dst, "r+b") as out:
-        out.seek(task.offset)
-        units = Units.of(cloud_crs(reader))
-        for chunk in record_chunks(reader, start, stop, task.chunk_size):
-            xyz = chunk_xyz_metres(chunk, units)
-            cls, numbers = _chunk_classes(xyz, classify_columns(chunk), params, grid, surfaces)
-            chunk.array["classification"] = cls
-            out.write(chunk.array)  # contiguous records: written as they are, no copy
-            totals = [a + b for a, b in zip(totals, numbers, strict=True)]
-    if totals[0] != stop - start:  # pragma: no cover - fewer records than the header says; parse checks that first
-        raise InputDataError(f"{task.path}: of records {start:,} to {stop:,}, {totals[0]:,} could be read.")
-    return totals
+    grids = grids_of(task.surfaces)
+    surfaces = (grids["dem"], grids["slope"])
+
+    def classes(chunk, xyz):
+        return _chunk_classes(xyz, classify_columns(chunk), params, grid, surfaces)
+
+    return rewrite_range(task.records, classes, len(COUNTS))

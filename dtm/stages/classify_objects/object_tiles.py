@@ -110,14 +110,18 @@ def objects_tile(task: PointTask) -> dict:
     )
     core = read_column(source, "core")
     write_result(Path(task.result), idx=read_column(source, "idx")[core], classification=new[core])
-    c, was = new[core], cls[core]
-    return {
-        "tile": task.tile,
-        "points": int(core.sum()),
-        "buildings": int((c == BUILDING).sum()),
-        "roof_was_ground": int(((c == BUILDING) & (was == glossary.GROUND)).sum()),
-        "bridge_decks": int((c == BRIDGE).sum()),
-        "low_vegetation": int((c == LOW_VEGETATION).sum()),
-        "medium_vegetation": int((c == MEDIUM_VEGETATION).sum()),
-        "high_vegetation": int((c == HIGH_VEGETATION).sum()),
-    }
+    return {"tile": task.tile, **dict(zip(COUNTS, class_counts(new[core], cls[core]), strict=True))}
+
+
+def class_counts(new: np.ndarray, was: np.ndarray) -> tuple[int, ...]:
+    """:data:`COUNTS` of points whose classes were *was* and are *new*."""
+    building = new == BUILDING
+    return (
+        len(new),
+        int(building.sum()),
+        int((building & (was == glossary.GROUND)).sum()),
+        int((new == BRIDGE).sum()),
+        int((new == LOW_VEGETATION).sum()),
+        int((new == MEDIUM_VEGETATION).sum()),
+        int((new == HIGH_VEGETATION).sum()),
+    )

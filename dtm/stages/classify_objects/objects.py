@@ -41,36 +41,102 @@ SHADOW = 6.0
 
 @dataclass(frozen=True)
 class Surface:
-    """The highest and lowest point of each cell, counts, and how planar each cell's 3 x 3 neighbourhood is."""
+    """Per cell: the highest and lowest point, counts, how planar its 3 x 3 cells are, and its ground points' z."""
 
     grid: Grid
-    row: np.ndarray  # of each point
-    col: np.ndarray
     top: np.ndarray  # highest z per cell (NaN: empty)
     bottom: np.ndarray  # lowest z per cell
     count: np.ndarray  # points per cell
     single: np.ndarray  # single returns per cell
     residual: np.ndarray  # RMS (m) of ``top`` about the plane of its 3 x 3 cells (NaN: fewer than 6 cells)
+    ground_sum: np.ndarray  # sum of the z of the cell's ground (2) points, added in file order
+    ground_count: np.ndarray  # the cell's ground points
 
 
-def surface(xyz: np.ndarray, single: np.ndarray, cell: float) -> Surface:
-    """The :class:`Surface` of points *xyz* (metres) on cells of *cell* m anchored at whole multiples of it."""
+class CellSums:
+    """What :class:`Surface` is made of, gathered a chunk of points at a time (in file order) on *grid*.
+
+    Maxima, minima and counts do not depend on the chunks; the ground
+    points' z are added one by one in file order (``np.add.at``), as
+    ``np.bincount`` adds them: the sums of the survey in chunks are those of
+    the survey at once, bit for bit.
+    """
+
+    def __init__(self, grid: Grid):
+        size = grid.rows * grid.cols
+        self.grid = grid
+        self.top = np.full(size, -np.inf)
+        self.bottom = np.full(size, np.inf)
+        self.count = np.zeros(size, np.int64)
+        self.single = np.zeros(size, np.int64)
+        self.ground_sum = np.zeros(size)
+        self.ground_count = np.zeros(size, np.int64)
+
+    def add(self, k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray) -> None:
+        """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return and ground masks."""
+        size = len(self.count)
+        np.maximum.at(self.top, k, z)
+        np.minimum.at(self.bottom, k, z)
+        self.count += np.bincount(k, minlength=size)
+        self.single += np.bincount(k[single], minlength=size)
+        np.add.at(self.ground_sum, k[ground], z[ground])
+        self.ground_count += np.bincount(k[ground], minlength=size)
+
+    def surface(self) -> Surface:
+        """The :class:`Surface` of the points added; it takes over these arrays (add no more points)."""
+        shape = (self.grid.rows, self.grid.cols)
+        empty = self.count == 0
+        self.top[empty] = np.nan
+        self.bottom[empty] = np.nan
+        top = self.top.reshape(shape)
+        return Surface(
+            self.grid,
+            top,
+            self.bottom.reshape(shape),
+            self.count.reshape(shape),
+            self.single.astype(np.float64).reshape(shape),
+            banded_residual(top),
+            self.ground_sum.reshape(shape),
+            self.ground_count.reshape(shape),
+        )
+
+
+#: Rows of the grid :func:`banded_residual` computes at a time.
+BAND_ROWS = 256
+
+
+def banded_residual(top: np.ndarray, rows: int = BAND_ROWS) -> np.ndarray:
+    """:func:`plane_residual` of *top*, *rows* rows at a time (each band read with a row on either side).
+
+    The same values (each depends on its 3 x 3 cells only); its temporaries,
+    about 200 bytes a cell, take a band's size instead of the grid's.
+    """
+    out = np.empty(top.shape)
+    for r0 in range(0, top.shape[0], rows):
+        r1 = min(r0 + rows, top.shape[0])
+        a, b = max(r0 - 1, 0), min(r1 + 1, top.shape[0])
+        out[r0:r1] = plane_residual(top[a:b])[r0 - a : r0 - a + r1 - r0]
+    return out
+
+
+def cell_index(xyz: np.ndarray, grid: Grid) -> np.ndarray:
+    """The flat index (``row * cols + col``) of the cell of *grid* holding each point; negative outside."""
+    row, col = cell_of(xyz, grid)
+    return row * grid.cols + col
+
+
+def surface(xyz: np.ndarray, single: np.ndarray, ground: np.ndarray, cell: float) -> tuple[Surface, np.ndarray]:
+    """The :class:`Surface` of points *xyz* (metres) on cells of *cell* m anchored at whole multiples of it.
+
+    *single*, *ground*: masks of the single returns and of the ground (2)
+    points.  Returns the surface and each point's flat cell index.
+    """
     lo, hi = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
     grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], cell)
-    row, col = cell_of(xyz, grid)
-    k = row * grid.cols + col
-    size = grid.rows * grid.cols
-    top = np.full(size, -np.inf)
-    np.maximum.at(top, k, xyz[:, 2])
-    bottom = np.full(size, np.inf)
-    np.minimum.at(bottom, k, xyz[:, 2])
-    count = np.bincount(k, minlength=size)
-    top[count == 0] = np.nan
-    bottom[count == 0] = np.nan
-    shape = (grid.rows, grid.cols)
-    top, bottom = top.reshape(shape), bottom.reshape(shape)
-    singles = np.bincount(k, weights=np.asarray(single, dtype=np.float64), minlength=size).reshape(shape)
-    return Surface(grid, row, col, top, bottom, count.reshape(shape), singles, plane_residual(top))
+    k = cell_index(xyz, grid)
+    sums = CellSums(grid)
+    sums.add(k, xyz[:, 2], single, ground)
+    return sums.surface(), k
 
 
 def plane_residual(top: np.ndarray) -> np.ndarray:
@@ -259,19 +325,127 @@ def building_cells(s: Surface, params) -> np.ndarray:
     return ok[labels]
 
 
-def ground_under(xyz: np.ndarray, ground: np.ndarray, s: Surface, away: np.ndarray, reach_cells: float) -> np.ndarray:
-    """The ground height of each cell: mean of its *ground* points outside the cells *away*, gaps filled.
+def ground_under(s: Surface, away: np.ndarray, reach_cells: float) -> np.ndarray:
+    """The ground height of each cell: mean of its ground points, but NaN in the cells *away*, gaps filled.
 
     A gap takes the value of the nearest cell with ground, up to
     *reach_cells* cells away (NaN farther).
     """
-    k = s.row * s.grid.cols + s.col
-    use = ground & ~away.ravel()[k]
-    size = s.grid.rows * s.grid.cols
-    n = np.bincount(k[use], minlength=size)
-    total = np.bincount(k[use], weights=xyz[use, 2], minlength=size)
-    mean = np.divide(total, n, out=np.full(size, np.nan), where=n > 0).reshape(s.grid.rows, s.grid.cols)
+    n = np.where(away, 0, s.ground_count)
+    mean = np.divide(s.ground_sum, n, out=np.full(n.shape, np.nan), where=n > 0)
     return fill_nearest(mean, max_cells=reach_cells)
+
+
+@dataclass(frozen=True)
+class ObjectCells:
+    """Every grid of cells the point rule (:func:`point_classes`) needs, made by :func:`object_cells`.
+
+    One boolean grid per kind of object: a detector adds its grid here,
+    makes it in :func:`object_cells` and gives its points their class in
+    :func:`point_classes`.
+    """
+
+    grid: Grid
+    roofs: np.ndarray  # bool: the cells of buildings
+    edges: np.ndarray  # bool: the roofs and the rings of cells around them (eaves, walls)
+    ground: np.ndarray  # ground height (m) under each cell (NaN: no ground within max_size)
+    rough: np.ndarray  # bool: vegetation cells (several returns around, or a rough or deep surface)
+    decks: np.ndarray  # bool: the cells of bridge decks (:mod:`dtm.stages.classify_objects.bridges`)
+    deck_top: np.ndarray  # the highest deck top among each cell's 3 x 3 (-inf: none)
+
+
+def vegetation_cells(s: Surface, params, multi_echo: bool) -> np.ndarray:
+    """The cells where points above the ground are vegetation (bool), by *params* (:class:`VegetationParams`).
+
+    With several returns per pulse (*multi_echo*): a share of at least
+    ``multiple_returns`` of the returns of the 3 x 3 cells are of
+    multiple-return pulses; else the surface is rough, or the cell's points
+    span the medium-vegetation break (a crown).
+    """
+    from scipy import ndimage
+
+    if multi_echo:  # a canopy: a share of the pulses around returned more than once
+        several = np.where(s.count > 0, 1.0 - s.single / np.maximum(s.count, 1), 0.0)  # a void is no canopy
+        return (
+            ndimage.uniform_filter(several, 3, mode="constant")
+            * 9
+            / np.maximum(ndimage.uniform_filter((s.count > 0).astype(float), 3, mode="constant") * 9, 1)
+            >= params.multiple_returns
+        )
+    # single-echo sensors: a rough surface, or points seen at every height down a cell (a crown)
+    return ~(s.residual <= params.roughness) | (s.top - s.bottom >= params.breaks[1])
+
+
+def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
+    """The cell grids of buildings, their edges, the ground and vegetation: part (a) of :func:`object_classes`.
+
+    From the grid's statistics only (no point); *params*:
+    :class:`~dtm.stages.classify_objects.params.ClassifyObjectsParams`.
+    """
+    from scipy import ndimage
+
+    cell = s.grid.resolution
+    b = params.buildings
+    roofs = building_cells(s, b) if b.enabled else np.zeros(s.top.shape, dtype=bool)
+    decks = np.zeros(s.top.shape, dtype=bool)
+    if params.bridges.enabled:
+        from dtm.stages.classify_objects.bridges import deck_cells
+
+        decks = deck_cells(s, params.bridges, b.planarity, b.min_area)
+        roofs &= ~decks
+    rings = max(1, round(WALLS / cell))
+    edges = ndimage.binary_dilation(roofs, np.ones((3, 3), bool), iterations=rings) if roofs.any() else roofs
+    ground = ground_under(s, edges | decks, b.max_size / cell)
+    v = params.vegetation
+    rough = vegetation_cells(s, v, multi_echo) if v.enabled else np.zeros(s.top.shape, dtype=bool)
+    deck_top = (
+        ndimage.maximum_filter(np.where(decks, s.top, -np.inf), size=3)
+        if decks.any()
+        else np.full(decks.shape, -np.inf)
+    )
+    return ObjectCells(s.grid, roofs, edges, ground, rough, decks, deck_top)
+
+
+def point_classes(
+    cells: ObjectCells,
+    k: np.ndarray,
+    classification: np.ndarray,
+    z: np.ndarray,
+    number_of_returns: np.ndarray,
+    params,
+) -> tuple[np.ndarray, np.ndarray]:
+    """New classes of usable points, and which are building points: part (b) of :func:`object_classes`.
+
+    Each point by its own class, height *z*, number of returns and its
+    cell's values (*k*: flat cell indices in *cells*' grids).
+    """
+    cls = np.asarray(classification, dtype=np.uint8)
+    roofs, edges = np.ravel(cells.roofs)[k], np.ravel(cells.edges)[k]
+    height = z - np.ravel(cells.ground)[k]
+    # a roof's own cells take ground points too (a roof the filter took for ground); the cells at its edge
+    # (eaves, walls) take the single returns above a wall's foot, ground too (a tree beside a wall returns
+    # several times)
+    candidate = np.isin(cls, CANDIDATES)
+    single = np.asarray(number_of_returns) <= 1
+    may = np.where(roofs, candidate, edges & candidate & ~(height < WALL_FOOT) & single)
+    building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides
+    new = cls.copy()
+    new[building] = BUILDING
+    if cells.decks.any():  # the deck's points, not what lies under it: near its top
+        on_deck = np.ravel(cells.decks)[k] & candidate
+        on_deck &= z >= np.ravel(cells.deck_top)[k] - 0.5 * params.bridges.clearance
+        new[on_deck] = BRIDGE
+        building &= ~on_deck
+    v = params.vegetation
+    if v.enabled:
+        rough = np.ravel(cells.rough)[k] | (np.asarray(number_of_returns) > 1)
+        veg = (new == glossary.UNCLASSIFIED) & rough & (height >= v.breaks[0])
+        new[veg] = np.where(
+            height[veg] >= v.breaks[2],
+            HIGH_VEGETATION,
+            np.where(height[veg] >= v.breaks[1], MEDIUM_VEGETATION, LOW_VEGETATION),
+        )
+    return new, building
 
 
 def object_classes(
@@ -291,65 +465,16 @@ def object_classes(
     several returns per pulse (then vegetation is told by them, else by
     roughness).  Points of class 1 or 2 may become 6 or 17 (bridge decks,
     :mod:`dtm.stages.classify_objects.bridges`); of class 1, 3, 4 or 5;
-    every other class stays.
+    every other class stays.  The :func:`surface` of the usable points,
+    then :func:`object_cells` and :func:`point_classes`.
     """
     out = np.asarray(classification, dtype=np.uint8).copy()
     in_building = np.zeros(len(out), dtype=bool)
     if not usable.any():
         return out, in_building
-    pts = xyz[usable]
-    s = surface(pts, np.asarray(number_of_returns)[usable] <= 1, cell)
-    from scipy import ndimage
-
-    b = params.buildings
-    roofs = building_cells(s, b) if b.enabled else np.zeros(s.top.shape, dtype=bool)
-    decks = np.zeros(s.top.shape, dtype=bool)
-    if params.bridges.enabled:
-        from dtm.stages.classify_objects.bridges import deck_cells
-
-        decks = deck_cells(s, params.bridges, b.planarity, b.min_area)
-        roofs &= ~decks
-    rings = max(1, round(WALLS / cell))
-    edges = ndimage.binary_dilation(roofs, np.ones((3, 3), bool), iterations=rings) if roofs.any() else roofs
-    cls = out[usable]
-    ground = ground_under(pts, cls == glossary.GROUND, s, edges | decks, b.max_size / cell)
-    k = (s.row, s.col)
-    height = pts[:, 2] - ground[k]
-    # a roof's own cells take ground points too (a roof the filter took for ground); the cells at its edge
-    # (eaves, walls) take the single returns the filter left above a wall's foot, and its ground points
-    # min_height up (a tree beside a wall returns several times)
-    single = np.asarray(number_of_returns)[usable] <= 1
-    wall = edges[k] & np.isin(cls, CANDIDATES) & ~(height < WALL_FOOT) & single
-    may = np.where(roofs[k], np.isin(cls, CANDIDATES), wall)
-    building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides
-    new = cls.copy()
-    new[building] = BUILDING
-    if decks.any():  # the deck's points, not what lies under it: near its top
-        deck_top = ndimage.maximum_filter(np.where(decks, s.top, -np.inf), size=3)[k]
-        near_top = pts[:, 2] >= deck_top - 0.5 * params.bridges.clearance
-        on_deck = decks[k] & np.isin(cls, CANDIDATES) & near_top
-        new[on_deck] = BRIDGE
-        building &= ~on_deck
-    v = params.vegetation
-    if v.enabled:
-        if multi_echo:  # a canopy: a share of the pulses around returned more than once
-            several = np.where(s.count > 0, 1.0 - s.single / np.maximum(s.count, 1), 0.0)  # a void is no canopy
-            rough = (
-                ndimage.uniform_filter(several, 3, mode="constant")
-                * 9
-                / np.maximum(ndimage.uniform_filter((s.count > 0).astype(float), 3, mode="constant") * 9, 1)
-                >= v.multiple_returns
-            )
-            rough = rough[k]
-        else:  # single-echo sensors: a rough surface, or points seen at every height down a cell (a crown)
-            rough = ~(s.residual[k] <= v.roughness) | (s.top - s.bottom >= v.breaks[1])[k]
-        rough |= np.asarray(number_of_returns)[usable] > 1
-        veg = (new == glossary.UNCLASSIFIED) & rough & (height >= v.breaks[0])
-        new[veg] = np.where(
-            height[veg] >= v.breaks[2],
-            HIGH_VEGETATION,
-            np.where(height[veg] >= v.breaks[1], MEDIUM_VEGETATION, LOW_VEGETATION),
-        )
+    pts, cls, nret = xyz[usable], out[usable], np.asarray(number_of_returns)[usable]
+    s, k = surface(pts, nret <= 1, cls == glossary.GROUND, cell)
+    new, building = point_classes(object_cells(s, params, multi_echo), k, cls, pts[:, 2], nret, params)
     out[usable] = new
     in_building[usable] = building
     return out, in_building

@@ -81,6 +81,13 @@ class ClassifyObjectsParams(StageParams):
     sparse_cells: float = Field(
         1.5, gt=0, description="cells are at least this many nominal point spacings wide (a sparse survey's cells grow)"
     )
+    one_grid_cells: int = Field(
+        8_000_000,
+        ge=0,
+        description="the whole survey is classified on one grid, in two passes over the points, when the grid has "
+        "at most this many cells (8 km2 of 1 m cells; about 220 bytes a cell at the peak); larger surveys are cut "
+        "into tiles with the buffer; 0: always tiles",
+    )
     buildings: BuildingParams = Field(default_factory=BuildingParams, description="buildings (class 6)")
     bridges: BridgeParams = Field(default_factory=BridgeParams, description="bridge decks (class 17)")
     vegetation: VegetationParams = Field(default_factory=VegetationParams, description="vegetation (classes 3, 4, 5)")

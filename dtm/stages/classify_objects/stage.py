@@ -11,13 +11,16 @@ ground at both ends are bridge decks (17,
 :func:`dtm.stages.classify_objects.bridges.deck_cells`).  The other
 points above the ground where pulses return several times (or, in a
 single-return survey, the surface is rough) become vegetation 3 / 4 / 5 by
-their height above the ground; the rest stays 1.  Tile by tile with a
-buffer wider than the widest building.  Method and departures:
+their height above the ground; the rest stays 1.  On one grid of the
+whole survey in two passes over its points when it has at most
+``one_grid_cells`` cells (:mod:`dtm.stages.classify_objects.one_grid`),
+else tile by tile with a buffer wider than the widest building.  Method and departures:
 docs/stages/classify_objects.md.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import ClassVar
 
 from dtm.stages.classify_objects.object_tiles import (
@@ -28,6 +31,7 @@ from dtm.stages.classify_objects.object_tiles import (
     several_returns,
     survey_cell,
 )
+from dtm.stages.classify_objects.one_grid import objects_one_grid
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
 from pipeline.stage import Stage, StageContext
 
@@ -49,15 +53,17 @@ class ClassifyObjects(Stage, name="classify_objects", version="2", params=Classi
 
         src, dst = ctx.inputs["points_water"], ctx.outputs["points_objects"]
         cell, multi = survey_cell(ctx.params, cloud_info(src)), several_returns(src)
-        results = classes_by_tile(
-            ctx,
-            src,
-            dst,
-            buffer=self.tile_buffer(ctx.params),
-            columns=objects_columns,
-            task=objects_tile,
-            params={"params": ctx.params.model_dump(mode="json"), "cell": cell, "multi_echo": multi},
-        )
+        results = _on_one_grid(ctx, src, dst, cell, multi)
+        if results is None:
+            results = classes_by_tile(
+                ctx,
+                src,
+                dst,
+                buffer=self.tile_buffer(ctx.params),
+                columns=objects_columns,
+                task=objects_tile,
+                params={"params": ctx.params.model_dump(mode="json"), "cell": cell, "multi_echo": multi},
+            )
         counts = {k: int(sum(r[k] for r in results)) for k in COUNTS}
         ctx.metrics.update(cell_m=cell, several_returns=multi, **counts)
         ctx.log.info(
@@ -68,3 +74,28 @@ class ClassifyObjects(Stage, name="classify_objects", version="2", params=Classi
             counts["points"],
             counts["roof_was_ground"],
         )
+
+
+def _on_one_grid(
+    ctx: StageContext[ClassifyObjectsParams], src: Path, dst: Path, cell: float, multi: bool
+) -> list[dict] | None:
+    """The survey on one grid (:func:`objects_one_grid`): the counts; None when it is left to the tiles."""
+    from dtm.common.clouds import cloud_info
+
+    if ctx.params.one_grid_cells <= 0:
+        return None
+    with ctx.progress(2 * cloud_info(src).count, "classifying", unit="pt") as bar:
+        whole = objects_one_grid(
+            src, dst, ctx.params, cell, multi, progress=bar, executor=ctx.executor, workdir=ctx.workdir
+        )
+    if whole is None:
+        return None
+    ctx.metrics["tiling"] = {
+        "tiles": 1,
+        "size": None,
+        "buffer": 0.0,
+        "executor": "one grid",
+        "grid": list(whole["grid"]),
+    }
+    ctx.log.info("on one grid of %d x %d cells of %g m", *whole["grid"], cell)
+    return [whole]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.classify_objects.objects import object_classes, plane_residual
+from dtm.stages.classify_objects.objects import banded_residual, object_classes, plane_residual
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
 
 PARAMS = ClassifyObjectsParams()
@@ -125,3 +125,11 @@ def test_disabled_parts_leave_classes():
     assert np.all(_classes(xyz, cls, nret, params=off) == 2)
     with pytest.raises(ValueError, match="ascending"):
         ClassifyObjectsParams.model_validate({"vegetation": {"breaks": [2.0, 0.5, 5.0]}})
+
+
+@pytest.mark.parametrize("rows", [1, 2, 7, 256])
+def test_the_residual_in_bands_of_rows_is_the_residual_of_the_whole_grid(rows):
+    rng = np.random.default_rng(1)
+    z = np.cumsum(rng.normal(size=(300, 40)), axis=1)  # rough, sloping rows
+    z[rng.random(z.shape) < 0.2] = np.nan  # holes: cells with fewer than 6 of 9 neighbours at band edges too
+    np.testing.assert_array_equal(banded_residual(z, rows), plane_residual(z))

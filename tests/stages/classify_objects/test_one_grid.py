@@ -1,0 +1,147 @@
+"""The survey on one grid, in passes over its points, gives the classes of the tiles and of all the points at once.
+
+The survey (the synthetic scene: buildings, trees with second returns,
+terrain) carries ground classes from its truth, plus a flat roof 7 m up
+that the ground filter took for ground, noise and withheld points, and two
+noise points beyond the others on the west and north-east: the header's
+grid is wider than the grid of the usable points, which the one-grid path
+must use (the tiles' grids, and :func:`object_classes`', are of the usable
+points).  The reference is :func:`object_classes` on every point in memory.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pyproj
+import pytest
+
+from dtm.common import glossary
+from dtm.common.grid import Grid
+from dtm.stages.classify_objects.objects import object_classes
+from dtm.stages.classify_objects.one_grid import objects_one_grid
+from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from tests.conftest import run_stages, run_until
+from tests.synthetic import make_scene
+
+X0, Y0 = 440_000.0, 4_474_000.0
+ROOF = (150.0, 100.0, 15.0, 12.0)  # centre x, y, half width, half depth: a flat roof taken for ground
+
+
+def _survey(path: Path) -> None:
+    s = make_scene(width=240.0, height=160.0, density=4.0, seed=7, n_trees=30)
+    x, y, z = s.x, s.y, s.z.copy()
+    cls = np.where(s.true_ground, glossary.GROUND, glossary.UNCLASSIFIED).astype(np.uint8)
+    roof = (np.abs(x - ROOF[0]) < ROOF[2]) & (np.abs(y - ROOF[1]) < ROOF[3])
+    z[roof] += 7.0
+    cls[roof] = glossary.GROUND
+    rng = np.random.default_rng(3)
+    cls[rng.random(len(x)) < 0.005] = 7
+    withheld = rng.random(len(x)) < 0.003
+    # noise beyond the usable points on two sides: the header's grid is not theirs
+    x, y, z = np.r_[x, -20.0, 250.0], np.r_[y, 50.0, 170.0], np.r_[z, z.min() - 20.0, z.max() + 30.0]
+    cls, withheld = np.r_[cls, 7, 18], np.r_[withheld, False, False]
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.001] * 3)
+    header.offsets = np.array([X0, Y0, 0.0])
+    header.add_crs(pyproj.CRS.from_epsg(25830))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x + X0, y + Y0, z
+    las.return_number = np.r_[s.return_number, 1, 1]
+    las.number_of_returns = np.r_[s.number_of_returns, 1, 1]
+    las.classification = cls
+    las.withheld = withheld
+    las.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """The stage's entries in a run on one grid and in a run in 100 m tiles (with a 121 m buffer)."""
+    root = tmp_path_factory.mktemp("objects_grid")
+    _survey(root / "survey.las")
+    (root / "survey.yaml").write_text(
+        "name: objects\ninput: {format: las, paths: [survey.las]}\noutput: out\ncache: cache\n"
+        "executor: {kind: local, workers: 2}\ntiling: {size: 100}\n"
+        "stages:\n  denoise: {enabled: false}\n  classify_ground: {enabled: false}\n"
+        "  classify_water: {enabled: false}\n"
+    )
+    cache = root / "cache"
+    one = run_until(root / "survey.yaml", "classify_objects", root / "one", cache=cache)["classify_objects"]
+    tiled = run_until(
+        root / "survey.yaml",
+        "classify_objects",
+        root / "tiled",
+        "stages.classify_objects.one_grid_cells=0",
+        cache=cache,
+    )["classify_objects"]
+    return root, one, tiled
+
+
+def _reference(path: Path, params: ClassifyObjectsParams, cell: float) -> np.ndarray:
+    las = laspy.read(str(path))
+    cls = np.asarray(las.classification)
+    new, _ = object_classes(
+        np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z))),
+        cls,
+        np.asarray(las.number_of_returns),
+        glossary.usable(cls, np.asarray(las.withheld)),
+        params,
+        cell,
+        True,
+    )
+    return new
+
+
+def test_one_grid_equals_the_tiles_byte_for_byte(runs):
+    _, one, tiled = runs
+    assert one["metrics"]["tiling"]["tiles"] == 1 and one["metrics"]["tiling"]["executor"] == "one grid"
+    assert tiled["metrics"]["tiling"]["tasks"] == 7  # 4 x 2 tiles over the noise too, one of them only noise
+    assert one["outputs"]["points_objects"]["sha256"] == tiled["outputs"]["points_objects"]["sha256"]
+    counts = {k: v for k, v in one["metrics"].items() if k != "tiling"}
+    assert counts == {k: v for k, v in tiled["metrics"].items() if k != "tiling"}
+    # the survey has what the classes are about: the roof taken for ground, trees of every height
+    assert counts["roof_was_ground"] > 0.8 * 4 * (2 * ROOF[2]) * (2 * ROOF[3])
+    assert min(counts[k] for k in ("low_vegetation", "medium_vegetation", "high_vegetation")) > 100
+
+
+def test_one_grid_gives_the_classes_of_all_points_at_once(runs, tmp_path):
+    """In small chunks, in this process and on two workers writing ranges of records in place."""
+    from pipeline.executor import LocalExecutor
+
+    root, one, _ = runs
+    src, written = _input_of(root), Path(one["outputs"]["points_objects"]["file"])
+    params, cell = ClassifyObjectsParams(), one["metrics"]["cell_m"]
+    np.testing.assert_array_equal(np.asarray(laspy.read(str(written)).classification), _reference(src, params, cell))
+    here = objects_one_grid(src, tmp_path / "here.las", params, cell, True, chunk_size=7_000)
+    executor = LocalExecutor(2)
+    try:
+        work = tmp_path / "work"
+        work.mkdir()
+        there = objects_one_grid(
+            src, tmp_path / "there.las", params, cell, True, chunk_size=7_000, executor=executor, workdir=work
+        )
+        assert executor._pool is not None  # the workers wrote the records
+    finally:
+        executor.close()
+    assert here == there
+    # on the grid of the usable points (what object_classes makes), not the header's, which the noise widens
+    las = laspy.read(str(src))
+    usable = glossary.usable(np.asarray(las.classification), np.asarray(las.withheld))
+    x, y = np.asarray(las.x)[usable], np.asarray(las.y)[usable]
+    grid = Grid.covering(x.min(), y.min(), x.max(), y.max(), cell)
+    assert here["grid"] == (grid.rows, grid.cols) and grid.cols < (las.header.maxs[0] - las.header.mins[0]) / cell
+    assert (tmp_path / "here.las").read_bytes() == (tmp_path / "there.las").read_bytes() == written.read_bytes()
+    assert list(work.iterdir()) == []  # the grids are removed
+
+
+def _input_of(root: Path) -> Path:
+    """The file the stage read: the survey as ``parse`` wrote it (the filters between are disabled)."""
+    return Path(run_stages(root / "one")["parse"]["outputs"]["points_georef"]["file"])
+
+
+def test_a_grid_over_the_limit_is_left_to_the_tiles(runs, tmp_path):
+    params = ClassifyObjectsParams(one_grid_cells=1_000)  # the usable points' grid has about 40,000 cells
+    assert objects_one_grid(_input_of(runs[0]), tmp_path / "out.las", params, 1.0, True) is None
+    assert not (tmp_path / "out.las").exists()

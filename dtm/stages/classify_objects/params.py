@@ -82,11 +82,11 @@ class ClassifyObjectsParams(StageParams):
         1.5, gt=0, description="cells are at least this many nominal point spacings wide (a sparse survey's cells grow)"
     )
     one_grid_cells: int = Field(
-        8_000_000,
+        4_000_000,
         ge=0,
         description="the whole survey is classified on one grid, in two passes over the points, when the grid has "
-        "at most this many cells (8 km2 of 1 m cells; about 220 bytes a cell at the peak); larger surveys are cut "
-        "into tiles with the buffer; 0: always tiles",
+        "at most this many cells (4 km2 of 1 m cells; about 220 bytes a cell at the peak: 0.9 GB, within the 1.2 GB "
+        "a survey job holds); larger surveys are cut into tiles with the buffer; 0: always tiles",
     )
     buildings: BuildingParams = Field(default_factory=BuildingParams, description="buildings (class 6)")
     bridges: BridgeParams = Field(default_factory=BridgeParams, description="bridge decks (class 17)")

@@ -59,7 +59,8 @@ class RasterizeParams(StageParams):
     max_deck_width: float = Field(
         40.0,
         gt=0,
-        description="widest bridge deck (m): the terrain either side is looked for this far; widens the tiles' buffer",
+        description="widest bridge deck (m): the terrain either side is looked for this far; widens the tiles' buffer "
+        "when the points hold class 17",
     )
     hydro_flatten: bool = Field(
         True,

@@ -31,6 +31,7 @@ from dtm.stages.rasterize.tile_rasters import (
     RasterTask,
     Usable,
     check_tile_memory,
+    has_decks,
     mosaic_jobs,
     mosaic_raster,
     raster_columns,
@@ -85,7 +86,7 @@ class Rasterize(Stage, name="rasterize", version="9", params=RasterizeParams):
             results = run_tiled(
                 ctx,
                 extent=info.extent,
-                buffer=self.tile_buffer(p),
+                buffer=reach(p, decks=has_decks(src)),  # the margin for bridge decks only where there are some
                 split=tiles.split,
                 task=rasterize_tile,
                 merge=tiles.merge,

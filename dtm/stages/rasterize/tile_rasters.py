@@ -37,17 +37,40 @@ if TYPE_CHECKING:
 RASTERS = ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty")
 
 
-def reach(params: RasterizeParams) -> float:
+def reach(params: RasterizeParams, decks: bool = True) -> float:
     """The buffer (metres) a tile needs for its cells to equal the untiled ones.
 
     IDW and nearest use points within ``nodata_distance`` of a cell centre,
     as does the DSM's gap filling: ``nodata_distance`` plus a cell.  A TIN
     triangle covering a cell may reach farther (across a gap up to
-    ``nodata_distance`` from both sides): twice ``nodata_distance``.
+    ``nodata_distance`` from both sides): twice ``nodata_distance``.  With
+    bridge decks (*decks*: the points hold class 17) and ``bridge_decks``,
+    the cells either side of a deck, ``max_deck_width`` more.
     """
     far = 2.0 if params.method == "tin" else 1.0
-    decks = params.max_deck_width if params.bridge_decks else 0.0  # the DTM beside a deck, under it
-    return far * params.nodata_distance + 2.0 * params.resolution + decks
+    across = params.max_deck_width if params.bridge_decks and decks else 0.0
+    return far * params.nodata_distance + 2.0 * params.resolution + across
+
+
+def has_decks(path: Path, chunk: int = 1_000_000) -> bool:
+    """Whether any point of the LAS file *path* is a bridge deck's (class 17).
+
+    Read from the classification bytes of its records, mapped, when they
+    lie uncompressed in a file of their own (the cache's intermediates);
+    otherwise True: the tiles keep the margin for decks.
+    """
+    import laspy
+
+    from dtm.common.grid_classes import record_layout
+
+    layout = record_layout(path)
+    if layout is None:
+        return True
+    offset, size, count = layout
+    with laspy.open(str(path)) as reader:
+        at = reader.header.point_format.dtype().fields["classification"][1]
+    records = np.memmap(path, dtype=np.uint8, mode="r", offset=offset, shape=(count, size))
+    return any(bool(np.any(records[i : i + chunk, at] == glossary.BRIDGE_DECK)) for i in range(0, count, chunk))
 
 
 def raster_columns(chunk: laspy.ScaleAwarePointRecord, *, sigma: bool = False) -> dict[str, np.ndarray]:

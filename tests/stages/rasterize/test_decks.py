@@ -68,3 +68,25 @@ def test_a_tile_with_the_margin_gives_the_whole_grids_cells():
     tile = across_decks(dtm[r0 - m : r1 + m, c0 - m : c1 + m], feet, m)
     assert np.array_equal(tile[m:-m, m:-m], whole[r0:r1, c0:c1])
     assert not np.array_equal(whole[r0:r1, c0:c1], dtm[r0:r1, c0:c1])  # the core holds deck cells
+
+
+def _las(path, classes, compress=False):
+    import laspy
+
+    las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    n = len(classes)
+    las.x, las.y, las.z = np.arange(n, dtype=float), np.zeros(n), np.zeros(n)
+    las.classification = np.asarray(classes, np.uint8)
+    las.write(str(path), do_compress=compress)
+    return path
+
+
+def test_the_deck_margin_is_kept_only_where_there_are_deck_points(tmp_path):
+    from dtm.stages.rasterize.params import RasterizeParams
+    from dtm.stages.rasterize.tile_rasters import has_decks, reach
+
+    assert has_decks(_las(tmp_path / "deck.las", [2] * 2500 + [17] + [2] * 10), chunk=1000)  # in the last chunk
+    assert not has_decks(_las(tmp_path / "none.las", [2, 6, 9, 1, 20]))
+    assert has_decks(_las(tmp_path / "none.laz", [2, 6], compress=True))  # compressed: cannot tell, keep it
+    p = RasterizeParams(nodata_distance=10.0, resolution=0.5)
+    assert reach(p, decks=True) - reach(p, decks=False) == p.max_deck_width == 40.0

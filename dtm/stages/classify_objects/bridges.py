@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.classify_objects.objects import (
+from dtm.stages.classify_objects.regions import (
     SHADOW,
     Surface,
     grown,

@@ -138,17 +138,23 @@ def test_the_report_lists_the_warnings_beside_the_verdict(tmp_path):
     assert "Only 3 check points lie on the DTM" in text and "convex hull covers 0 %" in text
 
 
+def _raise_block(path, x0: float, x1: float, y0: float, y1: float, cls: int, dz: float) -> np.ndarray:
+    """The survey at *path* with its points in x0 <= x < x1, y0 <= y < y1 (from its corner) *dz* up, class *cls*."""
+    las = laspy.read(str(path))
+    x, y = np.asarray(las.x) - 1000.0, np.asarray(las.y) - 2000.0
+    block = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+    classes = np.asarray(las.classification).copy()
+    classes[block] = cls
+    las.classification = classes
+    las.z = np.asarray(las.z) + np.where(block, dz, 0.0)
+    las.write(str(path))
+    return block
+
+
 def test_classes_per_strip_and_the_class_of_the_highest_point(tmp_path):
     """Three strips of ground; a 10 m x 10 m block of strip 2 raised 5 m and called building (6)."""
     path = _survey(tmp_path, strips=(1, 2, 3))
-    las = laspy.read(str(path))
-    x, y = np.asarray(las.x) - 1000.0, np.asarray(las.y) - 2000.0
-    roof = (x >= 25) & (x < 35) & (y >= 25) & (y < 35)
-    cls = np.asarray(las.classification).copy()
-    cls[roof] = 6
-    las.classification = cls
-    las.z = np.asarray(las.z) + np.where(roof, 5.0, 0.0)
-    las.write(str(path))
+    roof = _raise_block(path, 25, 35, 25, 35, 6, 5.0)
     page, verdict, data, _ = _report(tmp_path, path, _dtm())
     by_strip = data.cloud.class_by_strip
     assert sorted(by_strip) == [1, 2, 3]
@@ -187,14 +193,7 @@ def test_without_water_bodies_flatness_is_not_measured(tmp_path):
 def _deck_survey(tmp_path):
     """The plain survey with a 6 m x 20 m bridge deck (class 17) 8 m above the ground at x 1020-1026, y 2010-2030."""
     path = _survey(tmp_path)
-    las = laspy.read(str(path))
-    x, y = np.asarray(las.x) - 1000.0, np.asarray(las.y) - 2000.0
-    deck = (x >= 20) & (x < 26) & (y >= 10) & (y < 30)
-    cls = np.asarray(las.classification).copy()
-    cls[deck] = 17
-    las.classification = cls
-    las.z = np.asarray(las.z) + np.where(deck, 8.0, 0.0)
-    las.write(str(path))
+    _raise_block(path, 20, 26, 10, 30, 17, 8.0)
     return path, (slice(30, 50), slice(20, 26))  # the deck's DTM cells: rows 30-49 are y 2030-2010
 
 

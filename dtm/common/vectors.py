@@ -62,19 +62,23 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
     write_gpkg(path, [line_wkb(xy) for _, xy in lines], {"elevation": elevation}, crs=crs, layer=layer)
 
 
-def polygon_z_wkb(rings: list[np.ndarray], z: float) -> bytes:
-    """A PolygonZ as ISO WKB (type 1003): *rings* of (n, 2) coordinates, every vertex at height *z*."""
+def polygon_z_wkb(rings: list[np.ndarray], z: float | list[np.ndarray]) -> bytes:
+    """A PolygonZ as ISO WKB (type 1003): *rings* of (n, 2) coordinates at height *z*, or each ring's heights."""
     import struct
 
     out = [struct.pack("<BII", 1, 1003, len(rings))]
-    for ring in rings:
-        xyz = np.column_stack((np.asarray(ring, dtype=np.float64)[:, :2], np.full(len(ring), float(z))))
+    for i, ring in enumerate(rings):
+        heights = np.full(len(ring), float(z)) if np.isscalar(z) else np.asarray(z[i], dtype=np.float64)
+        xyz = np.column_stack((np.asarray(ring, dtype=np.float64)[:, :2], heights))
         out.append(struct.pack("<I", len(xyz)) + np.ascontiguousarray(xyz, dtype="<f8").tobytes())
     return b"".join(out)
 
 
-def wkb_polygons(wkb: bytes) -> list[list[np.ndarray]]:
-    """The polygons of a WKB Polygon or MultiPolygon (ISO or EWKB, any of Z and M): each a list of (n, 2) rings."""
+def wkb_polygons(wkb: bytes, z: bool = False) -> list[list[np.ndarray]]:
+    """The polygons of a WKB Polygon or MultiPolygon (ISO or EWKB, any of Z and M): each a list of (n, 2) rings.
+
+    *z*: rings of (n, 3), x, y and height (0 where the geometry has none).
+    """
     import struct
 
     def geometry(at: int) -> tuple[list[list[np.ndarray]], int]:
@@ -82,8 +86,10 @@ def wkb_polygons(wkb: bytes) -> list[list[np.ndarray]]:
         (kind,) = struct.unpack_from(order + "I", wkb, at + 1)
         at += 5
         dims = 2 + bool(kind & 0x80000000) + bool(kind & 0x40000000)  # EWKB flags
+        has_z = bool(kind & 0x80000000)
         kind &= 0x0FFFFFFF
         if kind >= 1000:  # ISO: 1000 Z, 2000 M, 3000 ZM
+            has_z = kind // 1000 in (1, 3)
             dims, kind = 2 + (kind // 1000 in (1, 2)) + 2 * (kind // 1000 == 3), kind % 1000
         if kind == 3:
             (nrings,) = struct.unpack_from(order + "I", wkb, at)
@@ -92,7 +98,11 @@ def wkb_polygons(wkb: bytes) -> list[list[np.ndarray]]:
             for _ in range(nrings):
                 (n,) = struct.unpack_from(order + "I", wkb, at)
                 coords = np.frombuffer(wkb, dtype=order + "f8", count=n * dims, offset=at + 4).reshape(n, dims)
-                rings.append(coords[:, :2].astype(np.float64))
+                if z:
+                    height = coords[:, 2] if has_z else np.zeros(n)
+                    rings.append(np.column_stack((coords[:, :2], height)).astype(np.float64))
+                else:
+                    rings.append(coords[:, :2].astype(np.float64))
                 at += 4 + 8 * n * dims
             return [rings], at
         if kind == 6:

@@ -24,7 +24,10 @@ class WaterBody:
     height spread (m); a body whose cells touch only at corners has one polygon per part, each with its figures.
 
     ``flat``: its water points span at most the flatness limit, so the DTM
-    is flattened at ``level`` inside it.
+    is flattened at ``level`` inside it; or, a river (``heights``: each
+    ring's vertex heights, m), about a level that falls along its axis
+    (:func:`river_profile`), so the DTM is flattened bank to bank,
+    descending downstream (:func:`burn_levels`).
     """
 
     rings: list[np.ndarray]
@@ -33,6 +36,60 @@ class WaterBody:
     points: int
     spread: float
     flat: bool
+    heights: list[np.ndarray] | None = None
+
+
+#: A river's profile: its water heights' median per this many metres along its axis, before the monotone fit.
+RIVER_BIN_M = 5.0
+#: A body is a river when it is at least this many times longer (along its axis) than wide.
+RIVER_ELONGATION = 3.0
+
+
+def river_axis(ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The axis of a body's outer *ring* ((n, 2+) vertices, metres): its centroid and unit direction (x >= 0).
+
+    The principal direction of the vertices: computed the same way from the
+    vertices in ``water.gpkg`` by every reader.
+    """
+    xy = np.asarray(ring, dtype=np.float64)[:-1, :2]
+    centre = xy.mean(axis=0)
+    direction = np.linalg.eigh(np.cov((xy - centre).T))[1][:, -1]
+    if direction[0] < 0 or (direction[0] == 0 and direction[1] < 0):
+        direction = -direction
+    return centre, direction
+
+
+def river_profile(xyz: np.ndarray, ring: np.ndarray, max_spread: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Knots (stations along :func:`river_axis`, m; levels, m) of a river's water surface, or None if no river.
+
+    The body must be :data:`RIVER_ELONGATION` times longer than wide.  The
+    water heights' median per :data:`RIVER_BIN_M` along the axis, fitted by
+    a monotone (isotonic) regression falling the way the heights fall
+    (``scipy.optimize.isotonic_regression``, weighted by the points per
+    bin); None when the water points spread more than *max_spread* (5th to
+    95th percentile) about it.
+    """
+    from scipy.optimize import isotonic_regression
+
+    centre, direction = river_axis(ring)
+    across = np.array([-direction[1], direction[0]])
+    vertices = np.asarray(ring)[:, :2] - centre
+    length, width = np.ptp(vertices @ direction), np.ptp(vertices @ across)
+    if len(xyz) < 3 or length < RIVER_ELONGATION * width:
+        return None
+    station = (xyz[:, :2] - centre) @ direction
+    bins = np.floor((station - station.min()) / RIVER_BIN_M).astype(np.int64)
+    keys, inverse, counts = np.unique(bins, return_inverse=True, return_counts=True)
+    if len(keys) < 2:
+        return None
+    median = np.array([np.median(xyz[inverse == i, 2]) for i in range(len(keys))])
+    centres = np.array([np.mean(station[inverse == i]) for i in range(len(keys))])
+    falls = np.polyfit(centres, median, 1, w=np.sqrt(counts))[0] < 0
+    levels = isotonic_regression(median, weights=counts, increasing=not falls).x
+    residual = xyz[:, 2] - np.interp(station, centres, levels)
+    if np.percentile(residual, 95) - np.percentile(residual, 5) > max_spread:
+        return None
+    return centres, levels
 
 
 def _ring_area(ring: np.ndarray) -> float:
@@ -129,8 +186,21 @@ def water_bodies(
             level = min(level, float(np.percentile(banks, 5)))
         spread = float(np.percentile(heights, 95) - np.percentile(heights, 5))
         corner = (lo[0] + cols.start * cell, lo[1] - rows.start * cell)
-        bodies += _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread)
+        parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread)
+        bodies += [p if p.flat else _as_river(p, water[of_point == k], max_spread) for p in parts]
     return bodies, CellMask((float(lo[0]), float(lo[1])), cell, rejected)
+
+
+def _as_river(body: WaterBody, xyz: np.ndarray, max_spread: float) -> WaterBody:
+    """*body* flattened as a river when its water points *xyz* fall along it (:func:`river_profile`), else as it is."""
+    from dataclasses import replace
+
+    profile = river_profile(xyz, body.rings[0], max_spread)
+    if profile is None:
+        return body
+    centre, direction = river_axis(body.rings[0])
+    heights = [np.interp((np.asarray(r)[:, :2] - centre) @ direction, *profile) for r in body.rings]
+    return replace(body, level=float(np.median(profile[1])), flat=True, heights=heights)
 
 
 def _polygons(body, corner, cell, level, points, spread, flat) -> list[WaterBody]:
@@ -153,7 +223,10 @@ def write_water_bodies(path: Path, bodies: list[WaterBody], *, crs, units) -> No
     from dtm.common.vectors import polygon_z_wkb, write_gpkg
 
     h, v = units.horizontal, units.vertical
-    geometry = [polygon_z_wkb([r / h for r in b.rings], b.level / v) for b in bodies]
+    geometry = [
+        polygon_z_wkb([r / h for r in b.rings], b.level / v if b.heights is None else [z / v for z in b.heights])
+        for b in bodies
+    ]
     fields = {
         "level": np.array([b.level / v for b in bodies], dtype=np.float64),
         "area_m2": np.array([b.area for b in bodies], dtype=np.float64),
@@ -165,7 +238,7 @@ def write_water_bodies(path: Path, bodies: list[WaterBody], *, crs, units) -> No
 
 
 def read_water_bodies(path: Path, units) -> list[tuple[list[np.ndarray], float]]:
-    """The flattened bodies of a ``water.gpkg``: (rings in metres, level in metres) each."""
+    """The flattened bodies of a ``water.gpkg``: (rings, level) each, in metres; rings (n, 3): x, y, height."""
     import pyogrio.raw
 
     from dtm.common.vectors import wkb_polygons
@@ -175,19 +248,53 @@ def read_water_bodies(path: Path, units) -> list[tuple[list[np.ndarray], float]]
     for wkb, level, flat in zip(geometry, fields[0], fields[1], strict=True):
         if wkb is None or not flat:
             continue
-        for rings in wkb_polygons(bytes(wkb)):
-            out.append(([r * units.horizontal for r in rings], float(level) * units.vertical))
+        for rings in wkb_polygons(bytes(wkb), z=True):
+            scale = np.array([units.horizontal, units.horizontal, units.vertical])
+            out.append(([r * scale for r in rings], float(level) * units.vertical))
     return out
 
 
 def burn_levels(bodies: list[tuple[list[np.ndarray], float]], shape: tuple[int, int], transform) -> np.ndarray:
-    """Each cell's water level where its centre lies inside a body (NaN elsewhere); *transform* in metres."""
+    """Each cell's water level where its centre lies inside a body (NaN elsewhere); *transform* in metres.
+
+    A body whose rings carry vertex heights that differ (a river) takes, at
+    each cell, the height its vertices give at the cell's station along
+    :func:`river_axis` (the same bank to bank, falling downstream); any
+    other, its level.
+    """
     import rasterio.features
 
     levels = np.full(shape, np.nan)
     if not bodies or shape[0] == 0 or shape[1] == 0:
         return levels
-    shapes = [({"type": "Polygon", "coordinates": [r.tolist() for r in rings]}, level) for rings, level in bodies]
-    return rasterio.features.rasterize(
-        shapes, out_shape=shape, transform=transform, fill=np.nan, dtype="float64", all_touched=False
-    )
+
+    def polygon(rings):
+        return {"type": "Polygon", "coordinates": [np.asarray(r)[:, :2].tolist() for r in rings]}
+
+    rivers = [(rings, level) for rings, level in bodies if is_river(rings)]
+    lakes = [(polygon(rings), level) for rings, level in bodies if not is_river(rings)]
+    if lakes:
+        levels = rasterio.features.rasterize(
+            lakes, out_shape=shape, transform=transform, fill=np.nan, dtype="float64", all_touched=False
+        )
+    for rings, _ in rivers:
+        inside = rasterio.features.rasterize([(polygon(rings), 1)], out_shape=shape, transform=transform, fill=0)
+        r, c = np.nonzero(inside)
+        if not len(r):
+            continue
+        x, y = transform @ (c + 0.5, r + 0.5)
+        levels[r, c] = river_levels(rings, np.column_stack((x, y)))
+    return levels
+
+
+def is_river(rings: list[np.ndarray]) -> bool:
+    return np.asarray(rings[0]).shape[1] >= 3 and bool(np.ptp(np.asarray(rings[0])[:, 2]) > 0)
+
+
+def river_levels(rings: list[np.ndarray], xy: np.ndarray) -> np.ndarray:
+    """A river's water level (m) at points *xy* (metres): its vertex heights interpolated at their stations."""
+    centre, direction = river_axis(rings[0])
+    vertices = np.concatenate([np.asarray(r)[:, :3] for r in rings])
+    station = (vertices[:, :2] - centre) @ direction
+    order = np.argsort(station, kind="stable")
+    return np.interp((np.asarray(xy) - centre) @ direction, station[order], vertices[order, 2])

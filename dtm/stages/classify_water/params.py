@@ -47,8 +47,8 @@ class BodiesParams(StrictModel):
     max_spread: float = Field(
         0.3,
         ge=0,
-        description="a body whose water heights spread more (m, 5th to 95th percentile) is outlined but not "
-        "flattened (a river that falls)",
+        description="a body whose water heights spread more (m, 5th to 95th percentile) is flattened as a river "
+        "when it falls along its axis within this of a monotone profile, else outlined but not flattened",
     )
     ignored_ground: float = Field(
         0.7,

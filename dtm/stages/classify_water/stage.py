@@ -29,7 +29,7 @@ from pipeline.stage import Stage, StageContext, StageIO
 COUNTS = ("points", "water", "from_points", "from_polygons", "ground_to_water")
 
 
-class ClassifyWater(Stage, name="classify_water", version="2", params=ClassifyWaterParams):
+class ClassifyWater(Stage, name="classify_water", version="3", params=ClassifyWaterParams):
     """water (class 9) from the points and from polygons."""
 
     inputs = ("points_classified",)

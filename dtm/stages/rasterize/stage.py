@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="9", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="10", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_objects",)

@@ -62,6 +62,8 @@ MEASURES = {
     "dem_nodata": "DEM (dtm.tif) nodata value (GeoTIFF GDAL_NODATA tag)",
     "unflat_water": "hydro-flattening: flattened water bodies of water.gpkg whose DTM cells depart more than 1 cm "
     "from the body's level",
+    "rising_rivers": "hydro-flattening of rivers: flattened rivers of water.gpkg whose DTM rises more than 1 cm "
+    "downstream (1 m stations along the river's axis)",
     "decks_in_dem": "bridge decks left in the DEM: decks (cells whose highest point is class 17) with half or more "
     "of their cells' DTM within 1 m below the deck",
 }
@@ -120,8 +122,9 @@ _SEEN_DEM = (
 _SEEN_HYDRO = (
     "hydro-flattened water bodies flat at one level: the LBS table of contents, sections 'Hydro-Flattening' and "
     "'Appendix 2: Hydro-Flattening Reference' (usgs.gov, https://www.usgs.gov/ngp-standards-and-specifications/"
-    "lidar-base-specification-online-table-contents); the section's text not read; rivers (monotonic downstream) "
-    "not judged here"
+    "lidar-base-specification-online-table-contents); the section's text not read; rivers 'monotonically continuous' "
+    "where decks are removed: usgs.gov 'Lidar Base Specification' (its Bridge and Saddle Requirements note, "
+    "https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification); the 1 m stations and 1 cm are ours"
 )
 _SEEN_BRIDGES = (
     "'The bare-earth surface below the bridge shall be a continuous, logical interpolation of the apparent terrain "
@@ -170,6 +173,7 @@ def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
         Limit("dem_float_bits", "eq", 32, "bits", _lbs(_DEM)),
         Limit("dem_nodata", "eq", -999999.0, "", _lbs(_DEM)),
         Limit("unflat_water", "max", 0, "bodies", _lbs(_HYDRO)),
+        Limit("rising_rivers", "max", 0, "rivers", _lbs(_HYDRO)),
         Limit("decks_in_dem", "max", 0, "decks", _lbs(_BRIDGES)),
     )
 
@@ -221,6 +225,38 @@ def unflat_water_bodies(dtm_m: np.ndarray, bodies: list, transform_m) -> int:
         level = burn_levels([body], dtm_m.shape, transform_m)
         cells = np.isfinite(level) & np.isfinite(dtm_m)
         bad += int(cells.any() and float(np.max(np.abs(dtm_m[cells] - level[cells]))) > FLAT_TOLERANCE_M)
+    return bad
+
+
+def rising_rivers(dtm_m: np.ndarray, bodies: list, transform_m) -> int | None:
+    """How many flattened rivers (bodies whose vertex heights fall) have a DTM that rises downstream; None: no river.
+
+    Along the river's axis (:func:`dtm.common.water_bodies.river_axis`), the
+    median DTM of its cells per 1 m station, downstream being the way its
+    vertex heights fall: a station more than :data:`FLAT_TOLERANCE_M` above
+    one upstream of it is a rise.
+    """
+    from dtm.common.water_bodies import burn_levels, is_river, river_axis
+
+    rivers = [b for b in bodies if is_river(b[0])] if bodies else []
+    if not rivers:
+        return None
+    bad = 0
+    for rings, level in rivers:
+        inside = np.isfinite(burn_levels([(rings, level)], dtm_m.shape, transform_m)) & np.isfinite(dtm_m)
+        r, c = np.nonzero(inside)
+        if len(r) < 2:
+            continue
+        x, y = transform_m @ (c + 0.5, r + 0.5)
+        centre, direction = river_axis(rings[0])
+        station = (np.column_stack((x, y)) - centre) @ direction
+        vertices = np.asarray(rings[0])
+        if np.polyfit((vertices[:, :2] - centre) @ direction, vertices[:, 2], 1)[0] > 0:
+            station = -station  # downstream: the way the heights fall
+        key = np.floor(station).astype(np.int64)
+        keys, inverse = np.unique(key, return_inverse=True)
+        median = np.array([np.median(dtm_m[r[inverse == i], c[inverse == i]]) for i in range(len(keys))])
+        bad += int(np.any(median - np.minimum.accumulate(median) > FLAT_TOLERANCE_M))
     return bad
 
 

@@ -9,6 +9,7 @@ from dtm.stages.report.acceptance import (
     checkpoint_warnings,
     decks_in_dem,
     pulse_density,
+    rising_rivers,
     unflat_water_bodies,
     voids,
 )
@@ -63,8 +64,13 @@ def measure(metrics: dict, data: ReportInputs) -> tuple[dict, dict, dict]:
     if data.water_bodies is not None:
         transform_m = units.transform_to_metres(data.frame.transform)
         out["unflat_water"] = unflat_water_bodies(data.dtm * units.vertical, data.water_bodies, transform_m)
+        out["rising_rivers"] = rising_rivers(data.dtm * units.vertical, data.water_bodies, transform_m)
+        if out["rising_rivers"] is None:
+            why["rising_rivers"] = "no river among the flattened water bodies (all of them flat at one level)"
     else:
-        why["unflat_water"] = "no water bodies (stages.classify_water and its bodies, stages.rasterize.hydro_flatten)"
+        why["unflat_water"] = why["rising_rivers"] = (
+            "no water bodies (stages.classify_water and its bodies, stages.rasterize.hydro_flatten)"
+        )
     cloud = data.cloud
     if cloud.class_grid is not None and cloud.top_grid is not None:
         v = units.vertical

@@ -183,19 +183,26 @@ def _terrain(g: _Lattice) -> np.ndarray:
     return ground
 
 
-def _river(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """A river along the east-west direction at 55 % of the height, its water flat: the ground with it,
-    the river's and its banks' cells, the water level."""
+#: The river's water surface falls this much (m per m) eastwards, downstream: 0.3 %, a lowland river's.
+RIVER_SLOPE = 0.003
+
+
+def _river(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A river along the east-west direction at 55 % of the height, its water falling eastwards by
+    ``RIVER_SLOPE`` (level across): the ground with it, the river's and its banks' cells, the water level
+    of each cell's column."""
     h, centre = g.h, g.n_min + 0.55 * g.h
     river = np.abs(g.N - centre) < max(6.0, 0.03 * h)
     banks = np.abs(g.N - centre) < max(10.0, 0.05 * h)
-    level = float(np.percentile(ground[banks], 5)) - 1.0
+    level = float(np.percentile(ground[banks], 5)) - 1.0 - RIVER_SLOPE * (g.E - (g.e_min + 0.5 * g.w))
     ground = np.where(banks & ~river, np.minimum(ground, level + 1.5), ground)
     ground = np.where(river, level, ground)
     return ground, river, banks, level
 
 
-def _add_bridge(g: _Lattice, ground: np.ndarray, solid: np.ndarray, cls: np.ndarray, banks: np.ndarray, level: float):
+def _add_bridge(
+    g: _Lattice, ground: np.ndarray, solid: np.ndarray, cls: np.ndarray, banks: np.ndarray, level: np.ndarray
+):
     """A 6 m deck across the river's banks, joining the ground at both ends (in *solid* and *cls*, in place).
 
     The deck is level across and straight from the ground just south of the
@@ -210,7 +217,7 @@ def _add_bridge(g: _Lattice, ground: np.ndarray, solid: np.ndarray, cls: np.ndar
     south, north = max(rows[0] - 1, 0), min(rows[-1] + 1, len(ground) - 1)
     z_s, z_n = float(ground[south][across[south]].mean()), float(ground[north][across[north]].mean())
     along = (g.N[:, :1] - g.N[south, 0]) / max(g.N[north, 0] - g.N[south, 0], g.cell)
-    deck = np.maximum(z_s + (z_n - z_s) * along, level + 4.0) * np.ones_like(ground)
+    deck = np.maximum(z_s + (z_n - z_s) * along, level + 4.0)
     solid[bridge] = deck[bridge]
     cls[bridge] = BRIDGE
 

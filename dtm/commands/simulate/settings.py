@@ -91,7 +91,7 @@ class FlightConfig(StrictModel):
 class SceneConfig(StrictModel):
     terrain: Literal["default", "flat"] = Field(
         "default",
-        description="default: hills, slopes, a terrace, a river with a bridge (a 6 m deck straight from the ground at one end of "
+        description="default: hills, slopes, a terrace, a river falling 0.3 % eastwards with a bridge (a 6 m deck straight from the ground at one end of "
         "the banks to the ground at the other, its approaches level with it), buildings and trees; flat: level bare "
         "ground at the origin's height (local 0), nothing on it",
     )

@@ -47,4 +47,7 @@ def test_noise_alone_gives_no_significant_correction(flight, tmp_path):
         t, st = np.abs(strip["translation_m"]), np.asarray(strip["sigma_translation_m"])
         w, sw = np.abs(strip["rotation_deg"]), np.asarray(strip["sigma_rotation_deg"])
         assert np.all(t <= 3 * st + 0.001) and np.all(w <= 3 * sw + 1e-4), strip
-        assert t.max() < 0.015 and w.max() < 0.005, strip
+        # and small beside the 15 cm and 0.05 degree the error tests inject: the edge strip's yaw is known to
+        # 0.003 degree (1 sigma), so a bound of 0.005 degree failed a 1.9-sigma estimate when the scene's river
+        # began to fall (2026-12-04)
+        assert t.max() < 0.015 and w.max() < 0.01, strip

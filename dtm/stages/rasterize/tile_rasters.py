@@ -55,22 +55,24 @@ def reach(params: RasterizeParams, decks: bool = True) -> float:
 def has_decks(path: Path, chunk: int = 1_000_000) -> bool:
     """Whether any point of the LAS file *path* is a bridge deck's (class 17).
 
-    Read from the classification bytes of its records, mapped, when they
-    lie uncompressed in a file of their own (the cache's intermediates);
-    otherwise True: the tiles keep the margin for decks.
+    Read from the classification byte of its records, mapped (point formats
+    0-5 keep the class in its five low bits), when they lie uncompressed
+    (the cache's intermediates); otherwise True: the tiles keep the margin
+    for decks.
     """
     import laspy
 
-    from dtm.common.grid_classes import record_layout
-
-    layout = record_layout(path)
-    if layout is None:
-        return True
-    offset, size, count = layout
     with laspy.open(str(path)) as reader:
-        at = reader.header.point_format.dtype().fields["classification"][1]
+        header = reader.header
+        fields = header.point_format.dtype().fields
+        offset, size, count = int(header.offset_to_point_data), int(header.point_format.size), int(header.point_count)
+    name, mask = ("classification", 0xFF) if "classification" in fields else ("raw_classification", 0x1F)
+    if header.are_points_compressed or name not in fields or Path(path).stat().st_size < offset + count * size:
+        return True
+    at = fields[name][1]
     records = np.memmap(path, dtype=np.uint8, mode="r", offset=offset, shape=(count, size))
-    return any(bool(np.any(records[i : i + chunk, at] == glossary.BRIDGE_DECK)) for i in range(0, count, chunk))
+    deck = glossary.BRIDGE_DECK
+    return any(bool(np.any(records[i : i + chunk, at] & mask == deck)) for i in range(0, count, chunk))
 
 
 def raster_columns(chunk: laspy.ScaleAwarePointRecord, *, sigma: bool = False) -> dict[str, np.ndarray]:

@@ -70,10 +70,10 @@ def test_a_tile_with_the_margin_gives_the_whole_grids_cells():
     assert not np.array_equal(whole[r0:r1, c0:c1], dtm[r0:r1, c0:c1])  # the core holds deck cells
 
 
-def _las(path, classes, compress=False):
+def _las(path, classes, compress=False, point_format=6):
     import laspy
 
-    las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    las = laspy.LasData(laspy.LasHeader(point_format=point_format, version="1.4" if point_format >= 6 else "1.2"))
     n = len(classes)
     las.x, las.y, las.z = np.arange(n, dtype=float), np.zeros(n), np.zeros(n)
     las.classification = np.asarray(classes, np.uint8)
@@ -88,5 +88,8 @@ def test_the_deck_margin_is_kept_only_where_there_are_deck_points(tmp_path):
     assert has_decks(_las(tmp_path / "deck.las", [2] * 2500 + [17] + [2] * 10), chunk=1000)  # in the last chunk
     assert not has_decks(_las(tmp_path / "none.las", [2, 6, 9, 1, 20]))
     assert has_decks(_las(tmp_path / "none.laz", [2, 6], compress=True))  # compressed: cannot tell, keep it
+    # LAS 1.2 point format 3: the class in the five low bits of a byte it shares with three flags
+    las12 = _las(tmp_path / "f3.las", [2, 17, 1], point_format=3)
+    assert has_decks(las12) and not has_decks(_las(tmp_path / "f3_none.las", [2, 1, 9, 31], point_format=3))
     p = RasterizeParams(nodata_distance=10.0, resolution=0.5)
     assert reach(p, decks=True) - reach(p, decks=False) == p.max_deck_width == 40.0

@@ -82,19 +82,28 @@ def approach_ends(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: fl
         found_c.append(cc + c0)
         owners.append(lab[level])
     r, c, owner = (np.concatenate(v) for v in (found_r, found_c, owners))
-    ok = np.zeros(n, dtype=bool)
     cells_r, cells_c = np.nonzero(labels)
     cell_owner = labels[cells_r, cells_c]
-    for k in np.unique(owner):
-        mine = cell_owner == k
-        pr, pc = cells_r[mine].astype(float), cells_c[mine].astype(float)
-        cov = np.cov(np.vstack([pr, pc])) if mine.sum() > 1 else np.eye(2)
-        axis = np.linalg.eigh(cov)[1][:, -1]
-        along = pr * axis[0] + pc * axis[1]
-        lo, hi = along.min(), along.max()
-        ends = r[owner == k] * axis[0] + c[owner == k] * axis[1]
-        quarter = max((hi - lo) / 4.0, 1.0)
-        ok[k] = bool((ends <= lo + quarter).any() and (ends >= hi - quarter).any())
+    # each region's axis from its cells' moments (per label, one pass: not a pass over the cells per region)
+    size = np.maximum(np.bincount(cell_owner, minlength=n), 1)
+    mean_r = np.bincount(cell_owner, cells_r, minlength=n) / size
+    mean_c = np.bincount(cell_owner, cells_c, minlength=n) / size
+    dr, dc = cells_r - mean_r[cell_owner], cells_c - mean_c[cell_owner]
+    var_r, var_c = np.bincount(cell_owner, dr * dr, minlength=n), np.bincount(cell_owner, dc * dc, minlength=n)
+    cov = np.bincount(cell_owner, dr * dc, minlength=n)
+    angle = 0.5 * np.arctan2(2.0 * cov, var_r - var_c)
+    angle[(var_r == var_c) & (cov == 0)] = 0.5 * np.pi  # no direction: along the columns
+    axis_r, axis_c = np.cos(angle), np.sin(angle)
+    along = cells_r * axis_r[cell_owner] + cells_c * axis_c[cell_owner]
+    lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(lo, cell_owner, along)
+    np.maximum.at(hi, cell_owner, along)
+    quarter = np.maximum((hi - lo) / 4.0, 1.0)
+    ends = r * axis_r[owner] + c * axis_c[owner]
+    first = np.bincount(owner, ends <= lo[owner] + quarter[owner], minlength=n) > 0
+    last = np.bincount(owner, ends >= hi[owner] - quarter[owner], minlength=n) > 0
+    ok = first & last
+    ok[0] = False
     return ok
 
 

@@ -16,12 +16,11 @@ from dtm.stages.classify_objects.objects import (
     HIGH_VEGETATION,
     LOW_VEGETATION,
     MEDIUM_VEGETATION,
-    RING,
-    SHADOW,
     WALLS,
     object_classes,
 )
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from dtm.stages.classify_objects.regions import RING, SHADOW
 
 if TYPE_CHECKING:
     import laspy

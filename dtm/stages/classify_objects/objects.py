@@ -20,8 +20,7 @@ import numpy as np
 
 from dtm.common import glossary
 from dtm.common.grid import Grid, cell_of, fill_nearest
-from dtm.stages.classify_objects.regions import (  # noqa: F401 - RING, SHADOW: the tiles' buffer
-    RING,
+from dtm.stages.classify_objects.regions import (
     SHADOW,
     Surface,
     grown,

@@ -59,6 +59,32 @@ def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[Wate
     )
 
 
+def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
+    """*dst* rewritten (through a temporary file) with each chunk's classes as ``change(classes, xy, was)`` gives them.
+
+    *classes*: the chunk's classes (a copy, for ``change`` to alter);
+    *xy*: its coordinates in metres; *was*: the same points' classes in
+    *src* (None without one).
+    """
+    from contextlib import ExitStack
+
+    import laspy
+
+    from dtm.common.clouds import chunk_xyz_metres, open_las_writer
+
+    tmp = dst.with_name(f".{dst.name}.tmp")
+    with ExitStack() as files:
+        after = files.enter_context(laspy.open(str(dst)))
+        out = files.enter_context(open_las_writer(tmp, after.header))
+        olds = files.enter_context(laspy.open(str(src))).chunk_iterator(CHUNK) if src is not None else None
+        for chunk in after.chunk_iterator(CHUNK):
+            was = np.asarray(next(olds).classification) if olds is not None else None
+            cls = np.asarray(chunk.classification).copy()
+            chunk.classification = change(cls, chunk_xyz_metres(chunk, units)[:, :2], was)
+            out.write_points(chunk)
+    tmp.replace(dst)
+
+
 def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | None) -> tuple[int, int]:
     """Water points of *dst* in *refused* cells (and outside the *polygons*, metres) get their class in *src* back.
 
@@ -66,28 +92,21 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
     rewritten (through a temporary file).  Returns the points given back
     and how many of them were ground.
     """
-    import laspy
-
-    from dtm.common.clouds import chunk_xyz_metres, open_las_writer
     from dtm.stages.classify_water.water import inside_polygons
 
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    back = ground = 0
-    with laspy.open(str(src)) as before, laspy.open(str(dst)) as after, open_las_writer(tmp, after.header) as out:
-        for old, chunk in zip(before.chunk_iterator(CHUNK), after.chunk_iterator(CHUNK), strict=True):
-            cls = np.asarray(chunk.classification).copy()
-            xyz = chunk_xyz_metres(chunk, units)
-            undo = (cls == glossary.WATER) & refused.holds(xyz[:, :2])
-            if polygons and undo.any():
-                undo[undo] = ~inside_polygons(xyz[undo, :2], polygons)
-            was = np.asarray(old.classification)
-            cls[undo] = was[undo]
-            back += int(undo.sum())
-            ground += int((undo & (was == glossary.GROUND)).sum())
-            chunk.classification = cls
-            out.write_points(chunk)
-    tmp.replace(dst)
-    return back, ground
+    counts = [0, 0]
+
+    def change(cls, xy, was):
+        undo = (cls == glossary.WATER) & refused.holds(xy)
+        if polygons and undo.any():
+            undo[undo] = ~inside_polygons(xy[undo], polygons)
+        cls[undo] = was[undo]
+        counts[0] += int(undo.sum())
+        counts[1] += int((undo & (was == glossary.GROUND)).sum())
+        return cls
+
+    _rewrite_classes(dst, units, change, src)
+    return counts[0], counts[1]
 
 
 def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units) -> int:
@@ -98,10 +117,7 @@ def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, unit
     20, "breakline proximity").  *dst* is rewritten through a temporary
     file; returns the points changed.
     """
-    import laspy
     import shapely
-
-    from dtm.common.clouds import chunk_xyz_metres, open_las_writer
 
     shores = [shapely.Polygon(b.rings[0], b.rings[1:]).boundary for b in bodies if b.flat]
     if not shores or distance <= 0:
@@ -109,18 +125,15 @@ def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, unit
     zone = shapely.union_all([line.buffer(distance) for line in shores])
     shapely.prepare(zone)
     x0, y0, x1, y1 = zone.bounds
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    changed = 0
-    with laspy.open(str(dst)) as reader, open_las_writer(tmp, reader.header) as out:
-        for chunk in reader.chunk_iterator(CHUNK):
-            cls = np.asarray(chunk.classification).copy()
-            xy = chunk_xyz_metres(chunk, units)[:, :2]
-            near = (cls == glossary.GROUND) & (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
-            if near.any():
-                near[near] = shapely.contains_xy(zone, xy[near, 0], xy[near, 1])
-                cls[near] = glossary.IGNORED_GROUND
-                changed += int(near.sum())
-                chunk.classification = cls
-            out.write_points(chunk)
-    tmp.replace(dst)
-    return changed
+    changed = [0]
+
+    def change(cls, xy, _):
+        near = (cls == glossary.GROUND) & (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+        if near.any():
+            near[near] = shapely.contains_xy(zone, xy[near, 0], xy[near, 1])
+            cls[near] = glossary.IGNORED_GROUND
+            changed[0] += int(near.sum())
+        return cls
+
+    _rewrite_classes(dst, units, change)
+    return changed[0]

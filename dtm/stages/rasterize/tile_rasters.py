@@ -303,26 +303,24 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
     from dtm.common.tile_points import tile_parts
 
     parts = tile_parts(folder)  # the tile's points in file order, a range of records each
-    masks, decks = [], None
+    masks = []
     for part in parts:
         cls = np.load(part / "classification.npy")
         usable = glossary.usable(cls, np.load(part / "withheld.npy"))
-        masks.append((np.isin(cls, glossary.BARE_EARTH), usable))
-        deck = usable & (cls == glossary.BRIDGE_DECK)
-        if deck.any():
-            xyz = [np.load(part / f"{a}.npy", mmap_mode="r")[deck] for a in "xyz"]
-            n = cell_max_count(xyz, wide)[1]
-            decks = n if decks is None else decks + n
+        masks.append((np.isin(cls, glossary.BARE_EARTH), usable, usable & (cls == glossary.BRIDGE_DECK)))
     del cls
-    ground = np.empty((sum(int(is_ground.sum()) for is_ground, _ in masks), 3))
-    highest = count = None
+    ground = np.empty((sum(int(is_ground.sum()) for is_ground, _, _ in masks), 3))
+    highest = count = decks = None
     sigma_parts = []
     at = 0
-    for part, (is_ground, usable) in zip(parts, masks, strict=True):
+    for part, (is_ground, usable, deck) in zip(parts, masks, strict=True):
         xyz = [np.load(part / f"{a}.npy", mmap_mode="r") for a in "xyz"]
         # core cells are wide cells; every point usable (the usual case): the mapped columns as they are
         high, n = cell_max_count(xyz if usable.all() else [a[usable] for a in xyz], wide)
         highest, count = (high, n) if highest is None else (np.fmax(highest, high), count + n)
+        if deck.any():  # bridge-deck points per cell, for the ground under the decks
+            n = cell_max_count([a[deck] for a in xyz], wide)[1]
+            decks = n if decks is None else decks + n
         k = int(is_ground.sum())
         for i, a in enumerate(xyz):
             ground[at : at + k, i] = a[is_ground]

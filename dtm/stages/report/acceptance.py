@@ -236,7 +236,7 @@ def rising_rivers(dtm_m: np.ndarray, bodies: list, transform_m) -> int | None:
     vertex heights fall: a station more than :data:`FLAT_TOLERANCE_M` above
     one upstream of it is a rise.
     """
-    from dtm.common.water_bodies import burn_levels, is_river, river_axis
+    from dtm.common.water_bodies import binned_medians, burn_levels, is_river, river_axis
 
     rivers = [b for b in bodies if is_river(b[0])] if bodies else []
     if not rivers:
@@ -253,9 +253,7 @@ def rising_rivers(dtm_m: np.ndarray, bodies: list, transform_m) -> int | None:
         vertices = np.asarray(rings[0])
         if np.polyfit((vertices[:, :2] - centre) @ direction, vertices[:, 2], 1)[0] > 0:
             station = -station  # downstream: the way the heights fall
-        key = np.floor(station).astype(np.int64)
-        keys, inverse = np.unique(key, return_inverse=True)
-        median = np.array([np.median(dtm_m[r[inverse == i], c[inverse == i]]) for i in range(len(keys))])
+        median = binned_medians(station, dtm_m[r, c], 1.0)[1]
         bad += int(np.any(median - np.minimum.accumulate(median) > FLAT_TOLERANCE_M))
     return bad
 

@@ -1,7 +1,7 @@
 """Run the LAS job on every real file in ``../shared/data/real/`` and print a table.
 
 For each file: points, exit code, seconds, DTM cells, ground share, bridge-deck
-points (class 17) and the first
+points (class 17), building points (6) and the first
 line the run printed on failure (or its warnings).  The job is
 ``configs/las.yaml`` pointed at the file, with the per-file keys of
 ``OVERRIDES`` (the two files whose header CRS is unusable need one).  Used for
@@ -79,6 +79,7 @@ def run_file(path: Path, work: Path, timeout: float, extra: list[str] | None = N
             cls = laspy.read(las).classification
             row["ground_pct"] = round(100 * float(np.mean(np.asarray(cls) == 2)), 1)
             row["deck_points"] = int(np.sum(np.asarray(cls) == 17))  # bridge decks found (no shared file has one)
+            row["building_points"] = int(np.sum(np.asarray(cls) == 6))
     return row
 
 

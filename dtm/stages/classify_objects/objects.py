@@ -36,6 +36,11 @@ BUILDING, LOW_VEGETATION, MEDIUM_VEGETATION, HIGH_VEGETATION, BRIDGE = 6, 3, 4, 
 #: A building point stands at least this high (m) above the ground under it (the foot of a wall stays).
 WALL_FOOT = 0.5
 
+#: A wall whose roof was not seen is a face at least this long (m) of cells that are each such a wall.
+FACE = 3.0
+#: ... looked for on cells of at most this (m): on a sparse survey's wider cells a 2 m span is any slope or tree.
+FACE_CELL = 1.0
+
 #: How far (m) around a roof's planar cells its walls and eaves may lie: its planar cells stop a cell
 #: short of its edge, and on cells of a metre or less its wall's points lie in the edge cell or the one beyond.
 WALLS = 2.0
@@ -198,6 +203,49 @@ def building_cells(s: Surface, params) -> np.ndarray:
     return ok[labels]
 
 
+def lone_walls(s: Surface, params, rings: int) -> np.ndarray:
+    """Cells of walls whose roof was not seen (bool grid): a storey-high face of single returns with a void beside it.
+
+    A cell is a wall when its three or more points span ``min_height`` or
+    more and at least ``single_returns`` of them are single returns.  It
+    stands alone when, within *rings* cells, no cell that is not a wall
+    reaches within half ``min_height`` of its top (no roof or upper terrace
+    seen) and some cell is empty (the side the scanner could not see: the
+    survey's edge, or a roof in a shadow) while at least half of them hold
+    points; and it is one of ``FACE`` metres of such cells joined.
+    """
+    from scipy import ndimage
+
+    span = s.top - s.bottom
+    wall = (span >= params.min_height) & (s.count >= 3) & (s.single >= params.single_returns * s.count)
+    if not wall.any():
+        return wall
+    # the (2 rings + 1)^2 cells around each wall cell, gathered for the wall cells only (a few in a hundred)
+    r, c = np.nonzero(wall)
+    rows, cols = wall.shape
+    held = np.zeros(len(r))  # cells holding points; beyond the grid holds none and is void: a tile's grid
+    void = np.zeros(len(r), dtype=bool)  # reaches its buffer's edge, one grid's the survey's
+    beside = np.full(len(r), -np.inf)  # the highest top of a cell that is not a wall
+    for dr in range(-rings, rings + 1):
+        for dc in range(-rings, rings + 1):
+            rr, cc = r + dr, c + dc
+            inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            rr, cc = np.clip(rr, 0, rows - 1), np.clip(cc, 0, cols - 1)
+            occupied = inside & (s.count[rr, cc] > 0)
+            held += occupied
+            void |= ~occupied
+            beside = np.where(occupied & ~wall[rr, cc], np.maximum(beside, s.top[rr, cc]), beside)
+    # ... with at least half of the cells holding points: in a sparse survey every cell is alone among voids
+    alone = void & (held >= 0.5 * (2 * rings + 1) ** 2) & ~(beside >= s.top[r, c] - 0.5 * params.min_height)
+    lone = np.zeros(wall.shape, dtype=bool)
+    lone[r[alone], c[alone]] = True
+    # a face, not a cell
+    labels, n = ndimage.label(lone, np.ones((3, 3), bool))
+    cells = np.bincount(labels.ravel(), minlength=n + 1)
+    cells[0] = 0
+    return cells[labels] * s.grid.resolution >= FACE
+
+
 def ground_under(s: Surface, away: np.ndarray, reach_cells: float) -> np.ndarray:
     """The ground height of each cell: mean of its ground points, but NaN in the cells *away*, gaps filled.
 
@@ -268,6 +316,8 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
         roofs &= ~decks
     rings = max(1, round(WALLS / cell))
     edges = ndimage.binary_dilation(roofs, np.ones((3, 3), bool), iterations=rings) if roofs.any() else roofs
+    if b.enabled and multi_echo and cell <= FACE_CELL:
+        edges |= lone_walls(s, b, rings) & ~decks
     ground = ground_under(s, edges | decks, b.max_size / cell)
     v = params.vegetation
     rough = vegetation_cells(s, v, multi_echo) if v.enabled else np.zeros(s.top.shape, dtype=bool)

@@ -36,7 +36,7 @@ from dtm.stages.classify_objects.params import ClassifyObjectsParams
 from pipeline.stage import Stage, StageContext
 
 
-class ClassifyObjects(Stage, name="classify_objects", version="2", params=ClassifyObjectsParams):
+class ClassifyObjects(Stage, name="classify_objects", version="3", params=ClassifyObjectsParams):
     """buildings (6), bridge decks (17) and vegetation (3, 4, 5) above the ground."""
 
     inputs = ("points_water",)

@@ -76,9 +76,49 @@ def test_a_gabled_roof_left_by_the_filter_is_a_building():
     ],
     ids=["terrace", "flat-topped hill", "embankment"],
 )
-def test_terrain_is_no_building(surface):
+@pytest.mark.parametrize("multi", [False, True], ids=["single-echo survey", "multi-echo survey"])
+def test_terrain_is_no_building(surface, multi):
     xyz, cls, nret = _cloud(surface)
-    assert np.all(_classes(xyz, cls, nret) == 2)
+    assert np.all(_classes(xyz, cls, nret, multi_echo=multi) == 2)
+
+
+def _wall_at_the_edge(upper: float | None):
+    """A field (z 100, y < 40, class 2) ending at a 6 m wall along y = 40 seen from the field (class 1, single
+    returns); beyond it nothing (*upper* None: a roof out of the survey) or a level *upper* m up, seen, wider
+    than the widest building (terrain)."""
+    rng = np.random.default_rng(5)
+    xyz, cls, nret = _cloud(lambda x, y: 100 + 0 * x, size=130.0)
+    field = xyz[:, 1] < 40
+    n = 4000
+    wall = np.column_stack((rng.uniform(10, 120, n), 40 + rng.normal(0, 0.03, n), 100 + rng.uniform(0, 6, n)))
+    parts = [(xyz[field], cls[field]), (wall, np.ones(n, np.uint8))]
+    if upper is not None:
+        top, tcls, _ = _cloud(lambda x, y: 100 + upper + 0 * x, size=130.0, seed=6)
+        beyond = top[:, 1] > 40
+        parts.append((top[beyond], tcls[beyond]))
+    xyz = np.vstack([p[0] for p in parts])
+    cls = np.concatenate([p[1] for p in parts])
+    return xyz, cls, np.ones(len(cls), np.uint8), len(parts[0][1]) + np.arange(n)
+
+
+def test_a_wall_whose_roof_lies_beyond_the_survey_is_a_building():
+    xyz, cls, nret, on = _wall_at_the_edge(None)
+    new = _classes(xyz, cls, nret, multi_echo=True)
+    assert np.mean(new[on][xyz[on, 2] >= 100.6] == 6) > 0.97
+    assert not np.any(new[on][xyz[on, 2] < 100.4] == 6)  # the wall's foot stays (WALL_FOOT, 0.5 m)
+    field = np.ones(len(cls), bool)
+    field[on] = False
+    assert np.all(new[field] == 2)  # the field keeps its class
+
+
+@pytest.mark.parametrize("upper", [6.0, 3.0], ids=["level with its top", "a 3 m terrace"])
+def test_a_wall_with_its_top_seen_is_no_lone_wall(upper):
+    xyz, cls, nret, on = _wall_at_the_edge(upper)
+    if upper < 6.0:  # a terrace's riser is as high as the terrace
+        keep = np.ones(len(cls), bool)
+        keep[on[xyz[on, 2] > 100 + upper]] = False
+        xyz, cls, nret = xyz[keep], cls[keep], nret[keep]
+    assert not np.any(_classes(xyz, cls, nret, multi_echo=True) == 6)
 
 
 def test_a_small_object_stays_1():

@@ -24,10 +24,11 @@ from dtm.stages.classify_objects.objects import object_classes
 from dtm.stages.classify_objects.one_grid import objects_one_grid
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
 from tests.conftest import run_stages, run_until
-from tests.synthetic import make_scene
+from tests.synthetic import make_scene, terrain
 
 X0, Y0 = 440_000.0, 4_474_000.0
 ROOF = (150.0, 100.0, 15.0, 12.0)  # centre x, y, half width, half depth: a flat roof taken for ground
+WALL = (80.0, 130.0, 159.9)  # from x, to x, at y: a wall whose roof lies beyond the survey's north edge
 
 
 def _survey(path: Path) -> None:
@@ -40,17 +41,25 @@ def _survey(path: Path) -> None:
     rng = np.random.default_rng(3)
     cls[rng.random(len(x)) < 0.005] = 7
     withheld = rng.random(len(x)) < 0.003
+    # a 6 m wall along the survey's north edge across two tiles, its roof beyond the survey (intensity 999)
+    wx, wy = rng.uniform(*WALL[:2], 1500), WALL[2] + rng.normal(0, 0.03, 1500)
+    x, y, z = np.r_[x, wx], np.r_[y, wy], np.r_[z, terrain(wx, wy) + rng.uniform(0, 6, len(wx))]
+    cls, withheld = np.r_[cls, np.ones(len(wx), np.uint8)], np.r_[withheld, np.zeros(len(wx), bool)]
+    intensity = np.r_[np.zeros(len(s.x), np.uint16), np.full(len(wx), 999, np.uint16)]
+    returns = np.r_[s.return_number, np.ones(len(wx), np.uint8)], np.r_[s.number_of_returns, np.ones(len(wx), np.uint8)]
     # noise beyond the usable points on two sides: the header's grid is not theirs
     x, y, z = np.r_[x, -20.0, 250.0], np.r_[y, 50.0, 170.0], np.r_[z, z.min() - 20.0, z.max() + 30.0]
     cls, withheld = np.r_[cls, 7, 18], np.r_[withheld, False, False]
+    intensity = np.r_[intensity, 0, 0]
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001] * 3)
     header.offsets = np.array([X0, Y0, 0.0])
     header.add_crs(pyproj.CRS.from_epsg(25830))
     las = laspy.LasData(header)
     las.x, las.y, las.z = x + X0, y + Y0, z
-    las.return_number = np.r_[s.return_number, 1, 1]
-    las.number_of_returns = np.r_[s.number_of_returns, 1, 1]
+    las.return_number = np.r_[returns[0], 1, 1]
+    las.number_of_returns = np.r_[returns[1], 1, 1]
+    las.intensity = intensity
     las.classification = cls
     las.withheld = withheld
     las.write(str(path))
@@ -104,6 +113,10 @@ def test_one_grid_equals_the_tiles_byte_for_byte(runs):
     # the survey has what the classes are about: the roof taken for ground, trees of every height
     assert counts["roof_was_ground"] > 0.8 * 4 * (2 * ROOF[2]) * (2 * ROOF[3])
     assert min(counts[k] for k in ("low_vegetation", "medium_vegetation", "high_vegetation")) > 100
+    las = laspy.read(one["outputs"]["points_objects"]["file"])
+    wall = np.asarray(las.intensity) == 999
+    up = np.asarray(las.z)[wall] - terrain(np.asarray(las.x)[wall] - X0, np.asarray(las.y)[wall] - Y0) > 0.6
+    assert wall.sum() == 1500 and np.mean(np.asarray(las.classification)[wall][up] == 6) > 0.95
 
 
 def test_one_grid_gives_the_classes_of_all_points_at_once(runs, tmp_path):

@@ -56,11 +56,14 @@ def planar_segments(top: np.ndarray, residual: np.ndarray, planarity: float, ste
     i = np.concatenate([p[0] for p in pairs])
     j = np.concatenate([p[1] for p in pairs])
     graph = coo_matrix((np.ones(len(i), np.int8), (i, j)), shape=(rows * cols, rows * cols))
-    _, component = connected_components(graph, directed=False)
+    n, component = connected_components(graph, directed=False)
     members = planar.ravel()
+    # the components holding planar cells, numbered 1, 2, ... in order (np.unique's inverse, without its sort)
+    present = np.zeros(n, dtype=bool)
+    present[component[members]] = True
+    rank = np.cumsum(present)
     labels = np.zeros(rows * cols, dtype=np.int64)
-    _, labels[members] = np.unique(component[members], return_inverse=True)
-    labels[members] += 1
+    labels[members] = rank[component[members]]
     return labels.reshape(rows, cols)
 
 

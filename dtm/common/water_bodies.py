@@ -16,6 +16,8 @@ import numpy as np
 
 #: The layer's name in ``water.gpkg``.
 LAYER = "water_bodies"
+#: The layer's name in ``breaklines.gpkg``.
+BREAKLINES = "breaklines"
 
 
 @dataclass(frozen=True)
@@ -23,6 +25,8 @@ class WaterBody:
     """One water body's polygon: rings (outer first, (n, 2), metres), level (m), area (m2), the body's points and
     height spread (m); a body whose cells touch only at corners has one polygon per part, each with its figures.
 
+    ``shores``: the stretches of its outline that run along ground (not
+    along the survey's edge or a data gap): its breaklines.
     ``flat``: its water points span at most the flatness limit, so the DTM
     is flattened at ``level`` inside it; or, a river (``heights``: each
     ring's vertex heights, m), about a level that falls along its axis
@@ -37,6 +41,7 @@ class WaterBody:
     spread: float
     flat: bool
     heights: list[np.ndarray] | None = None
+    shores: tuple[np.ndarray, ...] = ()  # its outline's stretches along a shore ((k, 2) lines, metres): breaklines
 
 
 #: A river's profile: its water heights' median per this many metres along its axis, before the monotone fit.
@@ -149,7 +154,8 @@ def water_bodies(
 
     Cells of *cell* (anchored at whole multiples) holding a water point,
     closed by *close* cells (the dropouts between echoes), make bodies
-    (8 neighbours).  A body's level is the median height of its water
+    (8 neighbours); a body reaches *close* cells on into what was never
+    seen beyond the survey's edge (unseen cells joined to the grid's border).  A body's level is the median height of its water
     points; its banks, the lowest ground point per cell in the ring of two
     cells around it.  A body whose banks rise less than *min_bank* above its
     level (their median; a body without banks is kept) is no water: paved
@@ -181,6 +187,10 @@ def water_bodies(
     inside = (gr >= 0) & (gr < shape[0]) & (gc >= 0) & (gc < shape[1])
     np.minimum.at(lowest, (gr[inside], gc[inside]), ground[inside, 2])
     of_point = label[row, col]
+    # what was never seen and reaches the grid's border: beyond the survey's edge (4 neighbours)
+    unseen, _ = ndimage.label(~(mask | np.isfinite(lowest)))
+    border = np.unique(np.r_[unseen[0], unseen[-1], unseen[:, 0], unseen[:, -1]])
+    beyond = np.isin(unseen, border[border > 0])
     bodies, rejected = [], np.zeros(shape, dtype=bool)
     for k, (rows, cols) in enumerate(ndimage.find_objects(label), start=1):
         rows = slice(max(rows.start - 2, 0), rows.stop + 2)  # room for the ring of banks
@@ -200,7 +210,10 @@ def water_bodies(
             level = min(level, float(np.percentile(banks, 5)))
         spread = float(np.percentile(heights, 95) - np.percentile(heights, 5))
         corner = (lo[0] + cols.start * cell, lo[1] - rows.start * cell)
-        parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread)
+        if close > 0:  # a body cut by the survey's edge reaches it: it runs on beyond (the dropouts at the edge)
+            body |= ndimage.binary_dilation(body, structure=eight, iterations=close) & beyond[rows, cols]
+        shore = ~beyond[rows, cols]  # beside the body and within the survey: its shore
+        parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread, shore)
         bodies += [p if p.flat else _as_river(p, water[of_point == k], max_spread) for p in parts]
     return bodies, CellMask((float(lo[0]), float(lo[1])), cell, rejected)
 
@@ -217,19 +230,66 @@ def _as_river(body: WaterBody, xyz: np.ndarray, max_spread: float) -> WaterBody:
     return replace(body, level=float(np.median(profile[1])), flat=True, heights=heights)
 
 
-def _polygons(body, corner, cell, level, points, spread, flat) -> list[WaterBody]:
-    """The polygons (4-connected parts) of a body's cells, with its figures."""
+def _polygons(body, corner, cell, level, points, spread, flat, banks=None) -> list[WaterBody]:
+    """The polygons (4-connected parts) of a body's cells, with its figures; drawn in by half a cell at its shores.
+
+    The cells' outline lies up to a cell beyond the outermost water points
+    (half a cell on average).  Where the cell beyond lies within the survey
+    (*banks*, bool like *body*: a shore), the outline is drawn in by half a
+    cell, to the water's edge, where its breakline belongs
+    (:func:`shore_lines`); where it faces the unseen beyond the survey's
+    edge, it stays.
+    """
     import rasterio.features
     from affine import Affine
+    from scipy import ndimage
 
+    side = np.zeros(body.shape, dtype=bool)
+    if banks is not None and banks.any():
+        twice = np.ones((2, 2), dtype=bool)
+        bank = np.kron(banks & ~body, twice)
+        shore = ndimage.binary_dilation(bank) & np.kron(body, twice)  # the half cells next to a bank (4 neighbours)
+        body, side, cell = np.kron(body, twice) & ~shore, bank | shore, 0.5 * cell
     transform = Affine(cell, 0.0, corner[0], 0.0, -cell, corner[1])
     out = []
     for geometry, value in rasterio.features.shapes(body.astype(np.uint8), mask=body, transform=transform):
         if value == 1:
             rings = [np.asarray(r, dtype=np.float64) for r in geometry["coordinates"]]
             area = _ring_area(rings[0]) - sum(_ring_area(r) for r in rings[1:])
-            out.append(WaterBody(rings, level, area, points, spread, flat))
+            part = rasterio.features.rasterize([(geometry, 1)], out_shape=body.shape, transform=transform) > 0
+            shores = tuple(shore_lines(part & body, side, corner, cell))
+            out.append(WaterBody(rings, level, area, points, spread, flat, shores=shores))
     return out
+
+
+def shore_lines(body: np.ndarray, side: np.ndarray, corner: tuple[float, float], cell: float) -> list[np.ndarray]:
+    """The sides of the *body* cells that face a *side* cell, joined into lines ((k, 2) vertices, metres).
+
+    *corner*: the grid's upper-left corner; *cell*: its side.
+
+    >>> body = np.zeros((4, 4), bool); body[1:3, 1:3] = True
+    >>> side = np.zeros((4, 4), bool); side[3, :] = True  # ground south of the body only
+    >>> [line.tolist() for line in shore_lines(body, side, (0.0, 4.0), 1.0)]
+    [[[1.0, 1.0], [3.0, 1.0]]]
+    """
+    import shapely
+
+    b = np.pad(body, 1)
+    o = np.pad(side & ~body, 1)
+    segments = []
+    # horizontal sides: between rows r - 1 and r (padded), columns c; vertical: between columns c - 1 and c
+    r, c = np.nonzero((b[:-1, 1:-1] & o[1:, 1:-1]) | (o[:-1, 1:-1] & b[1:, 1:-1]))
+    segments += [((cc, rr), (cc + 1, rr)) for rr, cc in zip(r.tolist(), c.tolist(), strict=True)]
+    r, c = np.nonzero((b[1:-1, :-1] & o[1:-1, 1:]) | (o[1:-1, :-1] & b[1:-1, 1:]))
+    segments += [((cc, rr), (cc, rr + 1)) for rr, cc in zip(r.tolist(), c.tolist(), strict=True)]
+    if not segments:
+        return []
+    merged = shapely.simplify(shapely.line_merge(shapely.MultiLineString(segments)), 0.0)  # no collinear vertex
+    lines = []
+    for line in getattr(merged, "geoms", [merged]):
+        ij = np.asarray(line.coords, dtype=np.float64)
+        lines.append(np.column_stack((corner[0] + ij[:, 0] * cell, corner[1] - ij[:, 1] * cell)))
+    return lines
 
 
 def write_water_bodies(path: Path, bodies: list[WaterBody], *, crs, units) -> None:
@@ -299,6 +359,78 @@ def burn_levels(bodies: list[tuple[list[np.ndarray], float]], shape: tuple[int, 
         x, y = transform @ (c + 0.5, r + 0.5)
         levels[r, c] = river_levels(rings, np.column_stack((x, y)))
     return levels
+
+
+def write_breaklines(path: Path, bodies: list[WaterBody], *, crs, units) -> None:
+    """The flattened bodies' shores as 3-D breaklines: a GeoPackage 1.2 of MultiLineString Z, one per body.
+
+    A lake's vertices stand at its level; a river's at the height its
+    outline's vertices give their stations (:func:`river_levels`), as the
+    DTM is burnt.  Fields: ``water_body`` (the body's feature id in
+    ``water.gpkg``), ``kind`` (lake or river), ``level``.
+    """
+    import shapely
+
+    from dtm.common.vectors import write_gpkg
+
+    h, v = units.horizontal, units.vertical
+    geometry, ids, kinds, levels = [], [], [], []
+    for fid, b in enumerate(bodies, start=1):
+        if not b.flat or not b.shores:
+            continue
+        rings = (
+            b.rings
+            if b.heights is None
+            else [np.column_stack((r[:, :2], z)) for r, z in zip(b.rings, b.heights, strict=True)]
+        )
+        lines = []
+        for line in b.shores:
+            z = river_levels(rings, line) if b.heights is not None else np.full(len(line), b.level)
+            lines.append(np.column_stack((line / h, z / v)))
+        geometry.append(shapely.to_wkb(shapely.MultiLineString(lines), output_dimension=3, flavor="iso"))
+        ids.append(fid)
+        kinds.append("river" if b.heights is not None else "lake")
+        levels.append(b.level / v)
+    fields = {
+        "water_body": np.array(ids, dtype=np.int64),
+        "kind": np.array(kinds, dtype=object),
+        "level": np.array(levels, dtype=np.float64),
+    }
+    write_gpkg(path, geometry, fields, crs=crs, layer=BREAKLINES, geometry_type="MultiLineString Z")
+
+
+def read_breaklines(path: Path, units) -> list[np.ndarray]:
+    """The lines of a ``breaklines.gpkg`` ((k, 3): x, y, height), in metres."""
+    import pyogrio.raw
+    import shapely
+
+    _, _, geometry, _ = pyogrio.raw.read(str(path), layer=BREAKLINES)
+    scale = np.array([units.horizontal, units.horizontal, units.vertical])
+    out = []
+    for wkb in geometry:
+        if wkb is None:
+            continue
+        shape = shapely.from_wkb(bytes(wkb))
+        out += [np.asarray(g.coords, dtype=np.float64)[:, :3] * scale for g in getattr(shape, "geoms", [shape])]
+    return out
+
+
+def breakline_points(lines: list[np.ndarray], spacing: float) -> np.ndarray:
+    """Vertices (n, 3) along 3-D *lines* ((k, 3) each, metres), at most *spacing* apart, heights linear between.
+
+    >>> line = np.array([[0.0, 0.0, 1.0], [4.0, 0.0, 3.0]])
+    >>> breakline_points([line], 1.0)[:, [0, 2]].tolist()
+    [[0.0, 1.0], [1.0, 1.5], [2.0, 2.0], [3.0, 2.5], [4.0, 3.0]]
+    """
+    out = [np.zeros((0, 3))]
+    for line in lines:
+        xyz = np.asarray(line, dtype=np.float64)
+        step = np.diff(xyz, axis=0)
+        pieces = np.maximum(np.ceil(np.hypot(step[:, 0], step[:, 1]) / spacing), 1).astype(np.int64)
+        start = np.repeat(np.arange(len(step)), pieces)
+        t = (np.arange(len(start)) - np.repeat(np.cumsum(pieces) - pieces, pieces)) / np.repeat(pieces, pieces)
+        out += [xyz[start] + t[:, None] * step[start], xyz[-1:]]  # each segment from its start; the line's end
+    return np.concatenate(out)
 
 
 def is_river(rings: list[np.ndarray]) -> bool:

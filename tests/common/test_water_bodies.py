@@ -37,11 +37,15 @@ def test_a_round_lake_is_one_flat_polygon_at_its_water_level():
     assert not refused.mask.any()
     assert body.flat and body.points == len(water)
     assert abs(body.level - LEVEL) < 0.01  # the median of the water; the banks are higher
-    assert abs(body.area - np.pi * 20**2) < 2 * np.pi * 20 * 1.0  # within a cell of the shore
+    # drawn in by half a cell at its shore: the area within half a cell of the shore, and not more
+    assert -2 * np.pi * 20 * 0.5 < body.area - np.pi * 20**2 < 0
     assert len(body.rings) == 1
     outer = body.rings[0]
-    assert np.all(np.hypot(outer[:, 0] - 50, outer[:, 1] - 50) < 21.5)
-    assert np.all(outer == np.round(outer))  # cell corners: whole metres
+    assert np.all(np.hypot(outer[:, 0] - 50, outer[:, 1] - 50) < 21.0)
+    assert np.all(2 * outer == np.round(2 * outer))  # half-cell corners: half metres
+    # its shore is one closed breakline, on the outline
+    (shore,) = body.shores
+    assert np.array_equal(shore[0], shore[-1]) and set(map(tuple, shore)) == set(map(tuple, outer))
 
 
 def test_a_level_surface_whose_banks_do_not_rise_is_no_water():

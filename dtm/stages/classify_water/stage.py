@@ -29,12 +29,12 @@ from pipeline.stage import Stage, StageContext, StageIO
 COUNTS = ("points", "water", "from_points", "from_polygons", "ground_to_water")
 
 
-class ClassifyWater(Stage, name="classify_water", version="3", params=ClassifyWaterParams):
+class ClassifyWater(Stage, name="classify_water", version="4", params=ClassifyWaterParams):
     """water (class 9) from the points and from polygons."""
 
     inputs = ("points_classified",)
-    outputs: ClassVar = {"points_water": "points.las", "water_bodies": "water.gpkg"}
-    products: ClassVar = {"water_bodies": "water.gpkg"}
+    outputs: ClassVar = {"points_water": "points.las", "water_bodies": "water.gpkg", "breaklines": "breaklines.gpkg"}
+    products: ClassVar = {"water_bodies": "water.gpkg", "breaklines": "breaklines.gpkg"}
     passthrough: ClassVar = {"points_water": "points_classified"}
     config_keys = ("tiling.buffer",)
 
@@ -81,7 +81,7 @@ class ClassifyWater(Stage, name="classify_water", version="3", params=ClassifyWa
 def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dict) -> None:
     """The water bodies of the whole survey: those whose banks do not rise given back, the others to water.gpkg."""
     from dtm.common.clouds import cloud_info
-    from dtm.common.water_bodies import write_water_bodies
+    from dtm.common.water_bodies import write_breaklines, write_water_bodies
     from dtm.stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores
 
     dst = ctx.outputs["points_water"]
@@ -99,6 +99,8 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
     )
     if "water_bodies" in ctx.outputs:
         write_water_bodies(ctx.outputs["water_bodies"], bodies, crs=info.crs, units=info.units)
+    if "breaklines" in ctx.outputs:
+        write_breaklines(ctx.outputs["breaklines"], bodies, crs=info.crs, units=info.units)
         flat = [b for b in bodies if b.flat]
         counts["ignored_ground"] = ignore_near_shores(dst, flat, ctx.params.bodies.ignored_ground, info.units)
         ctx.metrics["bodies"] = {

@@ -85,6 +85,7 @@ def tin(
     margin: float | None = 25.0,
     batch_cells: int = 1_000_000,
     progress: Progress | None = None,
+    max_hull_edge: float = 0.0,
 ) -> np.ndarray:
     """Linear interpolation on the Delaunay triangulation (TIN) of *points*, at the cell centres of *grid*.
 
@@ -119,7 +120,7 @@ def tin(
 
     inner = _near_grid(xy, grid, margin)
     if inner is None:  # every point is near the grid
-        out, _ = _tin_draw(xy, z, chosen(np.arange(len(z))), grid, batch_cells, progress)
+        out, _ = _tin_draw(xy, z, chosen(np.arange(len(z))), grid, batch_cells, progress, max_hull_edge)
     else:
         keep = chosen(np.flatnonzero(inner))
         rest: list[np.ndarray] = []
@@ -129,10 +130,10 @@ def tin(
                 rest.append(chosen(np.flatnonzero(~inner)))
             return rest[0]
 
-        out, drawn = _tin_draw(xy, z, keep, grid, batch_cells, None)
+        out, drawn = _tin_draw(xy, z, keep, grid, batch_cells, None, max_hull_edge)
         if not _same_as_all(xy, keep, outer, drawn, grid, margin, np.isnan(out).reshape(far.shape) & ~far):
             keep = np.union1d(keep, outer())  # ascending: the input order, as if all were triangulated at once
-            out, _ = _tin_draw(xy, z, keep, grid, batch_cells, progress)
+            out, _ = _tin_draw(xy, z, keep, grid, batch_cells, progress, max_hull_edge)
         elif progress is not None:
             progress.update(grid.rows)
     out = out.reshape(grid.rows, grid.cols)
@@ -156,7 +157,17 @@ def _near_grid(xy: np.ndarray, grid: Grid, margin: float | None) -> np.ndarray |
     return None if inner.all() else inner
 
 
-def _tin_draw(xy, z, keep, grid: Grid, batch_cells: int, progress) -> tuple[np.ndarray, np.ndarray]:
+def _long_on_hull(xy: np.ndarray, simplices: np.ndarray, neighbours: np.ndarray, limit: float) -> np.ndarray:
+    """Triangles with an edge on the triangulation's hull (no neighbour across it) longer than *limit*."""
+    a = xy[simplices]
+    # edge k lies opposite vertex k (Triangle's neighbour k shares it)
+    length = np.hypot(*(a[:, [2, 0, 1]] - a[:, [1, 2, 0]]).transpose(2, 0, 1))
+    return ((neighbours < 0) & (length > limit)).any(axis=1)
+
+
+def _tin_draw(
+    xy, z, keep, grid: Grid, batch_cells: int, progress, max_hull_edge: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate the points *keep* (ascending) and draw them on *grid*: flat values, drawing triangles."""
     import triangle
 
@@ -165,7 +176,10 @@ def _tin_draw(xy, z, keep, grid: Grid, batch_cells: int, progress) -> tuple[np.n
     if len(keep) >= 3:
         vxy = np.ascontiguousarray(xy[keep])
         # Q quiet, z indices from 0, B N: no boundary markers, no copy of the vertices
-        simplices = triangle.triangulate({"vertices": vxy}, "QzBN").get("triangles")
+        mesh = triangle.triangulate({"vertices": vxy}, "QznBN")
+        simplices = mesh.get("triangles")
+        if simplices is not None and len(simplices) and max_hull_edge:
+            simplices = simplices[~_long_on_hull(vxy, simplices, mesh["neighbors"], max_hull_edge)]
         if simplices is not None and len(simplices):  # None: all points on a line
             drawn = keep[_draw_triangles(vxy, z[keep], simplices, grid, out, batch_cells, progress)]
             return out, drawn

@@ -44,7 +44,8 @@ class RasterizeParams(StageParams):
         ge=0,
         description="the survey's outline (docs/stages/rasterize.md): cells outside the coverage's concave hull, "
         "peeled from outside along edges longer than this (metres; at least 4 x the median edge of 5-m occupied "
-        "cells), are nodata in the DTM, DSM and nDSM; 0: none (the TIN fills the convex hull)",
+        "cells), are nodata in the DTM, DSM and nDSM; and the TIN's triangles with an edge this long on its hull are "
+        "not drawn; 0: neither (the TIN fills the convex hull)",
     )
     nodata: float | None = Field(
         None,
@@ -65,5 +66,5 @@ class RasterizeParams(StageParams):
     hydro_flatten: bool = Field(
         True,
         description="DTM cells whose centre lies in a flat water body of classify_water's water.gpkg take the "
-        "body's level (hydro-flattening)",
+        "body's level (hydro-flattening), and the bodies' shores (breaklines.gpkg) are enforced in the interpolation",
     )

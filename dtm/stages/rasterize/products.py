@@ -27,7 +27,14 @@ def interpolate_dtm(
 ) -> np.ndarray:
     """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
     if params.method == "tin":
-        return tin(ground, grid, nodata_distance=params.nodata_distance, thin=params.tin.thin, progress=progress)
+        return tin(
+            ground,
+            grid,
+            nodata_distance=params.nodata_distance,
+            thin=params.tin.thin,
+            progress=progress,
+            max_hull_edge=params.outline_edge,
+        )
     if params.method == "idw":
         return idw(
             ground,
@@ -65,6 +72,7 @@ def tile_rasters(
     params: RasterizeParams,
     inside: np.ndarray | None = None,
     flat: Callable[[Grid], np.ndarray] | None = None,
+    breaklines: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
@@ -74,7 +82,9 @@ def tile_rasters(
     with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
     the DSM's, where the DTM has a value).  *flat*: the water level of
     each cell of a grid (NaN: none), that the DTM takes there
-    (hydro-flattening, :mod:`dtm.common.water_bodies`).  Under bridge decks
+    (hydro-flattening, :mod:`dtm.common.water_bodies`); *breaklines*: the
+    water bodies' outlines as 3-D vertices (n, 3), interpolated with the
+    ground points (enforced in the TIN).  Under bridge decks
     (``cloud.decks``, when ``params.bridge_decks``) the DTM is interpolated
     across each deck (:mod:`dtm.stages.rasterize.decks`), on the core and
     ``max_deck_width`` around it.  Core cells not *inside* the survey's
@@ -85,6 +95,8 @@ def tile_rasters(
     max_cells = params.nodata_distance / params.resolution
     dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
     ground = cloud.ground
+    if breaklines is not None and len(breaklines) and len(ground) >= 3:
+        ground = np.vstack((ground, breaklines[inside_hull(ground, breaklines)]))
     decks = cloud.decks is not None and params.bridge_decks and bool(cloud.decks.any())
     grid, sub = _around(core, wide, crop, params.max_deck_width if decks else 0.0)
     dtm = np.full((grid.rows, grid.cols), np.nan)
@@ -113,9 +125,26 @@ def tile_rasters(
     if inside is not None:
         out["outside_outline"] = int((~inside).sum())
     if cloud.sigma is not None:
-        unc = fill_nearest(cell_mean(ground, cloud.sigma, wide), max_cells=max_cells)[crop]
+        unc = fill_nearest(cell_mean(cloud.ground, cloud.sigma, wide), max_cells=max_cells)[crop]
         out["dtm_uncertainty"] = np.where(np.isnan(dtm), np.nan, unc)
     return out
+
+
+def inside_hull(points: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Which of *xy* lie strictly inside the convex hull of *points* (x, y first), so they do not widen a TIN.
+
+    A breakline vertex beyond the points (a water body's outline reaches
+    half a cell past its water) would make the TIN's hull reach out with
+    it, and thin triangles from it to the far corners of the survey.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = ConvexHull(np.asarray(points)[:, :2])
+    except QhullError:  # all on a line: no area to be inside
+        return np.zeros(len(xy), dtype=bool)
+    # the facets' outward normals and offsets: inside where every n . p + d is negative
+    return np.all(np.asarray(xy)[:, :2] @ hull.equations[:, :2].T + hull.equations[:, 2] < -1e-9, axis=1)
 
 
 def _around(core: Grid, wide: Grid, crop: tuple[slice, slice], margin: float) -> tuple[Grid, tuple[slice, slice]]:

@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="10", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="11", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_objects",)
@@ -60,7 +60,7 @@ class Rasterize(Stage, name="rasterize", version="10", params=RasterizeParams):
 
     def declare(self, params: RasterizeParams, config: BaseModel) -> StageIO:
         outputs, products = dict(self.outputs), dict(self.products)
-        inputs = tuple(self.inputs) + (("water_bodies",) if _flattens(params, config) else ())
+        inputs = tuple(self.inputs) + (("water_bodies", "breaklines") if _flattens(params, config) else ())
         geo = getattr(config.stages, "georeference", None)
         if config.input.format != "las" and geo is not None and geo.uncertainty is not None:
             outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
@@ -135,27 +135,36 @@ def _check_points(ctx: StageContext[RasterizeParams], info: CloudInfo) -> None:
         raise InputDataError("the points carry no sigma_vertical: the uncertainty was not propagated.")
 
 
-def _with_water(tasks: list[RasterTask], path: Path, units: Units) -> list[RasterTask]:
-    """The tasks with the water bodies to flatten the DTM in; each kept tile's key holds the bodies over its cells."""
+def _with_water(tasks: list[RasterTask], path: Path, lines_path: Path, units: Units) -> list[RasterTask]:
+    """The tasks with the water bodies to flatten the DTM in and the breaklines to enforce; each kept tile's key
+    holds the bodies and breaklines over its cells and its buffer."""
     import hashlib
     from dataclasses import replace
 
-    from dtm.common.water_bodies import read_water_bodies
+    from dtm.common.water_bodies import read_breaklines, read_water_bodies
 
-    bodies = read_water_bodies(path, units)
-    boxes = [(rings[0].min(axis=0), rings[0].max(axis=0)) for rings, _ in bodies]
+    bodies = [
+        (np.concatenate(rings), b"".join(np.ascontiguousarray(r).tobytes() for r in rings), level)
+        for rings, level in read_water_bodies(path, units)
+    ]
+    lines = [(line, line.tobytes(), 0.0) for line in read_breaklines(lines_path, units)]
+    boxes = [(xyz.min(axis=0), xyz.max(axis=0), data, level) for xyz, data, level in bodies + lines]
     out = []
     for t in tasks:
-        core, _, _ = tile_windows(t.grid, t.window, t.buffer)
-        res = core.resolution
-        x0, y1 = core.xmin + core.col0 * res, core.ymax - core.row0 * res
-        x1, y0 = x0 + core.cols * res, y1 - core.rows * res
+        _, wide, _ = tile_windows(t.grid, t.window, t.buffer)
+        res = wide.resolution
+        x0, y1 = wide.xmin + wide.col0 * res, wide.ymax - wide.row0 * res
+        x1, y0 = x0 + wide.cols * res, y1 - wide.rows * res
         digest = hashlib.sha256()
-        for (lo, hi), (rings, level) in zip(boxes, bodies, strict=True):
+        for lo, hi, data, level in boxes:
             if lo[0] <= x1 and hi[0] >= x0 and lo[1] <= y1 and hi[1] >= y0:
-                digest.update(np.float64(level).tobytes() + b"".join(np.ascontiguousarray(r).tobytes() for r in rings))
+                digest.update(np.float64(level).tobytes() + data)
         units_pair = (units.horizontal, units.vertical)
-        out.append(replace(t, water=str(path), water_digest=digest.hexdigest(), water_units=units_pair))
+        out.append(
+            replace(
+                t, water=str(path), breaklines=str(lines_path), water_digest=digest.hexdigest(), water_units=units_pair
+            )
+        )
     return out
 
 
@@ -221,7 +230,7 @@ class _Tiles:
         where = (str(self.work / "outline.npy"), outline.ix0, outline.iy1)
         tasks = raster_tasks(layout, rows, self.grid, self.work, params, info.units.vertical, self.names, where)
         if "water_bodies" in ctx.inputs:
-            tasks = _with_water(tasks, Path(ctx.inputs["water_bodies"]), info.units)
+            tasks = _with_water(tasks, Path(ctx.inputs["water_bodies"]), Path(ctx.inputs["breaklines"]), info.units)
         if len(layout) == 1 or getattr(ctx.executor, "address", None) is None:  # not on a remote cluster
             check_tile_memory(tasks, p, ctx.executor.workers if len(layout) > 1 else 1)
         return tasks

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from dtm.common import glossary
-from dtm.common.grid import Grid, cell_max_count
+from dtm.common.grid import Grid, cell_max_count, cell_of
 from dtm.common.mosaic import core_window
 from dtm.common.rasters import HEIGHT, NODATA
 from dtm.stages.rasterize.outline import Outline, occupied_cells
@@ -134,9 +134,10 @@ class RasterTask:
     ``model_dump``; *vertical*: metres per height unit of the CRS;
     *outputs*: the rasters to write; *outline*: the survey's outline
     (:class:`~dtm.stages.rasterize.outline.Outline` saved) and its corner;
-    *water*: ``water.gpkg`` to flatten the DTM in (its SHA-256
-    *water_digest*; *water_units*: metres per horizontal and vertical unit
-    of its coordinates).
+    *water*: ``water.gpkg`` to flatten the DTM in, *breaklines*:
+    ``breaklines.gpkg`` to enforce in its interpolation (*water_digest*:
+    the SHA-256 of those over the tile; *water_units*: metres per
+    horizontal and vertical unit of their coordinates).
     """
 
     tile: int
@@ -150,6 +151,7 @@ class RasterTask:
     vertical: float
     outputs: tuple[str, ...]
     water: str | None = None
+    breaklines: str | None = None
     water_digest: str | None = None
     water_units: tuple[float, float] = (1.0, 1.0)
     outline: tuple[str, int, int] | None = None  # None: no outline
@@ -259,17 +261,22 @@ def rasterize_tile(task: RasterTask) -> dict:
     params = RasterizeParams.model_validate(task.params)
     core, wide, crop = tile_windows(task.grid, task.window, task.buffer)
     cloud = read_tile_cloud(Path(task.source), wide, sigma="dtm_uncertainty" in task.outputs)
-    flat = None
+    flat, breaklines = None, None
     if task.water is not None:
         from dtm.common.units import Units
-        from dtm.common.water_bodies import burn_levels, read_water_bodies
+        from dtm.common.water_bodies import breakline_points, burn_levels, read_breaklines, read_water_bodies
 
-        bodies = read_water_bodies(Path(task.water), Units(*task.water_units))
+        units = Units(*task.water_units)
+        bodies = read_water_bodies(Path(task.water), units)
 
         def flat(grid: Grid) -> np.ndarray:
             return burn_levels(bodies, (grid.rows, grid.cols), grid.transform)
 
-    rasters = tile_rasters(cloud, core, wide, crop, params, task.inside(core), flat=flat)
+        if task.breaklines is not None:
+            lines = read_breaklines(Path(task.breaklines), units)
+            breaklines = breakline_points(lines, params.resolution)
+            breaklines = breaklines[cell_of(breaklines, wide)[0] >= 0]  # the tile's, core and buffer
+    rasters = tile_rasters(cloud, core, wide, crop, params, task.inside(core), flat=flat, breaklines=breaklines)
     vertical = task.vertical
     folder = Path(task.result)
     folder.mkdir(parents=True, exist_ok=True)

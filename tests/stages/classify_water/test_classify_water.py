@@ -102,6 +102,28 @@ def test_water_gpkg_is_one_polygon_z_at_the_level_in_a_geopackage_1_2(one_lake):
     assert np.all((r > 22) & (r < 27))
 
 
+def test_breaklines_gpkg_is_the_shore_at_the_level_in_3d(one_lake):
+    import sqlite3
+
+    import pyogrio
+    import pyogrio.raw
+    import shapely
+
+    out = one_lake[0] / "out"
+    info = pyogrio.read_info(out / "breaklines.gpkg")
+    assert info["geometry_type"] == "MultiLineString Z" and info["features"] == 1 and info["crs"] == "EPSG:25830"
+    with sqlite3.connect(out / "breaklines.gpkg") as db:
+        assert db.execute("pragma user_version").fetchone()[0] == 10200  # GeoPackage 1.2
+    meta, _, geometry, values = pyogrio.raw.read(out / "breaklines.gpkg")
+    fields = dict(zip(meta["fields"], values, strict=True))
+    assert fields["water_body"][0] == 1 and fields["kind"][0] == "lake"
+    (line,) = shapely.from_wkb(bytes(geometry[0])).geoms  # the whole shore: the lake lies inside the survey
+    xyz = np.asarray(line.coords)
+    assert np.all(xyz[:, 2] == fields["level"][0]) and np.array_equal(xyz[0], xyz[-1])
+    polygon = shapely.from_wkb(bytes(pyogrio.raw.read(out / "water.gpkg")[2][0]))
+    assert shapely.distance(polygon.boundary, shapely.points(xyz[:, :2])).max() < 1e-9  # on its outline
+
+
 def test_ground_at_the_shore_is_ignored_ground_and_the_rest_stays(one_lake):
     """Class 20 within 0.7 m (``ignored_ground``) of the lake's outline in water.gpkg, the hydro breakline."""
     import pyogrio.raw

@@ -56,8 +56,9 @@ def test_a_falling_river_is_flattened_bank_to_bank_and_falls_downstream():
     assert len(bodies) == 1 and bodies[0].flat and bodies[0].heights is not None
     body = bodies[0]
     assert body.spread > 0.3  # one level could not flatten it
-    vertices = np.concatenate(body.rings)
-    assert np.max(np.abs(np.concatenate(body.heights) - _true_level(vertices))) < 0.03
+    vertices, heights = np.concatenate(body.rings), np.concatenate(body.heights)
+    seen = np.abs((vertices - CENTRE) @ ALONG) <= 100.0  # the ends reach 2 cells on past the survey, held level
+    assert np.max(np.abs(heights[seen] - _true_level(vertices[seen]))) < 0.03
     _, values, xy, _ = _grid_levels(bodies)
     assert len(values) > 3000
     assert np.max(np.abs(values - _true_level(xy))) < 0.03  # the true water surface, within 3 cm
@@ -95,3 +96,16 @@ def test_the_river_survives_water_gpkg_and_is_judged_by_the_acceptance(tmp_path)
     assert rising_rivers(dtm, read, transform) == 1 and unflat_water_bodies(dtm, read, transform) == 1
     lake = [([np.column_stack((read[0][0][0][:, :2], np.full(len(read[0][0][0]), 100.0)))], 100.0)]
     assert rising_rivers(dtm, lake, transform) is None  # a lake: no river to judge
+
+
+def test_a_river_cut_by_the_survey_edge_runs_on_to_it_and_its_breaklines_are_its_banks():
+    (body,) = _bodies(*_river())
+    along = (np.concatenate(body.rings)[:, :2] - CENTRE) @ ALONG
+    assert along.min() < -100.5 and along.max() > 100.5  # 2 cells on past its last points, at both ends
+    assert len(body.shores) == 2  # one line a bank, none across the cut ends
+    for shore in body.shores:
+        assert np.ptp((shore - CENTRE) @ ALONG) > 190
+        # at the water's edge (10 m out): the outline's steps across a 30-degree bank, notches where a cell at
+        # the edge caught no echo (2 per m2)
+        out = np.abs((shore - CENTRE) @ ACROSS)
+        assert abs(np.median(out) - 10.0) < 0.75 and np.all((out > 7.0) & (out < 13.0))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dtm.common.grid import Grid
-from dtm.stages.rasterize.interpolate import _draw_triangles
+from dtm.stages.rasterize.interpolate import _draw_triangles, tin
 
 
 def _inside(px, py, tri):
@@ -41,3 +41,27 @@ def test_cells_drawn_are_the_centres_inside(tri):
     a, b, c = np.linalg.solve(np.column_stack((np.ones(3), xy)), z)
     assert np.allclose(out[expected], (a + b * px + c * py).ravel()[expected], atol=1e-9)
     assert drawn.tolist() == [[0, 1, 2]]
+
+
+def test_a_long_edge_on_the_tins_hull_is_not_drawn():
+    """A square of points 1 m apart and one point 40 m north of it: a fan of triangles from it to the square's
+    north edge, the outer two with an edge of 47 m on the hull.  Trimmed at 20 m, those two draw nothing: thin
+    slivers along the hull; the rest is untouched."""
+    g = np.arange(0.5, 50.0, 1.0)
+    x, y = np.meshgrid(g, g)
+    pts = np.vstack((np.column_stack((x.ravel(), y.ravel(), np.zeros(x.size))), [[25.0, 90.0, 40.0]]))
+    grid = Grid(0.0, 100.0, 1.0, 50, 100)  # rows 0-49: y 100 to 50, north of the square
+    full = tin(pts.copy(), grid, nodata_distance=100.0, thin=False)
+    trimmed = tin(pts.copy(), grid, nodata_distance=100.0, thin=False, max_hull_edge=20.0)
+    gone = np.isfinite(full) & np.isnan(trimmed)
+    assert gone.sum() > 10
+    both = np.isfinite(trimmed)
+    np.testing.assert_array_equal(trimmed[both], full[both])  # nothing else changes
+    cx, cy = grid.centres()
+    tip = np.array([25.0, 90.0])
+    for corner in (np.array([0.5, 49.5]), np.array([49.5, 49.5])):  # each cell gone lies along a hull edge
+        edge = tip - corner
+        t = np.clip(((cx - corner[0]) * edge[0] + (cy - corner[1]) * edge[1]) / (edge @ edge), 0, 1)
+        near = np.hypot(cx - corner[0] - t * edge[0], cy - corner[1] - t * edge[1]) < 1.0
+        gone &= ~near
+    assert not gone.any()

@@ -46,6 +46,7 @@ class Scene:
     solid: np.ndarray
     canopy: np.ndarray
     cls: np.ndarray  # uint8
+    river: bool = True  # the scene has the river of :func:`river_band`
 
     def sample(self, grid: np.ndarray, e: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Bilinear value of a scene raster at local (e, n); NaN outside the grid."""
@@ -112,7 +113,8 @@ def make_scene(
     g = _Lattice.of(extent, cell)
     if terrain == "flat":
         level = np.zeros(g.E.shape)
-        return Scene(g.e_min, g.n_min, cell, level, level.copy(), level.copy(), np.full(level.shape, GROUND, np.uint8))
+        flat = np.full(level.shape, GROUND, np.uint8)
+        return Scene(g.e_min, g.n_min, cell, level, level.copy(), level.copy(), flat, river=False)
     ground, river, banks, level = _river(g, _terrain(g))
     cls = np.full(ground.shape, GROUND, np.uint8)
     cls[river] = WATER
@@ -187,12 +189,19 @@ def _terrain(g: _Lattice) -> np.ndarray:
 RIVER_SLOPE = 0.003
 
 
+def river_band(n_min: float, height: float) -> tuple[float, float]:
+    """The river's centre line (local northing, m) and half its width in a scene from *n_min*, *height* m high:
+    its shores run east-west at centre - half and centre + half."""
+    return n_min + 0.55 * height, max(6.0, 0.03 * height)
+
+
 def _river(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A river along the east-west direction at 55 % of the height, its water falling eastwards by
     ``RIVER_SLOPE`` (level across): the ground with it, the river's and its banks' cells, the water level
     of each cell's column."""
-    h, centre = g.h, g.n_min + 0.55 * g.h
-    river = np.abs(g.N - centre) < max(6.0, 0.03 * h)
+    h = g.h
+    centre, half = river_band(g.n_min, h)
+    river = np.abs(g.N - centre) < half
     banks = np.abs(g.N - centre) < max(10.0, 0.05 * h)
     level = float(np.percentile(ground[banks], 5)) - 1.0 - RIVER_SLOPE * (g.E - (g.e_min + 0.5 * g.w))
     ground = np.where(banks & ~river, np.minimum(ground, level + 1.5), ground)

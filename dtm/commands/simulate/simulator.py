@@ -10,7 +10,8 @@ CRS with PROJ point by point.
 Written (``<output>/``): ``ldmrs/acquisition.log.gz`` (3.A), ``lmsq/scan.lmsq``
 + ``lmsq/nav.nmea`` + ``lmsq/ins.csv`` (3.B), ``lmsq/trajectory.sbet`` +
 ``lmsq/trajectory.smrmsg`` (3.C, same stream), ``las/points.laz`` (3.D),
-``truth/points.laz``, ``truth/terrain.tif``, ``truth/land_cover.tif``, ``truth/faults.json``.
+``truth/points.laz``, ``truth/terrain.tif``, ``truth/land_cover.tif``, ``truth/breaklines.gpkg``,
+``truth/faults.json``.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from dtm.commands.simulate.reference import TABLE_15_MOUNTINGS, gps_seconds, utm
 from dtm.commands.simulate.sensors import Scanner, make_scanner, navigation_sigmas
 from dtm.commands.simulate.settings import SimConfigError, SimulateConfig
 from dtm.commands.simulate.sinks import Sinks
-from dtm.commands.simulate.truth import write_checkpoints, write_truth_terrain
+from dtm.commands.simulate.truth import write_checkpoints, write_truth_breaklines, write_truth_terrain
 
 if TYPE_CHECKING:
     import pyproj
@@ -241,6 +242,9 @@ def _write_truth(
     the files written."""
     files = {"truth_terrain": "truth/terrain.tif", "truth_land_cover": "truth/land_cover.tif"}
     write_truth_terrain(out / "truth", world, frame, crs, extent, cfg.truth_resolution)
+    if world.river:
+        write_truth_breaklines(out / "truth", world, frame, crs, extent)
+        files["truth_breaklines"] = "truth/breaklines.gpkg"
     if cfg.checkpoints:
         write_checkpoints(out / "checkpoints.csv", world, frame, crs, ground_xy, cfg.checkpoints, rng)
         files["checkpoints"] = "checkpoints.csv"

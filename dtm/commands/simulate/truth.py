@@ -158,3 +158,33 @@ def write_truth_terrain(
     cover = np.where(trees, sc.VEGETATION, cover)
     cover = np.where(np.isfinite(h), cover, 0).reshape(ny, nx).astype(np.uint8)
     write_cog(folder / "land_cover.tif", cover, transform=transform, crs=crs, nodata=0, dtype="uint8", unit=None)
+
+
+def write_truth_breaklines(
+    folder: Path, world: sc.Scene, frame: Earth, crs: pyproj.CRS, extent: tuple[float, float, float, float]
+) -> None:
+    """The river's true shores as 3-D breaklines: ``breaklines.gpkg`` (GeoPackage 1.2, layer ``breaklines``).
+
+    Two LineString Z (field ``shore``: south, north) along the scene's
+    river (:func:`~dtm.commands.simulate.scene.river_band`), a vertex every
+    0.5 m at the water's height there (falling eastwards, under the bridge
+    too), in the output CRS.
+    """
+    import pyproj
+    import shapely
+
+    from dtm.common.vectors import write_gpkg
+
+    e_min, e_max, n_min, n_max = extent
+    centre, half = sc.river_band(n_min, n_max - n_min)
+    e = np.arange(e_min + 0.25, e_max, 0.5)
+    level = world.sample(world.ground, e, np.full(len(e), centre))  # the water, level across the river
+    to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
+    lines = []
+    for n in (centre - half, centre + half):
+        ec = frame.to_ecef(np.column_stack((e, np.full(len(e), n), level)))
+        x, y, h = to_crs.transform(ec[:, 0], ec[:, 1], ec[:, 2])
+        ok = np.isfinite(level)
+        lines.append(shapely.to_wkb(shapely.LineString(np.column_stack((x, y, h))[ok]), output_dimension=3))
+    fields = {"shore": np.array(["south", "north"], dtype=object)}
+    write_gpkg(folder / "breaklines.gpkg", lines, fields, crs=crs, layer="breaklines", geometry_type="LineString Z")

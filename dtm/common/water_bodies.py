@@ -48,6 +48,12 @@ class WaterBody:
 RIVER_BIN_M = 5.0
 #: A body is a river when it is at least this many times longer (along its axis) than wide.
 RIVER_ELONGATION = 3.0
+#: Neighbouring cells whose lowest water points differ by more (m) are not one body: a river and the level bank
+#: above it (waves of 25 cm, 1 sigma, stay one body).
+STEP = 1.0
+#: A body is no water when more than this share of the cells around it hold ground or water lower than it (by
+#: min_bank plus max_spread): it would drain there (a level bank above a river).  A pond's outlet is a few cells.
+DRAINS = 0.25
 
 
 def binned_medians(station: np.ndarray, values: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -181,11 +187,22 @@ def water_bodies(
     eight = np.ones((3, 3), bool)
     if close > 0:
         mask = ndimage.binary_closing(mask, structure=eight, iterations=close)
-    label, _ = ndimage.label(mask, structure=eight)
+    # cells join across a step of at most STEP between their lowest water points (a cell the closing filled
+    # takes its neighbours' lowest): a river and the level bank above it are two bodies
+    flat = row * shape[1] + col
+    n = np.bincount(flat, minlength=mask.size)
+    mean = np.full(mask.size, np.inf)
+    np.minimum.at(mean, flat, water[:, 2])  # the lowest: a cell across a bank's foot holds both levels
+    mean = np.where(n > 0, mean, np.nan).reshape(shape)
+    height = np.where(np.isnan(mean), np.inf, mean)
+    for _ in range(close + 1):  # cells the closing filled take their neighbours' lowest, ring by ring
+        height = np.where(np.isinf(height), ndimage.minimum_filter(height, 3, mode="constant", cval=np.inf), height)
+    label = level_labels(mask, height, STEP)
     lowest = np.full(shape, np.inf)
     gr, gc = _cells(ground[:, :2], cell, lo)
     inside = (gr >= 0) & (gr < shape[0]) & (gc >= 0) & (gc < shape[1])
     np.minimum.at(lowest, (gr[inside], gc[inside]), ground[inside, 2])
+    below = np.fmin(lowest, mean)  # the lowest ground or water of each cell
     of_point = label[row, col]
     # what was never seen and reaches the grid's border: beyond the survey's edge (4 neighbours)
     unseen, _ = ndimage.label(~(mask | np.isfinite(lowest)))
@@ -201,7 +218,12 @@ def water_bodies(
         ring = ndimage.binary_dilation(body, structure=eight, iterations=2) & ~body
         banks = lowest[rows, cols][ring]
         banks = banks[np.isfinite(banks)]
-        if len(banks) and float(np.median(banks)) - level < min_bank:
+        # the cells around, against the body's own water next to them
+        own = _neighbours_mean(np.where(body, mean[rows, cols], np.nan), 5)[ring]
+        around = below[rows, cols][ring]
+        seen = np.isfinite(around) & np.isfinite(own)
+        drains = seen.any() and np.mean(around[seen] < own[seen] - max(min_bank, 0.0) - max_spread) > DRAINS
+        if (len(banks) and float(np.median(banks)) - level < min_bank) or drains:
             rejected[rows, cols] |= body
             continue
         if float(body.sum()) * cell * cell < min_area:
@@ -216,6 +238,43 @@ def water_bodies(
         parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread, shore)
         bodies += [p if p.flat else _as_river(p, water[of_point == k], max_spread) for p in parts]
     return bodies, CellMask((float(lo[0]), float(lo[1])), cell, rejected)
+
+
+def _neighbours_mean(values: np.ndarray, size: int) -> np.ndarray:
+    """The mean of the finite *values* in each cell's *size* x *size* window (NaN where there is none)."""
+    from scipy import ndimage
+
+    known = np.isfinite(values)
+    total = ndimage.uniform_filter(np.where(known, values, 0.0), size, mode="constant")
+    count = ndimage.uniform_filter(known.astype(np.float64), size, mode="constant")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 1e-9, total / count, np.nan)
+
+
+def level_labels(cells: np.ndarray, height: np.ndarray, step: float) -> np.ndarray:
+    """Labels (1, 2, ...; 0 none) of the *cells* joined across sides and corners where their *height*s differ by at
+    most *step* (a graph's connected components: a chain of small steps joins, one large step parts)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    ny, nx = cells.shape
+    ids = np.arange(ny * nx).reshape(ny, nx)
+    rows, cols = [], []
+    for da, db in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        a0, a1 = slice(0, ny - da), slice(da, ny)
+        b0, b1 = (slice(0, nx - db), slice(db, nx)) if db >= 0 else (slice(-db, nx), slice(0, nx + db))
+        with np.errstate(invalid="ignore"):  # two unknown heights (inf) do not join
+            ok = cells[a0, b0] & cells[a1, b1] & (np.abs(height[a0, b0] - height[a1, b1]) <= step)
+        rows.append(ids[a0, b0][ok])
+        cols.append(ids[a1, b1][ok])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(r), dtype=np.int8), (r, c)), shape=(ny * nx, ny * nx))
+    _, component = connected_components(graph, directed=False)
+    present = np.zeros(component.max() + 1, dtype=bool)
+    present[component[cells.ravel()]] = True
+    labels = np.zeros(ny * nx, dtype=np.int64)
+    labels[cells.ravel()] = np.cumsum(present)[component[cells.ravel()]]
+    return labels.reshape(ny, nx)
 
 
 def _as_river(body: WaterBody, xyz: np.ndarray, max_spread: float) -> WaterBody:
@@ -250,12 +309,13 @@ def _polygons(body, corner, cell, level, points, spread, flat, banks=None) -> li
         bank = np.kron(banks & ~body, twice)
         shore = ndimage.binary_dilation(bank) & np.kron(body, twice)  # the half cells next to a bank (4 neighbours)
         body, side, cell = np.kron(body, twice) & ~shore, bank | shore, 0.5 * cell
+    smallest = (2 * cell) ** 2 if banks is not None and banks.any() else 0.0  # a whole cell of the grid drawn in
     transform = Affine(cell, 0.0, corner[0], 0.0, -cell, corner[1])
     out = []
     for geometry, value in rasterio.features.shapes(body.astype(np.uint8), mask=body, transform=transform):
-        if value == 1:
-            rings = [np.asarray(r, dtype=np.float64) for r in geometry["coordinates"]]
-            area = _ring_area(rings[0]) - sum(_ring_area(r) for r in rings[1:])
+        rings = [np.asarray(r, dtype=np.float64) for r in geometry["coordinates"]]
+        area = _ring_area(rings[0]) - sum(_ring_area(r) for r in rings[1:])
+        if value == 1 and area >= smallest:  # not a corner the drawing in cut off
             part = rasterio.features.rasterize([(geometry, 1)], out_shape=body.shape, transform=transform) > 0
             shores = tuple(shore_lines(part & body, side, corner, cell))
             out.append(WaterBody(rings, level, area, points, spread, flat, shores=shores))

@@ -46,7 +46,8 @@ class Scene:
     solid: np.ndarray
     canopy: np.ndarray
     cls: np.ndarray  # uint8
-    river: bool = True  # the scene has the river of :func:`river_band`
+    river: tuple[float, float] | None = None  # the river's centre line (northing) and half width, m (none: none)
+    lakes: tuple[tuple[float, float, float, float], ...] = ()  # each lake's centre (e, n), radius and level, m
 
     def sample(self, grid: np.ndarray, e: np.ndarray, n: np.ndarray) -> np.ndarray:
         """Bilinear value of a scene raster at local (e, n); NaN outside the grid."""
@@ -98,7 +99,12 @@ class Scene:
 
 
 def make_scene(
-    extent: tuple[float, float, float, float], *, seed: int = 1, cell: float = 0.5, terrain: str = "default"
+    extent: tuple[float, float, float, float],
+    *,
+    seed: int = 1,
+    cell: float = 0.5,
+    terrain: str = "default",
+    water: str = "default",
 ) -> Scene:
     """A scene covering *extent* (e_min, e_max, n_min, n_max, local metres) with every feature the tests need.
 
@@ -107,24 +113,38 @@ def make_scene(
     positions scale with the extent; *seed* moves buildings and trees.
     *terrain* ``"flat"``: bare ground only, level at local height 0 (the
     origin's ellipsoidal height), nothing on it: the geometry in which
-    overlapping strips cannot see a horizontal shift.
+    overlapping strips cannot see a horizontal shift.  *water* ``"lbs"``:
+    water the USGS Lidar Base Specification hydro-flattens (:data:`LBS_RIVER_WIDTH`,
+    :data:`LBS_LAKE_RADIUS`): the river 31 m wide and a round lake of
+    8,495 m² north of it; the extent must be at least :data:`LBS_EXTENT` m
+    each way.
     """
     rng = np.random.default_rng(seed)
     g = _Lattice.of(extent, cell)
     if terrain == "flat":
         level = np.zeros(g.E.shape)
         flat = np.full(level.shape, GROUND, np.uint8)
-        return Scene(g.e_min, g.n_min, cell, level, level.copy(), level.copy(), flat, river=False)
-    ground, river, banks, level = _river(g, _terrain(g))
+        return Scene(g.e_min, g.n_min, cell, level, level.copy(), level.copy(), flat)
+    lbs = water == "lbs"
+    if lbs and min(g.w, g.h) < LBS_EXTENT:
+        raise ValueError(
+            f"scene.water: lbs needs a scene of {LBS_EXTENT:g} m each way; this one is {g.w:.0f} x {g.h:.0f} m"
+        )
+    ground, river, banks, level = _river(g, _terrain(g), wide=lbs)
+    lakes, shore = ((), np.zeros(ground.shape, bool))
+    if lbs:
+        ground, lake, shore, lakes = _lake(g, ground)
+        river |= lake
     cls = np.full(ground.shape, GROUND, np.uint8)
     cls[river] = WATER
     solid = ground.copy()
     _add_bridge(g, ground, solid, cls, banks, level)
-    # buildings: flat and gabled, away from the river and the slope band
-    free = ~banks
+    # buildings: flat and gabled, away from the water and the slope band
+    free = ~banks & ~shore
     _add_buildings(g, rng, ground, solid, cls, free)
     canopy = _canopy(g, rng, ground, solid, cls, free)
-    return Scene(g.e_min, g.n_min, cell, ground, solid, canopy, cls)
+    band = river_band(g.n_min, g.h, wide=lbs)
+    return Scene(g.e_min, g.n_min, cell, ground, solid, canopy, cls, river=band, lakes=lakes)
 
 
 @dataclass(frozen=True)
@@ -189,24 +209,48 @@ def _terrain(g: _Lattice) -> np.ndarray:
 RIVER_SLOPE = 0.003
 
 
-def river_band(n_min: float, height: float) -> tuple[float, float]:
-    """The river's centre line (local northing, m) and half its width in a scene from *n_min*, *height* m high:
-    its shores run east-west at centre - half and centre + half."""
-    return n_min + 0.55 * height, max(6.0, 0.03 * height)
+#: ``water: lbs``: the river's width (m), the LBS's smallest hydro-flattened river, 100 ft (30.48 m), and more.
+LBS_RIVER_WIDTH = 31.0
+#: ``water: lbs``: the lake's radius (m): 8,495 m², the LBS's smallest hydro-flattened pond, 2 acres
+#: (8,094 m²), and more.
+LBS_LAKE_RADIUS = 52.0
+#: ``water: lbs``: the smallest scene (m each way) that holds the river, the lake north of it and their banks.
+LBS_EXTENT = 350.0
 
 
-def _river(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def river_band(n_min: float, height: float, wide: bool = False) -> tuple[float, float]:
+    """The river's centre line (local northing, m) and half its width in a scene from *n_min*, *height* m high
+    (*wide*: ``water: lbs``): its shores run east-west at centre - half and centre + half."""
+    return n_min + 0.55 * height, LBS_RIVER_WIDTH / 2 if wide else max(6.0, 0.03 * height)
+
+
+def _river(
+    g: _Lattice, ground: np.ndarray, wide: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A river along the east-west direction at 55 % of the height, its water falling eastwards by
     ``RIVER_SLOPE`` (level across): the ground with it, the river's and its banks' cells, the water level
     of each cell's column."""
     h = g.h
-    centre, half = river_band(g.n_min, h)
+    centre, half = river_band(g.n_min, h, wide)
     river = np.abs(g.N - centre) < half
-    banks = np.abs(g.N - centre) < max(10.0, 0.05 * h)
+    banks = np.abs(g.N - centre) < half + max(4.0, 0.02 * h)
     level = float(np.percentile(ground[banks], 5)) - 1.0 - RIVER_SLOPE * (g.E - (g.e_min + 0.5 * g.w))
     ground = np.where(banks & ~river, np.minimum(ground, level + 1.5), ground)
     ground = np.where(river, level, ground)
     return ground, river, banks, level
+
+
+def _lake(g: _Lattice, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+    """A round lake of :data:`LBS_LAKE_RADIUS` at 40 % of the width, 20 m north of the river's banks, level 1 m
+    below the 5th percentile of its shore, with banks at most 1.5 m above it within 4 m: the ground with it, the
+    lake's and its shore's cells, and the lake (centre e, n, radius, level)."""
+    centre, half = river_band(g.n_min, g.h, wide=True)
+    e, n = g.e_min + 0.4 * g.w, centre + half + max(4.0, 0.02 * g.h) + 20.0 + LBS_LAKE_RADIUS
+    r = np.hypot(g.E - e, g.N - n)
+    lake, shore = r < LBS_LAKE_RADIUS, r < LBS_LAKE_RADIUS + 4.0
+    level = float(np.percentile(ground[shore & ~lake], 5)) - 1.0
+    ground = np.where(shore & ~lake, np.minimum(ground, level + 1.5), ground)
+    return np.where(lake, level, ground), lake, shore, ((e, n, LBS_LAKE_RADIUS, level),)
 
 
 def _add_bridge(

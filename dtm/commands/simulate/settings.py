@@ -95,6 +95,12 @@ class SceneConfig(StrictModel):
         "the banks to the ground at the other, its approaches level with it), buildings and trees; flat: level bare "
         "ground at the origin's height (local 0), nothing on it",
     )
+    water: Literal["default", "lbs"] = Field(
+        "default",
+        description="default: the river max(12 m, 6 % of the scene's height) wide; lbs: water the USGS Lidar Base "
+        "Specification hydro-flattens: the river 31 m wide (its 100 ft) and a round lake of 8,495 m² (its 2 acres: "
+        "8,094 m²) north of it, in a scene of at least 350 m each way",
+    )
 
 
 class Faults(StrictModel):

@@ -77,7 +77,13 @@ def simulate(cfg: SimulateConfig) -> SimResult:
     frame = Earth(cfg.origin.lat, cfg.origin.lon, cfg.origin.h)  # the simulator's own geometry (forward.py)
     crs = truth_crs(cfg.crs, cfg.origin.lon, cfg.origin.lat)
     flight, recording, extent = _flight(cfg, scanner)
-    world = sc.make_scene(extent, seed=cfg.seed, terrain=cfg.scene.terrain)
+    if cfg.scene.water == "lbs" and min(extent[1] - extent[0], extent[3] - extent[2]) < sc.LBS_EXTENT:
+        raise SimConfigError(
+            f"scene.water: lbs needs a scene of {sc.LBS_EXTENT:g} m each way, and the flight covers "
+            f"{extent[1] - extent[0]:.0f} x {extent[3] - extent[2]:.0f} m: lengthen flight.line_length_m or add "
+            "flight.lines"
+        )
+    world = sc.make_scene(extent, seed=cfg.seed, terrain=cfg.scene.terrain, water=cfg.scene.water)
     lat_s, lon_s, _ = frame.geodetic(flight.pos)
     mounting = _mounting(cfg, scanner)
     nav, bias, att_bias = recorded_navigation(cfg, frame, flight, sigmas, rng, noise_rng)
@@ -242,7 +248,7 @@ def _write_truth(
     the files written."""
     files = {"truth_terrain": "truth/terrain.tif", "truth_land_cover": "truth/land_cover.tif"}
     write_truth_terrain(out / "truth", world, frame, crs, extent, cfg.truth_resolution)
-    if world.river:
+    if world.river is not None or world.lakes:
         write_truth_breaklines(out / "truth", world, frame, crs, extent)
         files["truth_breaklines"] = "truth/breaklines.gpkg"
     if cfg.checkpoints:

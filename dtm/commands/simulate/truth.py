@@ -163,28 +163,37 @@ def write_truth_terrain(
 def write_truth_breaklines(
     folder: Path, world: sc.Scene, frame: Earth, crs: pyproj.CRS, extent: tuple[float, float, float, float]
 ) -> None:
-    """The river's true shores as 3-D breaklines: ``breaklines.gpkg`` (GeoPackage 1.2, layer ``breaklines``).
+    """The water's true shores as 3-D breaklines: ``breaklines.gpkg`` (GeoPackage 1.2, layer ``breaklines``).
 
-    Two LineString Z (field ``shore``: south, north) along the scene's
-    river (:func:`~dtm.commands.simulate.scene.river_band`), a vertex every
-    0.5 m at the water's height there (falling eastwards, under the bridge
-    too), in the output CRS.
+    LineString Z, field ``shore``: the river's south and north shores
+    (``world.river``, east-west along the scene, a vertex every 0.5 m at
+    the water's height there, falling eastwards, under the bridge too),
+    and each lake's (``world.lakes``: a closed circle at its level, a
+    vertex every 0.5 m), in the output CRS.
     """
     import pyproj
     import shapely
 
     from dtm.common.vectors import write_gpkg
 
-    e_min, e_max, n_min, n_max = extent
-    centre, half = sc.river_band(n_min, n_max - n_min)
-    e = np.arange(e_min + 0.25, e_max, 0.5)
-    level = world.sample(world.ground, e, np.full(len(e), centre))  # the water, level across the river
+    e_min, e_max, _, _ = extent
     to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
+    shores: list[tuple[str, np.ndarray]] = []
+    if world.river is not None:
+        centre, half = world.river
+        e = np.arange(e_min + 0.25, e_max, 0.5)
+        level = world.sample(world.ground, e, np.full(len(e), centre))  # the water, level across the river
+        for name, n in (("river south", centre - half), ("river north", centre + half)):
+            shores.append((name, np.column_stack((e, np.full(len(e), n), level))[np.isfinite(level)]))
+    for i, (e0, n0, radius, level) in enumerate(world.lakes, start=1):
+        a = np.linspace(0.0, 2 * np.pi, int(np.ceil(2 * np.pi * radius / 0.5)) + 1)
+        shores.append(
+            (f"lake {i}", np.column_stack((e0 + radius * np.cos(a), n0 + radius * np.sin(a), np.full(len(a), level))))
+        )
     lines = []
-    for n in (centre - half, centre + half):
-        ec = frame.to_ecef(np.column_stack((e, np.full(len(e), n), level)))
+    for _, enu in shores:
+        ec = frame.to_ecef(enu)
         x, y, h = to_crs.transform(ec[:, 0], ec[:, 1], ec[:, 2])
-        ok = np.isfinite(level)
-        lines.append(shapely.to_wkb(shapely.LineString(np.column_stack((x, y, h))[ok]), output_dimension=3))
-    fields = {"shore": np.array(["south", "north"], dtype=object)}
+        lines.append(shapely.to_wkb(shapely.LineString(np.column_stack((x, y, h))), output_dimension=3))
+    fields = {"shore": np.array([name for name, _ in shores], dtype=object)}
     write_gpkg(folder / "breaklines.gpkg", lines, fields, crs=crs, layer="breaklines", geometry_type="LineString Z")

@@ -109,3 +109,22 @@ def test_a_river_cut_by_the_survey_edge_runs_on_to_it_and_its_breaklines_are_its
         # the edge caught no echo (2 per m2)
         out = np.abs((shore - CENTRE) @ ACROSS)
         assert abs(np.median(out) - 10.0) < 0.75 and np.all((out > 7.0) & (out < 13.0))
+
+
+def test_a_level_bank_above_the_river_is_no_water_of_it():
+    """The river's banks level, 1.5 m above its water and 10 m wide, their points taken for water too (a level
+    bank looks like a pond): split from the river at the step, and refused (the river beside them is lower:
+    water would drain into it)."""
+    water, ground = _river()
+    t = (ground[:, :2] - CENTRE) @ ACROSS
+    floor = np.abs(t) < 20  # the bank floors, beside the river (its points 1.5 m above the water)
+    water = np.vstack((water, ground[floor]))
+    bodies, refused = water_bodies(
+        water, ground[~floor], cell=1.0, min_area=200.0, close=2, max_spread=0.3, min_bank=-np.inf
+    )
+    (body,) = bodies
+    assert body.flat and body.heights is not None  # the river alone: falling, flattened
+    vertices = np.concatenate(body.rings)[:, :2] - CENTRE
+    inside = np.abs(vertices @ ALONG) < 99.0  # (its ends run on 2 cells past the survey's edge)
+    assert np.all(np.abs(vertices[inside] @ ACROSS) < 12.0)  # at its shores (10 m, in 1 m steps), not the banks' (20)
+    assert refused.holds(ground[floor][:, :2]).mean() > 0.95

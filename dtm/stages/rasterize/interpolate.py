@@ -159,10 +159,13 @@ def _near_grid(xy: np.ndarray, grid: Grid, margin: float | None) -> np.ndarray |
 
 def _long_on_hull(xy: np.ndarray, simplices: np.ndarray, neighbours: np.ndarray, limit: float) -> np.ndarray:
     """Triangles with an edge on the triangulation's hull (no neighbour across it) longer than *limit*."""
-    a = xy[simplices]
+    out = np.zeros(len(simplices), dtype=bool)
+    hull = np.flatnonzero((neighbours < 0).any(axis=1))  # a few in a million: only these are measured
+    a = xy[simplices[hull]]
     # edge k lies opposite vertex k (Triangle's neighbour k shares it)
     length = np.hypot(*(a[:, [2, 0, 1]] - a[:, [1, 2, 0]]).transpose(2, 0, 1))
-    return ((neighbours < 0) & (length > limit)).any(axis=1)
+    out[hull[((neighbours[hull] < 0) & (length > limit)).any(axis=1)]] = True
+    return out
 
 
 def _tin_draw(

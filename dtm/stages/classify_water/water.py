@@ -159,22 +159,9 @@ def water_bodies(level: np.ndarray, mean: np.ndarray, *, step: float, min_cells:
 
     Returns a boolean grid: the cells of the bodies kept.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from dtm.common.water_bodies import level_labels
 
-    nx, ny = level.shape
-    ids = np.arange(nx * ny).reshape(nx, ny)
-    rows, cols = [], []
-    for da, db in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        a0, a1 = slice(0, nx - da), slice(da, nx)
-        b0, b1 = (slice(0, ny - db), slice(db, ny)) if db >= 0 else (slice(-db, ny), slice(0, ny + db))
-        ok = level[a0, b0] & level[a1, b1] & (np.abs(mean[a0, b0] - mean[a1, b1]) <= step)
-        rows.append(ids[a0, b0][ok])
-        cols.append(ids[a1, b1][ok])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(r), dtype=np.int8), (r, c)), shape=(nx * ny, nx * ny))
-    _, label = connected_components(graph, directed=False)
-    label = label.reshape(nx, ny)
+    label = level_labels(level, mean, step)
     size = np.bincount(label[level], minlength=label.max() + 1)
     return level & (size[label] >= min_cells)
 

@@ -160,16 +160,19 @@ def water_bodies(
 
     Cells of *cell* (anchored at whole multiples) holding a water point,
     closed by *close* cells (the dropouts between echoes), make bodies
-    (8 neighbours); a body reaches *close* cells on into what was never
-    seen beyond the survey's edge (unseen cells joined to the grid's border).  A body's level is the median height of its water
-    points; its banks, the lowest ground point per cell in the ring of two
-    cells around it.  A body whose banks rise less than *min_bank* above its
-    level (their median; a body without banks is kept) is no water: paved
-    ground, level and wide, that drains away at its edges.  Of the others,
-    those of *min_area* or more are returned, their level lowered to the 5th
-    percentile of the banks when that is lower (the water at or below its
-    banks); flat when the spread of their water heights (5th to 95th
-    percentile) is at most *max_spread*.  Also returns the cells of the
+    (8 neighbours, across steps of at most :data:`STEP` between their
+    lowest water points); a body reaches *close* cells on into what was
+    never seen beyond the survey's edge (unseen cells joined to the grid's
+    border).  A body's level is the median height of its water points; its
+    banks, the lowest ground point per cell in the ring of two cells around
+    it.  A body is no water when its banks rise less than *min_bank* above
+    its level (their median; a body without banks is kept: paved ground,
+    level and wide, that drains away at its edges), or when more than
+    :data:`DRAINS` of the ring lies lower than its water there.  Of the
+    others, those of *min_area* or more are returned, their level lowered to
+    the 5th percentile of the banks when that is lower (the water at or
+    below its banks); flat when the spread of their water heights (5th to
+    95th percentile) is at most *max_spread*.  Also returns the cells of the
     bodies taken for no water.
     """
     from scipy import ndimage
@@ -182,32 +185,15 @@ def water_bodies(
     lo = np.array([first[0] - pad, last[1] + 1 + pad], dtype=np.float64) * cell  # upper-left corner
     shape = (int(last[1] - first[1]) + 1 + 2 * pad, int(last[0] - first[0]) + 1 + 2 * pad)
     row, col = _cells(water[:, :2], cell, lo)
-    mask = np.zeros(shape, dtype=bool)
-    mask[row, col] = True
-    eight = np.ones((3, 3), bool)
-    if close > 0:
-        mask = ndimage.binary_closing(mask, structure=eight, iterations=close)
-    # cells join across a step of at most STEP between their lowest water points (a cell the closing filled
-    # takes its neighbours' lowest): a river and the level bank above it are two bodies
-    flat = row * shape[1] + col
-    n = np.bincount(flat, minlength=mask.size)
-    mean = np.full(mask.size, np.inf)
-    np.minimum.at(mean, flat, water[:, 2])  # the lowest: a cell across a bank's foot holds both levels
-    mean = np.where(n > 0, mean, np.nan).reshape(shape)
-    height = np.where(np.isnan(mean), np.inf, mean)
-    for _ in range(close + 1):  # cells the closing filled take their neighbours' lowest, ring by ring
-        height = np.where(np.isinf(height), ndimage.minimum_filter(height, 3, mode="constant", cval=np.inf), height)
-    label = level_labels(mask, height, STEP)
+    least, label, mask = _levels(water[:, 2], row, col, shape, close)
     lowest = np.full(shape, np.inf)
     gr, gc = _cells(ground[:, :2], cell, lo)
     inside = (gr >= 0) & (gr < shape[0]) & (gc >= 0) & (gc < shape[1])
     np.minimum.at(lowest, (gr[inside], gc[inside]), ground[inside, 2])
-    below = np.fmin(lowest, mean)  # the lowest ground or water of each cell
+    below = np.fmin(lowest, least)  # the lowest ground or water of each cell
+    beyond = _beyond_the_survey(mask | np.isfinite(lowest))
     of_point = label[row, col]
-    # what was never seen and reaches the grid's border: beyond the survey's edge (4 neighbours)
-    unseen, _ = ndimage.label(~(mask | np.isfinite(lowest)))
-    border = np.unique(np.r_[unseen[0], unseen[-1], unseen[:, 0], unseen[:, -1]])
-    beyond = np.isin(unseen, border[border > 0])
+    eight = np.ones((3, 3), bool)
     bodies, rejected = [], np.zeros(shape, dtype=bool)
     for k, (rows, cols) in enumerate(ndimage.find_objects(label), start=1):
         rows = slice(max(rows.start - 2, 0), rows.stop + 2)  # room for the ring of banks
@@ -218,12 +204,10 @@ def water_bodies(
         ring = ndimage.binary_dilation(body, structure=eight, iterations=2) & ~body
         banks = lowest[rows, cols][ring]
         banks = banks[np.isfinite(banks)]
-        # the cells around, against the body's own water next to them
-        own = _neighbours_mean(np.where(body, mean[rows, cols], np.nan), 5)[ring]
-        around = below[rows, cols][ring]
-        seen = np.isfinite(around) & np.isfinite(own)
-        drains = seen.any() and np.mean(around[seen] < own[seen] - max(min_bank, 0.0) - max_spread) > DRAINS
-        if (len(banks) and float(np.median(banks)) - level < min_bank) or drains:
+        drop = max(min_bank, 0.0) + max_spread
+        if (len(banks) and float(np.median(banks)) - level < min_bank) or _drains(
+            body, ring, least[rows, cols], below[rows, cols], drop
+        ):
             rejected[rows, cols] |= body
             continue
         if float(body.sum()) * cell * cell < min_area:
@@ -238,6 +222,49 @@ def water_bodies(
         parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread, shore)
         bodies += [p if p.flat else _as_river(p, water[of_point == k], max_spread) for p in parts]
     return bodies, CellMask((float(lo[0]), float(lo[1])), cell, rejected)
+
+
+def _levels(
+    z: np.ndarray, row: np.ndarray, col: np.ndarray, shape: tuple[int, int], close: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each cell's lowest water point (NaN: none), the bodies' labels and their cells, from the water points'
+    heights *z* in cells (*row*, *col*) of a grid of *shape*, closed by *close* cells.
+
+    Cells join across a step of at most :data:`STEP` between their lowest
+    water points (a cell across a bank's foot holds both levels: its lowest
+    is the water's); a cell the closing filled takes its neighbours' lowest.
+    A river and a level bank above it are two bodies.
+    """
+    from scipy import ndimage
+
+    mask = np.zeros(shape, dtype=bool)
+    mask[row, col] = True
+    if close > 0:
+        mask = ndimage.binary_closing(mask, structure=np.ones((3, 3), bool), iterations=close)
+    height = np.full(shape, np.inf)
+    np.minimum.at(height, (row, col), z)
+    least = np.where(np.isinf(height), np.nan, height)
+    for _ in range(close + 1):  # ring by ring into the cells the closing filled
+        height = np.where(np.isinf(height), ndimage.minimum_filter(height, 3, mode="constant", cval=np.inf), height)
+    return least, level_labels(mask, height, STEP), mask
+
+
+def _beyond_the_survey(seen: np.ndarray) -> np.ndarray:
+    """The cells not *seen* that reach the grid's border through unseen cells (4 neighbours): beyond the survey."""
+    from scipy import ndimage
+
+    unseen, _ = ndimage.label(~seen)
+    border = np.unique(np.r_[unseen[0], unseen[-1], unseen[:, 0], unseen[:, -1]])
+    return np.isin(unseen, border[border > 0])
+
+
+def _drains(body: np.ndarray, ring: np.ndarray, least: np.ndarray, below: np.ndarray, drop: float) -> bool:
+    """Whether more than :data:`DRAINS` of the *ring*'s cells hold ground or water (*below*) *drop* m or more
+    lower than the *body*'s own lowest water (*least*) next to them: water there would drain."""
+    own = _neighbours_mean(np.where(body, least, np.nan), 5)[ring]
+    around = below[ring]
+    seen = np.isfinite(around) & np.isfinite(own)
+    return bool(seen.any()) and float(np.mean(around[seen] < own[seen] - drop)) > DRAINS
 
 
 def _neighbours_mean(values: np.ndarray, size: int) -> np.ndarray:

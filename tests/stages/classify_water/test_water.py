@@ -128,3 +128,24 @@ def test_polygons_make_water_the_points_near_the_level_inside_them():
     inside = d < RADIUS + 5.0  # the polygon takes 5 m of shore too: 0.4 m above the water and more
     found = water_from_polygons(xyz, cls, np.ones(len(xyz), bool), inside, cell_size=1.0, window=10.0, height=0.3)
     np.testing.assert_array_equal(found, lake)
+
+
+@pytest.mark.parametrize("density", [2.0, 0.5, 0.2, 0.05])
+def test_planes_are_skipped_only_where_no_body_could_be_found(density):
+    """could_be_level is False only when fewer cells than a body's smallest area could be level; then the full
+    fit finds no water either.  The lake of _valley at 2, 0.5, 0.2 and 0.05 points per m²."""
+    from dtm.stages.classify_water.water import could_be_level, level_cells, water_bodies
+
+    xyz, _ = _valley(density=density)
+    p = DetectParams()
+    i, j, shape = cells_of(xyz[:, :2], p.cell_size)
+    half = int(np.ceil(p.window / p.cell_size))
+    min_cells = p.min_area / p.cell_size**2
+    planes = window_planes(i, j, shape, xyz[:, :2], xyz[:, 2], p.cell_size, half)
+    level = level_cells(planes, cell=p.cell_size, min_points=p.min_points, max_slope=p.max_slope, max_rms=p.max_rms)
+    found = water_bodies(level, planes["mean"], step=p.step, min_cells=min_cells).any()
+    possible = could_be_level(i, j, shape, half, p.min_points, min_cells)
+    assert possible or not found  # never skips a body
+    assert possible == (int(((planes["count"] > 0) & (planes["window"] >= p.min_points)).sum()) >= min_cells)
+    if density <= 0.05:
+        assert not possible  # 0.05 points per m²: 2.5 in a 7 m window, fewer than 10

@@ -143,6 +143,7 @@ class LocalExecutor:
             pool.shutdown(wait=True, cancel_futures=True)
             return
         workers = list(getattr(pool, "_processes", {}).values())  # the pool's own record of its processes
+        manager = getattr(pool, "_executor_manager_thread", None)
         for proc in workers:
             with contextlib.suppress(OSError, ValueError, AttributeError):
                 proc.kill()
@@ -150,6 +151,13 @@ class LocalExecutor:
         for proc in workers:
             with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
                 proc.join(5.0)
+        # The pool's manager thread closes its wake-up pipe as it ends.  Python 3.11's exit hook writes to that
+        # pipe without a lock (CPython added one in gh-125451, PR 125492): were the thread still ending at exit,
+        # the write could meet the closed pipe and print a traceback (EBADF) after a Ctrl-C, as once in CI's
+        # test_a_ctrl_c_of_the_group_while_workers_start_prints_no_traceback.  Waiting for the thread here
+        # leaves the hook nothing to write to.
+        if manager is not None:
+            manager.join(5.0)
 
 
 class DaskExecutor:

@@ -261,14 +261,19 @@ def rising_rivers(dtm_m: np.ndarray, bodies: list, transform_m) -> int | None:
 #: A DEM cell under a deck within this (m) below the deck's highest point in it is the deck (a removed deck's
 #: cells lie the deck's clearance lower, but at its abutments, where the ground meets it).
 DECK_TOLERANCE_M = 1.0
+#: Deck cells this many cells apart (or fewer) are one deck (a sparse survey's deck points on a fine grid).
+DECK_GAP = 3
 
 
 def decks_in_dem(dtm_m: np.ndarray, top_class: np.ndarray, top_m: np.ndarray) -> int | None:
-    """How many bridge decks (8-connected cells whose highest point is class 17) the DEM (metres) still carries.
+    """How many bridge decks (cells whose highest point is class 17, joined across gaps of up to
+    :data:`DECK_GAP` cells) the DEM (metres) still carries.
 
     A deck is carried when half or more of its cells with a DTM value lie
     within :data:`DECK_TOLERANCE_M` below their highest point (*top_m*).
-    None when no cell's highest point is a deck's.
+    None when no cell's highest point is a deck's.  The gaps: on a sparse
+    survey's fine grid, a deck's cells are scattered, and its ends, where
+    the deck meets the ground, would count as decks of their own.
 
     >>> cls = np.full((5, 5), 2); cls[1:4, 1:4] = 17
     >>> top = np.where(cls == 17, 18.0, 10.0)
@@ -282,7 +287,9 @@ def decks_in_dem(dtm_m: np.ndarray, top_class: np.ndarray, top_m: np.ndarray) ->
     deck = top_class == BRIDGE_DECK
     if not deck.any():
         return None
-    labels, n = ndimage.label(deck, np.ones((3, 3), bool))
+    eight = np.ones((3, 3), bool)
+    labels, n = ndimage.label(ndimage.binary_dilation(deck, eight, iterations=DECK_GAP // 2 + 1), eight)
+    labels = np.where(deck, labels, 0)
     valued = np.isfinite(dtm_m) & deck
     near = valued & (dtm_m >= top_m - DECK_TOLERANCE_M)
     cells = np.bincount(labels[valued], minlength=n + 1)[1:]

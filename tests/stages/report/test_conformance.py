@@ -214,3 +214,17 @@ def test_a_deck_left_in_the_dem_fails(tmp_path):
 def test_without_decks_the_bridges_are_not_measured(tmp_path):
     row = _check(_report(tmp_path, _survey(tmp_path), _dtm())[1], "decks_in_dem")
     assert row["status"] == "NOT MEASURED" and "class 17" in row["note"]
+
+
+def test_a_sparse_decks_cells_are_one_deck_its_ends_on_the_ground_included():
+    """A deck of 20 x 3 cells, every other cell holding a deck point (a sparse survey on a fine grid); its end
+    cells meet the ground (the deck's top within 1 m of the DEM there), the rest stand 8 m above it."""
+    from dtm.stages.report.acceptance import decks_in_dem
+
+    cls = np.full((30, 9), 2)
+    cls[5:25:2, 3:6:2] = 17
+    ground = np.full(cls.shape, 10.0)
+    top = np.where(cls == 17, 18.0, 10.0)
+    top[5, 3:6:2] = top[23, 3:6:2] = 10.5  # the abutments
+    assert decks_in_dem(ground, cls, top) == 0  # removed: the ends alone are no deck
+    assert decks_in_dem(top - 0.1, cls, top) == 1  # left in the DEM: one deck

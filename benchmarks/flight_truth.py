@@ -167,7 +167,10 @@ def breakline_offsets(ours: Path, truth: Path) -> str:
     xyz = breakline_points(lines(ours), 0.5)  # a vertex every 0.5 m, as the truth's
     d = np.stack([shapely.distance(shapely.LineString(t[:, :2]), shapely.points(xyz[:, :2])) for t in shores])
     nearest, across = np.argmin(d, axis=0), d.min(axis=0)
-    dz = np.array([np.interp(p[0], *_by_x(shores[k])) for p, k in zip(xyz, nearest, strict=True)]) - xyz[:, 2]
+    dz = -xyz[:, 2]
+    for k, shore in enumerate(shores):  # the true shore's z at each vertex's easting, shore by shore
+        on = nearest == k
+        dz[on] += np.interp(xyz[on, 0], *_by_x(shore))
     close = across < 2.0
     return (
         f"Breaklines (a vertex every 0.5 m): {len(xyz):,} vertices; across from the true shore median {np.median(across):.2f} m, "

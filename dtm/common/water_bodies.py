@@ -363,15 +363,15 @@ def shore_lines(body: np.ndarray, side: np.ndarray, corner: tuple[float, float],
 
     b = np.pad(body, 1)
     o = np.pad(side & ~body, 1)
-    segments = []
     # horizontal sides: between rows r - 1 and r (padded), columns c; vertical: between columns c - 1 and c
-    r, c = np.nonzero((b[:-1, 1:-1] & o[1:, 1:-1]) | (o[:-1, 1:-1] & b[1:, 1:-1]))
-    segments += [((cc, rr), (cc + 1, rr)) for rr, cc in zip(r.tolist(), c.tolist(), strict=True)]
-    r, c = np.nonzero((b[1:-1, :-1] & o[1:-1, 1:]) | (o[1:-1, :-1] & b[1:-1, 1:]))
-    segments += [((cc, rr), (cc, rr + 1)) for rr, cc in zip(r.tolist(), c.tolist(), strict=True)]
-    if not segments:
+    hr, hc = np.nonzero((b[:-1, 1:-1] & o[1:, 1:-1]) | (o[:-1, 1:-1] & b[1:, 1:-1]))
+    vr, vc = np.nonzero((b[1:-1, :-1] & o[1:-1, 1:]) | (o[1:-1, :-1] & b[1:-1, 1:]))
+    if not len(hr) and not len(vr):
         return []
-    merged = shapely.simplify(shapely.line_merge(shapely.MultiLineString(segments)), 0.0)  # no collinear vertex
+    starts = np.column_stack((np.r_[hc, vc], np.r_[hr, vr])).astype(np.float64)  # (column, row) corners
+    ends = starts + np.r_[np.tile([1.0, 0.0], (len(hr), 1)), np.tile([0.0, 1.0], (len(vr), 1))]
+    segments = shapely.multilinestrings(shapely.linestrings(np.stack((starts, ends), axis=1)))
+    merged = shapely.simplify(shapely.line_merge(segments), 0.0)  # no collinear vertex
     lines = []
     for line in getattr(merged, "geoms", [merged]):
         ij = np.asarray(line.coords, dtype=np.float64)

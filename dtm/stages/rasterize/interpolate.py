@@ -215,12 +215,8 @@ def _same_as_all(xy, keep, outer, drawn, grid: Grid, margin: float, undrawn: np.
             return not len(drawn)
         gx, gy = grid.centres()
         q = np.column_stack((gx[undrawn] - grid.xmin, gy[undrawn] - grid.ymax))
-        eq = hull.equations  # inside: normal . q + offset <= 0 for every edge
-        tol = 1e-9 * max(1.0, float(np.abs(q).max()))
-        for start in range(0, len(q), 65_536):
-            block = q[start : start + 65_536]
-            if ((block @ eq[:, :2].T + eq[:, 2]) <= tol).all(axis=1).any():  # on or inside the hull
-                return False
+        if in_hull(hull, q, 1e-9 * max(1.0, float(np.abs(q).max()))).any():  # on or inside the hull
+            return False
     if not len(drawn):
         return True
     a, b, c = xy[drawn[:, 0]], xy[drawn[:, 1]], xy[drawn[:, 2]]
@@ -247,6 +243,19 @@ def _same_as_all(xy, keep, outer, drawn, grid: Grid, margin: float, undrawn: np.
     tree = cKDTree(xy[rest], balanced_tree=False, compact_nodes=False)
     dist, _ = tree.query(np.column_stack((ux[out_of], uy[out_of])), k=1, workers=-1)
     return bool((dist > radius[out_of]).all())
+
+
+def in_hull(hull, xy: np.ndarray, tol: float = 0.0) -> np.ndarray:
+    """Which of the points *xy* (n, 2+) lie inside the 2-D convex *hull* (``scipy.spatial.ConvexHull``), every
+    facet's ``normal . p + offset`` at most *tol* (positive: on the hull too; negative: strictly inside).
+    In blocks of 65,536 points."""
+    eq = hull.equations
+    xy = np.asarray(xy)[:, :2]
+    out = np.empty(len(xy), dtype=bool)
+    for start in range(0, len(xy), 65_536):
+        block = xy[start : start + 65_536]
+        out[start : start + len(block)] = ((block @ eq[:, :2].T + eq[:, 2]) <= tol).all(axis=1)
+    return out
 
 
 def _far_from(xy: np.ndarray, grid: Grid, distance: float) -> np.ndarray:

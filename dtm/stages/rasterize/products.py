@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dtm.common.grid import Grid, cell_mean, fill_nearest
-from dtm.stages.rasterize.interpolate import idw, nearest, tin
+from dtm.stages.rasterize.interpolate import idw, in_hull, nearest, tin
 from dtm.stages.rasterize.params import RasterizeParams
 
 if TYPE_CHECKING:
@@ -143,8 +143,7 @@ def inside_hull(points: np.ndarray, xy: np.ndarray) -> np.ndarray:
         hull = ConvexHull(np.asarray(points)[:, :2])
     except QhullError:  # all on a line: no area to be inside
         return np.zeros(len(xy), dtype=bool)
-    # the facets' outward normals and offsets: inside where every n . p + d is negative
-    return np.all(np.asarray(xy)[:, :2] @ hull.equations[:, :2].T + hull.equations[:, 2] < -1e-9, axis=1)
+    return in_hull(hull, xy, -1e-9)
 
 
 def _around(core: Grid, wide: Grid, crop: tuple[slice, slice], margin: float) -> tuple[Grid, tuple[slice, slice]]:
@@ -154,7 +153,7 @@ def _around(core: Grid, wide: Grid, crop: tuple[slice, slice], margin: float) ->
     m = int(np.ceil(margin / wide.resolution))
     r0, c0 = max(crop[0].start - m, 0), max(crop[1].start - m, 0)
     grid = wide.window(r0, min(crop[0].stop + m, wide.rows), c0, min(crop[1].stop + m, wide.cols))
-    return grid, (slice(crop[0].start - r0, crop[0].stop - r0), slice(crop[1].start - c0, crop[1].stop - c0))
+    return grid, sub_of(grid, core)
 
 
 def sub_of(outer: Grid, inner: Grid) -> tuple[slice, slice]:

@@ -77,43 +77,38 @@ def window_planes(
     ``spread`` (m, the standard deviation of the window's points along their
     narrowest direction); NaN where the window has fewer than 3 points.
     Moments are summed per cell about the cell's centre and the whole metre
-    below its lowest point, then shifted to the window's centre cell: no
-    large numbers cancel, and a cell's figures depend only on its window.
+    below its lowest point, then over the window in two passes
+    (:func:`_window_pass`, along y then x) about the window's centre cell:
+    no large numbers cancel, and a cell's figures depend only on its window.
     """
+    from scipy import ndimage
+
     k = i * shape[1] + j
     size = shape[0] * shape[1]
     u = xy[:, 0] - (np.floor(xy[:, 0] / cell) + 0.5) * cell  # position in its cell: the same in every tile
     v = xy[:, 1] - (np.floor(xy[:, 1] / cell) + 0.5) * cell
-    base = np.full(size, np.inf)
-    np.minimum.at(base, k, z)
-    base = np.floor(np.where(np.isfinite(base), base, 0.0))  # whole metres: exact differences
+    low = np.full(size, np.inf)
+    np.minimum.at(low, k, z)
+    held = np.isfinite(low)
+    base = np.floor(np.where(held, low, 0.0))  # whole metres: exact differences
     r = z - base[k]
 
     def per_cell(w=None):
         return np.bincount(k, weights=w, minlength=size).reshape(shape)
 
-    m = {"n": per_cell(), "u": per_cell(u), "v": per_cell(v), "z": per_cell(r), "uu": per_cell(u * u)}
-    m.update(vv=per_cell(v * v), uv=per_cell(u * v), uz=per_cell(u * r), vz=per_cell(v * r), zz=per_cell(r * r))
+    m = {"n": per_cell(), "x": per_cell(u), "y": per_cell(v), "z": per_cell(r), "xx": per_cell(u * u)}
+    m.update(yy=per_cell(v * v), xy=per_cell(u * v), xz=per_cell(u * r), yz=per_cell(v * r), zz=per_cell(r * r))
     base = base.reshape(shape)
-    pad = {name: np.pad(a, half) for name, a in m.items()}
-    pad_base = np.pad(base, half)
-    w = {name: np.zeros(shape) for name in ("n", "x", "y", "z", "xx", "yy", "xy", "xz", "yz", "zz")}
-    nx, ny = shape
-    for a in range(-half, half + 1):
-        for b in range(-half, half + 1):
-            s = {name: p[half + a : half + a + nx, half + b : half + b + ny] for name, p in pad.items()}
-            d = pad_base[half + a : half + a + nx, half + b : half + b + ny] - base  # neighbour's base above ours
-            ax, by = a * cell, b * cell
-            w["n"] += s["n"]
-            w["x"] += s["u"] + ax * s["n"]
-            w["y"] += s["v"] + by * s["n"]
-            w["z"] += s["z"] + d * s["n"]
-            w["xx"] += s["uu"] + 2 * ax * s["u"] + ax * ax * s["n"]
-            w["yy"] += s["vv"] + 2 * by * s["v"] + by * by * s["n"]
-            w["xy"] += s["uv"] + ax * s["v"] + by * s["u"] + ax * by * s["n"]
-            w["xz"] += s["uz"] + d * s["u"] + ax * s["z"] + ax * d * s["n"]
-            w["yz"] += s["vz"] + d * s["v"] + by * s["z"] + by * d * s["n"]
-            w["zz"] += s["zz"] + 2 * d * s["z"] + d * d * s["n"]
+    # The window's sums in two passes, along y then x: 2 (2 half + 1) shifted sums a cell, not (2 half + 1)**2.
+    # Each pass moves its sums to a height of its own, the highest base within its reach (whole metres of the
+    # terrain there): no large numbers cancel, and a cell's figures still depend only on its window, summed
+    # in the same order in every tile.
+    side = 2 * half + 1
+    top = np.where(held.reshape(shape), base, -np.inf)
+    row_top = ndimage.maximum_filter1d(top, side, axis=1, mode="constant", cval=-np.inf)
+    win_top = ndimage.maximum_filter1d(row_top, side, axis=0, mode="constant", cval=-np.inf)
+    row_top, win_top = (np.where(np.isfinite(t), t, 0.0) for t in (row_top, win_top))
+    w = _window_pass(_window_pass(m, base, row_top, half, cell, "y"), row_top, win_top, half, cell, "x")
     with np.errstate(invalid="ignore", divide="ignore"):
         cnt = np.where(w["n"] >= 3, w["n"], np.nan)
         mx, my, mz = w["x"] / cnt, w["y"] / cnt, w["z"] / cnt
@@ -134,6 +129,43 @@ def window_planes(
         "rms": np.sqrt(np.maximum(var, 0.0)),
         "spread": np.sqrt(np.maximum(narrow, 0.0)),
     }
+
+
+def _window_pass(
+    m: dict[str, np.ndarray], ref: np.ndarray, to: np.ndarray, half: int, cell: float, along: str
+) -> dict[str, np.ndarray]:
+    """Sums of the moments *m* (about heights *ref*) over the ``2 half + 1`` cells along *along*, about heights *to*.
+
+    Each neighbour's moments move by its offset along *along* (``x``: the
+    grid's first axis, ``y``: its second) and by the step from its height
+    to the cell's; a moment of a neighbour beyond the grid is zero.
+    """
+    axis, p, q = (0, "x", "y") if along == "x" else (1, "y", "x")
+    pq = "xy"
+    pad = [(0, 0), (0, 0)]
+    pad[axis] = (half, half)
+    padded = {name: np.pad(a, pad) for name, a in m.items()}
+    ref = np.pad(ref, pad)
+    out = {name: np.zeros_like(to) for name in m}
+    length = to.shape[axis]
+    for o in range(-half, half + 1):
+        cut = [slice(None), slice(None)]
+        cut[axis] = slice(half + o, half + o + length)
+        s = {name: a[tuple(cut)] for name, a in padded.items()}
+        d = ref[tuple(cut)] - to  # the neighbour's height above the cell's
+        t = o * cell
+        dn = d * s["n"]
+        out["n"] += s["n"]
+        out[p] += s[p] + t * s["n"]
+        out[q] += s[q]
+        out["z"] += s["z"] + dn
+        out[p + p] += s[p + p] + 2 * t * s[p] + t * t * s["n"]
+        out[q + q] += s[q + q]
+        out[pq] += s[pq] + t * s[q]
+        out[p + "z"] += s[p + "z"] + d * s[p] + t * s["z"] + t * dn
+        out[q + "z"] += s[q + "z"] + d * s[q]
+        out["zz"] += s["zz"] + 2 * d * s["z"] + d * dn
+    return out
 
 
 def could_be_level(

@@ -149,3 +149,28 @@ def test_planes_are_skipped_only_where_no_body_could_be_found(density):
     assert possible == (int(((planes["count"] > 0) & (planes["window"] >= p.min_points)).sum()) >= min_cells)
     if density <= 0.05:
         assert not possible  # 0.05 points per m²: 2.5 in a 7 m window, fewer than 10
+
+
+def test_window_planes_equal_a_least_squares_fit_of_each_window():
+    """Terraces a few metres high at a survey's heights and coordinates: per cell, the slope, RMS and spread of
+    numpy's least-squares plane through the points of its 7 x 7 cells (fitted here point by point)."""
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 25, (6000, 2))
+    z = 1480.0 + np.floor(xy[:, 0] / 4.0) * 1.7 + 0.02 * xy[:, 1] + rng.normal(0, 0.03, len(xy))
+    xy = xy + 440_000.0
+    i, j, shape = cells_of(xy, 1.0)
+    planes = window_planes(i, j, shape, xy, z, 1.0, 3)
+    checked = 0
+    for a, b in rng.integers(0, shape, (40, 2)):
+        near = (np.abs(i - a) <= 3) & (np.abs(j - b) <= 3)
+        p = np.column_stack((xy[near] - xy[near].mean(axis=0), z[near] - z[near].mean()))
+        design = np.column_stack((p[:, :2], np.ones(len(p))))
+        coef, *_ = np.linalg.lstsq(design, p[:, 2], rcond=None)
+        rms = np.sqrt(np.mean((p[:, 2] - design @ coef) ** 2))
+        narrow = np.sqrt(np.linalg.eigvalsh(np.cov(p[:, :2].T, bias=True))[0])
+        assert planes["window"][a, b] == near.sum()
+        np.testing.assert_allclose(planes["slope"][a, b], np.hypot(*coef[:2]), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(planes["rms"][a, b], rms, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(planes["spread"][a, b], narrow, rtol=1e-9)
+        checked += 1
+    assert checked == 40

@@ -9,7 +9,7 @@ import numpy as np
 
 from dtm.common import glossary
 from dtm.common.tile_classes import PointTask
-from dtm.stages.denoise.outliers import isolated_points, low_outliers
+from dtm.stages.denoise.outliers import isolated_points, low_outliers, within_plan
 from dtm.stages.denoise.params import DenoiseParams
 
 if TYPE_CHECKING:
@@ -69,10 +69,11 @@ def above_neighbours(points: np.ndarray, iso: np.ndarray, *, neighbors: int, rad
 
     from dtm.common.neighbours import canonical_neighbours
 
-    rest = points[~iso]
+    anchor = np.floor(points[:, :2].min(axis=0))  # whole metres: exact, tile or not
+    # only the points that may lie within radius of an isolated one, in their order (ties go the same way)
+    rest = points[~iso & within_plan(points[:, :2] - anchor, np.flatnonzero(iso), radius)]
     high = np.ones(int(iso.sum()), dtype=bool)
     if len(rest):
-        anchor = np.floor(points[:, :2].min(axis=0))  # whole metres: exact, tile or not
         tree = cKDTree(rest[:, :2] - anchor, balanced_tree=False, compact_nodes=False)
         k = min(neighbors, len(rest))
         dist, nb = canonical_neighbours(tree, points[iso, :2] - anchor, k, radius)
@@ -120,4 +121,5 @@ def denoise_tile(task: PointTask) -> dict:
         "low": int((found[core] == glossary.LOW_NOISE).sum()),
         "high": int((found[core] == glossary.HIGH_NOISE).sum()),
         "done": int(done[core].sum()),
+        "changed": int((found[core] > 0).sum()),
     }

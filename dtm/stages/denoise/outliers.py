@@ -40,30 +40,85 @@ def isolated_points(
     # same for any subset of the points.
     centred = xyz - np.floor(xyz.min(axis=0))
     cand = np.arange(n)
+    near = None
     if min_distance > 0:
         # A point sharing a cube of side min_distance / sqrt(3) with
         # `neighbors` others has them within min_distance: never isolated.
-        # This decides most points at the cost of one sort; the k-d trees
+        # This decides most points at the cost of one count; the k-d trees
         # are asked about the rest only.
-        v = min_distance / np.sqrt(3.0)
-        key = np.zeros(n, dtype=np.int64)
-        for axis in range(3):  # one column at a time: no (n, 3) temporary
-            cube = np.floor(centred[:, axis] / v).astype(np.int64)
-            key = key * (int(cube.max()) + 1) + cube
-        del cube
-        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-        del key
-        cand = np.flatnonzero(counts[inverse] <= neighbors)
-        del inverse
+        cand, near = _crowded_cubes(centred, min_distance / np.sqrt(3.0), neighbors)
     if len(cand) == 0:
         return out
-    far = _kth(centred, cand, neighbors, radius)
-    cand, far = cand[far > min_distance], far[far > min_distance]
+    # Whether the k-th point lies within min_distance: the points near the candidates tell.
+    pts, at = _subset(centred, near, cand)
+    cand = cand[_kth(pts, at, neighbors, radius) > min_distance]
     if len(cand) == 0:
         return out
-    spacing = _kth(centred[:, :2], cand, spacing_neighbors, radius)
+    # The k-th distance and the spacing up to radius: the points within radius in plan tell.
+    pts, at = _subset(centred, within_plan(centred, cand, radius), cand)
+    far = _kth(pts, at, neighbors, radius)
+    spacing = _kth(pts[:, :2], at, spacing_neighbors, radius)
     out[cand] = far > np.maximum(multiplier * spacing, min_distance)
     return out
+
+
+def _subset(points: np.ndarray, mask: np.ndarray | None, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points of *mask* (all of them: None) in their order, and where the points *which* (in it) are there.
+
+    A k-d tree of the subset answers as one of all the points would for
+    those points whose neighbours up to the distance asked all lie in it.
+    """
+    if mask is None or mask.all():
+        return points, which
+    sub = np.flatnonzero(mask)
+    return points[sub], np.searchsorted(sub, which)
+
+
+#: Cubes a survey may count in one array (8 bytes each); more (a survey of great relief): counted by sorting.
+DENSE_CUBES = 1 << 24
+
+
+def _crowded_cubes(centred: np.ndarray, side: float, neighbors: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """The points with at most *neighbors* others in their cube of *side*, and which points may lie near them.
+
+    Returns the candidates' indices and a mask of the points in the cubes
+    within two of a candidate's (all the points within ``side * sqrt(3)``
+    of it); None for the mask when the cubes are too many to count in one
+    array (:data:`DENSE_CUBES`), where every point may be near.
+    """
+    n = len(centred)
+    cubes = [np.floor(centred[:, axis] / side).astype(np.int64) for axis in range(3)]
+    dims = [int(c.max()) + 1 for c in cubes]
+    key = (cubes[0] * dims[1] + cubes[1]) * dims[2] + cubes[2]
+    del cubes
+    span = dims[0] * dims[1] * dims[2]
+    if span > max(DENSE_CUBES, 4 * n):
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        return np.flatnonzero(counts[inverse] <= neighbors), None
+    from scipy import ndimage
+
+    cand = np.flatnonzero(np.bincount(key, minlength=span)[key] <= neighbors)
+    marked = np.zeros(span, dtype=np.uint8)
+    marked[key[cand]] = 1
+    # a point within side * sqrt(3) of another lies at most two cubes from it along each axis
+    marked = ndimage.maximum_filter(marked.reshape(dims), size=5, mode="constant").ravel()
+    return cand, marked[key].astype(bool)
+
+
+def within_plan(points: np.ndarray, which: np.ndarray, radius: float) -> np.ndarray:
+    """Which points may lie within *radius* in plan of one of ``points[which]``: those in the squares of side
+    *radius* next to theirs.  *points* with x, y from zero (a superset: every such point is in it)."""
+    from scipy import ndimage
+
+    squares = np.floor(points[:, :2] / radius).astype(np.int64)
+    dims = squares.max(axis=0) + 1
+    if int(dims[0]) * int(dims[1]) > max(DENSE_CUBES, 4 * len(points)):  # a tiny radius over a wide survey
+        return np.ones(len(points), dtype=bool)
+    key = squares[:, 0] * dims[1] + squares[:, 1]
+    marked = np.zeros(int(dims[0] * dims[1]), dtype=np.uint8)
+    marked[key[which]] = 1
+    marked = ndimage.maximum_filter(marked.reshape(tuple(int(d) for d in dims)), size=3, mode="constant").ravel()
+    return marked[key].astype(bool)
 
 
 def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.ndarray:

@@ -15,6 +15,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 import pyproj
+import pytest
 from scipy.spatial import cKDTree
 
 from dtm.common.rasters import read_raster
@@ -123,3 +124,34 @@ def test_dsm_and_density_ignore_noise_classes(tmp_path):
     assert np.nanmax(dsm) < 602.0 and np.nanmin(dsm) > 599.0
     assert np.nansum(density) == len(pts)
     assert stages["rasterize"]["metrics"]["ndsm_max"] < 0.5
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_isolated_points_equal_their_definition_however_the_cubes_are_counted(monkeypatch, dense):
+    """Ground, a sparse crown (points that share no cube with two others, yet are not isolated) and birds:
+    the points flagged are exactly those of the definition (scipy over every point), whether the cubes are
+    counted in one array with the trees asked about the points near the candidates only, or by sorting."""
+    from dtm.stages.denoise import outliers
+
+    monkeypatch.setattr(outliers, "DENSE_CUBES", 1 << 24 if dense else 0)
+    rng = np.random.default_rng(11)
+    crown = rng.normal(0, 2.0, (60, 3)) + (30.0, 30.0, 612.0)
+    birds = np.column_stack((rng.uniform(2, 58, 12), rng.uniform(2, 58, 12), 600.0 + rng.uniform(0.5, 45.0, 12)))
+    cloud = np.vstack((_ground(), crown, birds))
+    centred = cloud - np.floor(cloud.min(axis=0))
+    far = np.minimum(cKDTree(centred).query(centred, k=3, distance_upper_bound=30.0)[0][:, 2], 30.0)
+    spacing = np.minimum(cKDTree(centred[:, :2]).query(centred[:, :2], k=9, distance_upper_bound=30.0)[0][:, 8], 30.0)
+    expect = (far > 2.0) & (far > 10.0 * spacing)
+    cand, near = outliers._crowded_cubes(centred, 2.0 / np.sqrt(3.0), 2)
+    assert (near is None) != dense  # the way asked for is the way taken
+    assert len(cand) > 60 and expect.sum() >= 3  # the crown's points are candidates; some birds are isolated
+    got = outliers.isolated_points(cloud, neighbors=2, spacing_neighbors=8, multiplier=10.0, min_distance=2.0)
+    np.testing.assert_array_equal(got, expect)
+
+
+def test_a_survey_with_no_noise_is_its_input_linked_not_rewritten(tmp_path):
+    """No tile changes a class: the stage's points are the file it was given (one file, two names)."""
+    stages = _run(tmp_path, write_las(tmp_path / "in.las", _ground()), "denoise", "  denoise: {}\n")
+    assert (_classes(stages["denoise"]) == 0).all()
+    given = Path(stages["strip_adjust"]["outputs"]["points_adjusted"]["file"])
+    assert Path(stages["denoise"]["outputs"]["points_denoised"]["file"]).samefile(given)

@@ -50,8 +50,10 @@ def classes_by_tile(
     what the task needs), runs *task* on a :class:`PointTask` of every tile
     holding points of its own (with *params*, the stage's ``model_dump``; it
     writes ``idx`` and ``classification`` of its core points with
-    :func:`write_result`), then :func:`merge_classes`.  Returns the tasks'
-    results.  The split runs on the run's workers (*columns* is a
+    :func:`write_result`), then :func:`merge_classes`.  When every task's
+    result says ``changed: 0`` (core points whose class it changed), *dst*
+    is *src* itself (:func:`keep_file`: a link, not a rewrite of every
+    record).  Returns the tasks' results.  The split runs on the run's workers (*columns* is a
     module-level function; the task reads the tile's parts, :func:`tile_parts`).
     """
     from pipeline.tiling import run_tiled
@@ -66,6 +68,9 @@ def classes_by_tile(
         return point_tasks(rows, work, params)
 
     def merge(layout, tasks, results):
+        if all(r.get("changed") == 0 for r in results):  # no class changed: the input is the output
+            keep_file(src, dst)
+            return results
         with ctx.progress(info.count, "writing", unit="pt") as bar:
             merge_classes(src, dst, [Path(t.result) for t in tasks], progress=bar)
         return results

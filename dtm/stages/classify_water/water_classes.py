@@ -93,6 +93,7 @@ def water_tile(task: PointTask) -> dict:
     idx = read_column(source, "idx")
     was_ground = cls == glossary.GROUND
     water = found | given
+    changed = water & (cls != glossary.WATER)
     cls[water] = glossary.WATER
     write_result(Path(task.result), idx=idx[core], classification=cls[core])
     return {
@@ -102,4 +103,5 @@ def water_tile(task: PointTask) -> dict:
         "from_points": int(found[core].sum()),
         "from_polygons": int(given[core].sum()),
         "ground_to_water": int((water & was_ground)[core].sum()),
+        "changed": int(changed[core].sum()),
     }

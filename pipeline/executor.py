@@ -122,7 +122,7 @@ class LocalExecutor:
             with sigint_held():  # workers may start here and inherit the blocked mask
                 if self._pool is None:
                     self._pool = _pool(min(self.workers, len(tasks)))
-                futures = [self._pool.submit(fn, t) for t in tasks]
+                futures = [self._pool.submit(_then_trim, fn, t) for t in tasks]
             return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
         except BrokenProcessPool:
             if interrupt.received() is not None:  # the run is stopping: its signal, not the worker, says why
@@ -382,6 +382,19 @@ def thread_map(fn: Callable[[Any], Any], items: Sequence[Any], threads: int) -> 
         out = list(pool.map(fn, items))
     release_freed_memory()
     return out
+
+
+def _then_trim(fn: Callable[[Any], Any], task: Any) -> Any:
+    """``fn(task)`` in a worker, then what it freed given back (:func:`release_freed_memory`).
+
+    The workers live through the run: without it, each held the pages of
+    its largest task into the next stages (several hundred MB at 100 M
+    points, 2026-12-04).
+    """
+    try:
+        return fn(task)
+    finally:
+        release_freed_memory()
 
 
 def release_freed_memory() -> None:

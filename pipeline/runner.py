@@ -48,7 +48,7 @@ from pipeline.cache import (
     path_size,
 )
 from pipeline.errors import ConfigError, EnvironmentFailure, InputDataError, PipelineError, PlanError
-from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor
+from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
@@ -893,6 +893,7 @@ def _execute(
         Cache.discard(workspace)
         raise
     slog.info("done in %.2f s", seconds)
+    release_freed_memory()  # what the stage freed, not held into the next ones
     return entry
 
 

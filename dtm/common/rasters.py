@@ -113,20 +113,26 @@ def float_raster_profile(
 
 
 def copy_to_cog(src, path: Path) -> None:
-    """Write the open dataset *src* to *path* as a Cloud Optimized GeoTIFF (GDAL's COG driver, streaming)."""
+    """Write the open dataset *src* to *path* as a Cloud Optimized GeoTIFF (GDAL's COG driver, streaming).
+
+    GDAL's block cache is held to 64 MB here: its default, 5 % of the
+    machine's memory, took 65 MB more for a 12.8-million-cell grid.
+    """
+    import rasterio
     import rasterio.shutil
 
-    rasterio.shutil.copy(
-        src,
-        str(path),
-        driver="COG",
-        COMPRESS="DEFLATE",
-        PREDICTOR="YES",
-        BLOCKSIZE=str(COG_BLOCKSIZE),
-        OVERVIEW_RESAMPLING="AVERAGE",
-        BIGTIFF="IF_SAFER",
-        NUM_THREADS="ALL_CPUS",
-    )
+    with rasterio.Env(GDAL_CACHEMAX=64):
+        rasterio.shutil.copy(
+            src,
+            str(path),
+            driver="COG",
+            COMPRESS="DEFLATE",
+            PREDICTOR="YES",
+            BLOCKSIZE=str(COG_BLOCKSIZE),
+            OVERVIEW_RESAMPLING="AVERAGE",
+            BIGTIFF="IF_SAFER",
+            NUM_THREADS="ALL_CPUS",
+        )
 
 
 def png_bytes(image: np.ndarray) -> bytes:

@@ -32,13 +32,13 @@ class CellTally:
     @classmethod
     def empty(cls, shape: tuple[int, int]) -> CellTally:
         size = shape[0] * shape[1]
-        return cls(np.zeros(size, np.int64), np.full(size, -np.inf), np.full(size, -np.inf))
+        return cls(np.zeros(size, np.int32), np.full(size, -np.inf), np.full(size, -np.inf))
 
     def add(self, cell: np.ndarray, z: np.ndarray, cls_: np.ndarray) -> None:
         """Count the points of one chunk, their flat cell indices *cell* (-1: off the grid)."""
         on = cell >= 0
         roof = on & (cls_ == BUILDING)
-        self.roof_count += np.bincount(cell[roof], minlength=len(self.roof_count))
+        self.roof_count += np.bincount(cell[roof], minlength=len(self.roof_count)).astype(np.int32)
         np.maximum.at(self.roof_top, cell[roof], z[roof])
         veg = on & np.isin(cls_, VEGETATION)
         np.maximum.at(self.canopy_top, cell[veg], z[veg])
@@ -106,7 +106,16 @@ def building_rows(labels: np.ndarray, count: int, tally: CellTally, dtm: np.ndar
     }
 
 
-def canopy_height(tally: CellTally, dtm: np.ndarray) -> np.ndarray:
-    """Each cell's highest vegetation point above the DTM, at least 0 (NaN: no vegetation or no DTM)."""
+def canopy_height(tally: CellTally, dtm: np.ndarray, *, in_place: bool = False) -> np.ndarray:
+    """Each cell's highest vegetation point above the DTM, at least 0 (NaN: no vegetation or no DTM).
+
+    *in_place*: written over ``tally.canopy_top`` (no other grid of the
+    survey's size: 100 MB at 100 M points).
+    """
     top = tally.canopy_top.reshape(dtm.shape)
-    return np.where(np.isfinite(top) & np.isfinite(dtm), np.maximum(top - dtm, 0.0), np.nan)
+    known = np.isfinite(top) & np.isfinite(dtm)
+    out = top if in_place else top.copy()
+    np.subtract(out, dtm, out=out, where=known)
+    np.maximum(out, 0.0, out=out)
+    out[~known] = np.nan
+    return out

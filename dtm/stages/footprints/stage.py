@@ -47,14 +47,7 @@ class Footprints(Stage, name="footprints", version="1", params=FootprintsParams)
         import rasterio
 
         from dtm.common.rasters import read_raster, write_cog
-        from dtm.common.vectors import write_gpkg
-        from dtm.stages.footprints.outlines import (
-            CellTally,
-            building_labels,
-            building_rows,
-            canopy_height,
-            flat_cells,
-        )
+        from dtm.stages.footprints.outlines import CellTally, canopy_height, flat_cells
 
         dtm, transform, crs, _ = read_raster(ctx.inputs["dtm"])
         with rasterio.open(ctx.inputs["dtm"]) as ds:
@@ -64,25 +57,30 @@ class Footprints(Stage, name="footprints", version="1", params=FootprintsParams)
             for chunk in reader.chunk_iterator(1_000_000):
                 cell = flat_cells(np.asarray(chunk.x), np.asarray(chunk.y), transform, dtm.shape)
                 tally.add(cell, np.asarray(chunk.z), np.asarray(chunk.classification))
-        labels, count = building_labels(tally.roof_count.reshape(dtm.shape))
-        rows = building_rows(labels, count, tally, dtm, transform)
-        write_gpkg(
-            ctx.outputs["buildings"],
-            rows["geometry"],
-            rows["fields"],
-            crs=crs,
-            layer="buildings",
-            geometry_type="MultiPolygon",
-        )
-        ctx.metrics.update(buildings=count, building_points=int(tally.roof_count.sum()))
+        count = _buildings(ctx, tally, dtm, transform, crs)
+        tally.roof_count = tally.roof_top = None  # the buildings' grids: not held while the canopy is written
         if "canopy_height" in ctx.outputs:
-            chm = canopy_height(tally, dtm)
-            write_cog(
-                ctx.outputs["canopy_height"],
-                np.where(np.isnan(chm), nodata, chm),
-                transform=transform,
-                crs=crs,
-                nodata=nodata,
-            )
+            chm = canopy_height(tally, dtm, in_place=True)
             ctx.metrics.update(canopy_cells=int(np.isfinite(chm).sum()))
+            chm[np.isnan(chm)] = nodata
+            write_cog(ctx.outputs["canopy_height"], chm, transform=transform, crs=crs, nodata=nodata)
         ctx.log.info("%d building outlines", count)
+
+
+def _buildings(ctx: StageContext[FootprintsParams], tally, dtm: np.ndarray, transform, crs) -> int:
+    """buildings.gpkg from the tally (:func:`~dtm.stages.footprints.outlines.building_rows`); the buildings."""
+    from dtm.common.vectors import write_gpkg
+    from dtm.stages.footprints.outlines import building_labels, building_rows
+
+    labels, count = building_labels(tally.roof_count.reshape(dtm.shape))
+    rows = building_rows(labels, count, tally, dtm, transform)
+    write_gpkg(
+        ctx.outputs["buildings"],
+        rows["geometry"],
+        rows["fields"],
+        crs=crs,
+        layer="buildings",
+        geometry_type="MultiPolygon",
+    )
+    ctx.metrics.update(buildings=count, building_points=int(tally.roof_count.sum()))
+    return count

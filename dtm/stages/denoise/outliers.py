@@ -95,14 +95,23 @@ def _crowded_cubes(centred: np.ndarray, side: float, neighbors: int) -> tuple[np
     if span > max(DENSE_CUBES, 4 * n):
         _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
         return np.flatnonzero(counts[inverse] <= neighbors), None
-    from scipy import ndimage
-
     cand = np.flatnonzero(np.bincount(key, minlength=span)[key] <= neighbors)
-    marked = np.zeros(span, dtype=np.uint8)
-    marked[key[cand]] = 1
-    # a point within side * sqrt(3) of another lies at most two cubes from it along each axis
-    marked = ndimage.maximum_filter(marked.reshape(dims), size=5, mode="constant").ravel()
-    return cand, marked[key].astype(bool)
+    # A point within side * sqrt(3) of another lies at most two cubes from it along each axis: the cubes
+    # around the candidates' are marked one offset at a time (work by candidates, not by the cubes' span).
+    c = np.unique(key[cand])
+    c, z = np.divmod(c, dims[2])
+    x, y = np.divmod(c, dims[1])
+    marked = np.zeros(span, dtype=bool)
+    for a in range(-2, 3):
+        xa = x + a
+        for b in range(-2, 3):
+            yb = y + b
+            inside = (xa >= 0) & (xa < dims[0]) & (yb >= 0) & (yb < dims[1])
+            column = (xa * dims[1] + yb) * dims[2] + z
+            for dz in range(-2, 3):
+                ok = inside & (z + dz >= 0) & (z + dz < dims[2])
+                marked[column[ok] + dz] = True
+    return cand, marked[key]
 
 
 def within_plan(points: np.ndarray, which: np.ndarray, radius: float) -> np.ndarray:

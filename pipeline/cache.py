@@ -392,19 +392,37 @@ class Cache:
             self.log.info("removed %d workspace(s) of killed runs from the cache of %s", removed, stage)
         return removed
 
-    def commit(self, stage: str, key: str, workspace: Path, meta: dict[str, Any], replace: bool = False) -> Entry:
+    def commit(
+        self,
+        stage: str,
+        key: str,
+        workspace: Path,
+        meta: dict[str, Any],
+        replace: bool = False,
+        known: dict[Path, str] | None = None,
+    ) -> Entry:
         """Record checksums, write ``entry.json`` and move the workspace into place.
 
         An intact entry already there (a concurrent run finished first) is kept
         and the workspace discarded, unless *replace* (``--force``: the caller
         holds the key's lock and asked for the stage to be computed again).
+        *known*: the SHA-256 of the stage's input files; an output that is one
+        of them (a hard link: the same file) takes its checksum, not read again.
         """
+        same = {}
+        for path, digest in (known or {}).items():
+            with contextlib.suppress(OSError):
+                st = os.stat(path)
+                if stat.S_ISREG(st.st_mode):
+                    same[(st.st_dev, st.st_ino)] = digest
         outputs = {}
         for artifact, file_name in meta["outputs"].items():
             target = workspace / file_name
             if not target.exists():
                 raise FileNotFoundError(f"stage {stage} did not write its output '{artifact}' ({file_name})")
-            outputs[artifact] = {"file": file_name, "sha256": hash_path(target), "bytes": path_size(target)}
+            st = os.lstat(target)
+            digest = same.get((st.st_dev, st.st_ino)) if stat.S_ISREG(st.st_mode) else None
+            outputs[artifact] = {"file": file_name, "sha256": digest or hash_path(target), "bytes": path_size(target)}
         meta = {**meta, "outputs": outputs, "key": key, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         meta = json.loads(json.dumps(meta, default=str))  # the form it will be read back in
         text = json.dumps({**meta, META_SUM: hash_value(meta)}, indent=2, sort_keys=True)

@@ -884,7 +884,8 @@ def _execute(
             "metrics": ctx.metrics,
             "seconds": seconds,
         }
-        entry = cache.commit(step.name, key, workspace, meta, replace=replace)
+        known = {Path(inputs[n]): input_hashes[n] for n in inputs if n in input_hashes}
+        entry = cache.commit(step.name, key, workspace, meta, replace=replace, known=known)
     except BaseException as exc:
         if isinstance(exc, WorkerLost):
             exc.stage = step.name  # the sentence names the stage

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 
 import pytest
 
@@ -227,6 +229,23 @@ def test_cache_commit_is_atomic_and_keeps_existing_entries(tmp_path):
     again = cache.commit("s", "k", ws2, {"outputs": {"a": "a.txt"}})
     assert again.folder == entry.folder and not ws2.exists()
     assert hash_value({"b": 1, "a": [1, 2]}) == hash_value({"a": [1, 2], "b": 1})
+
+
+def test_an_output_that_is_its_input_takes_the_input_checksum_and_a_copy_is_read(tmp_path):
+    """An output hard-linked to an input file is that file: its known SHA-256 is taken, not read again (the
+    digest given here is not the file's, so a read would show); an output with the same bytes in a file of
+    its own is read."""
+    cache = Cache(tmp_path / "cache")
+    given = tmp_path / "given.bin"
+    given.write_bytes(b"points")
+    told = "0" * 64
+    ws = cache.new_workspace("s")
+    os.link(given, ws / "linked.bin")
+    (ws / "copied.bin").write_bytes(b"points")
+    entry = cache.commit("s", "k", ws, {"outputs": {"a": "linked.bin", "b": "copied.bin"}}, known={given: told})
+    outputs = json.loads((entry.folder / "entry.json").read_text())["outputs"]
+    assert outputs["a"]["sha256"] == told
+    assert outputs["b"]["sha256"] == hashlib.sha256(b"points").hexdigest()
 
 
 def test_json_log_lines(toy, capsys):

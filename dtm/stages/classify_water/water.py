@@ -56,13 +56,15 @@ def cells_of(xy: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, tuple
     Returns ``(i, j, shape)``; the cell of a point is ``floor(x / cell)``,
     whatever the extent of the points given.
     """
-    ij = np.floor(np.asarray(xy, dtype=np.float64) / cell).astype(np.int64)
-    if len(ij) == 0:
+    xy = np.asarray(xy, dtype=np.float64)
+    if len(xy) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), (0, 0)
-    lo = ij.min(axis=0)
-    ij -= lo
-    shape = tuple(int(v) + 1 for v in ij.max(axis=0))
-    return ij[:, 0], ij[:, 1], shape
+    out = []
+    for axis in range(2):  # one column at a time: no (n, 2) temporaries (a tile's largest)
+        index = np.floor(xy[:, axis] / cell).astype(np.int64)
+        index -= index.min()
+        out.append(index)
+    return out[0], out[1], (int(out[0].max()) + 1, int(out[1].max()) + 1)
 
 
 def window_planes(
@@ -85,19 +87,16 @@ def window_planes(
 
     k = i * shape[1] + j
     size = shape[0] * shape[1]
-    u = xy[:, 0] - (np.floor(xy[:, 0] / cell) + 0.5) * cell  # position in its cell: the same in every tile
-    v = xy[:, 1] - (np.floor(xy[:, 1] / cell) + 0.5) * cell
+    u, v = (_in_cell(xy[:, axis], cell) for axis in range(2))  # position in its cell: the same in every tile
     low = np.full(size, np.inf)
     np.minimum.at(low, k, z)
     held = np.isfinite(low)
     base = np.floor(np.where(held, low, 0.0))  # whole metres: exact differences
-    r = z - base[k]
+    r = base[k]
+    np.subtract(z, r, out=r)
 
-    def per_cell(w=None):
-        return np.bincount(k, weights=w, minlength=size).reshape(shape)
-
-    m = {"n": per_cell(), "x": per_cell(u), "y": per_cell(v), "z": per_cell(r), "xx": per_cell(u * u)}
-    m.update(yy=per_cell(v * v), xy=per_cell(u * v), xz=per_cell(u * r), yz=per_cell(v * r), zz=per_cell(r * r))
+    m = _cell_moments(k, u, v, r, shape)
+    del k, u, v, r  # the points' arrays: not held through the window sums
     base = base.reshape(shape)
     # The window's sums in two passes, along y then x: 2 (2 half + 1) shifted sums a cell, not (2 half + 1)**2.
     # Each pass moves its sums to a height of its own, the highest base within its reach (whole metres of the
@@ -129,6 +128,28 @@ def window_planes(
         "rms": np.sqrt(np.maximum(var, 0.0)),
         "spread": np.sqrt(np.maximum(narrow, 0.0)),
     }
+
+
+def _cell_moments(k: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, shape) -> dict[str, np.ndarray]:
+    """Per cell (flat index *k* of each point), the count and the sums of x, y, z and their products (u, v, r)."""
+    size = shape[0] * shape[1]
+
+    def per_cell(w=None):
+        return np.bincount(k, weights=w, minlength=size).reshape(shape)
+
+    m = {"n": per_cell(), "x": per_cell(u), "y": per_cell(v), "z": per_cell(r), "xx": per_cell(u * u)}
+    m.update(yy=per_cell(v * v), xy=per_cell(u * v), xz=per_cell(u * r), yz=per_cell(v * r), zz=per_cell(r * r))
+    return m
+
+
+def _in_cell(x: np.ndarray, cell: float) -> np.ndarray:
+    """``x - (floor(x / cell) + 0.5) * cell``, one temporary array instead of four (a tile's largest)."""
+    t = x / cell
+    np.floor(t, out=t)
+    t += 0.5
+    t *= cell
+    np.subtract(x, t, out=t)
+    return t
 
 
 def _window_pass(

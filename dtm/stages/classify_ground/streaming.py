@@ -20,6 +20,7 @@ import numpy as np
 from dtm.common import glossary
 from dtm.common.grid_classes import (
     RecordRange,
+    box_worth_reading,
     classes_here,
     classes_on_workers,
     grids_of,
@@ -158,14 +159,18 @@ def lowest_grid(
 
     On the grid of the header's *extent*, or of the candidates' own bounds
     when a candidate lies off it (a header whose bounds miss points) or it
-    has more than ``one_grid_cells`` cells (stray points; the bounds are
-    then read first).  Returns ``(zmin, box, anchor)``: :func:`_lowest`'s
+    has far more than ``one_grid_cells`` cells (stray points; the bounds are
+    then read first: :func:`~dtm.common.grid_classes.box_worth_reading`);
+    None at once when it has more, but not far more.  Returns ``(zmin, box, anchor)``: :func:`_lowest`'s
     grid and box, and :func:`_anchored`'s grid; None when the candidates'
     grid too has more than ``one_grid_cells`` cells.
     """
     cell, cap = params.algorithm.cell_size, params.one_grid_cells
     anchor = _anchored(extent[:2], extent[2:], cell)
-    got = _lowest(src, params, anchor, progress, chunk_size) if anchor[2] * anchor[3] <= cap else None
+    cells = anchor[2] * anchor[3]
+    if cap < cells and not box_worth_reading(cells, cap):
+        return None  # a survey larger than one grid: tiled
+    got = _lowest(src, params, anchor, progress, chunk_size) if cells <= cap else None
     if got is None:  # the header's grid is too big (stray points) or misses points: the candidates' own
         bounds = _candidate_bounds(src, params, chunk_size)
         anchor = _anchored(*bounds, cell) if bounds is not None else (0.0, 0.0, 1, 1)

@@ -22,6 +22,7 @@ from dtm.common import glossary
 from dtm.common.grid import Grid
 from dtm.common.grid_classes import (
     RecordRange,
+    box_worth_reading,
     classes_here,
     classes_on_workers,
     grids_of,
@@ -110,8 +111,10 @@ def cell_sums(
     header's *extent*, which the usable points' box mostly gives too; read
     again on the box when it does not (noise or withheld points at the
     edge, a header whose bounds miss points); the box is read first when
-    the header's grid is over *cap* (stray points).  None also without
-    usable points.
+    the header's grid is far over *cap* (stray points:
+    :func:`~dtm.common.grid_classes.box_worth_reading`), and None returned
+    at once when it is over *cap* but not far.  None also without usable
+    points.
     """
     grid = Grid.covering(*extent, cell)
     if grid.rows * grid.cols <= cap:
@@ -119,8 +122,10 @@ def cell_sums(
         if got is not None and np.isfinite(got[1]).all() and Grid.covering(*got[1], cell) == grid:
             return got[0]
         box = got[1] if got is not None else _usable_box(src, chunk_size)
-    else:
+    elif box_worth_reading(grid.rows * grid.cols, cap):
         box = _usable_box(src, chunk_size)
+    else:  # a survey larger than one grid: tiled
+        return None
     if box is None or not np.isfinite(box).all():
         return None
     grid = Grid.covering(*box, cell)

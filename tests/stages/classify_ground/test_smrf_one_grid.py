@@ -153,6 +153,25 @@ def test_a_grid_over_the_limit_is_left_to_the_tiles(tmp_path):
     assert not (tmp_path / "out.las").exists()
 
 
+def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_points(tmp_path, monkeypatch):
+    """A header's grid over the limit but within STRAYS_BEYOND times it is a large survey, not stray points:
+    tiled at once (no pass for the candidates' bounds, which at 100 M points cost a whole read); far over it
+    (the stray point 40 km away), the bounds are read and one grid taken (test above)."""
+    from dtm.common.grid_classes import STRAYS_BEYOND
+    from dtm.stages.classify_ground import streaming
+
+    las = _survey(tmp_path / "in.las", stray=False)
+    cells = int(np.ceil(las.header.maxs[0] - las.header.mins[0]) + 1) * int(
+        np.ceil(las.header.maxs[1] - las.header.mins[1]) + 1
+    )
+    read, bounds = [], streaming._candidate_bounds
+    monkeypatch.setattr(streaming, "_candidate_bounds", lambda *a, **k: read.append(1) or bounds(*a, **k))
+    within = ClassifyGroundParams(one_grid_cells=int(cells / (0.5 * (1 + STRAYS_BEYOND))))
+    assert smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", within) is None and read == []
+    far = ClassifyGroundParams(one_grid_cells=int(cells / (2 * STRAYS_BEYOND)))
+    assert smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", far) is None and read == [1]
+
+
 def test_the_progressive_filter_in_bands_equals_one_band():
     """Wide buildings 35 rows deep start 10 rows before each cut between the bands.
 

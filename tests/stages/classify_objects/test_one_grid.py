@@ -154,6 +154,29 @@ def _input_of(root: Path) -> Path:
     return Path(run_stages(root / "one")["parse"]["outputs"]["points_georef"]["file"])
 
 
+def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_box(runs, tmp_path, monkeypatch):
+    """Within STRAYS_BEYOND times the limit, the header's grid is the survey's: tiled, the points not read for
+    their box; far beyond it they are (stray points could have made it large)."""
+    import laspy
+
+    from dtm.common.grid import Grid
+    from dtm.common.grid_classes import STRAYS_BEYOND
+    from dtm.stages.classify_objects import one_grid
+
+    src = _input_of(runs[0])
+    with laspy.open(str(src)) as reader:
+        (x0, y0), (x1, y1) = reader.header.mins[:2], reader.header.maxs[:2]
+    header = Grid.covering(x0, y0, x1, y1, 1.0)
+    cells = header.rows * header.cols
+    read, box = [], one_grid._usable_box
+    monkeypatch.setattr(one_grid, "_usable_box", lambda *a, **k: read.append(1) or box(*a, **k))
+    within = ClassifyObjectsParams(one_grid_cells=int(cells / (0.5 * (1 + STRAYS_BEYOND))))
+    assert objects_one_grid(src, tmp_path / "out.las", within, 1.0, True) is None and read == []
+    far = ClassifyObjectsParams(one_grid_cells=int(cells / (2 * STRAYS_BEYOND)))
+    assert objects_one_grid(src, tmp_path / "out.las", far, 1.0, True) is None and read == [1]
+    assert not (tmp_path / "out.las").exists()
+
+
 def test_a_grid_over_the_limit_is_left_to_the_tiles(runs, tmp_path):
     params = ClassifyObjectsParams(one_grid_cells=1_000)  # the usable points' grid has about 40,000 cells
     assert objects_one_grid(_input_of(runs[0]), tmp_path / "out.las", params, 1.0, True) is None

@@ -29,7 +29,7 @@ from dtm.stages.classify_ground.surface import (
 )
 
 #: Points tested against the provisional DEM at a time.
-_BLOCK = 1 << 20
+_BLOCK = 1 << 18
 _CROSS = ndimage.generate_binary_structure(2, 1)
 _SQUARE = ndimage.generate_binary_structure(2, 2)
 

@@ -50,12 +50,14 @@ def index_points(xy: np.ndarray, cell_size: float) -> CellIndex:
     the same cell, at the same place in the cell, as the whole set does.
     """
     x0, y0 = grid_corner(xy.min(axis=0), cell_size)
-    col = np.floor((xy[:, 0] - x0) / cell_size)
-    row = np.floor((xy[:, 1] - y0) / cell_size)
-    small = col.max() * (row.max() + 1) + col.max() < 2**31  # int32 indices when the grid allows (memory)
-    col = col.astype(np.int32 if small else np.int64)
-    row = row.astype(np.int32 if small else np.int64)
-    return CellIndex(x0, y0, cell_size, int(row.max()) + 1, int(col.max()) + 1, row, col)
+    # the highest indices from the highest x, y (floor of a shifted, scaled value keeps their order: the same
+    # numbers), then each index a column at a time: one float temporary, not two
+    hi = xy.max(axis=0)
+    col_max, row_max = np.floor((hi[0] - x0) / cell_size), np.floor((hi[1] - y0) / cell_size)
+    kind = np.int32 if col_max * (row_max + 1) + col_max < 2**31 else np.int64  # int32 when the grid allows
+    col = np.floor((xy[:, 0] - x0) / cell_size).astype(kind)
+    row = np.floor((xy[:, 1] - y0) / cell_size).astype(kind)
+    return CellIndex(x0, y0, cell_size, int(row_max) + 1, int(col_max) + 1, row, col)
 
 
 def min_grid(z: np.ndarray, idx: CellIndex) -> np.ndarray:

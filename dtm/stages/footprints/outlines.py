@@ -72,19 +72,21 @@ def building_rows(labels: np.ndarray, count: int, tally: CellTally, dtm: np.ndar
         empty = np.zeros(0)
         fields = {"ground_z": empty, "roof_z": empty, "highest_z": empty, "height": empty}
         return {"geometry": [], "fields": {**fields, "points": np.zeros(0, np.int64), "area": empty}}
-    shape = labels.shape
-    roof_count = tally.roof_count.reshape(shape)
-    roof_top = np.where(roof_count > 0, tally.roof_top.reshape(shape), np.nan)
+    # the buildings' cells only (a few in a hundred): the statistics of the whole grids without its copies
+    cells = np.flatnonzero(labels.ravel())
+    label = labels.ravel()[cells]
+    roof_count = tally.roof_count[cells]
+    roof_top = np.where(roof_count > 0, tally.roof_top[cells], np.nan)
     index = np.arange(1, count + 1)
     with warnings.catch_warnings():  # a building wholly off the DTM (nodata under it): its ground_z is NaN
         warnings.simplefilter("ignore", RuntimeWarning)
-        ground = ndimage.labeled_comprehension(dtm, labels, index, np.nanmedian, float, np.nan)
-    roof = ndimage.labeled_comprehension(roof_top, labels, index, np.nanmedian, float, np.nan)
-    highest = ndimage.labeled_comprehension(roof_top, labels, index, np.nanmax, float, np.nan)
-    points = ndimage.sum(roof_count, labels, index).astype(np.int64)
+        ground = ndimage.labeled_comprehension(dtm.ravel()[cells], label, index, np.nanmedian, float, np.nan)
+    roof = ndimage.labeled_comprehension(roof_top, label, index, np.nanmedian, float, np.nan)
+    highest = ndimage.labeled_comprehension(roof_top, label, index, np.nanmax, float, np.nan)
+    points = ndimage.sum(roof_count, label, index).astype(np.int64)
     parts: dict[int, list] = {}
     for geom, value in rasterio.features.shapes(
-        labels.astype(np.int32), mask=labels > 0, connectivity=8, transform=transform
+        labels.astype(np.int32, copy=False), mask=labels > 0, connectivity=8, transform=transform
     ):
         parts.setdefault(int(value), []).append(shapely.geometry.shape(geom))
     tolerance = abs(transform.a)

@@ -395,7 +395,10 @@ def object_classes(
     in_building = np.zeros(len(out), dtype=bool)
     if not usable.any():
         return out, in_building
-    pts, cls, nret = xyz[usable], out[usable], np.asarray(number_of_returns)[usable]
+    if usable.all():  # the usual case: no copy of the points
+        pts, cls, nret = xyz, out, np.asarray(number_of_returns)
+    else:
+        pts, cls, nret = xyz[usable], out[usable], np.asarray(number_of_returns)[usable]
     s, k = surface(pts, nret <= 1, cls == glossary.GROUND, cell)
     new, building = point_classes(object_cells(s, params, multi_echo), k, cls, pts[:, 2], nret, params)
     out[usable] = new

@@ -110,7 +110,7 @@ def tin(
     # in a tile as in the whole survey.
     origin = np.array([grid.xmin, grid.ymax])
     xy = pts[:, :2] - origin
-    z = pts[:, 2]
+    z = pts[:, 2].copy()  # not a view: the points handed over are freed here (a third of their memory kept)
     del pts, points
     far = _far_from(xy, grid, nodata_distance)  # water, gaps: nodata even inside the hull
 

@@ -54,17 +54,20 @@ def cells_of(xy: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, tuple
     """Each point's cell ``(col, row)`` on a grid anchored at whole multiples of *cell*, from the first occupied one.
 
     Returns ``(i, j, shape)``; the cell of a point is ``floor(x / cell)``,
-    whatever the extent of the points given.
+    whatever the extent of the points given.  The indices are int32 when
+    the grid's flat index ``i * shape[1] + j`` fits in it, else int64.
     """
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), (0, 0)
-    out = []
+    out, shape = [], []
     for axis in range(2):  # one column at a time: no (n, 2) temporaries (a tile's largest)
-        index = np.floor(xy[:, axis] / cell).astype(np.int64)
-        index -= index.min()
+        index = np.floor(xy[:, axis] / cell)
+        index -= index.min()  # whole numbers: exact
         out.append(index)
-    return out[0], out[1], (int(out[0].max()) + 1, int(out[1].max()) + 1)
+        shape.append(int(index.max()) + 1)
+    kind = np.int32 if shape[0] * shape[1] < 2**31 else np.int64  # a flat cell index fits: half the memory
+    return out[0].astype(kind), out[1].astype(kind), (shape[0], shape[1])
 
 
 def window_planes(

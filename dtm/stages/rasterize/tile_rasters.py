@@ -70,9 +70,17 @@ def has_decks(path: Path, chunk: int = 1_000_000) -> bool:
     if header.are_points_compressed or name not in fields or Path(path).stat().st_size < offset + count * size:
         return True
     at = fields[name][1]
-    records = np.memmap(path, dtype=np.uint8, mode="r", offset=offset, shape=(count, size))
     deck = glossary.BRIDGE_DECK
-    return any(bool(np.any(records[i : i + chunk, at] & mask == deck)) for i in range(0, count, chunk))
+    for i in range(0, count, chunk):
+        # one chunk mapped at a time: a mapping of the whole file held every page it read (2.1 GB more of the
+        # process's memory, for a moment, at 100 M points)
+        n = min(chunk, count - i)
+        records = np.memmap(path, dtype=np.uint8, mode="r", offset=offset + i * size, shape=(n, size))
+        found = bool(np.any(records[:, at] & mask == deck))
+        del records
+        if found:
+            return True
+    return False
 
 
 def raster_columns(chunk: laspy.ScaleAwarePointRecord, *, sigma: bool = False) -> dict[str, np.ndarray]:

@@ -1,4 +1,4 @@
-"""North-up raster grids and their windows, points counted into their cells, gaps filled.
+"""North-up raster grids and their windows, points counted into their cells, gaps filled, cells joined.
 
 :class:`Grid` anchors every cell at whole multiples of its resolution, so a
 window (a tile) has the values of the same cells of the whole grid;
@@ -214,3 +214,36 @@ def fill_nearest(grid: np.ndarray, max_cells: float | None = None) -> np.ndarray
     if max_cells is not None:
         out[dist > max_cells] = np.nan
     return out
+
+
+def step_labels(cells: np.ndarray, height: np.ndarray, step: float, *, corners: bool = True) -> np.ndarray:
+    """Labels (1, 2, ...; 0 none) of the *cells* joined where neighbours' *height*s differ by at most *step*.
+
+    Neighbours across sides, and across corners with *corners*; a graph's
+    connected components (a chain of small steps joins, one large step
+    parts), numbered in the order of their first cell (row by row).
+    Heights that are not finite never join.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    ny, nx = cells.shape
+    ids = np.arange(ny * nx).reshape(ny, nx)
+    rows, cols = [], []
+    for da, db in ((1, 0), (0, 1), (1, 1), (1, -1))[: 4 if corners else 2]:
+        a0, a1 = slice(0, ny - da), slice(da, ny)
+        b0, b1 = (slice(0, nx - db), slice(db, nx)) if db >= 0 else (slice(-db, nx), slice(0, nx + db))
+        with np.errstate(invalid="ignore"):  # two unknown heights (inf) do not join
+            ok = cells[a0, b0] & cells[a1, b1] & (np.abs(height[a0, b0] - height[a1, b1]) <= step)
+        rows.append(ids[a0, b0][ok])
+        cols.append(ids[a1, b1][ok])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(r), dtype=np.int8), (r, c)), shape=(ny * nx, ny * nx))
+    n, component = connected_components(graph, directed=False)
+    members = cells.ravel()
+    # the components holding cells, numbered 1, 2, ... in order (np.unique's inverse, without its sort)
+    present = np.zeros(n, dtype=bool)
+    present[component[members]] = True
+    labels = np.zeros(ny * nx, dtype=np.int64)
+    labels[members] = np.cumsum(present)[component[members]]
+    return labels.reshape(ny, nx)

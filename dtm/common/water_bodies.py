@@ -195,6 +195,7 @@ def water_bodies(
     of_point = label[row, col]
     eight = np.ones((3, 3), bool)
     bodies, rejected = [], np.zeros(shape, dtype=bool)
+    drop = max(min_bank, 0.0) + max_spread  # how much lower the ring must lie for the water to drain there
     for k, (rows, cols) in enumerate(ndimage.find_objects(label), start=1):
         rows = slice(max(rows.start - 2, 0), rows.stop + 2)  # room for the ring of banks
         cols = slice(max(cols.start - 2, 0), cols.stop + 2)
@@ -204,7 +205,6 @@ def water_bodies(
         ring = ndimage.binary_dilation(body, structure=eight, iterations=2) & ~body
         banks = lowest[rows, cols][ring]
         banks = banks[np.isfinite(banks)]
-        drop = max(min_bank, 0.0) + max_spread
         if (len(banks) and float(np.median(banks)) - level < min_bank) or _drains(
             body, ring, least[rows, cols], below[rows, cols], drop
         ):
@@ -237,6 +237,8 @@ def _levels(
     """
     from scipy import ndimage
 
+    from dtm.common.grid import step_labels
+
     mask = np.zeros(shape, dtype=bool)
     mask[row, col] = True
     if close > 0:
@@ -246,7 +248,7 @@ def _levels(
     least = np.where(np.isinf(height), np.nan, height)
     for _ in range(close + 1):  # ring by ring into the cells the closing filled
         height = np.where(np.isinf(height), ndimage.minimum_filter(height, 3, mode="constant", cval=np.inf), height)
-    return least, level_labels(mask, height, STEP), mask
+    return least, step_labels(mask, height, STEP), mask
 
 
 def _beyond_the_survey(seen: np.ndarray) -> np.ndarray:
@@ -276,32 +278,6 @@ def _neighbours_mean(values: np.ndarray, size: int) -> np.ndarray:
     count = ndimage.uniform_filter(known.astype(np.float64), size, mode="constant")
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(count > 1e-9, total / count, np.nan)
-
-
-def level_labels(cells: np.ndarray, height: np.ndarray, step: float) -> np.ndarray:
-    """Labels (1, 2, ...; 0 none) of the *cells* joined across sides and corners where their *height*s differ by at
-    most *step* (a graph's connected components: a chain of small steps joins, one large step parts)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    ny, nx = cells.shape
-    ids = np.arange(ny * nx).reshape(ny, nx)
-    rows, cols = [], []
-    for da, db in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        a0, a1 = slice(0, ny - da), slice(da, ny)
-        b0, b1 = (slice(0, nx - db), slice(db, nx)) if db >= 0 else (slice(-db, nx), slice(0, nx + db))
-        with np.errstate(invalid="ignore"):  # two unknown heights (inf) do not join
-            ok = cells[a0, b0] & cells[a1, b1] & (np.abs(height[a0, b0] - height[a1, b1]) <= step)
-        rows.append(ids[a0, b0][ok])
-        cols.append(ids[a1, b1][ok])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(len(r), dtype=np.int8), (r, c)), shape=(ny * nx, ny * nx))
-    _, component = connected_components(graph, directed=False)
-    present = np.zeros(component.max() + 1, dtype=bool)
-    present[component[cells.ravel()]] = True
-    labels = np.zeros(ny * nx, dtype=np.int64)
-    labels[cells.ravel()] = np.cumsum(present)[component[cells.ravel()]]
-    return labels.reshape(ny, nx)
 
 
 def _as_river(body: WaterBody, xyz: np.ndarray, max_spread: float) -> WaterBody:

@@ -40,31 +40,9 @@ def planar_segments(top: np.ndarray, residual: np.ndarray, planarity: float, ste
     A cell is planar when its residual is at most *planarity*; two planar
     neighbours (4-connected) join when their heights differ by at most *step*.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from dtm.common.grid import step_labels
 
-    planar = residual <= planarity  # NaN: not planar
-    rows, cols = top.shape
-    index = np.arange(rows * cols).reshape(rows, cols)
-    pairs = []
-    for a, b, ta, tb, pa, pb in (
-        (index[:, :-1], index[:, 1:], top[:, :-1], top[:, 1:], planar[:, :-1], planar[:, 1:]),
-        (index[:-1, :], index[1:, :], top[:-1, :], top[1:, :], planar[:-1, :], planar[1:, :]),
-    ):
-        joined = pa & pb & (np.abs(ta - tb) <= step)
-        pairs.append((a[joined], b[joined]))
-    i = np.concatenate([p[0] for p in pairs])
-    j = np.concatenate([p[1] for p in pairs])
-    graph = coo_matrix((np.ones(len(i), np.int8), (i, j)), shape=(rows * cols, rows * cols))
-    n, component = connected_components(graph, directed=False)
-    members = planar.ravel()
-    # the components holding planar cells, numbered 1, 2, ... in order (np.unique's inverse, without its sort)
-    present = np.zeros(n, dtype=bool)
-    present[component[members]] = True
-    rank = np.cumsum(present)
-    labels = np.zeros(rows * cols, dtype=np.int64)
-    labels[members] = rank[component[members]]
-    return labels.reshape(rows, cols)
+    return step_labels(residual <= planarity, top, step, corners=False)  # NaN residual: not planar
 
 
 def neighbour_views(shape: tuple[int, int], reach: int = 1):

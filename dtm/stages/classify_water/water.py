@@ -230,9 +230,9 @@ def water_bodies(level: np.ndarray, mean: np.ndarray, *, step: float, min_cells:
 
     Returns a boolean grid: the cells of the bodies kept.
     """
-    from dtm.common.water_bodies import level_labels
+    from dtm.common.grid import step_labels
 
-    label = level_labels(level, mean, step)
+    label = step_labels(level, mean, step)
     size = np.bincount(label[level], minlength=label.max() + 1)
     return level & (size[label] >= min_cells)
 

@@ -7,6 +7,8 @@ classes 7 (low noise) and 18 (high noise).
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 
@@ -96,38 +98,42 @@ def _crowded_cubes(centred: np.ndarray, side: float, neighbors: int) -> tuple[np
         _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
         return np.flatnonzero(counts[inverse] <= neighbors), None
     cand = np.flatnonzero(np.bincount(key, minlength=span)[key] <= neighbors)
-    # A point within side * sqrt(3) of another lies at most two cubes from it along each axis: the cubes
-    # around the candidates' are marked one offset at a time (work by candidates, not by the cubes' span).
-    c = np.unique(key[cand])
-    c, z = np.divmod(c, dims[2])
-    x, y = np.divmod(c, dims[1])
-    marked = np.zeros(span, dtype=bool)
-    for a in range(-2, 3):
-        xa = x + a
-        for b in range(-2, 3):
-            yb = y + b
-            inside = (xa >= 0) & (xa < dims[0]) & (yb >= 0) & (yb < dims[1])
-            column = (xa * dims[1] + yb) * dims[2] + z
-            for dz in range(-2, 3):
-                ok = inside & (z + dz >= 0) & (z + dz < dims[2])
-                marked[column[ok] + dz] = True
-    return cand, marked[key]
+    # a point within side * sqrt(3) of another lies at most two cubes from it along each axis
+    return cand, _around(key, cand, dims, 2)
 
 
 def within_plan(points: np.ndarray, which: np.ndarray, radius: float) -> np.ndarray:
     """Which points may lie within *radius* in plan of one of ``points[which]``: those in the squares of side
     *radius* next to theirs.  *points* with x, y from zero (a superset: every such point is in it)."""
-    from scipy import ndimage
-
     squares = np.floor(points[:, :2] / radius).astype(np.int64)
-    dims = squares.max(axis=0) + 1
-    if int(dims[0]) * int(dims[1]) > max(DENSE_CUBES, 4 * len(points)):  # a tiny radius over a wide survey
+    dims = [int(d) + 1 for d in squares.max(axis=0)]
+    if dims[0] * dims[1] > max(DENSE_CUBES, 4 * len(points)):  # a tiny radius over a wide survey
         return np.ones(len(points), dtype=bool)
-    key = squares[:, 0] * dims[1] + squares[:, 1]
-    marked = np.zeros(int(dims[0] * dims[1]), dtype=np.uint8)
-    marked[key[which]] = 1
-    marked = ndimage.maximum_filter(marked.reshape(tuple(int(d) for d in dims)), size=3, mode="constant").ravel()
-    return marked[key].astype(bool)
+    return _around(squares[:, 0] * dims[1] + squares[:, 1], which, dims, 1)
+
+
+def _around(key: np.ndarray, which: np.ndarray, dims: list[int], reach: int) -> np.ndarray:
+    """Which points (flat cell index *key* on a grid of *dims*, row-major) lie in a cell within *reach* cells,
+    along every axis, of the cell of one of the points *which*.
+
+    The cells around the candidates' are marked one offset at a time: work
+    by the candidates' cells, not by the grid's size.
+    """
+    cells = np.unique(key[which])
+    coords = []
+    for d in reversed(dims[1:]):
+        cells, c = np.divmod(cells, d)
+        coords.append(c)
+    coords = [cells, *reversed(coords)]
+    marked = np.zeros(int(np.prod(dims)), dtype=bool)
+    for offset in itertools.product(range(-reach, reach + 1), repeat=len(dims)):
+        ok = np.ones(len(coords[0]), dtype=bool)
+        flat = np.zeros(len(coords[0]), dtype=np.int64)
+        for c, o, d in zip(coords, offset, dims, strict=True):
+            ok &= (c + o >= 0) & (c + o < d)
+            flat = flat * d + c + o
+        marked[flat[ok]] = True
+    return marked[key]
 
 
 def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.ndarray:

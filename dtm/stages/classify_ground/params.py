@@ -78,5 +78,6 @@ class ClassifyGroundParams(StageParams):
         ge=0,
         description="SMRF filters the whole survey on one grid, in passes over the points, when the grid has at "
         "most this many cells (8 km2 of 1 m cells; about 55 bytes a cell while it is filtered, more where cells "
-        "are empty); larger surveys are cut into tiles with its buffer; 0: always tiles",
+        "are empty); a grid up to 4 times larger is filtered in the tiles' windows (8 bytes a cell held), "
+        "larger surveys are cut into tiles of points with its buffer; 0: always tiles of points",
     )

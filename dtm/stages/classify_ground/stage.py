@@ -30,6 +30,7 @@ from dtm.stages.classify_ground.ground_classes import (
 )
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from dtm.stages.classify_ground.streaming import COUNTS, smrf_one_grid
+from dtm.stages.classify_ground.windows import tile_cells
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext
 
@@ -106,12 +107,38 @@ def _on_one_grid(
 
     if params.algorithm.name != "smrf" or params.one_grid_cells <= 0:
         return None
+    cell = grid_cell(params.algorithm)
+    tiles = _tile_cells(ctx, params)
     with ctx.progress(2 * cloud_info(src).count, "filtering", unit="pt") as bar:
         whole = smrf_one_grid(
-            src, dst, params, threads=ctx.workers, progress=bar, executor=ctx.executor, workdir=ctx.workdir
+            src,
+            dst,
+            params,
+            threads=ctx.workers,
+            progress=bar,
+            executor=ctx.executor,
+            workdir=ctx.workdir,
+            tiles=tiles,
         )
     if whole is None:
         return None
+    if whole["windows"]:
+        ctx.metrics["tiling"] = {  # the grid in the tiles' windows, no tile of points
+            "tiles": whole["windows"],
+            "size": tiles[0] * cell,
+            "buffer": tiles[1] * cell,
+            "executor": f"one grid in windows, {ctx.executor.describe()}",
+            "grid": list(whole["grid"]),
+        }
+        ctx.log.info(
+            "SMRF on one grid of %d x %d cells of %g m, filtered in %d windows of %g with a buffer of %g",
+            *whole["grid"],
+            cell,
+            whole["windows"],
+            tiles[0] * cell,
+            tiles[1] * cell,
+        )
+        return [whole]
     ctx.metrics["tiling"] = {  # no tile, no buffer
         "tiles": 1,
         "size": None,
@@ -119,8 +146,17 @@ def _on_one_grid(
         "executor": "one grid, this process",
         "grid": list(whole["grid"]),
     }
-    ctx.log.info("SMRF on one grid of %d x %d cells of %g m", *whole["grid"], grid_cell(params.algorithm))
+    ctx.log.info("SMRF on one grid of %d x %d cells of %g m", *whole["grid"], cell)
     return [whole]
+
+
+def _tile_cells(ctx: StageContext[ClassifyGroundParams], params: ClassifyGroundParams) -> tuple[int, int] | None:
+    """The run's tile and buffer in SMRF's cells, for a grid filtered in windows; None without tiles."""
+    tiling = getattr(ctx.config, "tiling", None)
+    if tiling is None or not tiling.enabled:
+        return None
+    buffer = float(tiling.buffer) if tiling.buffer is not None else reach(params.algorithm)
+    return tile_cells(tiling.size, buffer, grid_cell(params.algorithm))
 
 
 def _check_last_returns(ctx: StageContext[ClassifyGroundParams], params: ClassifyGroundParams, counts: dict) -> None:

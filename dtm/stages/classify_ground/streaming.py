@@ -11,7 +11,9 @@ once (docs/stages/classify_ground.md).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,6 +33,13 @@ from dtm.common.grid_classes import (
 from dtm.stages.classify_ground.ground_classes import candidates_of, classify_columns, new_classes
 from dtm.stages.classify_ground.params import ClassifyGroundParams, SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, grid_corner
+from dtm.stages.classify_ground.windows import (
+    WINDOWED_BEYOND,
+    Windows,
+    WindowSurfaces,
+    filter_windows,
+    window_tasks,
+)
 
 if TYPE_CHECKING:
     from pipeline.executor import DaskExecutor, LocalExecutor
@@ -114,6 +123,7 @@ def smrf_one_grid(
     progress: Progress | None = None,
     executor: LocalExecutor | DaskExecutor | None = None,
     workdir: Path | None = None,
+    tiles: tuple[int, int] | None = None,
 ) -> dict | None:
     """SMRF on one grid of the whole survey: *src* copied to *dst* with the new classes; None when too big.
 
@@ -124,19 +134,36 @@ def smrf_one_grid(
        *executor* of more than one worker (and a *workdir* for the grids),
        on the workers, a range of records each (:func:`classes_range`).
 
-    Returns the counts (:data:`COUNTS`, and ``grid``: its rows and columns),
-    or None (nothing written) when the candidates' grid has more than
-    ``one_grid_cells`` cells: the caller tiles.
+    With *tiles* ``(tile, buffer)`` in cells (:func:`~dtm.stages.classify_ground.windows.tile_cells`),
+    a grid of more than ``one_grid_cells`` cells, up to
+    :data:`~dtm.stages.classify_ground.windows.WINDOWED_BEYOND` times that,
+    is filtered in the tiles' windows instead, and each point tested in its
+    tile's (:func:`_in_windows`).
+
+    Returns the counts (:data:`COUNTS`, ``grid``: its rows and columns,
+    ``windows``: how many were filtered, 0 for the grid filtered whole), or
+    None (nothing written) when the candidates' grid is larger: the caller tiles.
     """
     from dtm.common.clouds import cloud_info
 
     info = cloud_info(src)
+    windowed = tiles is not None and params.one_grid_cells > 0
     records = workers_layout(src, info.count, executor, workdir, chunk_size, classes_range)
-    lowest = lowest_grid(src, params, info.extent, progress, chunk_size)
+    cap = params.one_grid_cells * (WINDOWED_BEYOND if windowed else 1)
+    lowest = lowest_grid(src, params, info.extent, progress, chunk_size, cap=cap)
     if lowest is None:
         return None
-    grid, surfaces = survey_surfaces(*lowest, params.algorithm, threads=threads)
-    del lowest  # the grid of the lowest points, before the points are read again
+    zmin, box, anchor = lowest
+    del lowest
+    if windowed and box is not None and (box[1] - box[0] + 1) * (box[3] - box[2] + 1) > params.one_grid_cells:
+        numbers, windows = _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdir, chunk_size)
+        if progress is not None:
+            progress.update(info.count)
+        counts = dict(zip(COUNTS, numbers, strict=True))
+        counts["grid"], counts["windows"] = (box[1] - box[0] + 1, box[3] - box[2] + 1), windows
+        return counts
+    grid, surfaces = survey_surfaces(zmin, box, anchor, params.algorithm, threads=threads)
+    del zmin  # the grid of the lowest points, before the points are read again
     if records is not None and surfaces is not None:
         numbers = _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size)
         if progress is not None:
@@ -145,7 +172,58 @@ def smrf_one_grid(
         numbers = _classes_here(src, dst, params, grid, surfaces, chunk_size, progress)
     counts = dict(zip(COUNTS, numbers, strict=True))
     counts["grid"] = (grid.rows, grid.cols) if grid is not None else (0, 0)
+    counts["windows"] = 0
     return counts
+
+
+def _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdir, chunk_size) -> tuple[list[int], int]:
+    """Steps 2 and 3 of :func:`smrf_one_grid` in the tiles' windows: :data:`COUNTS` and the windows filtered.
+
+    The grid *zmin* (on *anchor*, :func:`lowest_grid`'s) is saved for the
+    workers, cut into windows (:func:`~dtm.stages.classify_ground.windows.window_tasks`)
+    that are filtered on them; each point is then tested in its tile's,
+    on the workers when *records* allows (:func:`windows_range`), else here.
+    """
+    import shutil
+    import tempfile
+
+    cell = params.algorithm.cell_size
+    folder = Path(workdir) / ".smrf-windows" if workdir is not None else Path(tempfile.mkdtemp(dir=Path(dst).parent))
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    try:
+        np.save(folder / "zmin.npy", zmin)
+        origin = (round(anchor[1] / cell), round(anchor[0] / cell))
+        tasks = window_tasks(zmin, origin, *tiles, params.algorithm, folder)
+        del zmin
+        first = filter_windows(tasks, executor)
+        (folder / "zmin.npy").unlink()
+        windows = Windows(cell, tiles[0], str(folder), tuple((*key, *at) for key, at in sorted(first.items())))
+        if records is not None:
+            numbers = classes_on_workers(
+                src,
+                dst,
+                records,
+                executor,
+                folder=Path(workdir) / ".smrf-one-grid",
+                grids={},
+                task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
+                run=windows_range,
+                chunk_size=chunk_size,
+                what="point test",
+            )
+        else:
+            test = partial(WindowSurfaces(windows).ground, algo=params.algorithm)
+            numbers = classes_here(
+                src,
+                dst,
+                lambda chunk, xyz: _chunk_classes(xyz, classify_columns(chunk), params, test),
+                len(COUNTS),
+                chunk_size=chunk_size,
+            )
+        return numbers, len(tasks)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def lowest_grid(
@@ -154,6 +232,7 @@ def lowest_grid(
     extent: tuple[float, float, float, float],
     progress: Progress | None = None,
     chunk_size: int = 1_000_000,
+    cap: int | None = None,
 ) -> tuple[np.ndarray, tuple[int, int, int, int] | None, tuple[float, float, int, int]] | None:
     """Step 1 of :func:`smrf_one_grid`: the lowest candidate per cell; None when its grid is too big.
 
@@ -163,9 +242,9 @@ def lowest_grid(
     then read first: :func:`~dtm.common.grid_classes.box_worth_reading`);
     None at once when it has more, but not far more.  Returns ``(zmin, box, anchor)``: :func:`_lowest`'s
     grid and box, and :func:`_anchored`'s grid; None when the candidates'
-    grid too has more than ``one_grid_cells`` cells.
+    grid too has more than ``one_grid_cells`` cells (or *cap*, when given).
     """
-    cell, cap = params.algorithm.cell_size, params.one_grid_cells
+    cell, cap = params.algorithm.cell_size, params.one_grid_cells if cap is None else cap
     anchor = _anchored(extent[:2], extent[2:], cell)
     cells = anchor[2] * anchor[3]
     if cap < cells and not box_worth_reading(cells, cap):
@@ -219,28 +298,36 @@ def survey_surfaces(
 
 def _classes_here(src, dst, params, grid, surfaces, chunk_size, progress) -> list[int]:
     """Step 3 of :func:`smrf_one_grid` in this process: *dst* written a chunk at a time; :data:`COUNTS`."""
+    test = _grid_test(params.algorithm, grid, surfaces)
 
     def classes(chunk, xyz):
-        return _chunk_classes(xyz, classify_columns(chunk), params, grid, surfaces)
+        return _chunk_classes(xyz, classify_columns(chunk), params, test)
 
     return classes_here(src, dst, classes, len(COUNTS), chunk_size=chunk_size, progress=progress)
 
 
-def _chunk_classes(xyz, cols, params, grid, surfaces) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-    """Step 3 of :func:`smrf_one_grid` on one chunk: its new classes and :data:`COUNTS`."""
+def _grid_test(algo: SmrfParams, grid: CellIndex | None, surfaces) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The point test against the DEM and slope of one grid; None without them (no point is ground)."""
     from dtm.stages.classify_ground.smrf import point_test
 
-    algo = params.algorithm
+    if surfaces is None:
+        return None
+    return partial(
+        point_test,
+        idx=grid,
+        dem=surfaces[0],
+        slope_dem=surfaces[1],
+        elevation_threshold=algo.elevation_threshold,
+        elevation_scalar=algo.elevation_scalar,
+    )
+
+
+def _chunk_classes(xyz, cols, params, test) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """Step 3 of :func:`smrf_one_grid` on one chunk: its new classes and :data:`COUNTS`; ``test(xyz)``: ground or not."""
     keep, cand = candidates_of(**cols, params=params)
     ground = np.zeros(len(keep), dtype=bool)
-    if surfaces is not None and cand.any():
-        ground[cand] = point_test(
-            xyz[cand],
-            grid,
-            *surfaces,
-            elevation_threshold=algo.elevation_threshold,
-            elevation_scalar=algo.elevation_scalar,
-        )
+    if test is not None and cand.any():
+        ground[cand] = test(xyz[cand])
     cls = new_classes(cols["classification"], keep, ground)
     last = int((cols["return_number"] >= cols["number_of_returns"]).sum())
     return cls, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
@@ -294,9 +381,29 @@ def classes_range(task: RangeTask) -> list[int]:
     empty = np.zeros(0, np.int64)
     grid = CellIndex(x0, y0, cell, int(rows), int(cols), empty, empty)
     grids = grids_of(task.surfaces)
-    surfaces = (grids["dem"], grids["slope"])
+    test = _grid_test(params.algorithm, grid, (grids["dem"], grids["slope"]))
 
     def classes(chunk, xyz):
-        return _chunk_classes(xyz, classify_columns(chunk), params, grid, surfaces)
+        return _chunk_classes(xyz, classify_columns(chunk), params, test)
+
+    return rewrite_range(task.records, classes, len(COUNTS))
+
+
+@dataclass(frozen=True)
+class WindowsTask:
+    """Step 3 of :func:`smrf_one_grid` in windows on one range of records, in a worker (:func:`windows_range`)."""
+
+    records: RecordRange
+    params: dict
+    windows: Windows
+
+
+def windows_range(task: WindowsTask) -> list[int]:
+    """Step 3 of :func:`smrf_one_grid` in windows on one range of records (runs in a worker)."""
+    params = ClassifyGroundParams.model_validate(task.params)
+    test = partial(WindowSurfaces(task.windows).ground, algo=params.algorithm)
+
+    def classes(chunk, xyz):
+        return _chunk_classes(xyz, classify_columns(chunk), params, test)
 
     return rewrite_range(task.records, classes, len(COUNTS))

@@ -130,6 +130,26 @@ def test_tiled_ground_equals_untiled_where_the_buffer_matters(survey):
     np.testing.assert_array_equal(b, a)
 
 
+def test_ground_in_windows_equals_the_tiles(survey):
+    """A grid over ``one_grid_cells`` (300 x 300 cells over 30,000) but within four times it: SMRF filters
+    it in the tiles' windows, on the cached points of the tiled run, and gives the tiles' classes."""
+    root, _, tiled = survey
+    windows = _run(
+        root,
+        "windows",
+        "tiling.size=100",
+        "stages.classify_ground.one_grid_cells=30000",
+        cache="tiled",
+        until="classify_ground",
+    )
+    ground = windows["classify_ground"]
+    assert ground["status"] == "ran" and ground["metrics"]["tiling"]["executor"].startswith("one grid in windows")
+    assert ground["metrics"]["tiling"]["tiles"] == 9 and ground["metrics"]["tiling"]["buffer"] == 146.0
+    np.testing.assert_array_equal(
+        _classes(ground, "points_classified"), _classes(tiled["classify_ground"], "points_classified")
+    )
+
+
 @pytest.mark.parametrize("product", ["dtm.tif", "dsm.tif"])
 def test_tiled_rasters_equal_untiled_where_the_buffer_matters(survey, product):
     root, _, _ = survey

@@ -1,0 +1,241 @@
+"""SMRF on one grid too large to filter whole: the grid filtered in windows, the points tested in passes.
+
+A survey whose grid has more than ``one_grid_cells`` cells was cut into
+tiles of points, each written out with its buffer (2.5 copies of every point
+at 500 m tiles and SMRF's 146 m reach) and read back.  But SMRF's grid steps
+need no point: :func:`filter_windows` cuts the grid of the lowest candidates
+(:func:`dtm.stages.classify_ground.streaming.lowest_grid`, one pass over the
+points) into the tiles' windows, each with the tile's buffer in cells, and
+filters each window on the workers; :class:`WindowSurfaces` then tests every
+point against the provisional DEM of the window of its own tile, a chunk at
+a time.  Each window is the grid a tile of points would make (the box of its
+candidates, anchored on whole cells), so the classes are those of the tiles
+when the tile size and the buffer are whole numbers of cells (a test checks
+it); otherwise the buffer is rounded up to whole cells.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dtm.stages.classify_ground.params import SmrfParams
+from dtm.stages.classify_ground.surface import CellIndex, sample_bilinear_all
+
+if TYPE_CHECKING:
+    from pipeline.executor import DaskExecutor, LocalExecutor
+
+#: A grid filtered in windows may have this many times ``one_grid_cells`` cells: the lowest candidate of each
+#: cell (8 bytes) is held in this process while the points are read; beyond, the survey is cut into tiles.
+WINDOWED_BEYOND = 4
+
+#: Points sampled at a time.
+BLOCK = 1 << 18
+
+
+@dataclass(frozen=True)
+class WindowTask:
+    """One window of the grid of lowest candidates, filtered in a worker (:func:`filter_window`).
+
+    *zmin*: the grid's ``.npy`` file, whose cell ``[0, 0]`` is the cell
+    *origin* ``(row, col)`` counted from 0, 0 in whole cells; *core*: the
+    tile's rows and columns ``(r0, r1, c0, c1)``, ends excluded, in the same
+    count; *buffer*: cells around the core; *out*: the ``.npy`` file of its
+    DEM and slope; *weight*: its cells with a candidate.
+    """
+
+    key: tuple[int, int]
+    zmin: str
+    origin: tuple[int, int]
+    core: tuple[int, int, int, int]
+    buffer: int
+    algorithm: dict
+    out: str
+    weight: int
+
+
+def window_tasks(
+    zmin: np.ndarray, origin: tuple[int, int], tile: int, buffer: int, algorithm: SmrfParams, folder: Path
+) -> list[WindowTask]:
+    """A task for each tile of *tile* x *tile* cells that holds a candidate (a value in *zmin*) of its own.
+
+    Tiles are counted from cell 0, 0, as the engine's tiles are counted from
+    0 m: tile ``(i, j)`` holds rows ``i tile`` to ``(i + 1) tile``.
+    """
+    rows, cols = zmin.shape
+    r_first, c_first = origin[0] // tile, origin[1] // tile
+    tasks = []
+    for i in range(r_first, (origin[0] + rows - 1) // tile + 1):
+        for j in range(c_first, (origin[1] + cols - 1) // tile + 1):
+            r0, c0 = i * tile, j * tile
+            mine = zmin[max(r0 - origin[0], 0) : r0 + tile - origin[0], max(c0 - origin[1], 0) : c0 + tile - origin[1]]
+            weight = int(np.count_nonzero(~np.isnan(mine)))
+            if weight:
+                tasks.append(
+                    WindowTask(
+                        key=(i, j),
+                        zmin=str(folder / "zmin.npy"),
+                        origin=origin,
+                        core=(r0, r0 + tile, c0, c0 + tile),
+                        buffer=buffer,
+                        algorithm=algorithm.model_dump(mode="json"),
+                        out=str(folder / f"{i}_{j}.npy"),
+                        weight=weight,
+                    )
+                )
+    return tasks
+
+
+def filter_window(task: WindowTask) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """SMRF's grid steps on one window (runs in a worker): its DEM and slope around the core, saved.
+
+    The window is the tile's core plus its buffer, cut to the box of its
+    candidates (the grid :func:`~dtm.stages.classify_ground.surface.index_points`
+    makes of a tile's candidates).  Saved: DEM and slope, stacked, over the
+    core and one cell around it (all the point test of the core's points
+    reads), cut to that box.  Returns the key and the saved grid's first
+    ``(row, col)`` in whole cells; None when the filter leaves no cell.
+    """
+    from dtm.stages.classify_ground.smrf import provisional_dem
+
+    algo = SmrfParams.model_validate(task.algorithm)
+    zmin = np.load(task.zmin, mmap_mode="r")
+    (o_r, o_c), (r0, r1, c0, c1), b = task.origin, task.core, task.buffer
+    rows = slice(max(r0 - b - o_r, 0), max(min(r1 + b - o_r, zmin.shape[0]), 0))
+    cols = slice(max(c0 - b - o_c, 0), max(min(c1 + b - o_c, zmin.shape[1]), 0))
+    window = np.array(zmin[rows, cols])
+    del zmin
+    has = ~np.isnan(window)
+    ra, rb = _span(has.any(axis=1))
+    ca, cb = _span(has.any(axis=0))
+    window = window[ra:rb, ca:cb]
+    top, left = o_r + rows.start + ra, o_c + cols.start + ca  # the window's first cell, in whole cells
+    surfaces = provisional_dem(
+        window,
+        cell_size=algo.cell_size,
+        slope=algo.slope,
+        max_window_size=algo.max_window_size,
+        floor_window=algo.floor_window,
+        wall_height=algo.wall_height,
+        elevation_threshold=algo.elevation_threshold,
+        elevation_scalar=algo.elevation_scalar,
+    )
+    if surfaces is None:
+        return None
+    keep_r = slice(max(r0 - 1 - top, 0), max(min(r1 + 1 - top, window.shape[0]), 0))
+    keep_c = slice(max(c0 - 1 - left, 0), max(min(c1 + 1 - left, window.shape[1]), 0))
+    np.save(task.out, np.stack([s[keep_r, keep_c] for s in surfaces]))
+    return task.key, (top + keep_r.start, left + keep_c.start)
+
+
+def _span(any_: np.ndarray) -> tuple[int, int]:
+    """First and past-last index where *any_* is True."""
+    where = np.flatnonzero(any_)
+    return int(where[0]), int(where[-1]) + 1
+
+
+def filter_windows(
+    tasks: list[WindowTask], executor: LocalExecutor | DaskExecutor | None
+) -> dict[tuple[int, int], tuple[int, int]]:
+    """Run :func:`filter_window` on every task (the largest first, on the workers when there are any).
+
+    Returns each filtered window's key and first cell; a window the filter
+    left without a DEM is absent (its points are not ground).
+    """
+    order = sorted(tasks, key=lambda t: -t.weight)
+    if executor is None or executor.workers <= 1:
+        done = [filter_window(t) for t in order]
+    else:
+        done = executor.map(filter_window, order, what="windows")
+    return {key: first for key, first in (d for d in done if d is not None)}
+
+
+@dataclass(frozen=True)
+class Windows:
+    """The filtered windows of a grid, for the point test (:class:`WindowSurfaces`); small, sent to workers.
+
+    *cell*: the cell (m); *tile*: cells on a tile's side; *folder*: where
+    :func:`filter_window` saved them; *first*: each window's key and first
+    ``(row, col)`` in whole cells.
+    """
+
+    cell: float
+    tile: int
+    folder: str
+    first: tuple[tuple[int, int, int, int], ...]
+
+
+class WindowSurfaces:
+    """The point test against the DEM of each point's own tile (:func:`~dtm.stages.classify_ground.smrf.point_test`).
+
+    The windows are read as they are needed and the last few kept (a
+    chunk of points in flight order crosses a few tiles).
+    """
+
+    KEEP = 8
+
+    def __init__(self, windows: Windows):
+        self.windows = windows
+        self.first = {(i, j): (r, c) for i, j, r, c in windows.first}
+        self.loaded: dict[tuple[int, int], tuple[CellIndex, np.ndarray]] = {}
+
+    def _window(self, key: tuple[int, int]) -> tuple[CellIndex, np.ndarray] | None:
+        if key not in self.first:
+            return None
+        if key not in self.loaded:
+            if len(self.loaded) >= self.KEEP:
+                del self.loaded[next(iter(self.loaded))]
+            r, c = self.first[key]
+            grids = np.load(Path(self.windows.folder) / f"{key[0]}_{key[1]}.npy", mmap_mode="r")
+            cell = self.windows.cell
+            empty = np.zeros(0, np.int64)
+            # the corner as grid_corner makes it: a whole number of cells times the cell
+            index = CellIndex(float(c * cell), float(r * cell), cell, grids.shape[1], grids.shape[2], empty, empty)
+            self.loaded[key] = (index, grids)
+        return self.loaded[key]
+
+    def ground(self, xyz: np.ndarray, algo: SmrfParams) -> np.ndarray:
+        """True where a point is ground by its tile's DEM (as :func:`~dtm.stages.classify_ground.smrf.point_test`); False where its tile has none."""
+        at, grad = self.surfaces_at(xyz)
+        with np.errstate(invalid="ignore"):  # NaN (no DEM) compares False
+            return np.abs(xyz[:, 2] - at) <= algo.elevation_threshold + algo.elevation_scalar * grad
+
+    def surfaces_at(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The DEM and its slope at each point, sampled bilinearly on its tile's window; NaN where it has none."""
+        at, grad = np.full(len(xyz), np.nan), np.full(len(xyz), np.nan)
+        if not len(xyz):
+            return at, grad
+        size = self.windows.tile * self.windows.cell
+        # the tile holding each point, as the engine's layout finds it (pipeline.tiling.Layout.locate)
+        i = np.floor(xyz[:, 1] / size).astype(np.int64)
+        j = np.floor(xyz[:, 0] / size).astype(np.int64)
+        i0, j0 = int(i.min()), int(j.min())
+        span = int(j.max()) - j0 + 1
+        key = (i - i0) * span + (j - j0)
+        for k in np.unique(key):
+            window = self._window((i0 + int(k) // span, j0 + int(k) % span))
+            if window is None:
+                continue
+            index, grids = window
+            where = np.flatnonzero(key == k)
+            for a in range(0, len(where), BLOCK):  # in blocks: bilinear sampling makes ten temporaries per point
+                sel = where[a : a + BLOCK]
+                at[sel], grad[sel] = sample_bilinear_all((grids[0], grids[1]), index, xyz[sel, 0], xyz[sel, 1])
+        return at, grad
+
+
+def tile_cells(size: float | None, buffer: float, cell: float) -> tuple[int, int] | None:
+    """``(tile, buffer)`` in whole cells for tiles of *size* (m) with *buffer* (m); None when a tile is not whole cells.
+
+    The buffer is rounded up to whole cells.  None too without tiles (*size* None).
+    """
+    if size is None:
+        return None
+    tile = size / cell
+    if not math.isclose(tile, round(tile), rel_tol=0, abs_tol=1e-9) or round(tile) < 1:
+        return None
+    return round(tile), math.ceil(buffer / cell - 1e-9)

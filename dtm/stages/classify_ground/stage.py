@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from dtm.common import glossary
+from dtm.common.grid_windows import run_tile_cells
 from dtm.stages.classify_ground.ground_classes import (
     SPARSE_SPACINGS,
     classify_columns,
@@ -30,7 +31,6 @@ from dtm.stages.classify_ground.ground_classes import (
 )
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from dtm.stages.classify_ground.streaming import COUNTS, smrf_one_grid
-from dtm.stages.classify_ground.windows import tile_cells
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext
 
@@ -108,7 +108,7 @@ def _on_one_grid(
     if params.algorithm.name != "smrf" or params.one_grid_cells <= 0:
         return None
     cell = grid_cell(params.algorithm)
-    tiles = _tile_cells(ctx, params)
+    tiles = run_tile_cells(ctx.config, reach(params.algorithm), cell)
     with ctx.progress(2 * cloud_info(src).count, "filtering", unit="pt") as bar:
         whole = smrf_one_grid(
             src,
@@ -148,15 +148,6 @@ def _on_one_grid(
     }
     ctx.log.info("SMRF on one grid of %d x %d cells of %g m", *whole["grid"], cell)
     return [whole]
-
-
-def _tile_cells(ctx: StageContext[ClassifyGroundParams], params: ClassifyGroundParams) -> tuple[int, int] | None:
-    """The run's tile and buffer in SMRF's cells, for a grid filtered in windows; None without tiles."""
-    tiling = getattr(ctx.config, "tiling", None)
-    if tiling is None or not tiling.enabled:
-        return None
-    buffer = float(tiling.buffer) if tiling.buffer is not None else reach(params.algorithm)
-    return tile_cells(tiling.size, buffer, grid_cell(params.algorithm))
 
 
 def _check_last_returns(ctx: StageContext[ClassifyGroundParams], params: ClassifyGroundParams, counts: dict) -> None:

@@ -30,16 +30,11 @@ from dtm.common.grid_classes import (
     rewrite_range,
     workers_layout,
 )
+from dtm.common.grid_windows import WINDOWED_BEYOND, scratch
 from dtm.stages.classify_ground.ground_classes import candidates_of, classify_columns, new_classes
 from dtm.stages.classify_ground.params import ClassifyGroundParams, SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, grid_corner
-from dtm.stages.classify_ground.windows import (
-    WINDOWED_BEYOND,
-    Windows,
-    WindowSurfaces,
-    filter_windows,
-    window_tasks,
-)
+from dtm.stages.classify_ground.windows import Windows, WindowSurfaces, filter_windows, window_tasks
 
 if TYPE_CHECKING:
     from pipeline.executor import DaskExecutor, LocalExecutor
@@ -134,9 +129,9 @@ def smrf_one_grid(
        *executor* of more than one worker (and a *workdir* for the grids),
        on the workers, a range of records each (:func:`classes_range`).
 
-    With *tiles* ``(tile, buffer)`` in cells (:func:`~dtm.stages.classify_ground.windows.tile_cells`),
+    With *tiles* ``(tile, buffer)`` in cells (:func:`~dtm.common.grid_windows.tile_cells`),
     a grid of more than ``one_grid_cells`` cells, up to
-    :data:`~dtm.stages.classify_ground.windows.WINDOWED_BEYOND` times that,
+    :data:`~dtm.common.grid_windows.WINDOWED_BEYOND` times that,
     is filtered in the tiles' windows instead, and each point tested in its
     tile's (:func:`_in_windows`).
 
@@ -184,14 +179,8 @@ def _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdi
     that are filtered on them; each point is then tested in its tile's,
     on the workers when *records* allows (:func:`windows_range`), else here.
     """
-    import shutil
-    import tempfile
-
     cell = params.algorithm.cell_size
-    folder = Path(workdir) / ".smrf-windows" if workdir is not None else Path(tempfile.mkdtemp(dir=Path(dst).parent))
-    shutil.rmtree(folder, ignore_errors=True)
-    folder.mkdir(parents=True)
-    try:
+    with scratch(workdir, dst, ".smrf-windows") as folder:
         np.save(folder / "zmin.npy", zmin)
         origin = (round(anchor[1] / cell), round(anchor[0] / cell))
         tasks = window_tasks(zmin, origin, *tiles, params.algorithm, folder)
@@ -222,8 +211,6 @@ def _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdi
                 chunk_size=chunk_size,
             )
         return numbers, len(tasks)
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 def lowest_grid(

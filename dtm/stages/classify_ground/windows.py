@@ -16,22 +16,18 @@ it); otherwise the buffer is rounded up to whole cells.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dtm.common.grid_windows import Recent, home_tiles, span
 from dtm.stages.classify_ground.params import SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, sample_bilinear_all
 
 if TYPE_CHECKING:
     from pipeline.executor import DaskExecutor, LocalExecutor
-
-#: A grid filtered in windows may have this many times ``one_grid_cells`` cells: the lowest candidate of each
-#: cell (8 bytes) is held in this process while the points are read; beyond, the survey is cut into tiles.
-WINDOWED_BEYOND = 4
 
 #: Points sampled at a time.
 BLOCK = 1 << 18
@@ -110,8 +106,8 @@ def filter_window(task: WindowTask) -> tuple[tuple[int, int], tuple[int, int]] |
     window = np.array(zmin[rows, cols])
     del zmin
     has = ~np.isnan(window)
-    ra, rb = _span(has.any(axis=1))
-    ca, cb = _span(has.any(axis=0))
+    ra, rb = span(has.any(axis=1))
+    ca, cb = span(has.any(axis=0))
     window = window[ra:rb, ca:cb]
     top, left = o_r + rows.start + ra, o_c + cols.start + ca  # the window's first cell, in whole cells
     surfaces = provisional_dem(
@@ -130,12 +126,6 @@ def filter_window(task: WindowTask) -> tuple[tuple[int, int], tuple[int, int]] |
     keep_c = slice(max(c0 - 1 - left, 0), max(min(c1 + 1 - left, window.shape[1]), 0))
     np.save(task.out, np.stack([s[keep_r, keep_c] for s in surfaces]))
     return task.key, (top + keep_r.start, left + keep_c.start)
-
-
-def _span(any_: np.ndarray) -> tuple[int, int]:
-    """First and past-last index where *any_* is True."""
-    where = np.flatnonzero(any_)
-    return int(where[0]), int(where[-1]) + 1
 
 
 def filter_windows(
@@ -170,33 +160,20 @@ class Windows:
 
 
 class WindowSurfaces:
-    """The point test against the DEM of each point's own tile (:func:`~dtm.stages.classify_ground.smrf.point_test`).
-
-    The windows are read as they are needed and the last few kept (a
-    chunk of points in flight order crosses a few tiles).
-    """
-
-    KEEP = 8
+    """The point test against the DEM of each point's own tile (:func:`~dtm.stages.classify_ground.smrf.point_test`)."""
 
     def __init__(self, windows: Windows):
         self.windows = windows
         self.first = {(i, j): (r, c) for i, j, r, c in windows.first}
-        self.loaded: dict[tuple[int, int], tuple[CellIndex, np.ndarray]] = {}
+        self.recent = Recent()
 
-    def _window(self, key: tuple[int, int]) -> tuple[CellIndex, np.ndarray] | None:
-        if key not in self.first:
-            return None
-        if key not in self.loaded:
-            if len(self.loaded) >= self.KEEP:
-                del self.loaded[next(iter(self.loaded))]
-            r, c = self.first[key]
-            grids = np.load(Path(self.windows.folder) / f"{key[0]}_{key[1]}.npy", mmap_mode="r")
-            cell = self.windows.cell
-            empty = np.zeros(0, np.int64)
-            # the corner as grid_corner makes it: a whole number of cells times the cell
-            index = CellIndex(float(c * cell), float(r * cell), cell, grids.shape[1], grids.shape[2], empty, empty)
-            self.loaded[key] = (index, grids)
-        return self.loaded[key]
+    def _read(self, key: tuple[int, int]) -> tuple[CellIndex, np.ndarray]:
+        r, c = self.first[key]
+        grids = np.load(Path(self.windows.folder) / f"{key[0]}_{key[1]}.npy", mmap_mode="r")
+        cell = self.windows.cell
+        empty = np.zeros(0, np.int64)
+        # the corner as grid_corner makes it: a whole number of cells times the cell
+        return CellIndex(float(c * cell), float(r * cell), cell, grids.shape[1], grids.shape[2], empty, empty), grids
 
     def ground(self, xyz: np.ndarray, algo: SmrfParams) -> np.ndarray:
         """True where a point is ground by its tile's DEM (as :func:`~dtm.stages.classify_ground.smrf.point_test`); False where its tile has none."""
@@ -207,35 +184,11 @@ class WindowSurfaces:
     def surfaces_at(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The DEM and its slope at each point, sampled bilinearly on its tile's window; NaN where it has none."""
         at, grad = np.full(len(xyz), np.nan), np.full(len(xyz), np.nan)
-        if not len(xyz):
-            return at, grad
-        size = self.windows.tile * self.windows.cell
-        # the tile holding each point, as the engine's layout finds it (pipeline.tiling.Layout.locate)
-        i = np.floor(xyz[:, 1] / size).astype(np.int64)
-        j = np.floor(xyz[:, 0] / size).astype(np.int64)
-        i0, j0 = int(i.min()), int(j.min())
-        span = int(j.max()) - j0 + 1
-        key = (i - i0) * span + (j - j0)
-        for k in np.unique(key):
-            window = self._window((i0 + int(k) // span, j0 + int(k) % span))
-            if window is None:
+        for key, where in home_tiles(xyz[:, 0], xyz[:, 1], self.windows.tile * self.windows.cell):
+            if key not in self.first:
                 continue
-            index, grids = window
-            where = np.flatnonzero(key == k)
+            index, grids = self.recent.get(key, self._read)
             for a in range(0, len(where), BLOCK):  # in blocks: bilinear sampling makes ten temporaries per point
                 sel = where[a : a + BLOCK]
                 at[sel], grad[sel] = sample_bilinear_all((grids[0], grids[1]), index, xyz[sel, 0], xyz[sel, 1])
         return at, grad
-
-
-def tile_cells(size: float | None, buffer: float, cell: float) -> tuple[int, int] | None:
-    """``(tile, buffer)`` in whole cells for tiles of *size* (m) with *buffer* (m); None when a tile is not whole cells.
-
-    The buffer is rounded up to whole cells.  None too without tiles (*size* None).
-    """
-    if size is None:
-        return None
-    tile = size / cell
-    if not math.isclose(tile, round(tile), rel_tol=0, abs_tol=1e-9) or round(tile) < 1:
-        return None
-    return round(tile), math.ceil(buffer / cell - 1e-9)

@@ -60,10 +60,11 @@ class CellSums:
         self.grid = grid
         self.top = np.full(size, -np.inf)
         self.bottom = np.full(size, np.inf)
-        self.count = np.zeros(size, np.int64)
-        self.single = np.zeros(size, np.int64)
+        # counts as int32: 12 bytes a cell fewer (150 MB at 100 M points); a cell of 2**31 points is no survey's
+        self.count = np.zeros(size, np.int32)
+        self.single = np.zeros(size, np.int32)
         self.ground_sum = np.zeros(size)
-        self.ground_count = np.zeros(size, np.int64)
+        self.ground_count = np.zeros(size, np.int32)
 
     def add(self, k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray) -> None:
         """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return and ground masks."""

@@ -13,6 +13,7 @@ records each (:func:`classes_range`).  The classes are those of
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -30,9 +31,18 @@ from dtm.common.grid_classes import (
     rewrite_range,
     workers_layout,
 )
+from dtm.common.grid_windows import WINDOWED_BEYOND, scratch
 from dtm.stages.classify_objects.object_tiles import COUNTS, class_counts
 from dtm.stages.classify_objects.objects import CellSums, ObjectCells, cell_index, object_cells, point_classes
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from dtm.stages.classify_objects.windows import (
+    SUMS,
+    WindowCells,
+    Windows,
+    object_windows,
+    save_sums,
+    window_tasks,
+)
 
 if TYPE_CHECKING:
     from pipeline.executor import DaskExecutor, LocalExecutor
@@ -135,13 +145,18 @@ def cell_sums(
     return got[0] if got is not None else None
 
 
-def _chunk_classes(chunk, xyz, cells: ObjectCells, params: ClassifyObjectsParams) -> tuple[np.ndarray, tuple]:
-    """Pass 2 on one chunk: its new classes and :data:`COUNTS`."""
+def _chunk_classes(chunk, xyz, rule) -> tuple[np.ndarray, tuple]:
+    """Pass 2 on one chunk: its new classes and :data:`COUNTS`; ``rule(pts, classes, returns)``: the usable points'."""
     cls, usable, pts, nret = _usable(chunk, xyz)
     out = cls.copy()
     if len(pts):
-        out[usable] = point_classes(cells, cell_index(pts, cells.grid), cls[usable], pts[:, 2], nret, params)[0]
+        out[usable] = rule(pts, cls[usable], nret)
     return out, class_counts(out, cls)
+
+
+def _grid_rule(cells: ObjectCells, params: ClassifyObjectsParams):
+    """The point rule on one grid's cells (:func:`point_classes`), for :func:`_chunk_classes`."""
+    return lambda pts, cls, nret: point_classes(cells, cell_index(pts, cells.grid), cls, pts[:, 2], nret, params)[0]
 
 
 def objects_one_grid(
@@ -155,6 +170,7 @@ def objects_one_grid(
     progress: Progress | None = None,
     executor: LocalExecutor | DaskExecutor | None = None,
     workdir: Path | None = None,
+    tiles: tuple[int, int] | None = None,
 ) -> dict | None:
     """Buildings and vegetation on one grid of the survey: *src* copied to *dst* with the new classes.
 
@@ -164,18 +180,35 @@ def objects_one_grid(
        with an *executor* of more than one worker (and a *workdir* for the
        grids), on the workers, a range of records each.
 
-    Returns :data:`COUNTS` and ``grid`` (its rows and columns), or None
-    (nothing written) when the grid would have more than
-    ``params.one_grid_cells`` cells or there is no usable point: the
-    caller tiles.
+    With *tiles* ``(tile, buffer)`` in cells (:func:`~dtm.common.grid_windows.tile_cells`),
+    a grid of more than ``params.one_grid_cells`` cells, up to
+    :data:`~dtm.common.grid_windows.WINDOWED_BEYOND` times that, makes its
+    cell grids in the tiles' windows instead, and each point takes its
+    tile's (:mod:`dtm.stages.classify_objects.windows`).
+
+    Returns :data:`COUNTS`, ``grid`` (its rows and columns) and
+    ``windows`` (0: the grid whole), or None (nothing written) when the
+    grid is larger or there is no usable point: the caller tiles.
     """
     from dtm.common.clouds import cloud_info
 
     info = cloud_info(src)
     records = workers_layout(src, info.count, executor, workdir, chunk_size, classes_range)
-    sums = cell_sums(src, info.extent, cell, params.one_grid_cells, chunk_size, progress)
+    cap = params.one_grid_cells * (WINDOWED_BEYOND if tiles is not None else 1)
+    sums = cell_sums(src, info.extent, cell, cap, chunk_size, progress)
     if sums is None:
         return None
+    grid = sums.grid
+    if tiles is not None and grid.rows * grid.cols > params.one_grid_cells:
+        with scratch(workdir, dst, ".objects-windows") as folder:
+            corner = save_sums(sums, folder)
+            del sums
+            numbers, windows = _in_windows(
+                src, dst, records, params, multi_echo, folder, corner, grid, tiles, executor, workdir, chunk_size
+            )
+        if progress is not None:
+            progress.update(info.count)
+        return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (grid.rows, grid.cols), "windows": windows}
     cells = object_cells(sums.surface(), params, multi_echo)
     del sums
     if records is not None:
@@ -196,15 +229,59 @@ def objects_one_grid(
         if progress is not None:
             progress.update(info.count)
     else:
+        rule = _grid_rule(cells, params)
         numbers = classes_here(
             src,
             dst,
-            lambda chunk, xyz: _chunk_classes(chunk, xyz, cells, params),
+            lambda chunk, xyz: _chunk_classes(chunk, xyz, rule),
             len(COUNTS),
             chunk_size=chunk_size,
             progress=progress,
         )
-    return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (cells.grid.rows, cells.grid.cols)}
+    return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (cells.grid.rows, cells.grid.cols), "windows": 0}
+
+
+def _in_windows(
+    src, dst, records, params, multi_echo, folder, corner, grid, tiles, executor, workdir, chunk_size
+) -> tuple[list[int], int]:
+    """Steps 2 and 3 of :func:`objects_one_grid` in the tiles' windows: :data:`COUNTS` and the windows made.
+
+    The statistics saved in *folder* (:func:`~dtm.stages.classify_objects.windows.save_sums`,
+    first cell *corner*) are cut into windows that the workers make cell
+    grids of; each point then takes its tile's, on the workers when
+    *records* allows (:func:`windows_range`), else here.
+    """
+    cell = grid.resolution
+    count = np.load(folder / "count.npy", mmap_mode="r")
+    tasks = window_tasks(count, corner, tiles, cell, params.model_dump(mode="json"), multi_echo, folder)
+    del count
+    saved = object_windows(tasks, executor)
+    for name in SUMS:
+        (folder / f"{name}.npy").unlink()
+    windows = Windows(tiles[0] * cell, cell, str(folder), tuple((*key, *g) for key, g in sorted(saved.items())))
+    if records is not None:
+        numbers = classes_on_workers(
+            src,
+            dst,
+            records,
+            executor,
+            folder=Path(workdir) / ".objects-one-grid",
+            grids={},
+            task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
+            run=windows_range,
+            chunk_size=chunk_size,
+            what="classes",
+        )
+    else:
+        cells = WindowCells(windows)
+        numbers = classes_here(
+            src,
+            dst,
+            lambda chunk, xyz: _chunk_classes(chunk, xyz, partial(cells.classes, params=params)),
+            len(COUNTS),
+            chunk_size=chunk_size,
+        )
+    return numbers, len(tasks)
 
 
 def _dump(grid: Grid) -> tuple[float, float, float, int, int]:
@@ -231,4 +308,21 @@ def classes_range(task: RangeTask) -> list[int]:
     params = ClassifyObjectsParams.model_validate(task.params)
     xmin, ymax, cell, cols, rows = task.grid
     cells = ObjectCells(Grid(xmin, ymax, cell, int(cols), int(rows)), **grids_of(task.grids))
-    return rewrite_range(task.records, lambda chunk, xyz: _chunk_classes(chunk, xyz, cells, params), len(COUNTS))
+    rule = _grid_rule(cells, params)
+    return rewrite_range(task.records, lambda chunk, xyz: _chunk_classes(chunk, xyz, rule), len(COUNTS))
+
+
+@dataclass(frozen=True)
+class WindowsTask:
+    """Pass 2 of :func:`objects_one_grid` in windows on one range of records, in a worker (:func:`windows_range`)."""
+
+    records: RecordRange
+    params: dict
+    windows: Windows
+
+
+def windows_range(task: WindowsTask) -> list[int]:
+    """Pass 2 of :func:`objects_one_grid` in windows on one range of records (runs in a worker)."""
+    params = ClassifyObjectsParams.model_validate(task.params)
+    rule = partial(WindowCells(task.windows).classes, params=params)
+    return rewrite_range(task.records, lambda chunk, xyz: _chunk_classes(chunk, xyz, rule), len(COUNTS))

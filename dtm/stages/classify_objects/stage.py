@@ -23,6 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import ClassVar
 
+from dtm.common.grid_windows import run_tile_cells
 from dtm.stages.classify_objects.object_tiles import (
     COUNTS,
     objects_columns,
@@ -84,12 +85,30 @@ def _on_one_grid(
 
     if ctx.params.one_grid_cells <= 0:
         return None
+    tiles = run_tile_cells(ctx.config, reach(ctx.params), cell)
     with ctx.progress(2 * cloud_info(src).count, "classifying", unit="pt") as bar:
         whole = objects_one_grid(
-            src, dst, ctx.params, cell, multi, progress=bar, executor=ctx.executor, workdir=ctx.workdir
+            src, dst, ctx.params, cell, multi, progress=bar, executor=ctx.executor, workdir=ctx.workdir, tiles=tiles
         )
     if whole is None:
         return None
+    if whole["windows"]:
+        ctx.metrics["tiling"] = {  # the grid in the tiles' windows, no tile of points
+            "tiles": whole["windows"],
+            "size": tiles[0] * cell,
+            "buffer": tiles[1] * cell,
+            "executor": f"one grid in windows, {ctx.executor.describe()}",
+            "grid": list(whole["grid"]),
+        }
+        ctx.log.info(
+            "on one grid of %d x %d cells of %g m, in %d windows of %g with a buffer of %g",
+            *whole["grid"],
+            cell,
+            whole["windows"],
+            tiles[0] * cell,
+            tiles[1] * cell,
+        )
+        return [whole]
     ctx.metrics["tiling"] = {
         "tiles": 1,
         "size": None,

@@ -18,9 +18,9 @@ import laspy
 import numpy as np
 import pytest
 
+from dtm.common.grid_windows import tile_cells
 from dtm.stages.classify_ground.params import ClassifyGroundParams
 from dtm.stages.classify_ground.streaming import smrf_one_grid
-from dtm.stages.classify_ground.windows import tile_cells
 from tests.stages.classify_ground.test_smrf_one_grid import _reference, _survey
 
 SIZE, BUFFER = 100.0, 20.0

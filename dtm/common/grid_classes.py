@@ -195,6 +195,38 @@ def classes_on_workers(
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def write_classes(
+    src: Path,
+    dst: Path,
+    records: tuple[int, int, int] | None,
+    executor: LocalExecutor | DaskExecutor | None,
+    *,
+    classes: Classes,
+    width: int,
+    folder: Path | None,
+    grids: dict[str, np.ndarray],
+    task: Callable[[RecordRange, dict[str, str]], Any],
+    run: Callable[[Any], list[int]],
+    chunk_size: int,
+    what: str,
+    progress: Progress | None = None,
+) -> list[int]:
+    """*dst*: *src* with new classes, on the workers when *records* (:func:`workers_layout`) says so, else here.
+
+    On the workers: :func:`classes_on_workers` (*folder*, *grids*, *task*,
+    *run*); here: :func:`classes_here` with ``classes(chunk, xyz)``.  The
+    *width* numbers summed; *progress* advanced by the records either way.
+    """
+    if records is None:
+        return classes_here(src, dst, classes, width, chunk_size=chunk_size, progress=progress)
+    numbers = classes_on_workers(
+        src, dst, records, executor, folder=folder, grids=grids, task=task, run=run, chunk_size=chunk_size, what=what
+    )
+    if progress is not None:
+        progress.update(records[2])
+    return numbers
+
+
 def rewrite_range(records: RecordRange, classes: Classes, width: int) -> list[int]:
     """Records of one range classified by ``classes(chunk, xyz)`` and written in place, in a worker; *width* sums.
 

@@ -68,6 +68,34 @@ def span(has: np.ndarray) -> tuple[int, int]:
     return int(where[0]), int(where[-1]) + 1
 
 
+def largest_first(fn, tasks: list, executor) -> list:
+    """``fn`` of every window task, the largest (``weight``) first, on the workers when there are any."""
+    order = sorted(tasks, key=lambda t: -t.weight)
+    if executor is None or executor.workers <= 1:
+        return [fn(t) for t in order]
+    return executor.map(fn, order, what="windows")
+
+
+def note_windows(ctx, what: str, whole: dict, tiles: tuple[int, int], cell: float) -> None:
+    r"""The stage's ``tiling`` metrics and log line for a grid worked in *whole*\ ``["windows"]`` windows."""
+    ctx.metrics["tiling"] = {  # the grid in the tiles' windows, no tile of points
+        "tiles": whole["windows"],
+        "size": tiles[0] * cell,
+        "buffer": tiles[1] * cell,
+        "executor": f"one grid in windows, {ctx.executor.describe()}",
+        "grid": list(whole["grid"]),
+    }
+    ctx.log.info(
+        "%s on one grid of %d x %d cells of %g m, in %d windows of %g with a buffer of %g",
+        what,
+        *whole["grid"],
+        cell,
+        whole["windows"],
+        tiles[0] * cell,
+        tiles[1] * cell,
+    )
+
+
 class Recent:
     """The last few windows read (a chunk of points in flight order crosses a few tiles): ``get(key, read)``."""
 

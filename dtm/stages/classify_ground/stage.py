@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from dtm.common import glossary
-from dtm.common.grid_windows import run_tile_cells
+from dtm.common.grid_windows import note_windows, run_tile_cells
 from dtm.stages.classify_ground.ground_classes import (
     SPARSE_SPACINGS,
     classify_columns,
@@ -123,21 +123,7 @@ def _on_one_grid(
     if whole is None:
         return None
     if whole["windows"]:
-        ctx.metrics["tiling"] = {  # the grid in the tiles' windows, no tile of points
-            "tiles": whole["windows"],
-            "size": tiles[0] * cell,
-            "buffer": tiles[1] * cell,
-            "executor": f"one grid in windows, {ctx.executor.describe()}",
-            "grid": list(whole["grid"]),
-        }
-        ctx.log.info(
-            "SMRF on one grid of %d x %d cells of %g m, filtered in %d windows of %g with a buffer of %g",
-            *whole["grid"],
-            cell,
-            whole["windows"],
-            tiles[0] * cell,
-            tiles[1] * cell,
-        )
+        note_windows(ctx, "SMRF", whole, tiles, cell)
         return [whole]
     ctx.metrics["tiling"] = {  # no tile, no buffer
         "tiles": 1,

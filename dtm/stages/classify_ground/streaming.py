@@ -29,6 +29,7 @@ from dtm.common.grid_classes import (
     las_chunks,
     rewrite_range,
     workers_layout,
+    write_classes,
 )
 from dtm.common.grid_windows import WINDOWED_BEYOND, scratch
 from dtm.stages.classify_ground.ground_classes import candidates_of, classify_columns, new_classes
@@ -188,28 +189,21 @@ def _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdi
         first = filter_windows(tasks, executor)
         (folder / "zmin.npy").unlink()
         windows = Windows(cell, tiles[0], str(folder), tuple((*key, *at) for key, at in sorted(first.items())))
-        if records is not None:
-            numbers = classes_on_workers(
-                src,
-                dst,
-                records,
-                executor,
-                folder=Path(workdir) / ".smrf-one-grid",
-                grids={},
-                task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
-                run=windows_range,
-                chunk_size=chunk_size,
-                what="point test",
-            )
-        else:
-            test = partial(WindowSurfaces(windows).ground, algo=params.algorithm)
-            numbers = classes_here(
-                src,
-                dst,
-                lambda chunk, xyz: _chunk_classes(xyz, classify_columns(chunk), params, test),
-                len(COUNTS),
-                chunk_size=chunk_size,
-            )
+        test = partial(WindowSurfaces(windows).ground, algo=params.algorithm)
+        numbers = write_classes(
+            src,
+            dst,
+            records,
+            executor,
+            classes=lambda chunk, xyz: _chunk_classes(xyz, classify_columns(chunk), params, test),
+            width=len(COUNTS),
+            folder=Path(workdir) / ".smrf-one-grid" if workdir is not None else None,
+            grids={},
+            task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
+            run=windows_range,
+            chunk_size=chunk_size,
+            what="point test",
+        )
         return numbers, len(tasks)
 
 

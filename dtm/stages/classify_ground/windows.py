@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dtm.common.grid_windows import Recent, home_tiles, span
+from dtm.common.grid_windows import Recent, home_tiles, largest_first, span
 from dtm.stages.classify_ground.params import SmrfParams
 from dtm.stages.classify_ground.surface import CellIndex, sample_bilinear_all
 
@@ -136,11 +136,7 @@ def filter_windows(
     Returns each filtered window's key and first cell; a window the filter
     left without a DEM is absent (its points are not ground).
     """
-    order = sorted(tasks, key=lambda t: -t.weight)
-    if executor is None or executor.workers <= 1:
-        done = [filter_window(t) for t in order]
-    else:
-        done = executor.map(filter_window, order, what="windows")
+    done = largest_first(filter_window, tasks, executor)
     return {key: first for key, first in (d for d in done if d is not None)}
 
 

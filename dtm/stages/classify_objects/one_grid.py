@@ -24,12 +24,11 @@ from dtm.common.grid import Grid
 from dtm.common.grid_classes import (
     RecordRange,
     box_worth_reading,
-    classes_here,
-    classes_on_workers,
     grids_of,
     las_chunks,
     rewrite_range,
     workers_layout,
+    write_classes,
 )
 from dtm.common.grid_windows import WINDOWED_BEYOND, scratch
 from dtm.stages.classify_objects.object_tiles import COUNTS, class_counts
@@ -211,33 +210,24 @@ def objects_one_grid(
         return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (grid.rows, grid.cols), "windows": windows}
     cells = object_cells(sums.surface(), params, multi_echo)
     del sums
-    if records is not None:
-        numbers = classes_on_workers(
-            src,
-            dst,
-            records,
-            executor,
-            folder=Path(workdir) / ".objects-one-grid",
-            grids={f.name: getattr(cells, f.name) for f in fields(cells) if f.name != "grid"},
-            task=lambda r, paths: RangeTask(
-                records=r, params=params.model_dump(mode="json"), grid=_dump(cells.grid), grids=paths
-            ),
-            run=classes_range,
-            chunk_size=chunk_size,
-            what="classes",
-        )
-        if progress is not None:
-            progress.update(info.count)
-    else:
-        rule = _grid_rule(cells, params)
-        numbers = classes_here(
-            src,
-            dst,
-            lambda chunk, xyz: _chunk_classes(chunk, xyz, rule),
-            len(COUNTS),
-            chunk_size=chunk_size,
-            progress=progress,
-        )
+    rule = _grid_rule(cells, params)
+    numbers = write_classes(
+        src,
+        dst,
+        records,
+        executor,
+        classes=lambda chunk, xyz: _chunk_classes(chunk, xyz, rule),
+        width=len(COUNTS),
+        folder=Path(workdir) / ".objects-one-grid" if workdir is not None else None,
+        grids={f.name: getattr(cells, f.name) for f in fields(cells) if f.name != "grid"},
+        task=lambda r, paths: RangeTask(
+            records=r, params=params.model_dump(mode="json"), grid=_dump(cells.grid), grids=paths
+        ),
+        run=classes_range,
+        chunk_size=chunk_size,
+        what="classes",
+        progress=progress,
+    )
     return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (cells.grid.rows, cells.grid.cols), "windows": 0}
 
 
@@ -259,28 +249,21 @@ def _in_windows(
     for name in SUMS:
         (folder / f"{name}.npy").unlink()
     windows = Windows(tiles[0] * cell, cell, str(folder), tuple((*key, *g) for key, g in sorted(saved.items())))
-    if records is not None:
-        numbers = classes_on_workers(
-            src,
-            dst,
-            records,
-            executor,
-            folder=Path(workdir) / ".objects-one-grid",
-            grids={},
-            task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
-            run=windows_range,
-            chunk_size=chunk_size,
-            what="classes",
-        )
-    else:
-        cells = WindowCells(windows)
-        numbers = classes_here(
-            src,
-            dst,
-            lambda chunk, xyz: _chunk_classes(chunk, xyz, partial(cells.classes, params=params)),
-            len(COUNTS),
-            chunk_size=chunk_size,
-        )
+    rule = partial(WindowCells(windows).classes, params=params)
+    numbers = write_classes(
+        src,
+        dst,
+        records,
+        executor,
+        classes=lambda chunk, xyz: _chunk_classes(chunk, xyz, rule),
+        width=len(COUNTS),
+        folder=Path(workdir) / ".objects-one-grid" if workdir is not None else None,
+        grids={},
+        task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
+        run=windows_range,
+        chunk_size=chunk_size,
+        what="classes",
+    )
     return numbers, len(tasks)
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import ClassVar
 
-from dtm.common.grid_windows import run_tile_cells
+from dtm.common.grid_windows import note_windows, run_tile_cells
 from dtm.stages.classify_objects.object_tiles import (
     COUNTS,
     objects_columns,
@@ -93,21 +93,7 @@ def _on_one_grid(
     if whole is None:
         return None
     if whole["windows"]:
-        ctx.metrics["tiling"] = {  # the grid in the tiles' windows, no tile of points
-            "tiles": whole["windows"],
-            "size": tiles[0] * cell,
-            "buffer": tiles[1] * cell,
-            "executor": f"one grid in windows, {ctx.executor.describe()}",
-            "grid": list(whole["grid"]),
-        }
-        ctx.log.info(
-            "on one grid of %d x %d cells of %g m, in %d windows of %g with a buffer of %g",
-            *whole["grid"],
-            cell,
-            whole["windows"],
-            tiles[0] * cell,
-            tiles[1] * cell,
-        )
+        note_windows(ctx, "objects", whole, tiles, cell)
         return [whole]
     ctx.metrics["tiling"] = {
         "tiles": 1,

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dtm.common.grid import Grid
-from dtm.common.grid_windows import Recent, home_tiles, span
+from dtm.common.grid_windows import Recent, home_tiles, largest_first, span
 from dtm.stages.classify_objects.objects import ObjectCells, banded_residual, cell_index, object_cells, point_classes
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
 from dtm.stages.classify_objects.regions import Surface
@@ -165,11 +165,7 @@ def object_windows(
     tasks: list[WindowTask], executor: LocalExecutor | DaskExecutor | None
 ) -> dict[tuple[int, int], tuple[float, float, int, int]]:
     """Run :func:`object_window` on every task (the largest first, on the workers when there are any)."""
-    order = sorted(tasks, key=lambda t: -t.weight)
-    if executor is None or executor.workers <= 1:
-        done = [object_window(t) for t in order]
-    else:
-        done = executor.map(object_window, order, what="windows")
+    done = largest_first(object_window, tasks, executor)
     return dict(done)
 
 

@@ -68,13 +68,17 @@ class CellSums:
 
     def add(self, k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray) -> None:
         """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return and ground masks."""
-        size = len(self.count)
         np.maximum.at(self.top, k, z)
         np.minimum.at(self.bottom, k, z)
-        self.count += np.bincount(k, minlength=size)
-        self.single += np.bincount(k[single], minlength=size)
-        np.add.at(self.ground_sum, k[ground], z[ground])
-        self.ground_count += np.bincount(k[ground], minlength=size)
+        # counts by ufunc.at with an array of ones of the counts' type (its fast path; a scalar 1 took 50 ms a
+        # million points), not a bincount the size of the grid per chunk: 13 ms each on 12.8 M cells
+        ones = np.ones(len(k), self.count.dtype)
+        np.add.at(self.count, k, ones)
+        k_single = k[single]
+        np.add.at(self.single, k_single, ones[: len(k_single)])
+        k_ground = k[ground]
+        np.add.at(self.ground_sum, k_ground, z[ground])
+        np.add.at(self.ground_count, k_ground, ones[: len(k_ground)])
 
     def surface(self) -> Surface:
         """The :class:`Surface` of the points added; it takes over these arrays (add no more points)."""

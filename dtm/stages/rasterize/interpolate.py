@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dtm.common.arrays import sorted_union
 from dtm.common.grid import Grid
 from dtm.common.neighbours import canonical_neighbours
 
@@ -132,7 +133,7 @@ def tin(
 
         out, drawn = _tin_draw(xy, z, keep, grid, batch_cells, None, max_hull_edge)
         if not _same_as_all(xy, keep, outer, drawn, grid, margin, np.isnan(out).reshape(far.shape) & ~far):
-            keep = np.union1d(keep, outer())  # ascending: the input order, as if all were triangulated at once
+            keep = sorted_union(keep, outer())  # ascending: the input order, as if all were triangulated at once
             out, _ = _tin_draw(xy, z, keep, grid, batch_cells, progress, max_hull_edge)
         elif progress is not None:
             progress.update(grid.rows)

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from dtm.common import glossary
+from dtm.common.arrays import sorted_union
 from dtm.common.grid import Grid, cell_max_count, cell_of
 from dtm.common.mosaic import core_window
 from dtm.common.rasters import HEIGHT, NODATA
@@ -123,7 +124,7 @@ class Usable:
             self.classes + other.classes,
             np.minimum(self.lo, other.lo),
             np.maximum(self.hi, other.hi),
-            np.union1d(self.cells, other.cells),
+            sorted_union(self.cells, other.cells),
         )
 
     def box(self) -> tuple[float, float, float, float]:

@@ -288,8 +288,8 @@ def pairs(points: float, workdir: Path, jobs: list[str], n: int) -> list[str]:
     One run of a job moves by about 5 % from run to run; pairing keeps the
     ratio meaningful when the machine's speed drifts.  Whole processes on
     both sides, each job on an empty cache, nothing sampled while they run
-    (sampling the process tree's memory every 0.2 s, as :func:`bench` did,
-    does, costs the job more than the floor: at 10 M, 5 pairs each, 3.36 ×
+    (sampling the process tree's memory, as :func:`bench` does, costs the
+    job more than the floor; every 0.2 s then: at 10 M, 5 pairs each, 3.36 ×
     sampled against 3.31 × not, minutes apart).  Needs the survey of an earlier
     run of this script at the same size.
     """

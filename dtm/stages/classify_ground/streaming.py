@@ -23,8 +23,6 @@ from dtm.common import glossary
 from dtm.common.grid_classes import (
     RecordRange,
     box_worth_reading,
-    classes_here,
-    classes_on_workers,
     grids_of,
     las_chunks,
     rewrite_range,
@@ -134,7 +132,7 @@ def smrf_one_grid(
     a grid of more than ``one_grid_cells`` cells, up to
     :data:`~dtm.common.grid_windows.WINDOWED_BEYOND` times that,
     is filtered in the tiles' windows instead, and each point tested in its
-    tile's (:func:`_in_windows`).
+    tile's (:func:`_windows`).
 
     Returns the counts (:data:`COUNTS`, ``grid``: its rows and columns,
     ``windows``: how many were filtered, 0 for the grid filtered whole), or
@@ -151,60 +149,68 @@ def smrf_one_grid(
         return None
     zmin, box, anchor = lowest
     del lowest
-    if windowed and box is not None and (box[1] - box[0] + 1) * (box[3] - box[2] + 1) > params.one_grid_cells:
-        numbers, windows = _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdir, chunk_size)
-        if progress is not None:
-            progress.update(info.count)
-        counts = dict(zip(COUNTS, numbers, strict=True))
-        counts["grid"], counts["windows"] = (box[1] - box[0] + 1, box[3] - box[2] + 1), windows
-        return counts
-    grid, surfaces = survey_surfaces(zmin, box, anchor, params.algorithm, threads=threads)
-    del zmin  # the grid of the lowest points, before the points are read again
-    if records is not None and surfaces is not None:
-        numbers = _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size)
-        if progress is not None:
-            progress.update(info.count)
+    shape = (box[1] - box[0] + 1, box[3] - box[2] + 1) if box is not None else (0, 0)
+    dump = params.model_dump(mode="json")
+
+    write = partial(_step3, src, dst, executor, workdir, params, chunk_size, progress)
+    if windowed and shape[0] * shape[1] > params.one_grid_cells:
+        with scratch(workdir, dst, ".smrf-windows") as folder:
+            windows, filtered = _windows(folder, zmin, anchor, tiles, params.algorithm, executor)
+            del zmin
+            test = partial(WindowSurfaces(windows).ground, algo=params.algorithm)
+            numbers = write(
+                records, test, {}, lambda r, _: WindowsTask(records=r, params=dump, windows=windows), windows_range
+            )
     else:
-        numbers = _classes_here(src, dst, params, grid, surfaces, chunk_size, progress)
-    counts = dict(zip(COUNTS, numbers, strict=True))
-    counts["grid"] = (grid.rows, grid.cols) if grid is not None else (0, 0)
-    counts["windows"] = 0
-    return counts
-
-
-def _in_windows(src, dst, records, params, zmin, anchor, tiles, executor, workdir, chunk_size) -> tuple[list[int], int]:
-    """Steps 2 and 3 of :func:`smrf_one_grid` in the tiles' windows: :data:`COUNTS` and the windows filtered.
-
-    The grid *zmin* (on *anchor*, :func:`lowest_grid`'s) is saved for the
-    workers, cut into windows (:func:`~dtm.stages.classify_ground.windows.window_tasks`)
-    that are filtered on them; each point is then tested in its tile's,
-    on the workers when *records* allows (:func:`windows_range`), else here.
-    """
-    cell = params.algorithm.cell_size
-    with scratch(workdir, dst, ".smrf-windows") as folder:
-        np.save(folder / "zmin.npy", zmin)
-        origin = (round(anchor[1] / cell), round(anchor[0] / cell))
-        tasks = window_tasks(zmin, origin, *tiles, params.algorithm, folder)
-        del zmin
-        first = filter_windows(tasks, executor)
-        (folder / "zmin.npy").unlink()
-        windows = Windows(cell, tiles[0], str(folder), tuple((*key, *at) for key, at in sorted(first.items())))
-        test = partial(WindowSurfaces(windows).ground, algo=params.algorithm)
-        numbers = write_classes(
-            src,
-            dst,
-            records,
-            executor,
-            classes=lambda chunk, xyz: _chunk_classes(xyz, classify_columns(chunk), params, test),
-            width=len(COUNTS),
-            folder=Path(workdir) / ".smrf-one-grid" if workdir is not None else None,
-            grids={},
-            task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
-            run=windows_range,
-            chunk_size=chunk_size,
-            what="point test",
+        grid, surfaces = survey_surfaces(zmin, box, anchor, params.algorithm, threads=threads)
+        del zmin  # the grid of the lowest points, before the points are read again
+        filtered = 0
+        numbers = write(
+            records if surfaces is not None else None,  # no cell left: no point is ground, nothing to read
+            _grid_test(params.algorithm, grid, surfaces),
+            {"dem": surfaces[0], "slope": surfaces[1]} if surfaces is not None else {},
+            lambda r, paths: RangeTask(
+                records=r, params=dump, grid=(grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols), surfaces=paths
+            ),
+            classes_range,
         )
-        return numbers, len(tasks)
+    return {**dict(zip(COUNTS, numbers, strict=True)), "grid": shape, "windows": filtered}
+
+
+def _step3(src, dst, executor, workdir, params, chunk_size, progress, records, test, grids, task, run) -> list[int]:
+    """Step 3 of :func:`smrf_one_grid` by ``test(xyz)``: :func:`~dtm.common.grid_classes.write_classes` of its
+    classes, on the workers when *records* allows (*grids*, *task*, *run*: theirs), else here."""
+    return write_classes(
+        src,
+        dst,
+        records,
+        executor,
+        classes=lambda chunk, xyz: _chunk_classes(xyz, classify_columns(chunk), params, test),
+        width=len(COUNTS),
+        folder=Path(workdir) / ".smrf-one-grid" if workdir is not None else None,
+        grids=grids,
+        task=task,
+        run=run,
+        chunk_size=chunk_size,
+        what="point test",
+        progress=progress,
+    )
+
+
+def _windows(folder, zmin, anchor, tiles, algo: SmrfParams, executor) -> tuple[Windows, int]:
+    """Step 2 of :func:`smrf_one_grid` in the tiles' windows, filtered on the workers: the windows, and how many.
+
+    The grid *zmin* (on *anchor*, :func:`lowest_grid`'s) is saved in
+    *folder* for the workers (removed after) and cut into windows
+    (:func:`~dtm.stages.classify_ground.windows.window_tasks`).
+    """
+    cell = algo.cell_size
+    np.save(folder / "zmin.npy", zmin)
+    origin = (round(anchor[1] / cell), round(anchor[0] / cell))
+    tasks = window_tasks(zmin, origin, *tiles, algo, folder)
+    first = filter_windows(tasks, executor)
+    (folder / "zmin.npy").unlink()
+    return Windows(cell, tiles[0], str(folder), tuple((*key, *at) for key, at in sorted(first.items()))), len(tasks)
 
 
 def lowest_grid(
@@ -263,28 +269,8 @@ def survey_surfaces(
     r0, r1, c0, c1 = box
     x0, y0 = anchor[0] + c0 * cell, anchor[1] + r0 * cell
     grid = CellIndex(x0, y0, cell, r1 - r0 + 1, c1 - c0 + 1, np.zeros(0, np.int64), np.zeros(0, np.int64))
-    surfaces = provisional_dem(
-        zmin[r0 : r1 + 1, c0 : c1 + 1],
-        cell_size=cell,
-        slope=algo.slope,
-        max_window_size=algo.max_window_size,
-        floor_window=algo.floor_window,
-        wall_height=algo.wall_height,
-        threads=threads,
-        elevation_threshold=algo.elevation_threshold,
-        elevation_scalar=algo.elevation_scalar,
-    )
+    surfaces = provisional_dem(zmin[r0 : r1 + 1, c0 : c1 + 1], **algo.model_dump(exclude={"name"}), threads=threads)
     return grid, surfaces
-
-
-def _classes_here(src, dst, params, grid, surfaces, chunk_size, progress) -> list[int]:
-    """Step 3 of :func:`smrf_one_grid` in this process: *dst* written a chunk at a time; :data:`COUNTS`."""
-    test = _grid_test(params.algorithm, grid, surfaces)
-
-    def classes(chunk, xyz):
-        return _chunk_classes(xyz, classify_columns(chunk), params, test)
-
-    return classes_here(src, dst, classes, len(COUNTS), chunk_size=chunk_size, progress=progress)
 
 
 def _grid_test(algo: SmrfParams, grid: CellIndex | None, surfaces) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -314,32 +300,6 @@ def _chunk_classes(xyz, cols, params, test) -> tuple[np.ndarray, tuple[int, int,
     return cls, (len(cls), int((cls == glossary.GROUND).sum()), int((cls == glossary.UNCLASSIFIED).sum()), last)
 
 
-def _classes_on_workers(src, dst, records, params, grid, surfaces, executor, workdir, chunk_size) -> list[int]:
-    """Step 3 of :func:`smrf_one_grid` on the workers, a range of records each (:func:`classes_on_workers`).
-
-    The DEM and slope are read from ``.npy`` files in *workdir*; a test
-    compares the file with the one this process writes, byte for byte.
-    Returns :data:`COUNTS`.
-    """
-    return classes_on_workers(
-        src,
-        dst,
-        records,
-        executor,
-        folder=Path(workdir) / ".smrf-one-grid",
-        grids={"dem": surfaces[0], "slope": surfaces[1]},
-        task=lambda r, paths: RangeTask(
-            records=r,
-            params=params.model_dump(mode="json"),
-            grid=(grid.x0, grid.y0, grid.cell_size, grid.rows, grid.cols),
-            surfaces=paths,
-        ),
-        run=classes_range,
-        chunk_size=chunk_size,
-        what="point test",
-    )
-
-
 @dataclass(frozen=True)
 class RangeTask:
     """Step 3 of :func:`smrf_one_grid` on one range of records, in a worker (:func:`classes_range`).
@@ -356,7 +316,7 @@ class RangeTask:
 
 
 def classes_range(task: RangeTask) -> list[int]:
-    """Step 3 of :func:`smrf_one_grid` on one range of records (runs in a worker; see :func:`_classes_on_workers`)."""
+    """Step 3 of :func:`smrf_one_grid` on one range of records (runs in a worker); the DEM and slope read from ``.npy`` files."""
     params = ClassifyGroundParams.model_validate(task.params)
     x0, y0, cell, rows, cols = task.grid
     empty = np.zeros(0, np.int64)

@@ -24,13 +24,10 @@ import numpy as np
 
 from dtm.common.grid_windows import Recent, home_tiles, largest_first, span
 from dtm.stages.classify_ground.params import SmrfParams
-from dtm.stages.classify_ground.surface import CellIndex, sample_bilinear_all
+from dtm.stages.classify_ground.surface import CellIndex
 
 if TYPE_CHECKING:
     from pipeline.executor import DaskExecutor, LocalExecutor
-
-#: Points sampled at a time.
-BLOCK = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -110,16 +107,7 @@ def filter_window(task: WindowTask) -> tuple[tuple[int, int], tuple[int, int]] |
     ca, cb = span(has.any(axis=0))
     window = window[ra:rb, ca:cb]
     top, left = o_r + rows.start + ra, o_c + cols.start + ca  # the window's first cell, in whole cells
-    surfaces = provisional_dem(
-        window,
-        cell_size=algo.cell_size,
-        slope=algo.slope,
-        max_window_size=algo.max_window_size,
-        floor_window=algo.floor_window,
-        wall_height=algo.wall_height,
-        elevation_threshold=algo.elevation_threshold,
-        elevation_scalar=algo.elevation_scalar,
-    )
+    surfaces = provisional_dem(window, **algo.model_dump(exclude={"name"}))
     if surfaces is None:
         return None
     keep_r = slice(max(r0 - 1 - top, 0), max(min(r1 + 1 - top, window.shape[0]), 0))
@@ -163,6 +151,10 @@ class WindowSurfaces:
         self.first = {(i, j): (r, c) for i, j, r, c in windows.first}
         self.recent = Recent()
 
+    def window(self, key: tuple[int, int]) -> tuple[CellIndex, np.ndarray] | None:
+        """The grid and the stacked DEM and slope of the tile *key*'s window; None when it has none."""
+        return self.recent.get(key, self._read) if key in self.first else None
+
     def _read(self, key: tuple[int, int]) -> tuple[CellIndex, np.ndarray]:
         r, c = self.first[key]
         grids = np.load(Path(self.windows.folder) / f"{key[0]}_{key[1]}.npy", mmap_mode="r")
@@ -172,19 +164,20 @@ class WindowSurfaces:
         return CellIndex(float(c * cell), float(r * cell), cell, grids.shape[1], grids.shape[2], empty, empty), grids
 
     def ground(self, xyz: np.ndarray, algo: SmrfParams) -> np.ndarray:
-        """True where a point is ground by its tile's DEM (as :func:`~dtm.stages.classify_ground.smrf.point_test`); False where its tile has none."""
-        at, grad = self.surfaces_at(xyz)
-        with np.errstate(invalid="ignore"):  # NaN (no DEM) compares False
-            return np.abs(xyz[:, 2] - at) <= algo.elevation_threshold + algo.elevation_scalar * grad
+        """True where a point is ground by its tile's DEM; False where its tile has none."""
+        from dtm.stages.classify_ground.smrf import point_test
 
-    def surfaces_at(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The DEM and its slope at each point, sampled bilinearly on its tile's window; NaN where it has none."""
-        at, grad = np.full(len(xyz), np.nan), np.full(len(xyz), np.nan)
+        out = np.zeros(len(xyz), dtype=bool)
         for key, where in home_tiles(xyz[:, 0], xyz[:, 1], self.windows.tile * self.windows.cell):
-            if key not in self.first:
-                continue
-            index, grids = self.recent.get(key, self._read)
-            for a in range(0, len(where), BLOCK):  # in blocks: bilinear sampling makes ten temporaries per point
-                sel = where[a : a + BLOCK]
-                at[sel], grad[sel] = sample_bilinear_all((grids[0], grids[1]), index, xyz[sel, 0], xyz[sel, 1])
-        return at, grad
+            window = self.window(key)
+            if window is not None:
+                index, grids = window
+                out[where] = point_test(
+                    xyz[where],
+                    index,
+                    grids[0],
+                    grids[1],
+                    elevation_threshold=algo.elevation_threshold,
+                    elevation_scalar=algo.elevation_scalar,
+                )
+        return out

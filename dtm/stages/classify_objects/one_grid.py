@@ -32,10 +32,9 @@ from dtm.common.grid_classes import (
 )
 from dtm.common.grid_windows import WINDOWED_BEYOND, scratch
 from dtm.stages.classify_objects.object_tiles import COUNTS, class_counts
-from dtm.stages.classify_objects.objects import CellSums, ObjectCells, cell_index, object_cells, point_classes
+from dtm.stages.classify_objects.objects import SUMS, CellSums, ObjectCells, cell_index, object_cells, point_classes
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
 from dtm.stages.classify_objects.windows import (
-    SUMS,
     WindowCells,
     Windows,
     object_windows,
@@ -197,21 +196,34 @@ def objects_one_grid(
     sums = cell_sums(src, info.extent, cell, cap, chunk_size, progress)
     if sums is None:
         return None
-    grid = sums.grid
+    grid, dump = sums.grid, params.model_dump(mode="json")
+
+    write = partial(_pass2, src, dst, records, executor, workdir, chunk_size, progress)
     if tiles is not None and grid.rows * grid.cols > params.one_grid_cells:
         with scratch(workdir, dst, ".objects-windows") as folder:
             corner = save_sums(sums, folder)
             del sums
-            numbers, windows = _in_windows(
-                src, dst, records, params, multi_echo, folder, corner, grid, tiles, executor, workdir, chunk_size
-            )
-        if progress is not None:
-            progress.update(info.count)
-        return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (grid.rows, grid.cols), "windows": windows}
-    cells = object_cells(sums.surface(), params, multi_echo)
-    del sums
-    rule = _grid_rule(cells, params)
-    numbers = write_classes(
+            windows = _windows(folder, corner, grid, tiles, params, multi_echo, executor)
+            rule = partial(WindowCells(windows).classes, params=params)
+            numbers = write(rule, {}, lambda r, _: WindowsTask(records=r, params=dump, windows=windows), windows_range)
+        made = len(windows.grids)
+    else:
+        cells = object_cells(sums.surface(), params, multi_echo)
+        del sums
+        numbers = write(
+            _grid_rule(cells, params),
+            {f.name: getattr(cells, f.name) for f in fields(cells) if f.name != "grid"},
+            lambda r, paths: RangeTask(records=r, params=dump, grid=_dump(cells.grid), grids=paths),
+            classes_range,
+        )
+        made = 0
+    return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (grid.rows, grid.cols), "windows": made}
+
+
+def _pass2(src, dst, records, executor, workdir, chunk_size, progress, rule, grids, task, run) -> list[int]:
+    """Pass 2 of :func:`objects_one_grid` by ``rule(pts, classes, returns)``: :func:`~dtm.common.grid_classes.write_classes`
+    of its classes, on the workers when *records* allows (*grids*, *task*, *run*: theirs), else here."""
+    return write_classes(
         src,
         dst,
         records,
@@ -219,27 +231,20 @@ def objects_one_grid(
         classes=lambda chunk, xyz: _chunk_classes(chunk, xyz, rule),
         width=len(COUNTS),
         folder=Path(workdir) / ".objects-one-grid" if workdir is not None else None,
-        grids={f.name: getattr(cells, f.name) for f in fields(cells) if f.name != "grid"},
-        task=lambda r, paths: RangeTask(
-            records=r, params=params.model_dump(mode="json"), grid=_dump(cells.grid), grids=paths
-        ),
-        run=classes_range,
+        grids=grids,
+        task=task,
+        run=run,
         chunk_size=chunk_size,
         what="classes",
         progress=progress,
     )
-    return {**dict(zip(COUNTS, numbers, strict=True)), "grid": (cells.grid.rows, cells.grid.cols), "windows": 0}
 
 
-def _in_windows(
-    src, dst, records, params, multi_echo, folder, corner, grid, tiles, executor, workdir, chunk_size
-) -> tuple[list[int], int]:
-    """Steps 2 and 3 of :func:`objects_one_grid` in the tiles' windows: :data:`COUNTS` and the windows made.
+def _windows(folder, corner, grid, tiles, params, multi_echo, executor) -> Windows:
+    """Step 2 of :func:`objects_one_grid` in the tiles' windows: each window's cell grids, made on the workers.
 
-    The statistics saved in *folder* (:func:`~dtm.stages.classify_objects.windows.save_sums`,
-    first cell *corner*) are cut into windows that the workers make cell
-    grids of; each point then takes its tile's, on the workers when
-    *records* allows (:func:`windows_range`), else here.
+    From the statistics saved in *folder* (:func:`~dtm.stages.classify_objects.windows.save_sums`,
+    first cell *corner*), which are removed after.
     """
     cell = grid.resolution
     count = np.load(folder / "count.npy", mmap_mode="r")
@@ -248,23 +253,7 @@ def _in_windows(
     saved = object_windows(tasks, executor)
     for name in SUMS:
         (folder / f"{name}.npy").unlink()
-    windows = Windows(tiles[0] * cell, cell, str(folder), tuple((*key, *g) for key, g in sorted(saved.items())))
-    rule = partial(WindowCells(windows).classes, params=params)
-    numbers = write_classes(
-        src,
-        dst,
-        records,
-        executor,
-        classes=lambda chunk, xyz: _chunk_classes(chunk, xyz, rule),
-        width=len(COUNTS),
-        folder=Path(workdir) / ".objects-one-grid" if workdir is not None else None,
-        grids={},
-        task=lambda r, _: WindowsTask(records=r, params=params.model_dump(mode="json"), windows=windows),
-        run=windows_range,
-        chunk_size=chunk_size,
-        what="classes",
-    )
-    return numbers, len(tasks)
+    return Windows(tiles[0] * cell, cell, str(folder), tuple((*key, *g) for key, g in sorted(saved.items())))
 
 
 def _dump(grid: Grid) -> tuple[float, float, float, int, int]:

@@ -28,28 +28,21 @@ import numpy as np
 
 from dtm.common.grid import Grid
 from dtm.common.grid_windows import Recent, home_tiles, largest_first, span
-from dtm.stages.classify_objects.objects import ObjectCells, banded_residual, cell_index, object_cells, point_classes
+from dtm.stages.classify_objects.objects import SUMS, ObjectCells, cell_index, object_cells, point_classes, surface_of
 from dtm.stages.classify_objects.params import ClassifyObjectsParams
-from dtm.stages.classify_objects.regions import Surface
 
 if TYPE_CHECKING:
     from dtm.stages.classify_objects.objects import CellSums
     from pipeline.executor import DaskExecutor, LocalExecutor
 
-#: The statistics saved for the windows, as :class:`~dtm.stages.classify_objects.objects.CellSums` holds them.
-SUMS = ("top", "bottom", "count", "single", "ground_sum", "ground_count")
-
 
 def save_sums(sums: CellSums, folder: Path) -> tuple[int, int]:
-    """Save the grid's statistics in *folder* for the windows (empty cells' top and bottom NaN); its corner in cells.
+    """Save the grid's statistics (:data:`~dtm.stages.classify_objects.objects.SUMS`) in *folder* for the windows.
 
     Returns ``(top, column)`` of the grid's first cell, counted as the
-    module says.  The arrays are the ones *sums* held (add no more points).
+    module says.
     """
     grid = sums.grid
-    empty = sums.count == 0
-    sums.top[empty] = np.nan
-    sums.bottom[empty] = np.nan
     for name in SUMS:
         np.save(folder / f"{name}.npy", getattr(sums, name).reshape(grid.rows, grid.cols))
     return round(grid.ymax / grid.resolution), round(grid.xmin / grid.resolution)
@@ -134,20 +127,10 @@ def object_window(task: WindowTask) -> tuple[tuple[int, int], tuple[float, float
     top, left = task.corner[0] - r.start, task.corner[1] + c.start  # the window's first cell
     cell = task.cell
     grid = Grid(float(left * cell), float(top * cell), cell, c.stop - c.start, r.stop - r.start)
-    window = {name: np.array(a[r, c]) for name, a in sums.items()}
+    surface = surface_of(grid, **{name: np.array(a[r, c]) for name, a in sums.items()})
     del sums
-    surface = Surface(
-        grid,
-        window["top"],
-        window["bottom"],
-        window["count"],
-        window["single"].astype(np.float64),
-        banded_residual(window["top"]),
-        window["ground_sum"],
-        window["ground_count"],
-    )
     cells = object_cells(surface, ClassifyObjectsParams.model_validate(task.params), task.multi_echo)
-    del surface, window
+    del surface
     # the tile's own cells and the row under it, in the window
     keep_r, keep_c = _rows(top, i * t, (i + 1) * t, grid.rows), _cols(left, j * t, (j + 1) * t - 1, grid.cols)
     kept = {f.name: getattr(cells, f.name)[keep_r, keep_c] for f in fields(cells) if f.name != "grid"}

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtm.common.arrays import add_counts
+
 BUILDING = 6
 VEGETATION = (3, 4, 5)
 
@@ -38,7 +40,7 @@ class CellTally:
         """Count the points of one chunk, their flat cell indices *cell* (-1: off the grid)."""
         on = cell >= 0
         roof = on & (cls_ == BUILDING)
-        self.roof_count += np.bincount(cell[roof], minlength=len(self.roof_count)).astype(np.int32)
+        add_counts(self.roof_count, cell[roof])
         np.maximum.at(self.roof_top, cell[roof], z[roof])
         veg = on & np.isin(cls_, VEGETATION)
         np.maximum.at(self.canopy_top, cell[veg], z[veg])

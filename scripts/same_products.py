@@ -10,9 +10,11 @@ times and the code's version).  Exit 0 when every product of every job is
 identical, 1 otherwise, with one line per difference.
 
 The jobs: the four shipped configurations, the NMEA flight with the mounting
-calibration, the LAS sample cut in 200 m tiles, and three real files of
-``../shared/data/real/`` (with the COPC output and DTM tiles switched on for
-one, so that those writers are compared too).
+calibration, the LAS sample cut in 200 m tiles, the LAS sample with each run
+mode of the one-grid stages forced (the grid in windows, tiles of points),
+three real files of ``../shared/data/real/`` (with the COPC output and DTM
+tiles switched on for one, so that those writers are compared too) and a
+real project of four files.
 """
 
 from __future__ import annotations
@@ -58,6 +60,29 @@ JOBS: dict[str, tuple[str, list[str]]] = {
     "sample_c": (
         "configs/las.yaml",
         [f"input.paths=[{REAL / 'pdal' / 'sample_c.las'}]", "input.crs=EPSG:2994", "stages.accuracy.enabled=false"],
+    ),
+    # the run modes of the one-grid stages, forced on the LAS sample (a 385 x 512 grid of 1 m cells for the
+    # ground, 192 x 256 of 2 m for the objects) cut in 100 m tiles: the grid in the tiles' windows on the
+    # workers (caps under the grid, within 4 times it), and tiles of points (caps 0); "las" is the whole grid
+    "las_windows": (
+        "configs/las.yaml",
+        [
+            "tiling.size=100",
+            "stages.classify_ground.one_grid_cells=100000",
+            "stages.classify_objects.one_grid_cells=20000",
+        ],
+    ),
+    "las_points": (
+        "configs/las.yaml",
+        ["tiling.size=100", "stages.classify_ground.one_grid_cells=0", "stages.classify_objects.one_grid_cells=0"],
+    ),
+    # a project of four files, 2.8 M points: the one-grid stages write their classes on the workers
+    "bcts": (
+        "configs/las.yaml",
+        [
+            "input.paths=[" + ",".join(str(REAL / "lasR" / f"bcts_{i}.laz") for i in range(1, 5)) + "]",
+            "stages.accuracy.enabled=false",
+        ],
     ),
 }
 

@@ -1,4 +1,4 @@
-"""The CRS check of a LAS header (``dtm.common.crs.crs_problem``), ten files' worth, in one process.
+"""The CRS check of a LAS header (``lidar.crs.crs_problem``), ten files' worth, in one process.
 
     python benchmarks/bench_crs_check.py TREE
 
@@ -21,7 +21,7 @@ sys.path.insert(0, sys.argv[1])
 import laspy  # noqa: E402
 import pyproj  # noqa: E402
 
-from dtm.common.crs import crs_problem  # noqa: E402
+from lidar.crs import crs_problem  # noqa: E402
 
 SOURCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "pdal" / "autzen_trim.las"
 

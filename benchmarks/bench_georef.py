@@ -32,8 +32,8 @@ from _isolated import machine  # noqa: E402
 
 
 def bench_core(n: int) -> list[tuple[int, float]]:
-    from dtm.common.geodesy import MapTransform
-    from dtm.common.georeferencing import Mounting, georeference, prepare_trajectory
+    from lidar.geodesy import MapTransform
+    from lidar.georeferencing import Mounting, georeference, prepare_trajectory
 
     m = 200 * 600  # 10 minutes at 200 Hz
     t = np.arange(m) / 200.0

@@ -19,8 +19,8 @@ from _isolated import emit, machine, run_child
 def _one(points: float, method: str) -> None:
     import numpy as np
 
-    from dtm.common.grid import Grid
-    from dtm.stages.rasterize.interpolate import idw, nearest, tin
+    from lidar.grid import Grid
+    from stages.rasterize.interpolate import idw, nearest, tin
     from tests.synthetic import terrain
 
     rng = np.random.default_rng(1)

@@ -29,20 +29,20 @@ def _one(points: float, algorithm: str) -> None:
     xyz = np.column_stack([scene.x, scene.y, scene.z])
     t0 = time.perf_counter()
     if algorithm == "denoise":
-        from dtm.stages.denoise.noise_classes import noise_classes
-        from dtm.stages.denoise.params import DenoiseParams
+        from stages.denoise.noise_classes import noise_classes
+        from stages.denoise.params import DenoiseParams
 
         noise_classes(xyz, DenoiseParams())
     elif algorithm == "smrf":
-        from dtm.stages.classify_ground.smrf import smrf
+        from stages.classify_ground.smrf import smrf
 
         smrf(xyz)
     elif algorithm == "pmf":
-        from dtm.stages.classify_ground.pmf import pmf
+        from stages.classify_ground.pmf import pmf
 
         pmf(xyz)
     else:
-        from dtm.stages.classify_ground.csf import csf
+        from stages.classify_ground.csf import csf
 
         csf(xyz)
     seconds = time.perf_counter() - t0

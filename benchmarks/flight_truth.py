@@ -48,7 +48,7 @@ def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
     """
     import rasterio
 
-    from dtm.stages.accuracy.vertical import truth_on_dtm_cells
+    from stages.accuracy.vertical import truth_on_dtm_cells
 
     with rasterio.open(dtm_path) as src:
         resolution, transform = src.res[0], src.transform
@@ -75,7 +75,7 @@ def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
 
 def where_off(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray, cell: float) -> dict:
     """Cells more than 1 m off, split by where they lie (counts, and per cent of the cells compared)."""
-    from dtm.stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
+    from stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
 
     error = dtm - truth
     compared = np.isfinite(error)
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     if not dtm_path.is_file():
         print(f"{dtm_path}: not found; run `pipeline run configs/flight.yaml` first", file=sys.stderr)
         return 2
-    from dtm.stages.accuracy.vertical import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
+    from stages.accuracy.vertical import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
 
     dtm, truth = truth_on_dtm_cells(dtm_path, SAMPLE / "terrain.tif")
     land_cover = land_cover_on_dtm_cells(dtm_path, SAMPLE / "land_cover.tif")
@@ -161,7 +161,7 @@ def breakline_offsets(ours: Path, truth: Path) -> str:
             out += [np.asarray(p.coords) for p in getattr(g, "geoms", [g])]
         return out
 
-    from dtm.common.water_bodies import breakline_points
+    from lidar.water_bodies import breakline_points
 
     shores = lines(truth)
     xyz = breakline_points(lines(ours), 0.5)  # a vertex every 0.5 m, as the truth's
@@ -194,7 +194,7 @@ def by_cover_table(dtm: np.ndarray, perfect: np.ndarray, truth: np.ndarray, land
     targets: bridge deck within 0.3 m, water within 0.15 m and flat), ours beside the perfect DTM; and the
     spread (standard deviation) of each DTM's values over the water cells, which hydro-flattening makes 0
     per water body."""
-    from dtm.stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
+    from stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
 
     level = truth_relief(truth) < TRUTH_STEEP_M
     lines = [

@@ -1,6 +1,6 @@
 """SMRF, CSF and their consensus (AND, OR of the ground points) on the shared files (issue 16).
 
-Each file is classified by the run's stages (``dtm.commands.evaluate.command.evaluate_ground``:
+Each file is classified by the run's stages (``commands.evaluate.command.evaluate_ground``:
 noise step, then SMRF and CSF with their defaults, CSF with each class
 threshold asked for); the two ground masks are combined, and each
 combination is scored against the provider's ground (total error, Type I,
@@ -28,7 +28,7 @@ from ground_real import FILES, SHARED, coordinates  # noqa: E402
 
 def flat_slope(xyz: np.ndarray, ground: np.ndarray, cell: float = 2.0) -> np.ndarray:
     """At each point, the slope of the surface of the lowest *ground* point per cell (inpainted)."""
-    from dtm.stages.classify_ground.surface import index_points, inpaint, min_grid, slope_grid
+    from stages.classify_ground.surface import index_points, inpaint, min_grid, slope_grid
 
     idx = index_points(xyz[:, :2], cell)
     lowest = min_grid(np.where(ground, xyz[:, 2], np.inf), idx)  # cells without ground: NaN
@@ -37,10 +37,10 @@ def flat_slope(xyz: np.ndarray, ground: np.ndarray, cell: float = 2.0) -> np.nda
 
 def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:
     """Scores of SMRF, CSF, AND and OR on one file: {label: (total, type 1, type 2, DTM RMS, % > 2 m)}."""
-    from dtm.commands.evaluate.command import evaluate_ground, reference_ground
-    from dtm.commands.evaluate.scores import dtm_check, score
-    from dtm.common import glossary
-    from dtm.stages.classify_ground.params import CsfParams, SmrfParams
+    from commands.evaluate.command import evaluate_ground, reference_ground
+    from commands.evaluate.scores import dtm_check, score
+    from lidar import glossary
+    from stages.classify_ground.params import CsfParams, SmrfParams
 
     path = SHARED / name
     algorithms = [SmrfParams(name="smrf"), CsfParams(name="csf", class_threshold=threshold)]

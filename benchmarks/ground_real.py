@@ -1,11 +1,11 @@
 """Ground classification on the shared real and ISPRS files: scores and the DTM check (issue 16).
 
 For each file, the run's own ``denoise`` + ``classify_ground`` (through
-``dtm.commands.evaluate.command.evaluate_ground``, stage defaults) classify the points;
+``commands.evaluate.command.evaluate_ground``, stage defaults) classify the points;
 then, against the provider's ground (class 2):
 
 - Type I / Type II / total error / kappa (per cent), as ``pipeline evaluate ground``;
-- the DTM check of ``pipeline evaluate ground`` (``dtm.commands.evaluate.scores.dtm_check``):
+- the DTM check of ``pipeline evaluate ground`` (``commands.evaluate.scores.dtm_check``):
   the pipeline's TIN of our ground points and of the provider's on the same
   1 m cells, compared where both are defined and the reference is dense
   (triangle edges up to 20 m): RMS of (ours - provider), % of cells more
@@ -44,8 +44,8 @@ FILES = {
 
 
 def dtm_check(xyz: np.ndarray, ours: np.ndarray, reference: np.ndarray, cell: float = 1.0) -> dict:
-    """The DTM check of ``pipeline evaluate ground`` (:func:`dtm.commands.evaluate.scores.dtm_check`) as table columns."""
-    from dtm.commands.evaluate.scores import dtm_check as check
+    """The DTM check of ``pipeline evaluate ground`` (:func:`commands.evaluate.scores.dtm_check`) as table columns."""
+    from commands.evaluate.scores import dtm_check as check
 
     c = check(xyz, reference, ours, cell=cell)
     if not c.n:
@@ -64,8 +64,8 @@ def coordinates(path: Path, crs: str | None) -> np.ndarray:
     import laspy
     from pyproj import CRS
 
-    from dtm.common.clouds import cloud_crs
-    from dtm.common.units import Units
+    from lidar.clouds import cloud_crs
+    from lidar.units import Units
 
     with laspy.open(str(path)) as reader:
         found = CRS.from_user_input(crs) if crs else cloud_crs(reader)
@@ -76,8 +76,8 @@ def coordinates(path: Path, crs: str | None) -> np.ndarray:
 
 def measure(path: Path, crs: str | None) -> dict:
     """Scores and DTM check of the run's default classification of *path*."""
-    from dtm.commands.evaluate.command import evaluate_ground, reference_ground
-    from dtm.common import glossary
+    from commands.evaluate.command import evaluate_ground, reference_ground
+    from lidar import glossary
 
     start = time.perf_counter()
     rows, classes = evaluate_ground(path, crs=crs)

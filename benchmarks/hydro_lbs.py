@@ -103,7 +103,7 @@ def report(out: Path, truth_dir: Path, fine_dir: Path) -> None:
     """Print the figures of the run in *out* against the truth in *truth_dir* (and *fine_dir*'s, at its cells)."""
     import pyogrio.raw
 
-    from dtm.stages.accuracy.vertical import land_cover_on_dtm_cells, truth_on_dtm_cells
+    from stages.accuracy.vertical import land_cover_on_dtm_cells, truth_on_dtm_cells
 
     dtm, truth = truth_on_dtm_cells(out / "dtm.tif", truth_dir / "terrain.tif")
     _, perfect = truth_on_dtm_cells(out / "dtm.tif", fine_dir / "terrain.tif")

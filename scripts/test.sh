@@ -3,8 +3,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh --test
-.venv/bin/ruff check pipeline dtm tests benchmarks scripts data_samples
-.venv/bin/ruff format --check pipeline dtm tests benchmarks scripts data_samples
+.venv/bin/ruff check pipeline stages lidar commands tests benchmarks scripts data_samples
+.venv/bin/ruff format --check pipeline stages lidar commands tests benchmarks scripts data_samples
 # One test process per core (pytest-xdist); each test file runs whole on one
 # of them, so a module's fixtures are built once, longest files first (tests/conftest.py,
 # LONGEST_FIRST); the 15 slowest tests are listed.

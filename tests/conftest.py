@@ -112,7 +112,7 @@ LONGEST_FIRST = (
     "tests/pipeline/test_executor_faults.py",
     "tests/end_to_end/test_feet_crs.py",
     "tests/stages/georeference/test_uncertainty.py",
-    "tests/common/test_split_cloud.py",
+    "tests/lidar/test_split_cloud.py",
     "tests/stages/classify_ground/test_tile_buffers.py",
     "tests/stages/parse/test_fuzz_inputs.py",
     "tests/pipeline/test_tiling.py",

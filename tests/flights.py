@@ -24,8 +24,8 @@ def simulate_flight(output: Path, *, seed: int, formats: list[str], scanner: dic
     The true terrain (``truth/terrain.tif``) on 4-m cells unless *more* asks: these flights' tests read
     the true echoes, not that grid, and at the default 1 m it is a quarter of a small flight's time.
     """
-    from dtm.commands.simulate.settings import SimulateConfig
-    from dtm.commands.simulate.simulator import simulate
+    from commands.simulate.settings import SimulateConfig
+    from commands.simulate.simulator import simulate
 
     config = {"checkpoints": 0, "truth_resolution": TRUTH_CELL, **more}
     return simulate(SimulateConfig(output=output, seed=seed, formats=formats, scanner=scanner, flight=flight, **config))

@@ -2,7 +2,7 @@
 
 Used for the shipped sample ``data_samples/las/sample.laz`` and for tests and
 benchmarks that need the true terrain.  Not the flight simulator
-(:mod:`dtm.commands.simulate`): points are drawn uniformly over the area, as
+(:mod:`commands.simulate`): points are drawn uniformly over the area, as
 if from a perfectly georeferenced survey.  In metres from the area's
 south-west corner:
 
@@ -283,8 +283,8 @@ def write_truth_raster(
     """The true bare earth sampled at cell centres, as a COG (for ``evaluate dtm --truth``)."""
     import pyproj
 
-    from dtm.common.grid import Grid
-    from dtm.common.rasters import write_cog
+    from lidar.grid import Grid
+    from lidar.rasters import write_cog
 
     grid = Grid.covering(origin[0], origin[1], origin[0] + width - 1e-6, origin[1] + height - 1e-6, resolution)
     gx, gy = grid.centres()

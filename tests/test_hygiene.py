@@ -38,14 +38,14 @@ def test_no_unsafe_deserialisation_or_eval():
 
 
 def test_config_reference_is_current():
-    from dtm.commands.configdoc import render
+    from commands.configdoc import render
 
     committed = (ROOT / "docs" / "CONFIG.md").read_text()
-    assert committed == render(), "docs/CONFIG.md is stale: python -m dtm.commands.configdoc > docs/CONFIG.md"
-    from dtm.commands.configdoc import render_simulator
+    assert committed == render(), "docs/CONFIG.md is stale: python -m commands.configdoc > docs/CONFIG.md"
+    from commands.configdoc import render_simulator
 
     committed = (ROOT / "docs" / "SIMULATOR.md").read_text()
-    assert committed == render_simulator(), "stale: python -m dtm.commands.configdoc --simulator > docs/SIMULATOR.md"
+    assert committed == render_simulator(), "stale: python -m commands.configdoc --simulator > docs/SIMULATOR.md"
 
 
 def test_the_longest_files_named_for_scheduling_exist():

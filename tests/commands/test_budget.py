@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from dtm.commands.budget.compare import mismatches, render
-from dtm.commands.budget.model import budget_row, footprint, footprint_on_slope, load_catalogue, ly
+from commands.budget.compare import mismatches, render
+from commands.budget.model import budget_row, footprint, footprint_on_slope, load_catalogue, ly
 from pipeline.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]

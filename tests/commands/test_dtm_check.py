@@ -17,7 +17,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.commands.evaluate.scores import dtm_check
+from commands.evaluate.scores import dtm_check
 from pipeline.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -161,8 +161,8 @@ def test_megaplot_figures_match_an_independent_tin(need_data):
     """Real forest: the check's figures are those of SciPy's Qhull TINs of the same classes (any filter)."""
     from scipy.interpolate import LinearNDInterpolator
 
-    from dtm.commands.evaluate.command import evaluate_ground
-    from dtm.common.grid import Grid
+    from commands.evaluate.command import evaluate_ground
+    from lidar.grid import Grid
 
     need_data(MEGAPLOT, what="lidR's Megaplot.laz")
     rows, classes = evaluate_ground(MEGAPLOT, dtm_max_edge=np.inf)

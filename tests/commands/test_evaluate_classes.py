@@ -9,7 +9,7 @@ import laspy
 import numpy as np
 import pytest
 
-from dtm.commands.evaluate.scores import class_scores
+from commands.evaluate.scores import class_scores
 from pipeline.cli import main
 from tests.commands.test_evaluate_ground import labelled_block
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.commands.evaluate.command import evaluate_ground
-from dtm.stages.classify_ground.params import CsfParams, SmrfParams
+from commands.evaluate.command import evaluate_ground
+from stages.classify_ground.params import CsfParams, SmrfParams
 
 ROOT = Path(__file__).resolve().parents[2]
 ISPRS = Path(os.environ.get("ISPRS_DIR", ROOT.parent / "shared" / "data" / "isprs"))

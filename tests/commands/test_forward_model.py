@@ -1,9 +1,9 @@
-"""The simulator's own geometry (dtm/commands/simulate/forward.py) against PROJ and textbook cases (issue 19).
+"""The simulator's own geometry (commands/simulate/forward.py) against PROJ and textbook cases (issue 19).
 
 The simulator's truth checks georeferencing only if the two do not share
 code: these tests pin the forward model to independent references (PROJ's
 geodetic and topocentric conversions, rotations worked by hand), and check
-that nothing under dtm/commands/simulate imports dtm.common.georeferencing or dtm.stages.parse.
+that nothing under commands/simulate imports lidar.georeferencing or stages.parse.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
-from dtm.commands.simulate.forward import Earth, RecordedPose, attitude, enu_axes, mounting_matrix
+from commands.simulate.forward import Earth, RecordedPose, attitude, enu_axes, mounting_matrix
 
 SIM = Path(__file__).resolve().parents[2] / "dtm" / "commands" / "simulate"
 
@@ -27,12 +27,12 @@ def test_the_simulator_imports_nothing_from_georef():
             if isinstance(node, ast.ImportFrom):
                 names = [node.module or ""]
             checked = (
-                "dtm.common.georeferencing",
-                "dtm.common.geodesy",
-                "dtm.common.rotation",
-                "dtm.stages.georeference",
+                "lidar.georeferencing",
+                "lidar.geodesy",
+                "lidar.rotation",
+                "stages.georeference",
             )
-            assert not any(n.startswith((*checked, "dtm.stages.parse")) for n in names), (
+            assert not any(n.startswith((*checked, "stages.parse")) for n in names), (
                 path.name,
                 names,
             )

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pyproj
 
-from dtm.commands.simulate.forward import Earth
-from dtm.commands.simulate.scene import RIVER_SLOPE, make_scene
-from dtm.commands.simulate.truth import write_truth_breaklines
+from commands.simulate.forward import Earth
+from commands.simulate.scene import RIVER_SLOPE, make_scene
+from commands.simulate.truth import write_truth_breaklines
 
 
 def test_the_true_breaklines_are_the_shores_at_the_water_level(tmp_path):
@@ -35,7 +35,7 @@ def test_the_lbs_scene_holds_water_the_lidar_base_specification_flattens(tmp_pat
     import pyogrio.raw
     import shapely
 
-    from dtm.commands.simulate.scene import WATER
+    from commands.simulate.scene import WATER
 
     extent = (-200.0, 200.0, -200.0, 200.0)
     world = make_scene(extent, water="lbs")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from dtm.commands.simulate import scene as sc
-from dtm.commands.simulate.truth import _checkpoint_places
+from commands.simulate import scene as sc
+from commands.simulate.truth import _checkpoint_places
 
 
 def _scene(cell: float = 1.0, size: int = 200) -> sc.Scene:

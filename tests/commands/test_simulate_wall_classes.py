@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.commands.simulate.scene import Scene
+from commands.simulate.scene import Scene
 
 
 def _scene(high_class: int) -> Scene:

@@ -32,8 +32,8 @@ import laspy
 import numpy as np
 import pytest
 
-from dtm.plugin import plugin
 from pipeline.cli import main
+from stages.plugin import plugin
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow

@@ -21,7 +21,7 @@ import pytest
 import rasterio
 from scipy import ndimage
 
-from dtm.common.units import METRE, Units
+from lidar.units import METRE, Units
 from pipeline.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]

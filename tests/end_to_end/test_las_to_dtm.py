@@ -131,7 +131,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
 
 
 def test_every_config_validates():
-    from dtm.commands.simulate.settings import SimulateFile
+    from commands.simulate.settings import SimulateFile
     from pipeline.config import load_config
 
     for config in sorted((ROOT / "configs").glob("*.yaml")):

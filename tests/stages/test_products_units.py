@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from dtm.common.checkpoints import read_checkpoints
-from dtm.common.grid import Grid, cell_count, cell_max
-from dtm.common.shading import hillshade
-from dtm.stages.accuracy.vertical import vertical_accuracy
-from dtm.stages.contours.lines import contour_lines
-from dtm.stages.rasterize.interpolate import idw, nearest
+from lidar.checkpoints import read_checkpoints
+from lidar.grid import Grid, cell_count, cell_max
+from lidar.shading import hillshade
 from pipeline.errors import InputDataError
+from stages.accuracy.vertical import vertical_accuracy
+from stages.contours.lines import contour_lines
+from stages.rasterize.interpolate import idw, nearest
 
 
 def _points(n=4000, seed=2, f=lambda x, y: 10.0 + 0.0 * x):

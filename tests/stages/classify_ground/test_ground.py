@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.commands.evaluate.scores import score
-from dtm.stages.classify_ground.csf import csf
-from dtm.stages.classify_ground.ground_classes import classify
-from dtm.stages.classify_ground.params import ClassifyGroundParams, CsfParams, PmfParams, SmrfParams
-from dtm.stages.classify_ground.pmf import pmf
-from dtm.stages.classify_ground.smrf import smrf
-from dtm.stages.classify_ground.surface import inpaint
-from dtm.stages.denoise.outliers import isolated_points, low_outliers
+from commands.evaluate.scores import score
+from stages.classify_ground.csf import csf
+from stages.classify_ground.ground_classes import classify
+from stages.classify_ground.params import ClassifyGroundParams, CsfParams, PmfParams, SmrfParams
+from stages.classify_ground.pmf import pmf
+from stages.classify_ground.smrf import smrf
+from stages.classify_ground.surface import inpaint
+from stages.denoise.outliers import isolated_points, low_outliers
 
 FILTERS = {"smrf": smrf, "pmf": pmf, "csf": csf}
 

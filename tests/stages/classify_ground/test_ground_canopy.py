@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.stages.classify_ground.smrf import smrf
+from stages.classify_ground.smrf import smrf
 
 MEGAPLOT = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "lidR" / "Megaplot.laz"
 
@@ -115,8 +115,8 @@ def test_megaplot_dtm_matches_the_provider_ground(need_data):
     before the low-outlier fix: RMS 2.7 m, 20 % of the cells more than 2 m above, +13.9 m at most)."""
     import laspy
 
-    from dtm.stages.classify_ground.ground_classes import classify
-    from dtm.stages.classify_ground.params import ClassifyGroundParams
+    from stages.classify_ground.ground_classes import classify
+    from stages.classify_ground.params import ClassifyGroundParams
 
     need_data(MEGAPLOT, what="lidR's Megaplot.laz")
     las = laspy.read(str(MEGAPLOT))

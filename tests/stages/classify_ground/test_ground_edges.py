@@ -1,7 +1,7 @@
 """SMRF at the survey's edge beside a building (issue 16: a band of missed ground along one edge).
 
 The openings see the survey's edges through the padding, which continues the
-slope of the last ``w_max`` cells before each edge (:func:`dtm.stages.classify_ground.surface.pad_linear`).
+slope of the last ``w_max`` cells before each edge (:func:`stages.classify_ground.surface.pad_linear`).
 A least-squares line through those cells was tilted by a building among them:
 its roof, 8 m up, made the ground seem to fall towards the edge, so the
 padding dropped away from ground that in fact rises to it, and the opening
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.classify_ground.smrf import smrf
-from dtm.stages.classify_ground.surface import pad_linear
+from stages.classify_ground.smrf import smrf
+from stages.classify_ground.surface import pad_linear
 
 
 def test_ground_rising_to_the_edge_beyond_a_building_stays_ground():

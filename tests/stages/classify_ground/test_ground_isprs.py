@@ -1,7 +1,7 @@
 """SMRF's defaults on the three shared ISPRS samples: no worse than before issue 16's changes (fast, no noise step).
 
 Sithole & Vosselman (2004), doi:10.1016/j.isprsjprs.2004.05.004: reference ground is class 2.  The
-classes come from the stage's own driver (:func:`dtm.stages.classify_ground.ground_classes.classify`, last returns only) with every
+classes come from the stage's own driver (:func:`stages.classify_ground.ground_classes.classify`, last returns only) with every
 default; before issue 16 (low cells emptied before the openings) the same call misclassified 3,436 /
 578 / 543 points (total error 9.04 / 2.00 / 3.04 %, mean 4.70 %); on 2026-12-02 3,347 / 547 / 514 (8.81 /
 1.90 / 2.88 %, mean 4.53 %); with the floor of narrow objects (2026-12-03) 3,211 / 543 / 514 (8.45 / 1.88 /
@@ -22,8 +22,8 @@ BEFORE = {"samp11": 3436, "samp31": 578, "samp51": 543}
 def _errors(name: str) -> tuple[int, int]:
     import laspy
 
-    from dtm.stages.classify_ground.ground_classes import classify
-    from dtm.stages.classify_ground.params import ClassifyGroundParams
+    from stages.classify_ground.ground_classes import classify
+    from stages.classify_ground.params import ClassifyGroundParams
 
     las = laspy.read(str(ISPRS / f"{name}.laz"))
     xyz = np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))

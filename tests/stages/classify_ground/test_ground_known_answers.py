@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.classify_ground.pmf import pmf
-from dtm.stages.classify_ground.smrf import smrf, walled_plateaus
-from dtm.stages.classify_ground.surface import inpaint
+from stages.classify_ground.pmf import pmf
+from stages.classify_ground.smrf import smrf, walled_plateaus
+from stages.classify_ground.surface import inpaint
 
 
 def _ground_plane(size: float, spacing: float, seed: int, slope=(0.03, 0.01)) -> np.ndarray:

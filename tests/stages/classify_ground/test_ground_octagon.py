@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from dtm.stages.classify_ground.smrf import _dilate_octagon, _element
+from stages.classify_ground.smrf import _dilate_octagon, _element
 
 
 @pytest.mark.parametrize("radius", range(1, 19))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.classify_ground.pmf import height_thresholds, pmf, window_sizes
+from stages.classify_ground.pmf import height_thresholds, pmf, window_sizes
 
 
 def _plane(n=20_000, size=100.0, seed=1, z=lambda x, y: np.zeros_like(x), noise=0.0):

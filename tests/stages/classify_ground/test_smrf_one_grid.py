@@ -3,7 +3,7 @@
 ``classify_ground`` filters a survey whose SMRF grid has at most
 ``one_grid_cells`` cells in passes over its points (lowest point per cell,
 the grid filtered whole, the point test chunk by chunk) instead of tiles.
-The reference is :func:`dtm.stages.classify_ground.ground_classes.classify` on every point in memory,
+The reference is :func:`stages.classify_ground.ground_classes.classify` on every point in memory,
 the untiled code of before; the survey has buildings, trees with multiple
 returns, points the filter must leave alone (noise, water, withheld) and a
 stray withheld point 40 km away that makes the header's grid too big, and a
@@ -21,10 +21,10 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.stages.classify_ground.ground_classes import classify
-from dtm.stages.classify_ground.params import ClassifyGroundParams
-from dtm.stages.classify_ground.smrf import progressive_filter
-from dtm.stages.classify_ground.streaming import smrf_one_grid
+from stages.classify_ground.ground_classes import classify
+from stages.classify_ground.params import ClassifyGroundParams
+from stages.classify_ground.smrf import progressive_filter
+from stages.classify_ground.streaming import smrf_one_grid
 from tests.synthetic import make_scene
 
 X0, Y0 = 440_000.0, 4_474_000.0
@@ -96,7 +96,7 @@ def test_the_grid_filter_runs_in_as_many_bands_as_the_stage_has_workers(tmp_path
 
     On 37.5 M points the filter of 4.8 M cells took 8.5 s on one thread, 4.1 s on two.
     """
-    import dtm.stages.classify_ground.smrf as smrf_module
+    import stages.classify_ground.smrf as smrf_module
 
     seen = []
     real = smrf_module.object_filter
@@ -157,8 +157,8 @@ def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_poin
     """A header's grid over the limit but within STRAYS_BEYOND times it is a large survey, not stray points:
     tiled at once (no pass for the candidates' bounds, which at 100 M points cost a whole read); far over it
     (the stray point 40 km away), the bounds are read and one grid taken (test above)."""
-    from dtm.common.grid_classes import STRAYS_BEYOND
-    from dtm.stages.classify_ground import streaming
+    from lidar.grid_classes import STRAYS_BEYOND
+    from stages.classify_ground import streaming
 
     las = _survey(tmp_path / "in.las", stray=False)
     cells = int(np.ceil(las.header.maxs[0] - las.header.mins[0]) + 1) * int(
@@ -198,7 +198,7 @@ def test_the_progressive_filter_in_bands_equals_one_band():
 
 _GROWTH = """
 import numpy as np, psutil
-from dtm.stages.classify_ground.smrf import progressive_filter
+from stages.classify_ground.smrf import progressive_filter
 surface = np.cumsum(np.random.default_rng(0).normal(size=(2400, 2000)), axis=1) * 0.01
 process = psutil.Process()
 before = process.memory_info().rss

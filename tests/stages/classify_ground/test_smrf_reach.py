@@ -3,7 +3,7 @@
 SMRF fills the cells of its provisional DEM that hold no ground (empty
 cells, object cells) with the harmonic interpolant of the cells around them
 (Pingel et al. 2013, doi:10.1016/j.isprsjprs.2012.12.002;
-:func:`dtm.stages.classify_ground.surface.inpaint`), so the DEM at a river's near bank
+:func:`stages.classify_ground.surface.inpaint`), so the DEM at a river's near bank
 depends on its far bank; and the point test ``|z - DEM| <= et + es slope``
 reads the DEM's slope there.  A tile whose buffer stops short of the far
 bank sees the river as the end of the survey: a flat DEM at the bank,

@@ -1,10 +1,10 @@
 """SMRF on one grid filtered in the tiles' windows: the classes of the tiles of points, without the tiles.
 
 A survey whose grid is over ``one_grid_cells`` was cut into tiles of points
-with SMRF's buffer; :mod:`dtm.stages.classify_ground.windows` cuts the grid
+with SMRF's buffer; :mod:`stages.classify_ground.windows` cuts the grid
 of lowest candidates instead, and tests each point against its tile's
 window.  The reference here is the point tiles written out in the test: for
-each 100 m tile, :func:`~dtm.stages.classify_ground.ground_classes.classify`
+each 100 m tile, :func:`~stages.classify_ground.ground_classes.classify`
 (SMRF on the points in memory) on the points within the tile and its buffer,
 kept for the tile's own points.  The buffer is 20 m, as a user may set
 ``tiling.buffer``, well short of SMRF's reach: the tiles' classes then differ
@@ -18,9 +18,9 @@ import laspy
 import numpy as np
 import pytest
 
-from dtm.common.grid_windows import tile_cells
-from dtm.stages.classify_ground.params import ClassifyGroundParams
-from dtm.stages.classify_ground.streaming import smrf_one_grid
+from lidar.grid_windows import tile_cells
+from stages.classify_ground.params import ClassifyGroundParams
+from stages.classify_ground.streaming import smrf_one_grid
 from tests.stages.classify_ground.test_smrf_one_grid import _reference, _survey
 
 SIZE, BUFFER = 100.0, 20.0
@@ -104,11 +104,11 @@ def test_each_point_gets_the_dem_of_its_tile_of_points(survey):
     threshold): the window's cut to its candidates, its corner and the cells
     kept around the core all show here.
     """
-    from dtm.stages.classify_ground.ground_classes import candidates_of
-    from dtm.stages.classify_ground.smrf import provisional_dem
-    from dtm.stages.classify_ground.streaming import lowest_grid
-    from dtm.stages.classify_ground.surface import index_points, min_grid, sample_bilinear_all
-    from dtm.stages.classify_ground.windows import Windows, WindowSurfaces, filter_windows, window_tasks
+    from stages.classify_ground.ground_classes import candidates_of
+    from stages.classify_ground.smrf import provisional_dem
+    from stages.classify_ground.streaming import lowest_grid
+    from stages.classify_ground.surface import index_points, min_grid, sample_bilinear_all
+    from stages.classify_ground.windows import Windows, WindowSurfaces, filter_windows, window_tasks
 
     root, las, params, _ = survey
     algo = params.algorithm

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.classify_objects.objects import object_classes
-from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from stages.classify_objects.objects import object_classes
+from stages.classify_objects.params import ClassifyObjectsParams
 
 PARAMS = ClassifyObjectsParams()
 C = 65.0  # the scene's centre

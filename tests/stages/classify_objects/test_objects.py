@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.classify_objects.objects import banded_residual, object_classes, plane_residual
-from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from stages.classify_objects.objects import banded_residual, object_classes, plane_residual
+from stages.classify_objects.params import ClassifyObjectsParams
 
 PARAMS = ClassifyObjectsParams()
 

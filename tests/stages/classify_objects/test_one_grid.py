@@ -18,11 +18,11 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.common import glossary
-from dtm.common.grid import Grid
-from dtm.stages.classify_objects.objects import object_classes
-from dtm.stages.classify_objects.one_grid import objects_one_grid
-from dtm.stages.classify_objects.params import ClassifyObjectsParams
+from lidar import glossary
+from lidar.grid import Grid
+from stages.classify_objects.objects import object_classes
+from stages.classify_objects.one_grid import objects_one_grid
+from stages.classify_objects.params import ClassifyObjectsParams
 from tests.conftest import run_stages, run_until
 from tests.synthetic import make_scene, terrain
 
@@ -159,9 +159,9 @@ def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_box(
     their box; far beyond it they are (stray points could have made it large)."""
     import laspy
 
-    from dtm.common.grid import Grid
-    from dtm.common.grid_classes import STRAYS_BEYOND
-    from dtm.stages.classify_objects import one_grid
+    from lidar.grid import Grid
+    from lidar.grid_classes import STRAYS_BEYOND
+    from stages.classify_objects import one_grid
 
     src = _input_of(runs[0])
     with laspy.open(str(src)) as reader:

@@ -10,7 +10,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.common.rasters import read_raster
+from lidar.rasters import read_raster
 from pipeline.cli import main
 from tests.conftest import run_until
 from tests.stages.denoise.test_noise_classes import X0, Y0, write_las

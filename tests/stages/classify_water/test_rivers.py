@@ -6,9 +6,9 @@ import numpy as np
 import pyproj
 from affine import Affine
 
-from dtm.common.units import METRE
-from dtm.common.water_bodies import burn_levels, read_water_bodies, river_axis, water_bodies, write_water_bodies
-from dtm.stages.report.acceptance import rising_rivers, unflat_water_bodies
+from lidar.units import METRE
+from lidar.water_bodies import burn_levels, read_water_bodies, river_axis, water_bodies, write_water_bodies
+from stages.report.acceptance import rising_rivers, unflat_water_bodies
 
 ANGLE = np.radians(30.0)  # the river's axis, from east
 ALONG = np.array([np.cos(ANGLE), np.sin(ANGLE)])

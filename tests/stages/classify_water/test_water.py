@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.classify_water.params import DetectParams
-from dtm.stages.classify_water.water import (
+from stages.classify_water.params import DetectParams
+from stages.classify_water.water import (
     cells_of,
     inside_polygons,
     reach,
@@ -134,7 +134,7 @@ def test_polygons_make_water_the_points_near_the_level_inside_them():
 def test_planes_are_skipped_only_where_no_body_could_be_found(density):
     """could_be_level is False only when fewer cells than a body's smallest area could be level; then the full
     fit finds no water either.  The lake of _valley at 2, 0.5, 0.2 and 0.05 points per m²."""
-    from dtm.stages.classify_water.water import could_be_level, level_cells, water_bodies
+    from stages.classify_water.water import could_be_level, level_cells, water_bodies
 
     xyz, _ = _valley(density=density)
     p = DetectParams()

@@ -11,7 +11,7 @@ from tests.stages.rasterize.test_parameter_cost import run, small_survey
 
 
 def test_levels_between_counts_what_contour_lines_draws():
-    from dtm.stages.contours.lines import contour_lines, levels_between
+    from stages.contours.lines import contour_lines, levels_between
 
     dem = np.add.outer(np.arange(10.0), np.arange(10.0)) * 0.7 + 3.2  # 3.2 .. 15.8
     lines = contour_lines(dem, Affine(1, 0, 0, 0, -1, 10), interval=2.0)
@@ -21,7 +21,7 @@ def test_levels_between_counts_what_contour_lines_draws():
 
 
 def test_a_tiny_interval_is_refused_with_one_that_fits():
-    from dtm.stages.contours.stage import MAX_LEVELS, _check_levels
+    from stages.contours.stage import MAX_LEVELS, _check_levels
 
     dem = np.array([[647.132, 650.0], [np.nan, 666.726]])
     with pytest.raises(ConfigError) as refused:

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.denoise.noise_classes import noise_classes
-from dtm.stages.denoise.params import DenoiseParams
+from stages.denoise.noise_classes import noise_classes
+from stages.denoise.params import DenoiseParams
 from tests.synthetic import make_scene, terrain
 
 

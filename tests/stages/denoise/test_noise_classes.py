@@ -18,7 +18,7 @@ import pyproj
 import pytest
 from scipy.spatial import cKDTree
 
-from dtm.common.rasters import read_raster
+from lidar.rasters import read_raster
 from pipeline.cli import main
 from tests.conftest import run_stages
 
@@ -84,7 +84,7 @@ def test_every_point_of_a_low_cluster_is_low_noise(tmp_path):
 def test_isolated_points_are_those_far_from_their_neighbours_at_the_local_spacing(tmp_path):
     """Birds 0.5-45 m above a 1 m grid: the test flags exactly those whose 2nd nearest point in 3-D is
     farther than 10 local spacings (plan distance to the 8th nearest point) and 2 m, both counted up to
-    30 m (the definition in dtm/stages/denoise/outliers.py, computed here with scipy alone)."""
+    30 m (the definition in stages/denoise/outliers.py, computed here with scipy alone)."""
     rng = np.random.default_rng(4)
     pts = _ground()
     birds = np.column_stack((rng.uniform(5, 55, 20), rng.uniform(5, 55, 20), 600.0 + rng.uniform(0.5, 45.0, 20)))
@@ -131,7 +131,7 @@ def test_isolated_points_equal_their_definition_however_the_cubes_are_counted(mo
     """Ground, a sparse crown (points that share no cube with two others, yet are not isolated) and birds:
     the points flagged are exactly those of the definition (scipy over every point), whether the cubes are
     counted in one array with the trees asked about the points near the candidates only, or by sorting."""
-    from dtm.stages.denoise import outliers
+    from stages.denoise import outliers
 
     monkeypatch.setattr(outliers, "DENSE_CUBES", 1 << 24 if dense else 0)
     rng = np.random.default_rng(11)

@@ -19,7 +19,7 @@ from laspy.vlrs.vlr import VLR
 from laspy.vlrs.vlrlist import VLRList
 from pyproj import CRS
 
-from dtm.stages.export_las.copc import ENTRY, INFO, build_octree, write_copc
+from stages.export_las.copc import ENTRY, INFO, build_octree, write_copc
 
 
 def _survey(path, n=60_000, seed=1, fmt=7):

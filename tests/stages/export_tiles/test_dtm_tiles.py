@@ -16,9 +16,9 @@ import rasterio
 from affine import Affine
 from pyproj import CRS
 
-from dtm.common.rasters import NODATA, write_cog
-from dtm.stages.export_tiles.cog_tiles import tile_cells, write_tiles
+from lidar.rasters import NODATA, write_cog
 from pipeline.errors import ConfigError
+from stages.export_tiles.cog_tiles import tile_cells, write_tiles
 
 CELL = 0.5
 LEFT, TOP = 1001.5, 2099.0  # not multiples of the 50 m tile side

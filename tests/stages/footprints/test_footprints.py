@@ -9,8 +9,8 @@ import pytest
 import shapely
 from affine import Affine
 
-from dtm.common.vectors import write_gpkg
-from dtm.stages.footprints.outlines import CellTally, building_labels, building_rows, canopy_height, flat_cells
+from lidar.vectors import write_gpkg
+from stages.footprints.outlines import CellTally, building_labels, building_rows, canopy_height, flat_cells
 
 CELL = 1.0
 TRANSFORM = Affine(CELL, 0, 1000.0, 0, -CELL, 2100.0)  # 100 x 100 cells, x 1000-1100, y 2000-2100

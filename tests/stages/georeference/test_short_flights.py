@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.stages.georeference.strips import segment_strips
 from pipeline.cli import main
+from stages.georeference.strips import segment_strips
 from tests.conftest import run_stages
 
 ROOT = Path(__file__).resolve().parents[3]

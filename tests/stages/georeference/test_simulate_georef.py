@@ -15,10 +15,10 @@ import laspy
 import numpy as np
 import pytest
 
-from dtm.commands.simulate.faults import FAULT_CODES
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
-from dtm.common.columns import read_columns
+from commands.simulate.faults import FAULT_CODES
+from commands.simulate.settings import SimulateConfig
+from commands.simulate.simulator import simulate
+from lidar.columns import read_columns
 from pipeline.cli import main
 from tests.flights import TRUTH_CELL
 
@@ -151,7 +151,7 @@ def test_missed_pps_echoes_are_dated_and_georeferenced_exactly(zero_noise, fmt):
 def test_attitude_from_pashr_when_there_is_no_ins_csv(zero_noise, tmp_path):
     """The INS CSV's attitudes written as $PASHR sentences into the NMEA log (and no input.ins): the same
     points as with the CSV."""
-    from dtm.stages.parse.read_nmea import with_checksum
+    from stages.parse.read_nmea import with_checksum
 
     _, sims, runs = zero_noise
     sim = runs["lmsq_nmea"][1]

@@ -14,8 +14,8 @@ from __future__ import annotations
 import laspy
 import numpy as np
 
-from dtm.stages.georeference.strips import segment_strips
 from pipeline.cli import main
+from stages.georeference.strips import segment_strips
 from tests.conftest import run_stages
 from tests.flights import lines, simulate_flight
 from tests.stages.georeference.test_simulate_georef import _input

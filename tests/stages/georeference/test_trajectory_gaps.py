@@ -11,9 +11,9 @@ from __future__ import annotations
 import laspy
 import numpy as np
 
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
-from dtm.common.georeferencing import Mounting, georeference, prepare_trajectory
+from commands.simulate.settings import SimulateConfig
+from commands.simulate.simulator import simulate
+from lidar.georeferencing import Mounting, georeference, prepare_trajectory
 from pipeline.cli import main
 from tests.conftest import run_stages
 from tests.flights import TRUTH_CELL

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.common.georeferencing import Mounting, locate, prepare_trajectory
-from dtm.stages.georeference.uncertainty import Sigmas, propagate
+from lidar.georeferencing import Mounting, locate, prepare_trajectory
 from pipeline.cli import main
+from stages.georeference.uncertainty import Sigmas, propagate
 from tests.conftest import run_stages
 
 
@@ -80,8 +80,8 @@ def test_monte_carlo_matches_the_propagated_sigma(tmp_path):
     observed bias: the true code passes with more than 99.9 % confidence (3.3 sigma) even with
     the spread 30 % larger than measured.  A propagation off by a third or more fails (3.4 sigma).
     """
-    from dtm.commands.simulate.settings import SimulateConfig
-    from dtm.commands.simulate.simulator import simulate
+    from commands.simulate.settings import SimulateConfig
+    from commands.simulate.simulator import simulate
     from tests.flights import TRUTH_CELL
     from tests.stages.georeference.test_simulate_georef import _match
 

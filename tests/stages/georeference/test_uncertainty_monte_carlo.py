@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dtm.commands.simulate.forward import Earth
-from dtm.common.georeferencing import Mounting, locate, prepare_trajectory
-from dtm.stages.georeference.uncertainty import Sigmas, propagate
+from commands.simulate.forward import Earth
+from lidar.georeferencing import Mounting, locate, prepare_trajectory
+from stages.georeference.uncertainty import Sigmas, propagate
 
 LAT, LON, H = 40.4, -3.7, 700.0
 ROLL, PITCH, HEADING = 4.0, -2.5, 35.0  # degrees

@@ -18,8 +18,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from dtm.common.georeferencing import georeference_local, locate, prepare_exact
-from dtm.stages.parse.intermediates import lmsq_conventions
+from lidar.georeferencing import georeference_local, locate, prepare_exact
+from stages.parse.intermediates import lmsq_conventions
 
 
 def _rx(a):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import laspy
 
-from dtm.stages.export_las.copc import write_copc
+from stages.export_las.copc import write_copc
 from tests.conftest import run_until
 from tests.stages.export_las.test_copc import _survey
 

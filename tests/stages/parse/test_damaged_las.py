@@ -19,8 +19,8 @@ import laspy
 import numpy as np
 import pytest
 
-from dtm.stages.parse.read_las import convert_las_files, read_las_files
 from pipeline.errors import InputDataError
+from stages.parse.read_las import convert_las_files, read_las_files
 
 SAMPLE = Path(__file__).resolve().parents[3] / "data_samples" / "las" / "sample.laz"
 POINTS = 20_000
@@ -162,7 +162,7 @@ def test_a_full_disk_while_writing_is_not_blamed_on_the_input(small, tmp_path, m
 
 def test_the_same_file_twice_is_read_once_with_a_warning(small, tmp_path, caplog, monkeypatch):
     """Two spellings (relative, absolute), a symbolic link and a repeat: one file."""
-    from dtm.stages.parse.stage import distinct_files
+    from stages.parse.stage import distinct_files
 
     link = tmp_path / "link.las"
     link.symlink_to(small["las"])
@@ -185,7 +185,7 @@ def test_a_laz_chunk_size_beyond_the_file_is_refused_before_the_decoder_aborts(s
     path = _damaged(small["laz"], tmp_path / "chunks.laz", {data + 12: (1_700_000_000).to_bytes(4, "little")})
     code = (
         "from pathlib import Path\n"
-        "from dtm.stages.parse.read_las import read_las_files\n"
+        "from stages.parse.read_las import read_las_files\n"
         "from pipeline.errors import InputDataError\n"
         "try:\n"
         f"    read_las_files([Path({str(path)!r})], crs_setting='auto-utm', assign_crs=None, chunk_size=5000)\n"

@@ -14,12 +14,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dtm.common.checkpoints import read_checkpoints
-from dtm.plugin import plugin
-from dtm.stages.parse.read_las import read_las_files
+from lidar.checkpoints import read_checkpoints
 from pipeline.config import load_config
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.stage import config_model
+from stages.parse.read_las import read_las_files
+from stages.plugin import plugin
 
 ROOT = Path(__file__).resolve().parents[3]
 SAMPLE_CONFIG = (ROOT / "configs" / "las.yaml").read_text()
@@ -115,7 +115,7 @@ def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
     else:
         assert np.all(np.isfinite(las.x)) and np.all(np.isfinite(las.z))
     # the parse stage's streaming conversion (a record-for-record copy for this sample's format)
-    from dtm.stages.parse.read_las import convert_las_files
+    from stages.parse.read_las import convert_las_files
 
     try:
         convert_las_files([path], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=500)
@@ -129,7 +129,7 @@ def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
 @FUZZ
 @given(data=st.data())
 def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
-    from dtm.stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
+    from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
     from tests.stages.parse.test_read_ldmrs import LOG
 
     lines = LOG.splitlines()
@@ -205,7 +205,7 @@ RAW_FUZZ = settings(
 
 
 def _check_lmsq(path: Path) -> None:
-    from dtm.stages.parse.read_lmsq import LmsqCounters, read_lmsq
+    from stages.parse.read_lmsq import LmsqCounters, read_lmsq
 
     counters = LmsqCounters()
     n = 0
@@ -221,8 +221,8 @@ def _check_lmsq(path: Path) -> None:
 
 def _check_text_navigation(path: Path) -> None:
     """nav.nmea or ins.csv."""
-    from dtm.stages.parse.read_ins import TrajectoryCounters, read_ins_csv
-    from dtm.stages.parse.read_nmea import NmeaCounters, read_nmea
+    from stages.parse.read_ins import TrajectoryCounters, read_ins_csv
+    from stages.parse.read_nmea import NmeaCounters, read_nmea
 
     try:
         if path.suffix == ".nmea":
@@ -246,7 +246,7 @@ def _check_text_navigation(path: Path) -> None:
 
 def _check_binary_trajectory(path: Path) -> None:
     """An SBET or an smrmsg file: damage is counted, never raised."""
-    from dtm.stages.parse.read_ins import TrajectoryCounters, read_sbet, read_smrmsg
+    from stages.parse.read_ins import TrajectoryCounters, read_sbet, read_smrmsg
 
     counters = TrajectoryCounters()
     sbet = path.suffix == ".sbet"
@@ -310,7 +310,7 @@ def _nmea_checksum(sentence: str) -> str:
 @RAW_FUZZ
 @given(data=st.data())
 def test_extreme_values_in_text_records(tmp_path, raw_flight, data):
-    from dtm.stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
+    from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
     from tests.stages.parse.test_read_ldmrs import LOG
 
     which = data.draw(st.sampled_from(["nav.nmea", "ins.csv", "acq.log"]))

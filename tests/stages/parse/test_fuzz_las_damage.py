@@ -25,8 +25,8 @@ import laspy
 import numpy as np
 import pytest
 
-from dtm.stages.parse.read_las import convert_las_files
 from pipeline.errors import InputDataError
+from stages.parse.read_las import convert_las_files
 
 ROOT = Path(__file__).resolve().parents[3]
 REAL = ROOT.parent / "shared" / "data" / "real"

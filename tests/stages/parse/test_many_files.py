@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter
 
-from dtm.stages.parse.params import LasInput
 from pipeline.cli import main
+from stages.parse.params import LasInput
 from tests.conftest import run_until
 from tests.stages.parse.tiles import AUTZEN, cut_tiles, tile_name
 
@@ -97,7 +97,7 @@ def test_each_input_is_opened_twice_header_then_points(tmp_path, need_data, monk
     """The header index opens each file once, the reading once more (was 3 to 4 opens a file)."""
     import pyproj
 
-    from dtm.stages.parse.read_las import convert_las_files
+    from stages.parse.read_las import convert_las_files
 
     need_data(AUTZEN)
     tiles = cut_tiles(tmp_path / "tiles", count=4)

@@ -9,10 +9,10 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.common.crs import output_crs
-from dtm.stages.parse.read_las import read_las_files
+from lidar.crs import output_crs
 from pipeline.cli import main
 from pipeline.errors import InputDataError
+from stages.parse.read_las import read_las_files
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -181,7 +181,7 @@ def test_laz_chunk_table_claiming_billions_of_chunks_is_refused_before_allocatin
 
 def test_las14_format6_in_the_output_crs_is_copied_as_delivered(tmp_path):
     """One LAS 1.4 format-6 file already in the output CRS: every record byte kept, scale and offsets too."""
-    from dtm.stages.parse.read_las import convert_las_files
+    from stages.parse.read_las import convert_las_files
 
     rng = np.random.default_rng(1)
     x, y = 440_000 + rng.uniform(0, 300, 5000), 4_474_000 + rng.uniform(0, 300, 5000)

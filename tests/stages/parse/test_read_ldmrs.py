@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.common.columns import read_columns
-from dtm.stages.parse.read_ldmrs import Counters, read_ldmrs_mtig, utc_to_gps
+from lidar.columns import read_columns
 from pipeline.cli import main
+from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig, utc_to_gps
 
 
 def scan(number, *, utc=None, status="0x07", valid=1, points=None, npoints=None, extra=""):

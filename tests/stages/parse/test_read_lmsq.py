@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.stages.parse.read_lmsq import LmsqCounters, read_header, read_lmsq, write_lmsq
 from pipeline.errors import InputDataError
+from stages.parse.read_lmsq import LmsqCounters, read_header, read_lmsq, write_lmsq
 
 WEEK = 2100
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.stages.parse.read_ldmrs import utc_to_gps
-from dtm.stages.parse.read_nmea import NmeaCounters, read_nmea, with_checksum
 from pipeline.errors import ConfigError
+from stages.parse.read_ldmrs import utc_to_gps
+from stages.parse.read_nmea import NmeaCounters, read_nmea, with_checksum
 from tests.conftest import constant_geoid
 
 
@@ -214,7 +214,7 @@ def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
     stages.georeference.geoid (N = 50 m here) or input.geoid_separation_m the trajectory is the original's."""
     import json
 
-    from dtm.common.columns import read_columns
+    from lidar.columns import read_columns
     from pipeline.cli import main
 
     root = Path(__file__).resolve().parents[3]

@@ -12,8 +12,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from dtm.stages.parse.read_ins import TrajectoryCounters
-from dtm.stages.parse.trajectory import sbet_trajectory
+from stages.parse.read_ins import TrajectoryCounters
+from stages.parse.trajectory import sbet_trajectory
 
 WEEK = 2300
 SOW = np.array([100_000.0, 100_001.0, 100_002.0, 100_003.0])

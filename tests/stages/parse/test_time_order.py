@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.common.georeferencing import prepare_trajectory
+from lidar.georeferencing import prepare_trajectory
 from pipeline.cli import main
 from pipeline.errors import InputDataError
 from tests.flights import simulate_ldmrs_line
@@ -191,13 +191,13 @@ def test_the_first_scan_a_day_early_is_skipped_and_counted(flight, clean, tmp_pa
 
 
 def _scan(number: int, time: float):
-    from dtm.stages.parse.read_ldmrs import Scan
+    from stages.parse.read_ldmrs import Scan
 
     return Scan(number, time, 7, (40.0, -3.0, 700.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros((2, 6)), number)
 
 
 def _order(times: list[float], numbers: list[int] | None = None) -> tuple[list[int], int]:
-    from dtm.stages.parse.read_ldmrs import Counters, TimeOrder
+    from stages.parse.read_ldmrs import Counters, TimeOrder
 
     counters = Counters(scans_accepted=len(times), points_valid=2 * len(times))
     order = TimeOrder(counters)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.common.grid import Grid
-from dtm.common.water_bodies import breakline_points
-from dtm.stages.rasterize.params import RasterizeParams
-from dtm.stages.rasterize.products import TileCloud, tile_rasters
+from lidar.grid import Grid
+from lidar.water_bodies import breakline_points
+from stages.rasterize.params import RasterizeParams
+from stages.rasterize.products import TileCloud, tile_rasters
 
 CENTRE, SHORE, IGNORED = np.array([25.0, 25.0]), 10.0, 12.0
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtm.stages.rasterize.decks import across_decks, deck_footprint
+from stages.rasterize.decks import across_decks, deck_footprint
 
 
 def test_a_deck_strip_takes_the_plane_of_the_terrain_either_side():
@@ -82,8 +82,8 @@ def _las(path, classes, compress=False, point_format=6):
 
 
 def test_the_deck_margin_is_kept_only_where_there_are_deck_points(tmp_path):
-    from dtm.stages.rasterize.params import RasterizeParams
-    from dtm.stages.rasterize.tile_rasters import has_decks, reach
+    from stages.rasterize.params import RasterizeParams
+    from stages.rasterize.tile_rasters import has_decks, reach
 
     assert has_decks(_las(tmp_path / "deck.las", [2] * 2500 + [17] + [2] * 10), chunk=1000)  # in the last chunk
     assert not has_decks(_las(tmp_path / "none.las", [2, 6, 9, 1, 20]))

@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.common.grid import Grid
-from dtm.stages.rasterize import interpolate
-from dtm.stages.rasterize.interpolate import idw, nearest
+from lidar.grid import Grid
+from stages.rasterize import interpolate
+from stages.rasterize.interpolate import idw, nearest
 
 X0, Y0 = 500_000.0, 4_400_000.0
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import rasterio
 
-from dtm.stages.rasterize.outline import CELL_M, occupied_cells, survey_outline
 from pipeline.cli import main
+from stages.rasterize.outline import CELL_M, occupied_cells, survey_outline
 
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -37,7 +37,7 @@ def run(tmp_path: Path, path: Path, *sets: str) -> int:
 
 def test_a_resolution_too_fine_for_free_memory_is_refused_after_reading(tmp_path, capsys, monkeypatch):
     """0.05 m cells over 20 x 20 m: 160,801 cells, about 19 MB; with 5 MB free: exit 2 naming the key, at once."""
-    monkeypatch.setattr("dtm.common.memory.free_memory", lambda: 5_000_000)
+    monkeypatch.setattr("lidar.memory.free_memory", lambda: 5_000_000)
     path = small_survey(tmp_path)
     assert run(tmp_path, path, "stages.rasterize.resolution=0.05") == 2
     err = capsys.readouterr().err
@@ -49,7 +49,7 @@ def test_a_resolution_too_fine_for_free_memory_is_refused_after_reading(tmp_path
 
 
 def test_the_check_suggests_a_resolution_that_fits():
-    from dtm.common.grid import BYTES_PER_CELL, Grid, check_grid_size
+    from lidar.grid import BYTES_PER_CELL, Grid, check_grid_size
 
     grid = Grid.covering(0.0, 0.0, 120.0, 118.0, 0.01)
     free = 9_800_000_000
@@ -65,9 +65,9 @@ def test_the_check_suggests_a_resolution_that_fits():
 
 def test_tiles_too_large_for_the_workers_are_refused_before_they_are_made():
     """Each tile's grid plus the TIN's nodata margin, times the tiles made at once, against free memory."""
-    from dtm.common.grid import Grid
-    from dtm.stages.rasterize.params import RasterizeParams
-    from dtm.stages.rasterize.tile_rasters import RasterTask, check_tile_memory, tile_memory
+    from lidar.grid import Grid
+    from stages.rasterize.params import RasterizeParams
+    from stages.rasterize.tile_rasters import RasterTask, check_tile_memory, tile_memory
 
     grid = Grid.covering(0.0, 0.0, 99.9, 99.9, 0.25)
     tasks = [RasterTask(i, (0, grid.rows, 0, grid.cols), 10, "", "", grid, {}, 0.0, 1.0, ()) for i in range(3)]
@@ -92,8 +92,8 @@ def test_neighbors_beyond_the_cap_are_refused_by_name(tmp_path, capsys):
 
 def test_idw_in_blocks_of_a_few_cells_is_the_same(monkeypatch):
     """Many neighbours per cell: blocks of fewer cells (never more than NEIGHBOUR_BLOCK neighbours), same values."""
-    from dtm.common.grid import Grid
-    from dtm.stages.rasterize import interpolate
+    from lidar.grid import Grid
+    from stages.rasterize import interpolate
 
     rng = np.random.default_rng(7)
     pts = np.column_stack((rng.uniform(0, 30, (500, 2)) + [440_000.0, 4_474_000.0], rng.uniform(600, 610, 500)))

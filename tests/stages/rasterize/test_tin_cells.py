@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dtm.common.grid import Grid
-from dtm.stages.rasterize.interpolate import _draw_triangles, tin
+from lidar.grid import Grid
+from stages.rasterize.interpolate import _draw_triangles, tin
 
 
 def _inside(px, py, tri):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dtm.stages.report import colormaps
-from dtm.stages.report.maps import MapFrame, category_map, histogram_svg, raster_map, ticks
+from stages.report import colormaps
+from stages.report.maps import MapFrame, category_map, histogram_svg, raster_map, ticks
 
 SVG = ""  # inline in HTML: no namespace declared (the HTML parser gives it)
 

@@ -15,15 +15,15 @@ import numpy as np
 import pyproj
 import pytest
 
-from dtm.common.checkpoints import sample_dtm
-from dtm.stages.accuracy.vertical import vertical_accuracy
-from dtm.stages.report.acceptance import SPECIFICATIONS, evaluate
-from dtm.stages.report.cloud import summarise_cloud
-from dtm.stages.report.figures import map_figures
-from dtm.stages.report.inputs import ReportInputs
-from dtm.stages.report.maps import MapFrame
-from dtm.stages.report.measures import measure
-from dtm.stages.report.page import build_report
+from lidar.checkpoints import sample_dtm
+from stages.accuracy.vertical import vertical_accuracy
+from stages.report.acceptance import SPECIFICATIONS, evaluate
+from stages.report.cloud import summarise_cloud
+from stages.report.figures import map_figures
+from stages.report.inputs import ReportInputs
+from stages.report.maps import MapFrame
+from stages.report.measures import measure
+from stages.report.page import build_report
 
 SIZE = 60.0  # survey side, CRS units
 
@@ -72,7 +72,7 @@ def _report(tmp_path, las, dtm, cell=1.0, metrics=None, figures=False, **extra):
     data = ReportInputs(dtm=dtm, density=np.ones_like(dtm), frame=frame, cloud=cloud, **extra)
     metrics = metrics or {}
     metrics.setdefault("rasterize", {"cols": dtm.shape[1], "rows": dtm.shape[0], "method": "tin"})
-    with mock.patch("dtm.stages.report.page.map_figures", wraps=map_figures if figures else lambda *a: []):
+    with mock.patch("stages.report.page.map_figures", wraps=map_figures if figures else lambda *a: []):
         page, verdict = build_report(name="t", metrics=metrics, data=data, max_size=300)
     return page, verdict, data, _transform(cell)
 
@@ -280,8 +280,8 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     """qc/trajectory.gpkg: a LineString per flight line with its id, times and heights; turns (0) left out."""
     import pyogrio
 
-    from dtm.stages.georeference.strips import write_flight_lines
-    from dtm.stages.report.inputs import read_flight_lines
+    from stages.georeference.strips import write_flight_lines
+    from stages.report.inputs import read_flight_lines
 
     t = np.arange(0.0, 30.0, 1.0)
     strip = np.repeat([1, 0, 2], 10)

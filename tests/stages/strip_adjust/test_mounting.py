@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtm.commands.simulate.settings import SimulateConfig
-from dtm.commands.simulate.simulator import simulate
+from commands.simulate.settings import SimulateConfig
+from commands.simulate.simulator import simulate
 from pipeline.cli import main
 from tests.conftest import run_stages
 from tests.flights import TRUTH_CELL
@@ -163,7 +163,7 @@ def test_lines_flown_one_way_cannot_determine_pitch(tmp_path, capfd):
     assert abs(u["boresight_roll"]["correction"] - BORESIGHT[0]) <= 0.005
     assert abs(u["boresight_yaw"]["correction"] - BORESIGHT[2]) <= 0.01
     # the report's strip-adjustment section is the calibration: each unknown with its estimate and fate
-    from dtm.stages.report.sections import strip_table
+    from stages.report.sections import strip_table
 
     page = strip_table(corr, np.array([]))
     assert "strip_adjust.model: mounting" in page

@@ -89,7 +89,7 @@ def test_control_points_fix_the_datum(injected, tmp_path):
 
 
 def test_difference_map_shows_the_improvement(injected):
-    from dtm.common.rasters import read_raster
+    from lidar.rasters import read_raster
 
     root, _, _ = injected
     before, *_ = read_raster(root / "out" / "strip_difference_before.tif")

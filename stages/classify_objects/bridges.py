@@ -1,0 +1,139 @@
+"""Bridge decks (17) on the grid of the surface: pure functions of the cells' heights.
+
+A deck is a planar surface standing over a gap: along a row or a column
+of cells, lower ground or water on both of its sides within
+``max_width``; its side edges drop at least ``clearance`` within a cell
+(open air under the deck, where an embankment slopes down); and, unlike
+a roof, it continues level into the ground at both of its ends (its
+approaches).  After Sithole, G., Vosselman, G. (2006), Bridge detection
+in airborne laser scanner data, ISPRS J. Photogramm. Remote Sens. 61(1),
+33-46, doi:10.1016/j.isprsjprs.2006.07.004 (a bridge is raised above the
+terrain on both sides of a profile across it and joined to it along it);
+departs from it in testing two profiles per cell (rows and columns) on a
+grid rather than profiles of points in many directions, and in asking
+for a drop at the deck's side edges.  Method and limits:
+docs/stages/classify_objects.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stages.classify_objects.regions import (
+    SHADOW,
+    Surface,
+    grown,
+    neighbour_views,
+    planar_segments,
+    seen_below,
+    wall_shares,
+)
+
+
+def _lowest_beyond(low: np.ndarray, reach: int, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest of *low* within *reach* cells before and after each cell along *axis* (the cell itself not)."""
+    from scipy import ndimage
+
+    ahead = ndimage.minimum_filter1d(low, reach, axis=axis, origin=-(reach // 2), mode="constant", cval=np.inf)
+    behind = ndimage.minimum_filter1d(low, reach, axis=axis, origin=(reach - 1) // 2, mode="constant", cval=np.inf)
+    after, before = np.full(low.shape, np.inf), np.full(low.shape, np.inf)
+    if axis == 0:
+        after[:-1], before[1:] = ahead[1:], behind[:-1]
+    else:
+        after[:, :-1], before[:, 1:] = ahead[:, 1:], behind[:, :-1]
+    return before, after
+
+
+def over_gap(s: Surface, clearance: float, reach: int) -> np.ndarray:
+    """Cells whose top stands *clearance* m or more above the foot of a drop on both sides along a row or a column.
+
+    The foot of a drop: a cell whose lowest point lies *clearance* m or more
+    below the top of one of its 8 neighbours (what lies under a deck's edge,
+    where a ridge's or a hill's flanks slope down and have none).  Both sides
+    are looked at within *reach* cells; empty cells do not count.
+    """
+    from scipy import ndimage
+
+    above = ndimage.maximum_filter(np.where(np.isfinite(s.top), s.top, -np.inf), size=3, mode="nearest")
+    foot = np.isfinite(s.bottom) & (above >= s.bottom + clearance)
+    low = np.where(foot, s.bottom, np.inf)
+    gap = np.zeros(s.top.shape, dtype=bool)
+    for axis in (0, 1):
+        before, after = _lowest_beyond(low, reach, axis)
+        gap |= (before <= s.top - clearance) & (after <= s.top - clearance)
+    return gap
+
+
+def approach_ends(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: float, n: int) -> np.ndarray:
+    """Per label: whether level cells outside the gap touch the region at both ends of its longer axis.
+
+    A cell touches a region when it is one of its 8 neighbours, holds points,
+    is not over a gap, and its top lies within *step* of the region's cell
+    next to it.  The ends: the first and last quarter of the region's extent
+    along the axis of its cells' largest spread.
+    """
+    rows, cols = labels.shape
+    found_r, found_c, owners = [], [], []
+    for here, there, r0, c0 in neighbour_views(labels.shape):
+        lab = labels[there]
+        level = (lab > 0) & (labels[here] == 0) & ~gap[here] & (np.abs(top[here] - top[there]) <= step)
+        rr, cc = np.nonzero(level)
+        found_r.append(rr + r0)
+        found_c.append(cc + c0)
+        owners.append(lab[level])
+    r, c, owner = (np.concatenate(v) for v in (found_r, found_c, owners))
+    cells_r, cells_c = np.nonzero(labels)
+    cell_owner = labels[cells_r, cells_c]
+    # each region's axis from its cells' moments (per label, one pass: not a pass over the cells per region)
+    size = np.maximum(np.bincount(cell_owner, minlength=n), 1)
+    mean_r = np.bincount(cell_owner, cells_r, minlength=n) / size
+    mean_c = np.bincount(cell_owner, cells_c, minlength=n) / size
+    dr, dc = cells_r - mean_r[cell_owner], cells_c - mean_c[cell_owner]
+    var_r, var_c = np.bincount(cell_owner, dr * dr, minlength=n), np.bincount(cell_owner, dc * dc, minlength=n)
+    cov = np.bincount(cell_owner, dr * dc, minlength=n)
+    angle = 0.5 * np.arctan2(2.0 * cov, var_r - var_c)
+    angle[(var_r == var_c) & (cov == 0)] = 0.5 * np.pi  # no direction: along the columns
+    axis_r, axis_c = np.cos(angle), np.sin(angle)
+    along = cells_r * axis_r[cell_owner] + cells_c * axis_c[cell_owner]
+    lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(lo, cell_owner, along)
+    np.maximum.at(hi, cell_owner, along)
+    quarter = np.maximum((hi - lo) / 4.0, 1.0)
+    ends = r * axis_r[owner] + c * axis_c[owner]
+    first = np.bincount(owner, ends <= lo[owner] + quarter[owner], minlength=n) > 0
+    last = np.bincount(owner, ends >= hi[owner] - quarter[owner], minlength=n) > 0
+    ok = first & last
+    ok[0] = False
+    return ok
+
+
+def deck_cells(s: Surface, params, planarity: float, min_area: float) -> np.ndarray:
+    """The cells of bridge decks (bool grid); *params*: :class:`~stages.classify_objects.params.BridgeParams`.
+
+    Regions of planar cells over a gap (:func:`over_gap`) joined without a
+    jump, of *min_area* m² or more, whose side edges drop ``clearance`` m
+    (at least half of the cells around them, :func:`wall_shares`) and that
+    continue level into the ground at both ends (:func:`approach_ends`); with
+    the cells of their side edges.
+    """
+    from scipy import ndimage
+
+    cell = s.grid.resolution
+    step = max(0.5 * params.clearance, cell)
+    gap = over_gap(s, params.clearance, max(int(np.ceil(params.max_width / cell)), 1))
+    labels = planar_segments(s.top, np.where(gap, s.residual, np.nan), planarity, step)
+    n = int(labels.max()) + 1
+    if n == 1:
+        return np.zeros(labels.shape, dtype=bool)
+    area = np.bincount(labels.ravel(), minlength=n) * cell * cell
+    ok = area >= min_area
+    ok[0] = False
+    if ok.any():
+        candidates = grown(np.where(ok[labels], labels, 0), s.top, s.bottom, step)
+        bottom = seen_below(s.bottom, candidates > 0, int(np.ceil(SHADOW / cell)))
+        ok &= wall_shares(candidates, s.top, bottom, params.clearance, n) >= 0.5
+        labels = np.where(ok[labels], labels, 0)
+        ok &= approach_ends(labels, s.top, gap, step, n)
+    decks = ok[labels]
+    # with their side edges (not planar: the drop is in their 3 x 3 cells), not their approaches (not over a gap)
+    return decks | (ndimage.binary_dilation(decks, np.ones((3, 3), bool)) & gap & ~(s.residual <= planarity))

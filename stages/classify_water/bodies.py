@@ -1,0 +1,139 @@
+"""The water bodies of a classified file (its water points and the ground around them), and the points of those
+taken for no water given back their class: the survey-wide steps after the tiles."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lidar import glossary
+from lidar.water_bodies import CellMask, WaterBody, water_bodies
+from stages.classify_water.params import ClassifyWaterParams
+
+#: Points read at a time.
+CHUNK = 1_000_000
+
+
+def _points(path: Path, units, keep) -> np.ndarray:
+    """The points of the LAS *path* (metres) for which ``keep(classes, xyz)`` holds, read in chunks."""
+    import laspy
+
+    from lidar.clouds import chunk_xyz_metres
+
+    parts = [np.zeros((0, 3))]
+    with laspy.open(str(path)) as reader:
+        for chunk in reader.chunk_iterator(CHUNK):
+            xyz = chunk_xyz_metres(chunk, units)
+            cls = np.asarray(chunk.classification)
+            usable = glossary.usable(cls, chunk.withheld)
+            parts.append(np.ascontiguousarray(xyz[usable & keep(cls, xyz)]))
+    return np.concatenate(parts)
+
+
+def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[WaterBody], CellMask]:
+    """The water bodies of the classified LAS *path* and the cells of those that are no water.
+
+    :func:`lidar.water_bodies.water_bodies` on two passes: the water
+    points, then the ground points within the water's box plus a margin.
+    Without detection (polygons only) no body is refused for its banks.
+    """
+    b = params.bodies
+    water = _points(path, units, lambda cls, xyz: cls == glossary.WATER)
+    margin = (b.close + 4) * b.cell_size
+    lo = water[:, :2].min(axis=0) - margin if len(water) else np.zeros(2)
+    hi = water[:, :2].max(axis=0) + margin if len(water) else np.zeros(2)
+
+    def near(cls, xyz):
+        return (cls == glossary.GROUND) & np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
+
+    ground = _points(path, units, near) if len(water) else np.zeros((0, 3))
+    return water_bodies(
+        water,
+        ground,
+        cell=b.cell_size,
+        min_area=b.min_area,
+        close=b.close,
+        max_spread=b.max_spread,
+        min_bank=params.detect.min_bank if params.detect.enabled else -np.inf,
+    )
+
+
+def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
+    """*dst* rewritten (through a temporary file) with each chunk's classes as ``change(classes, xy, was)`` gives them.
+
+    *classes*: the chunk's classes (a copy, for ``change`` to alter);
+    *xy*: its coordinates in metres; *was*: the same points' classes in
+    *src* (None without one).
+    """
+    from contextlib import ExitStack
+
+    import laspy
+
+    from lidar.clouds import chunk_xyz_metres, open_las_writer
+
+    tmp = dst.with_name(f".{dst.name}.tmp")
+    with ExitStack() as files:
+        after = files.enter_context(laspy.open(str(dst)))
+        out = files.enter_context(open_las_writer(tmp, after.header))
+        olds = files.enter_context(laspy.open(str(src))).chunk_iterator(CHUNK) if src is not None else None
+        for chunk in after.chunk_iterator(CHUNK):
+            was = np.asarray(next(olds).classification) if olds is not None else None
+            cls = np.asarray(chunk.classification).copy()
+            chunk.classification = change(cls, chunk_xyz_metres(chunk, units)[:, :2], was)
+            out.write_points(chunk)
+    tmp.replace(dst)
+
+
+def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | None) -> tuple[int, int]:
+    """Water points of *dst* in *refused* cells (and outside the *polygons*, metres) get their class in *src* back.
+
+    *src* and *dst* hold the same points in the same order; *dst* is
+    rewritten (through a temporary file).  Returns the points given back
+    and how many of them were ground.
+    """
+    from stages.classify_water.water import inside_polygons
+
+    counts = [0, 0]
+
+    def change(cls, xy, was):
+        undo = (cls == glossary.WATER) & refused.holds(xy)
+        if polygons and undo.any():
+            undo[undo] = ~inside_polygons(xy[undo], polygons)
+        cls[undo] = was[undo]
+        counts[0] += int(undo.sum())
+        counts[1] += int((undo & (was == glossary.GROUND)).sum())
+        return cls
+
+    _rewrite_classes(dst, units, change, src)
+    return counts[0], counts[1]
+
+
+def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units) -> int:
+    """Ground points of *dst* within *distance* (m) of a flattened body's outline become ignored ground (20).
+
+    The outlines are the hydro breaklines the DTM is flattened to: the
+    ground points on them would pull the TIN across the shore (LBS class
+    20, "breakline proximity").  *dst* is rewritten through a temporary
+    file; returns the points changed.
+    """
+    import shapely
+
+    shores = [shapely.Polygon(b.rings[0], b.rings[1:]).boundary for b in bodies if b.flat]
+    if not shores or distance <= 0:
+        return 0
+    zone = shapely.union_all([line.buffer(distance) for line in shores])
+    shapely.prepare(zone)
+    x0, y0, x1, y1 = zone.bounds
+    changed = [0]
+
+    def change(cls, xy, _):
+        near = (cls == glossary.GROUND) & (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
+        if near.any():
+            near[near] = shapely.contains_xy(zone, xy[near, 0], xy[near, 1])
+            cls[near] = glossary.IGNORED_GROUND
+            changed[0] += int(near.sum())
+        return cls
+
+    _rewrite_classes(dst, units, change)
+    return changed[0]

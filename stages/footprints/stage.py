@@ -1,0 +1,86 @@
+"""Stage ``footprints``: ``buildings.gpkg`` (one outline a building) and ``canopy_height.tif``.
+
+After ``rasterize``: the classified cloud (``classify_objects``' classes) is
+read in chunks onto the DTM's grid (:mod:`stages.footprints.outlines`).
+``buildings.gpkg`` (GeoPackage 1.2, layer ``buildings``, MultiPolygon in the
+CRS): per building its ``ground_z`` (median DTM under it), ``roof_z`` (median
+of its cells' highest points), ``highest_z``, ``height`` (roof − ground),
+``points`` and ``area`` (CRS units); an empty layer when there is none.
+``canopy_height.tif`` (when ``classify_objects`` classifies vegetation): the
+highest vegetation point above the DTM per cell, a COG like the DTM.
+docs/stages/footprints.md.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
+
+
+class FootprintsParams(StageParams):
+    pass
+
+
+def _vegetation(config) -> bool:
+    objects = get_dotted(config, "stages.classify_objects")
+    return objects is not None and objects.enabled and objects.vegetation.enabled
+
+
+class Footprints(Stage, name="footprints", version="1", params=FootprintsParams):
+    """building outlines (buildings.gpkg) and canopy height (canopy_height.tif)."""
+
+    inputs = ("dtm", "points_objects")
+    outputs: ClassVar = {"buildings": "buildings.gpkg"}
+    products: ClassVar = {"buildings": "buildings.gpkg"}
+
+    def declare(self, params, config) -> StageIO:
+        outputs, products = dict(self.outputs), dict(self.products)
+        if _vegetation(config):
+            outputs["canopy_height"] = products["canopy_height"] = "canopy_height.tif"
+        return StageIO(tuple(self.inputs), outputs, products)
+
+    def run(self, ctx: StageContext[FootprintsParams]) -> None:
+        import laspy
+        import rasterio
+
+        from lidar.rasters import read_raster, write_cog
+        from stages.footprints.outlines import CellTally, canopy_height, flat_cells
+
+        dtm, transform, crs, _ = read_raster(ctx.inputs["dtm"])
+        with rasterio.open(ctx.inputs["dtm"]) as ds:
+            nodata = ds.nodata
+        tally = CellTally.empty(dtm.shape)
+        with laspy.open(str(ctx.inputs["points_objects"])) as reader:
+            for chunk in reader.chunk_iterator(1_000_000):
+                cell = flat_cells(np.asarray(chunk.x), np.asarray(chunk.y), transform, dtm.shape)
+                tally.add(cell, np.asarray(chunk.z), np.asarray(chunk.classification))
+        count = _buildings(ctx, tally, dtm, transform, crs)
+        tally.roof_count = tally.roof_top = None  # the buildings' grids: not held while the canopy is written
+        if "canopy_height" in ctx.outputs:
+            chm = canopy_height(tally, dtm, in_place=True)
+            ctx.metrics.update(canopy_cells=int(np.isfinite(chm).sum()))
+            chm[np.isnan(chm)] = nodata
+            write_cog(ctx.outputs["canopy_height"], chm, transform=transform, crs=crs, nodata=nodata)
+        ctx.log.info("%d building outlines", count)
+
+
+def _buildings(ctx: StageContext[FootprintsParams], tally, dtm: np.ndarray, transform, crs) -> int:
+    """buildings.gpkg from the tally (:func:`~stages.footprints.outlines.building_rows`); the buildings."""
+    from lidar.vectors import write_gpkg
+    from stages.footprints.outlines import building_labels, building_rows
+
+    labels, count = building_labels(tally.roof_count.reshape(dtm.shape))
+    rows = building_rows(labels, count, tally, dtm, transform)
+    write_gpkg(
+        ctx.outputs["buildings"],
+        rows["geometry"],
+        rows["fields"],
+        crs=crs,
+        layer="buildings",
+        geometry_type="MultiPolygon",
+    )
+    ctx.metrics.update(buildings=count, building_points=int(tally.roof_count.sum()))
+    return count

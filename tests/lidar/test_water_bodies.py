@@ -1,0 +1,93 @@
+"""Water bodies: outlines and levels from water points (lidar.water_bodies), known answers from geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidar.water_bodies import burn_levels, water_bodies
+
+LEVEL = 100.0
+
+
+def _lake(seed=0, radius=20.0, tilt=0.0, bank=0.4, density=2.0):
+    """Water points of a round lake at (50, 50) (level, or tilted along x by *tilt*) and ground points around it,
+    *bank* m above the water at the shore and rising 5 % outwards."""
+    rng = np.random.default_rng(seed)
+    n = int(100 * 100 * density)
+    x, y = rng.uniform(0, 100, n), rng.uniform(0, 100, n)
+    d = np.hypot(x - 50, y - 50)
+    lake = d < radius
+    z = np.where(lake, LEVEL + tilt * (x - 50), LEVEL + bank + 0.05 * (d - radius)) + rng.normal(0, 0.02, n)
+    xyz = np.column_stack((x, y, z))
+    return xyz[lake], xyz[~lake]
+
+
+def _params(**changes):
+    return {"cell": 1.0, "min_area": 200.0, "close": 2, "max_spread": 0.3, "min_bank": 0.15, **changes}
+
+
+def _bodies(water, ground, **changes):
+    bodies, refused = water_bodies(water, ground, **_params(**changes))
+    return bodies, refused
+
+
+def test_a_round_lake_is_one_flat_polygon_at_its_water_level():
+    water, ground = _lake()
+    (body,), refused = _bodies(water, ground)
+    assert not refused.mask.any()
+    assert body.flat and body.points == len(water)
+    assert abs(body.level - LEVEL) < 0.01  # the median of the water; the banks are higher
+    # drawn in by half a cell at its shore: the area within half a cell of the shore, and not more
+    assert -2 * np.pi * 20 * 0.5 < body.area - np.pi * 20**2 < 0
+    assert len(body.rings) == 1
+    outer = body.rings[0]
+    assert np.all(np.hypot(outer[:, 0] - 50, outer[:, 1] - 50) < 21.0)
+    assert np.all(2 * outer == np.round(2 * outer))  # half-cell corners: half metres
+    # its shore is one closed breakline, on the outline
+    (shore,) = body.shores
+    assert np.array_equal(shore[0], shore[-1]) and set(map(tuple, shore)) == set(map(tuple, outer))
+
+
+def test_a_level_surface_whose_banks_do_not_rise_is_no_water():
+    """Paved ground, level and wide, drains away at its edges: its 'banks' lie level with it or lower."""
+    water, ground = _lake(bank=-0.05)
+    bodies, refused = _bodies(water, ground)
+    assert bodies == [] and refused.holds(water[:, :2]).all()
+    assert not refused.holds(ground[np.hypot(ground[:, 0] - 50, ground[:, 1] - 50) > 24, :2]).any()
+
+
+def test_the_level_is_not_above_the_banks():
+    """Banks 0.4 m above the water but for an outflow (a tenth of the shore) 0.3 m below it: the median of the
+    banks rises, and the level is their 5th percentile."""
+    water, ground = _lake()
+    d = np.hypot(ground[:, 0] - 50, ground[:, 1] - 50)
+    outflow = (ground[:, 0] > 50) & (np.abs(ground[:, 1] - 50) < 6) & (d < 26)
+    ground[outflow, 2] = LEVEL - 0.3
+    (body,), _ = _bodies(water, ground)
+    assert LEVEL - 0.35 < body.level < LEVEL - 0.2
+
+
+def test_a_falling_river_is_outlined_but_not_flat():
+    water, ground = _lake(tilt=0.03, bank=1.0)  # 1.2 m over the lake's 40 m, banks 1 m above its middle
+    (body,), _ = _bodies(water, ground)
+    assert not body.flat and body.spread > 0.9
+
+
+def test_dropouts_are_closed_and_small_patches_left_out():
+    water, ground = _lake()
+    keep = (np.floor(water[:, 0] / 3) % 2 == 0) | (np.floor(water[:, 1] / 3) % 2 == 0)  # 3 m holes between echoes
+    (body,), _ = _bodies(water[keep], ground)
+    assert len(body.rings) == 1  # no hole left
+    patch = water[np.hypot(water[:, 0] - 50, water[:, 1] - 50) < 7]  # 154 m2
+    assert _bodies(patch, ground)[0] == []
+
+
+def test_burn_levels_takes_the_cells_whose_centre_is_inside():
+    from affine import Affine
+
+    square = np.array([[2.0, 2.0], [6.0, 2.0], [6.0, 6.0], [2.0, 6.0], [2.0, 2.0]])
+    hole = np.array([[3.0, 3.0], [4.0, 3.0], [4.0, 4.0], [3.0, 4.0], [3.0, 3.0]])
+    grid = burn_levels([([square, hole], 7.5)], (8, 8), Affine(1.0, 0.0, 0.0, 0.0, -1.0, 8.0))
+    inside = np.isfinite(grid)
+    assert inside.sum() == 16 - 1 and np.all(grid[inside] == 7.5)
+    assert np.isnan(grid[8 - 4, 3])  # the hole's cell: centre (3.5, 3.5)

@@ -40,7 +40,8 @@ def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:
     from commands.evaluate.command import evaluate_ground, reference_ground
     from commands.evaluate.scores import dtm_check, score
     from lidar import glossary
-    from stages.classify_ground.params import CsfParams, SmrfParams
+    from stages.classify_ground.csf import CsfParams
+    from stages.classify_ground.smrf import SmrfParams
 
     path = SHARED / name
     algorithms = [SmrfParams(name="smrf"), CsfParams(name="csf", class_threshold=threshold)]

@@ -14,6 +14,8 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from pipeline.config import field_models
+from pipeline.registry import RegistryField, RegistryName
 from pipeline.stage import config_model
 
 HEADER = """# Configuration reference
@@ -77,19 +79,24 @@ def _rows(model: type[BaseModel], prefix: str) -> list[str]:
     rows = []
     for name, field in model.model_fields.items():
         key = f"{prefix}{name}"
-        models = _models(field.annotation)
+        registry = next((m.registry for m in field.metadata if isinstance(m, RegistryField)), None)
         desc = (field.description or "").replace("|", "\\|")
-        rows.append(f"| `{key}` | {_type_name(field.annotation)} | {_default(field)} | {desc} |")
+        if registry is not None:  # one of the registered algorithms: each with its parameters
+            desc += "; `name`: " + " \\| ".join(registry.names())
+            default = f"`{{name: {field.default_factory().name}}}`" if field.default_factory else _default(field)
+            rows.append(f"| `{key}` | mapping | {default} | {desc} |")
+            for entry in registry:
+                rows.append(f"| `{key}.({entry.name})` | | | {entry.summary} |")
+                rows.extend(_rows(entry.params, f"{key}.({entry.name}).")[1:])  # its name row said above
+            continue
+        names = next((m.registry for m in field.metadata if isinstance(m, RegistryName)), None)
+        kind = " \\| ".join(names.names()) if names is not None else _type_name(field.annotation)
+        rows.append(f"| `{key}` | {kind} | {_default(field)} | {desc} |")
+        models = field_models(field)
         for sub in models:
             sub_prefix = f"{key}." if len(models) == 1 else f"{key}.({sub.__name__})."
             rows.extend(_rows(sub, sub_prefix))
     return rows
-
-
-def _models(annotation: Any) -> list[type[BaseModel]]:
-    from pipeline.config import model_types
-
-    return model_types(annotation)
 
 
 def render() -> str:

@@ -34,6 +34,7 @@ from pydantic import (
 from pipeline.cache import file_kind
 from pipeline.errors import ConfigError
 from pipeline.executor import usable_cores
+from pipeline.registry import RegistryField
 
 Location = tuple[str | int, ...]
 
@@ -468,7 +469,8 @@ def model_types(annotation: Any) -> list[type[BaseModel]]:
     """The pydantic models an annotation may hold (through unions and Annotated)."""
     origin = typing.get_origin(annotation)
     if origin is Annotated:
-        return model_types(typing.get_args(annotation)[0])
+        choices = [m for m in typing.get_args(annotation)[1:] if isinstance(m, RegistryField)]
+        return choices[0].registry.models() if choices else model_types(typing.get_args(annotation)[0])
     if origin in (Union, types.UnionType):
         found: list[type[BaseModel]] = []
         for arg in typing.get_args(annotation):
@@ -477,6 +479,12 @@ def model_types(annotation: Any) -> list[type[BaseModel]]:
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return [annotation]
     return []
+
+
+def field_models(field: Any) -> list[type[BaseModel]]:
+    """The pydantic models a model's field may hold: those of a registry's algorithms, or of its annotation."""
+    choices = [m for m in field.metadata if isinstance(m, RegistryField)]
+    return choices[0].registry.models() if choices else model_types(field.annotation)
 
 
 def _allowed_keys(model: type[BaseModel], loc: Location) -> set[str]:
@@ -489,7 +497,7 @@ def _allowed_keys(model: type[BaseModel], loc: Location) -> set[str]:
         for m in models:
             field = m.model_fields.get(elem)
             if field is not None:
-                nxt.extend(model_types(field.annotation))
+                nxt.extend(field_models(field))
         models = nxt
     return {name for m in models for name in m.model_fields}
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-#: The ground algorithms of ``stages.classify_ground`` (the keys of
-#: :data:`stages.classify_ground.params.ALGORITHMS`, which a test compares), sorted.
-ALGORITHM_NAMES = ["csf", "pmf", "smrf"]
+#: The DTM check's cell (m) and longest reference triangle edge (m) unless said otherwise.
+DTM_CELL = 1.0
+DTM_MAX_EDGE = 20.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,8 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _run_args(p)
     p.add_argument(
         "--algorithm",
-        choices=ALGORITHM_NAMES,
-        help="ground algorithm (default: the configuration's, smrf without --config)",
+        metavar="NAME",
+        help="ground algorithm: one registered for stages.classify_ground.algorithm (docs/CONFIG.md lists them; "
+        "default: the configuration's, or the stage's default without --config)",
     )
     p.add_argument(
         "--param", action="append", default=[], metavar="NAME=VALUE", help="algorithm parameter (repeatable)"
@@ -32,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--compare",
         action="append",
         default=[],
-        choices=ALGORITHM_NAMES,
-        help="also run this algorithm with its defaults",
+        metavar="NAME",
+        help="also run this ground algorithm with its defaults (repeatable)",
     )
     p.add_argument("--no-denoise", action="store_true", help="skip the noise step")
     p.add_argument(
@@ -48,13 +49,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=True,
         help="also compare the TIN DTM of each run's ground with the TIN DTM of the reference ground (default: on)",
     )
-    p.add_argument("--dtm-cell", type=float, default=1.0, metavar="METRES", help="cell of the DTM check (default 1 m)")
+    p.add_argument(
+        "--dtm-cell",
+        type=float,
+        default=DTM_CELL,
+        metavar="METRES",
+        help=f"cell of the DTM check (default {DTM_CELL:g} m)",
+    )
     p.add_argument(
         "--dtm-max-edge",
         type=float,
-        default=20.0,
+        default=DTM_MAX_EDGE,
         metavar="METRES",
-        help="DTM check: leave out cells inside a reference triangle with a longer edge (default 20 m; inf: none)",
+        help="DTM check: leave out cells inside a reference triangle with a longer edge "
+        f"(default {DTM_MAX_EDGE:g} m; inf: none)",
     )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)

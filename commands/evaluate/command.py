@@ -23,20 +23,36 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import shutil
 import sys
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import laspy
 import numpy as np
 import yaml
 from pydantic import ValidationError
+from rasterio.errors import RasterioError
 
+from commands.evaluate.arguments import DTM_CELL, DTM_MAX_EDGE
+from commands.evaluate.scores import class_scores, dtm_check, score
 from lidar import glossary
+from lidar.checkpoints import checkpoint_errors, read_checkpoints
+from lidar.clouds import cloud_info
 from lidar.crs import check_crs_setting
 from lidar.las_guard import las_parse_errors, open_las
+from pipeline import runner
+from pipeline.config import describe_validation_error, load_yaml
+from pipeline.discovery import load_plugin
 from pipeline.errors import ConfigError, InputDataError
-from stages.classify_ground.params import ALGORITHMS
+from pipeline.log import LOGGER_NAME
+from pipeline.stage import config_model
+from stages.accuracy.vertical import truth_accuracy, truth_on_dtm_cells, vertical_accuracy
+from stages.classify_ground.filters import GROUND_FILTERS
+from stages.classify_ground.params import ClassifyGroundParams
 
 #: The stages that classify points, last first, and their clouds: ``evaluate`` scores the last one enabled.
 CLASSIFICATIONS = (("classify_objects", "points_objects"), ("classify_ground", "points_classified"))
@@ -51,6 +67,9 @@ def last_classification(settings) -> tuple[str, str]:
 
 
 def _algorithm(name: str, params: list[str]):
+    """The ground algorithm *name* with the ``--param`` values; an unknown name is a usage error naming the known ones."""
+    if name not in GROUND_FILTERS:
+        raise ConfigError(f"--algorithm {name}: {GROUND_FILTERS.unknown(name)}.")
     values: dict = {"name": name}
     for text in params:
         key, sep, raw = text.partition("=")
@@ -58,7 +77,7 @@ def _algorithm(name: str, params: list[str]):
             raise ConfigError(f"--param {text}: expected name=value.")
         values[key.strip()] = yaml.safe_load(raw)
     try:
-        return ALGORITHMS[name].model_validate(values)
+        return GROUND_FILTERS[name].params.model_validate(values)
     except ValidationError as exc:
         err = exc.errors(include_url=False)[0]
         where = ".".join(str(p) for p in err["loc"])
@@ -105,7 +124,6 @@ def run_settings(path: Path, *, config: Path | None = None, crs: str | None = No
     its input replaced by *path* (which must then be a ``las`` input).
     *crs* sets ``input.crs`` (the CRS of a file whose header has none).
     """
-    from pipeline.config import load_yaml
 
     path = Path(path).resolve()
     data: dict = {}
@@ -140,8 +158,8 @@ def evaluate_ground(
     crs: str | None = None,
     write: Path | None = None,
     dtm: bool = True,
-    dtm_cell: float = 1.0,
-    dtm_max_edge: float = 20.0,
+    dtm_cell: float = DTM_CELL,
+    dtm_max_edge: float = DTM_MAX_EDGE,
 ) -> tuple[list[dict], dict[str, np.ndarray]]:
     """Classify a labelled file (class 2 = reference ground) with the run's stages, once per algorithm.
 
@@ -159,11 +177,6 @@ def evaluate_ground(
         (:class:`~commands.evaluate.scores.GroundScore`) and, with *dtm*, ``dtm_check``;
         algorithm name -> the classes the run gave every point, in file order.
     """
-    import shutil
-    import tempfile
-
-    from pipeline.discovery import load_plugin
-    from pipeline.stage import config_model
 
     reference = reference_ground(path)
     if dtm and reference.sum() < 3:
@@ -204,14 +217,6 @@ def evaluate_classes(path: Path, *, config: Path | None = None, crs: str | None 
     class present in either labelling) and ``ground`` (Type I and II of
     class 2, :class:`~commands.evaluate.scores.GroundScore`).
     """
-    import shutil
-    import tempfile
-
-    import laspy
-
-    from commands.evaluate.scores import class_scores, score
-    from pipeline.discovery import load_plugin
-    from pipeline.stage import config_model
 
     reference = reference_classes(path)
     data, base, lines = run_settings(path, config=config, crs=crs)
@@ -268,9 +273,6 @@ def _run_classes(args: argparse.Namespace) -> int:
 @contextmanager
 def _inner_runs_quiet() -> Iterator[None]:
     """The inner runs' progress is not this command's output: INFO is raised to WARNING while they run."""
-    import logging
-
-    from pipeline.log import LOGGER_NAME
 
     log = logging.getLogger(LOGGER_NAME)
     level = log.level
@@ -296,7 +298,6 @@ def _run_stages(data: dict, algorithm, *, denoise: bool, write: Path | None) -> 
 
 def _validated(model, values: dict, base: Path, where: Path, lines: dict):
     """The run's settings, or a ConfigError naming the key (and its line in *where*)."""
-    from pipeline.config import describe_validation_error
 
     try:
         return model.model_validate(values, context={"base_dir": base})
@@ -306,10 +307,8 @@ def _validated(model, values: dict, base: Path, where: Path, lines: dict):
 
 def _run_until(settings, plugin, until: str, *, crs_hint: bool) -> dict:
     """Run the engine's stages up to *until*; its manifest.  *crs_hint*: point to --crs when the CRS is missing."""
-    from pipeline.runner import run
-
     try:
-        return run(settings, plugin, until=until)
+        return runner.run(settings, plugin, until=until)
     except InputDataError as exc:
         if crs_hint and "input.crs" in str(exc):
             raise InputDataError(f"{str(exc).rstrip('.')} (for evaluate ground: --crs).") from None
@@ -320,10 +319,6 @@ def _scored_run(
     manifest: dict, settings, reference: np.ndarray, cell: float | None, max_edge: float
 ) -> tuple[dict, np.ndarray]:
     """The row of one run (algorithm, parameters, seconds, scores; the DTM check unless *cell* is None), its classes."""
-    import laspy
-
-    from commands.evaluate.scores import dtm_check, score
-    from lidar.clouds import cloud_info
 
     records = {r["name"]: r for r in manifest["stages"]}
     last, output = last_classification(settings)
@@ -340,22 +335,19 @@ def _scored_run(
     row = {"algorithm": used.name, "params": used.model_dump(), "seconds": seconds, **s.as_dict()}
     if cell is not None:
         xyz = cloud_info(classified).units.to_metres(np.column_stack((las.x, las.y, las.z)))
-        grid = settings.stages.rasterize
         row["dtm_check"] = dtm_check(
             xyz,
             reference,
             np.isin(cls, glossary.GROUNDS),
             cell=cell,
             max_edge=max_edge,
-            nodata_distance=grid.nodata_distance,
-            thin=grid.tin.thin,
+            rasterize=settings.stages.rasterize,
         ).as_dict()
     return row, cls
 
 
 def _save_export(out: Path, compress: bool, write: Path) -> None:
     """Copy the run's ``points.laz`` (or ``.las``) to *write*, through a temporary name."""
-    import shutil
 
     name = "points.laz" if compress else "points.las"
     tmp = Path(write).with_name(f".{Path(write).name}.tmp")
@@ -364,10 +356,6 @@ def _save_export(out: Path, compress: bool, write: Path) -> None:
 
 
 def _run_dtm(args: argparse.Namespace) -> int:
-    from rasterio.errors import RasterioError
-
-    from lidar.checkpoints import checkpoint_errors, read_checkpoints
-    from stages.accuracy.vertical import truth_accuracy, truth_on_dtm_cells, vertical_accuracy
 
     for path in (args.dtm, args.truth or args.checkpoints):
         if not path.is_file():
@@ -431,7 +419,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--dtm-max-edge {args.dtm_max_edge:g}: must be a positive number of metres (or inf).")
     first = None  # None: the configuration's algorithm
     if args.algorithm is not None or (args.param and args.config is None):
-        first = _algorithm(args.algorithm or "smrf", args.param)
+        first = _algorithm(args.algorithm or ClassifyGroundParams().algorithm.name, args.param)
     algorithms = [first]
     algorithms += [_algorithm(n, []) for n in args.compare if first is None or n != first.name or args.param]
     rows, _ = evaluate_ground(

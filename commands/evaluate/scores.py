@@ -12,6 +12,12 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.spatial import Delaunay, QhullError
+
+from commands.evaluate.arguments import DTM_CELL, DTM_MAX_EDGE
+from lidar.grid import Grid
+from stages.rasterize.interpolate import thin_points, tin
+from stages.rasterize.params import RasterizeParams
 
 
 @dataclass(frozen=True)
@@ -113,15 +119,15 @@ def dtm_check(
     reference_ground: np.ndarray,
     predicted_ground: np.ndarray,
     *,
-    cell: float = 1.0,
-    max_edge: float = 20.0,
-    nodata_distance: float = 50.0,
-    thin: bool = True,
+    cell: float = DTM_CELL,
+    max_edge: float = DTM_MAX_EDGE,
+    rasterize: RasterizeParams | None = None,
 ) -> DtmCheck:
     """Compare the DTM made from the predicted ground with the DTM made from the reference ground.
 
     Both are the pipeline's TIN (:func:`stages.rasterize.interpolate.tin`,
-    with *nodata_distance* and *thin* as the run's) on one grid of *cell*
+    with the run's ``nodata_distance`` and ``tin.thin``: *rasterize*, the
+    run's ``stages.rasterize``, its defaults when None) on one grid of *cell*
     metres covering every point (*xyz*, metres).  A cell is compared only when
     the reference triangle holding its centre has no edge longer than
     *max_edge*: under a longer one the reference DTM is a guess.  Why this
@@ -133,9 +139,8 @@ def dtm_check(
     reference_ground, predicted_ground : ndarray of bool, shape (n,)
         Which points are ground in the reference and in the classification.
     """
-    from lidar.grid import Grid
-    from stages.rasterize.interpolate import thin_points, tin
-
+    rasterize = rasterize if rasterize is not None else RasterizeParams()
+    nodata_distance, thin = rasterize.nodata_distance, rasterize.tin.thin
     xyz = np.asarray(xyz, dtype=np.float64)
     ref = np.asarray(reference_ground, dtype=bool)
     pred = np.asarray(predicted_ground, dtype=bool)
@@ -180,7 +185,6 @@ def _in_long_triangles(xy: np.ndarray, grid, max_edge: float, batch_cells: int =
     *batch_cells* candidate cells at a time), so the cost follows the
     voids, not the survey.
     """
-    from scipy.spatial import Delaunay, QhullError
 
     out = np.zeros((grid.rows, grid.cols), dtype=bool)
     if len(xy) < 3 or not np.isfinite(max_edge):

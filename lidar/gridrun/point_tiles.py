@@ -1,31 +1,39 @@
-"""Stages that reclassify points, tile by tile: the tasks, and the classes merged back into one file.
+"""Tiles of points: a kernel's classes computed tile by tile, merged back into one file in the input's order.
 
-:func:`classes_by_tile` is the whole flow (split, one :class:`PointTask` per
-tile, merge); :func:`merge_classes` writes the input again with the classes
-the tiles computed for their core points, in the input's order.
+:func:`classes_by_tile` is the whole flow: the survey cut into the run's
+tiles with the kernel's reach as buffer (:func:`lidar.tile_points.split_cloud`),
+one :class:`PointTask` per tile holding points of its own
+(:func:`tile_classes`: the kernel's :meth:`~lidar.gridrun.kernel.GridKernel.tile`
+on its points, the classes of its core points kept), then
+:func:`merge_classes`.  A tile whose points did not change since an earlier
+run is read back from the tile cache (:data:`MEMO`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
 
 from lidar.clouds import cloud_info, open_las_writer
+from lidar.gridrun.kernel import GridKernel
+from lidar.gridrun.passes import subset
 from lidar.tile_points import (
     cleanup,
     column_digests,
     keep_file,
     read_column,
+    read_tile,
     split_cloud,
     task_folder,
     write_result,
 )
 from pipeline.stage import StageContext
-from pipeline.tiling import TileMemo
+from pipeline.tiling import Layout, TileMemo, run_tiled
 
 if TYPE_CHECKING:
     from pipeline.log import Progress
@@ -34,50 +42,41 @@ if TYPE_CHECKING:
 MERGE_BLOCK = 65_536
 
 
-def classes_by_tile(
-    ctx: StageContext,
-    src: Path,
-    dst: Path,
-    *,
-    buffer: float,
-    columns: Callable[[Any], dict[str, np.ndarray]],
-    task: Callable[[PointTask], dict],
-    params: dict,
-) -> list[dict]:
-    """A stage that reclassifies points, tile by tile: *src* copied to *dst* with the tiles' classes.
+def classes_by_tile(ctx: StageContext, src: Path, dst: Path, kernel: GridKernel) -> list[int]:
+    """*src* copied to *dst* with the classes the tiles give; the kernel's counts summed, the changed points last.
 
-    Cuts *src* into the run's tiles (:func:`split_cloud`; *columns* adds
-    what the task needs), runs *task* on a :class:`PointTask` of every tile
-    holding points of its own (with *params*, the stage's ``model_dump``; it
-    writes ``idx`` and ``classification`` of its core points with
-    :func:`write_result`), then :func:`merge_classes`.  When every task's
-    result says ``changed: 0`` (core points whose class it changed), *dst*
-    is *src* itself (:func:`keep_file`: a link, not a rewrite of every
-    record).  Returns the tasks' results.  The split runs on the run's workers (*columns* is a
-    module-level function; the task reads the tile's parts, :func:`tile_parts`).
+    When no tile changed a class, *dst* is *src* itself (:func:`keep_file`:
+    a link, not a rewrite of every record).  The split runs on the run's
+    workers.
     """
-    from pipeline.tiling import run_tiled
-
     info = cloud_info(src)
     work = task_folder(ctx.workdir, ctx.name)
 
-    def split(layout):
+    def split(layout: Layout) -> list[PointTask]:
         with ctx.progress(info.count, "tiling", unit="pt") as bar:
             executor = ctx.executor if len(layout) > 1 else None
-            rows, _ = split_cloud(src, layout, work / "in", columns, progress=bar, executor=executor)
-        return point_tasks(rows, work, params)
+            rows, _ = split_cloud(src, layout, work / "in", kernel.columns, progress=bar, executor=executor)
+        return point_tasks(rows, work, kernel)
 
-    def merge(layout, tasks, results):
-        if all(r.get("changed") == 0 for r in results):  # no class changed: the input is the output
+    def merge(layout: Layout, tasks: list[PointTask], results: list[list[int]]) -> list[int]:
+        totals = [sum(r[k] for r in results) for k in range(len(kernel.counts) + 1)]
+        if totals[-1] == 0:  # no class changed: the input is the output
             keep_file(src, dst)
-            return results
+            return totals
         with ctx.progress(info.count, "writing", unit="pt") as bar:
             merge_classes(src, dst, [Path(t.result) for t in tasks], progress=bar)
-        return results
+        return totals
 
     try:
         return run_tiled(
-            ctx, extent=info.extent, buffer=buffer, split=split, task=task, merge=merge, weight=info.count, memo=MEMO
+            ctx,
+            extent=info.extent,
+            buffer=kernel.reach,
+            split=split,
+            task=tile_classes,
+            merge=merge,
+            weight=info.count,
+            memo=MEMO,
         )
     finally:
         cleanup(work)
@@ -85,22 +84,21 @@ def classes_by_tile(
 
 @dataclass(frozen=True)
 class PointTask:
-    """One tile's task of a stage that reclassifies points (runs in a worker process or on Dask).
+    """One tile's task (runs in a worker process or on Dask): the kernel on its points.
 
     ``source``: the tile's columns (:func:`split_cloud`); ``result``: where
     the task writes ``idx`` and ``classification`` of its core points;
-    ``weight``: the tile's points (the largest run first); ``params``: the
-    stage's parameters as ``model_dump(mode="json")``.
+    ``weight``: the tile's points (the largest run first).
     """
 
     tile: int
     weight: int
     source: str
     result: str
-    params: dict
+    kernel: GridKernel
 
 
-def point_tasks(rows: dict[int, tuple[int, int]], work: Path, params: dict) -> list[PointTask]:
+def point_tasks(rows: dict[int, tuple[int, int]], work: Path, kernel: GridKernel) -> list[PointTask]:
     """One task per tile holding points of its own (results per point)."""
     return [
         PointTask(
@@ -108,24 +106,42 @@ def point_tasks(rows: dict[int, tuple[int, int]], work: Path, params: dict) -> l
             weight=rows[t][0],
             source=str(Path(work) / "in" / str(t)),
             result=str(Path(work) / "out" / str(t)),
-            params=params,
+            kernel=kernel,
         )
         for t in sorted(rows)
         if rows[t][1]  # a tile with no point of its own has nothing to classify
     ]
 
 
+def tile_classes(task: PointTask) -> list[int]:
+    """The kernel on one tile's points (core plus buffer), in a worker: the classes of its core points written.
+
+    Returns the kernel's counts over the core points and, last, how many
+    of them changed class.
+    """
+    kernel = task.kernel
+    cols = read_tile(Path(task.source))
+    xyz = cols.pop("xyz")
+    tested = kernel.tested(cols)
+    values = kernel.tile(xyz, cols, tested)
+    core = cols["core"]
+    new, counts = kernel.classes(subset(cols, core), tested[core], values[core[tested]])
+    write_result(Path(task.result), idx=cols["idx"][core], classification=new)
+    return [*counts, int(np.count_nonzero(new != cols["classification"][core]))]
+
+
 def _memo_key(task: PointTask) -> dict:
-    """What a tile's classes depend on: its points (not their positions in the survey's file) and parameters."""
-    return {"kind": "classes", "params": task.params, "columns": column_digests(Path(task.source), skip=("idx",))}
+    """What a tile's classes depend on: its points (not their positions in the survey's file) and the kernel."""
+    kernel = {"kind": type(task.kernel).__qualname__, **dataclasses.asdict(task.kernel)}
+    return {"kind": "classes", "kernel": kernel, "columns": column_digests(Path(task.source), skip=("idx",))}
 
 
-def _memo_save(task: PointTask, result: dict, folder: Path) -> dict:
+def _memo_save(task: PointTask, result: list[int], folder: Path) -> list[int]:
     keep_file(Path(task.result) / "classification.npy", folder / "classification.npy")
     return result
 
 
-def _memo_load(task: PointTask, folder: Path, kept: dict) -> dict:
+def _memo_load(task: PointTask, folder: Path, kept: list[int]) -> list[int]:
     """The result of a kept tile, its core points' indices those of this run's file."""
     core = read_column(Path(task.source), "core")
     idx = read_column(Path(task.source), "idx")[core]
@@ -133,7 +149,7 @@ def _memo_load(task: PointTask, folder: Path, kept: dict) -> dict:
     if len(classification) != len(idx):  # pragma: no cover - the key holds the core column
         raise RuntimeError(f"a kept tile holds {len(classification)} classes for {len(idx)} core points")
     write_result(Path(task.result), idx=idx, classification=classification)
-    return {**kept, "tile": task.tile}
+    return list(kept)
 
 
 #: A tile's classes kept for later runs: a tile whose points did not change is not classified again.
@@ -193,8 +209,6 @@ def merge_classes(
     Each result folder holds ``idx`` (ascending) and ``classification`` for
     the core points of one tile; together they cover every point once.
     """
-    import laspy
-
     runs = [_Run(folder, ["classification"]) for folder in results]
     try:
         with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:

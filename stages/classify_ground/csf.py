@@ -19,10 +19,37 @@ import os
 import sys
 import tempfile
 from collections.abc import Iterator
+from typing import Literal
 
 import numpy as np
+from pydantic import Field
+
+from pipeline.config import StrictModel
 
 _log = logging.getLogger(__name__)
+
+
+class CsfParams(StrictModel):
+    """The parameters of :func:`csf` (Zhang W. et al. 2016)."""
+
+    name: Literal["csf"] = Field(description="the ground algorithm: csf")
+    cloth_resolution: float = Field(0.5, gt=0, description="GR: spacing of the cloth particles, metres")
+    rigidness: int = Field(1, ge=1, le=3, description="RI: 1 steep, 2 relief, 3 flat")
+    class_threshold: float = Field(0.5, gt=0, description="hcc: distance to the cloth for ground, metres")
+    time_step: float = Field(0.65, gt=0, description="dT: simulation time step")
+    iterations: int = Field(500, ge=1, description="maximum simulation iterations")
+    slope_smooth: bool = Field(True, description="post-process steep slopes")
+
+
+#: The buffer (m) a CSF tile gets: the cloth is one simulation over the points given, so no buffer makes tiles
+#: equal the whole; 50 m is a practical margin, and tiled results may differ within a few metres of tile edges
+#: (docs/stages/classify_ground.md, "Tiled and untiled runs").
+CLOTH_MARGIN = 50.0
+
+
+def reach(params: CsfParams) -> float:
+    """The buffer a CSF tile gets (:data:`CLOTH_MARGIN`)."""
+    return CLOTH_MARGIN
 
 
 @contextlib.contextmanager
@@ -52,15 +79,19 @@ def captured_stdout() -> Iterator[None]:
                 _log.debug("CSF library output: %s", " | ".join(text.splitlines()))
 
 
+#: The parameters at their defaults: the function's defaults are the configuration's.
+_DEFAULT = CsfParams(name="csf")
+
+
 def csf(
     xyz: np.ndarray,
     *,
-    cloth_resolution: float = 0.5,
-    rigidness: int = 1,
-    class_threshold: float = 0.5,
-    time_step: float = 0.65,
-    iterations: int = 500,
-    slope_smooth: bool = True,
+    cloth_resolution: float = _DEFAULT.cloth_resolution,
+    rigidness: int = _DEFAULT.rigidness,
+    class_threshold: float = _DEFAULT.class_threshold,
+    time_step: float = _DEFAULT.time_step,
+    iterations: int = _DEFAULT.iterations,
+    slope_smooth: bool = _DEFAULT.slope_smooth,
 ) -> np.ndarray:
     """Classify ground points by dropping a cloth on the inverted cloud: True where a point is ground.
 

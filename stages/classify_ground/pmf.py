@@ -8,11 +8,32 @@ airborne LIDAR data.  IEEE Transactions on Geoscience and Remote Sensing
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field
 from scipy import ndimage
 
+from lidar import glossary
 from lidar.grid import fill_nearest
+from pipeline.config import StrictModel
 from stages.classify_ground.surface import as_xyz, index_points, min_grid, pad_plane
+
+
+class PmfParams(StrictModel):
+    """The parameters of :func:`pmf` (Zhang et al. 2003)."""
+
+    name: Literal["pmf"] = Field(description="the ground algorithm: pmf")
+    cell_size: float = glossary.cell_size(1.0)
+    max_window_size: float = glossary.max_window_size(33.0)
+    slope: float = glossary.slope(0.15)
+    initial_distance: float = Field(0.15, ge=0, description="dh_0: first elevation-difference threshold, metres")
+    max_distance: float = Field(2.5, ge=0, description="dh_max: largest elevation-difference threshold, metres")
+
+
+def reach(params: PmfParams) -> float:
+    """How far (m) PMF looks from a point: its largest square window, twice (an opening), plus two cells."""
+    return 2.0 * params.max_window_size + 2.0 * params.cell_size
 
 
 def window_sizes(cell_size: float, max_window_size: float, *, base: float = 2.0) -> list[int]:
@@ -52,14 +73,18 @@ def height_thresholds(
     return out
 
 
+#: The parameters at their defaults: the function's defaults are the configuration's.
+_DEFAULT = PmfParams(name="pmf")
+
+
 def pmf(
     xyz: np.ndarray,
     *,
-    cell_size: float = 1.0,
-    max_window_size: float = 33.0,
-    slope: float = 0.15,
-    initial_distance: float = 0.15,
-    max_distance: float = 2.5,
+    cell_size: float = _DEFAULT.cell_size,
+    max_window_size: float = _DEFAULT.max_window_size,
+    slope: float = _DEFAULT.slope,
+    initial_distance: float = _DEFAULT.initial_distance,
+    max_distance: float = _DEFAULT.max_distance,
 ) -> np.ndarray:
     """Classify ground points with the progressive morphological filter (PMF): True where a point is ground.
 

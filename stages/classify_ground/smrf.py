@@ -13,10 +13,14 @@ and our departures from the paper: docs/stages/classify_ground.md.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
+from pydantic import Field
 from scipy import ndimage
 
+from lidar import glossary
+from pipeline.config import StrictModel
 from stages.classify_ground.surface import (
     CellIndex,
     as_xyz,
@@ -32,6 +36,42 @@ from stages.classify_ground.surface import (
 _BLOCK = 1 << 18
 _CROSS = ndimage.generate_binary_structure(2, 1)
 _SQUARE = ndimage.generate_binary_structure(2, 2)
+
+
+class SmrfParams(StrictModel):
+    """The parameters of :func:`smrf` (Pingel et al. 2013)."""
+
+    name: Literal["smrf"] = Field(description="the ground algorithm: smrf")
+    cell_size: float = glossary.cell_size(1.0)
+    slope: float = glossary.slope(0.15)
+    max_window_size: float = Field(18.0, gt=0, description="w_max: largest window radius, metres")
+    elevation_threshold: float = Field(0.5, ge=0, description="et: base height threshold of the point test, metres")
+    elevation_scalar: float = Field(1.25, ge=0, description="es: threshold added per unit of local DEM slope, metres")
+    floor_window: float = Field(
+        3.0,
+        ge=0,
+        description="objects flagged by an opening of radius up to this (metres) bound the provisional DEM under "
+        "them by that opening (bridge decks; 0: off; docs/GROUND.md)",
+    )
+    wall_height: float = Field(
+        2.0,
+        ge=0,
+        description="rise (metres) that walls in a plateau: walled plateaus wider than w_max inside the survey "
+        "are objects (buildings wider than the window; 0: off; docs/GROUND.md)",
+    )
+
+
+def reach(params: SmrfParams) -> float:
+    """How far (m) SMRF looks from a point: the buffer a tile needs.
+
+    An opening of radius ``w_max`` reads ``2 w_max`` around a cell, and a
+    gap it fills (a building, at most ``2 w_max`` wide by the parameter's
+    definition) takes its values from cells that far again, so ``4 w_max``
+    plus two cells for the provisional DEM; the second pass (low cells below
+    that DEM left out of the openings, :func:`smrf`) opens and fills again
+    around cells decided by it: ``8 w_max`` plus two cells.
+    """
+    return 8.0 * params.max_window_size + 2.0 * params.cell_size
 
 
 def _element(step: int) -> np.ndarray:
@@ -221,16 +261,20 @@ def _provisional(zmin: np.ndarray, objects: np.ndarray, floor: np.ndarray | None
     return dem
 
 
+#: The parameters at their defaults: the function's defaults are the configuration's.
+_DEFAULT = SmrfParams(name="smrf")
+
+
 def smrf(
     xyz: np.ndarray,
     *,
-    cell_size: float = 1.0,
-    slope: float = 0.15,
-    max_window_size: float = 18.0,
-    elevation_threshold: float = 0.5,
-    elevation_scalar: float = 1.25,
-    floor_window: float = 3.0,
-    wall_height: float = 2.0,
+    cell_size: float = _DEFAULT.cell_size,
+    slope: float = _DEFAULT.slope,
+    max_window_size: float = _DEFAULT.max_window_size,
+    elevation_threshold: float = _DEFAULT.elevation_threshold,
+    elevation_scalar: float = _DEFAULT.elevation_scalar,
+    floor_window: float = _DEFAULT.floor_window,
+    wall_height: float = _DEFAULT.wall_height,
 ) -> np.ndarray:
     """Classify ground points with the simple morphological filter (SMRF): True where a point is ground.
 
@@ -275,8 +319,8 @@ def provisional_dem(
     max_window_size: float,
     elevation_threshold: float,
     elevation_scalar: float,
-    floor_window: float = 3.0,
-    wall_height: float = 2.0,
+    floor_window: float,
+    wall_height: float,
     threads: int = 1,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Steps 1-4 of :func:`smrf` on a minimum surface: the provisional DEM and its slope; None without one.

@@ -1,38 +1,30 @@
 """Stage ``classify_ground``: split points into ground (class 2) and the rest (class 1).
 
-The driver does the shared work; the algorithm (``algorithm.name``) is a pure
-function on coordinates returning a ground mask: ``smrf`` (default; Pingel et
-al. 2013, :mod:`stages.classify_ground.smrf`), ``pmf`` (Zhang et al. 2003,
-:mod:`stages.classify_ground.pmf`) or ``csf`` (Zhang W. et al. 2016,
-:mod:`stages.classify_ground.csf`).  Noise (7, 18), withheld and, with
-``keep_water``, water (9) points keep their class; with ``last_returns``, only
-last or single returns may become ground.  SMRF filters the whole survey on
-one grid when it fits (:mod:`stages.classify_ground.streaming`); otherwise
-the survey is cut into tiles with the algorithm's buffer.  Method, departures
-from the papers and why SMRF is the default: docs/stages/classify_ground.md,
-docs/GROUND.md.
+The driver does the shared work; the algorithm (``algorithm.name``) is one
+of the registered filters (:data:`stages.classify_ground.filters.GROUND_FILTERS`:
+``smrf``, the default, Pingel et al. 2013; ``pmf``, Zhang et al. 2003;
+``csf``, Zhang W. et al. 2016), a pure function on coordinates returning a
+ground mask.  Noise (7, 18), withheld and, with ``keep_water``, water (9)
+points keep their class; with ``last_returns``, only last or single returns
+may become ground.  The run service (:func:`lidar.gridrun.service.run_grid_stage`)
+runs the filter on the survey's grid where it has a grid form (SMRF), else on
+tiles of points with its reach as buffer.  Method, departures from the
+papers and why SMRF is the default: docs/stages/classify_ground.md.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import ClassVar
 
 from lidar import glossary
-from lidar.grid_windows import note_windows, run_tile_cells
+from lidar.clouds import cloud_info
+from lidar.gridrun.service import run_grid_stage
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext
-from stages.classify_ground.ground_classes import (
-    SPARSE_SPACINGS,
-    classify_columns,
-    classify_tile,
-    for_spacing,
-    grid_cell,
-    nominal_spacing,
-    reach,
-)
+from stages.classify_ground.filters import grid_cell, reach
+from stages.classify_ground.ground_classes import SPARSE_SPACINGS, for_spacing, nominal_spacing
+from stages.classify_ground.kernel import GroundKernel
 from stages.classify_ground.params import ClassifyGroundParams
-from stages.classify_ground.streaming import COUNTS, smrf_one_grid
 
 
 class ClassifyGround(Stage, name="classify_ground", version="8", params=ClassifyGroundParams):
@@ -48,24 +40,12 @@ class ClassifyGround(Stage, name="classify_ground", version="8", params=Classify
         return reach(params.algorithm)
 
     def run(self, ctx: StageContext[ClassifyGroundParams]) -> None:
-        from lidar.clouds import cloud_info
-        from lidar.tile_classes import classes_by_tile
-
         src, dst = ctx.inputs["points_denoised"], ctx.outputs["points_classified"]
         spacing = nominal_spacing(src, grid_cell(ctx.params.algorithm), cloud_info(src))
         params = _for_spacing(ctx, spacing)
-        results = _on_one_grid(ctx, src, dst, params)
-        if results is None:
-            results = classes_by_tile(
-                ctx,
-                src,
-                dst,
-                buffer=self.tile_buffer(params),
-                columns=classify_columns,
-                task=classify_tile,
-                params=params.model_dump(mode="json"),
-            )
-        counts = {k: sum(r[k] for r in results) for k in COUNTS}
+        counts = run_grid_stage(
+            ctx, GroundKernel.of(params), src, dst, one_grid_cells=params.one_grid_cells, what="filtering"
+        )
         _check_last_returns(ctx, params, counts)
         n, ground, other = counts["points"], counts["ground"], counts["non_ground"]
         ctx.metrics.update(
@@ -97,43 +77,6 @@ def _for_spacing(ctx: StageContext[ClassifyGroundParams], spacing: float | None)
         grid_cell(used),
     )
     return params.model_copy(update={"algorithm": used})
-
-
-def _on_one_grid(
-    ctx: StageContext[ClassifyGroundParams], src: Path, dst: Path, params: ClassifyGroundParams
-) -> list[dict] | None:
-    """SMRF on one grid of the whole survey (:func:`smrf_one_grid`): the counts; None when it is left to the tiles."""
-    from lidar.clouds import cloud_info
-
-    if params.algorithm.name != "smrf" or params.one_grid_cells <= 0:
-        return None
-    cell = grid_cell(params.algorithm)
-    tiles = run_tile_cells(ctx.config, reach(params.algorithm), cell)
-    with ctx.progress(2 * cloud_info(src).count, "filtering", unit="pt") as bar:
-        whole = smrf_one_grid(
-            src,
-            dst,
-            params,
-            threads=ctx.workers,
-            progress=bar,
-            executor=ctx.executor,
-            workdir=ctx.workdir,
-            tiles=tiles,
-        )
-    if whole is None:
-        return None
-    if whole["windows"]:
-        note_windows(ctx, "SMRF", whole, tiles, cell)
-        return [whole]
-    ctx.metrics["tiling"] = {  # no tile, no buffer
-        "tiles": 1,
-        "size": None,
-        "buffer": 0.0,
-        "executor": "one grid, this process",
-        "grid": list(whole["grid"]),
-    }
-    ctx.log.info("SMRF on one grid of %d x %d cells of %g m", *whole["grid"], cell)
-    return [whole]
 
 
 def _check_last_returns(ctx: StageContext[ClassifyGroundParams], params: ClassifyGroundParams, counts: dict) -> None:

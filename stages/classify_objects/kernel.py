@@ -1,15 +1,29 @@
-"""The driver's shared work: the grid cell of a survey, the tile buffer, and one tile's classes in a worker."""
+"""``classify_objects``' work for the run service: the survey's grid of cells, each window's cell grids, each point's class.
+
+Pass 1 gathers each cell's statistics (:func:`~stages.classify_objects.objects.add_sums`,
+on the grid :func:`~stages.classify_objects.objects.surface` makes of the
+usable points); a window's cell grids are :func:`~stages.classify_objects.objects.object_cells`
+of its statistics, and each point takes its class by its cell
+(:func:`~stages.classify_objects.objects.point_classes`): the classes of
+:func:`~stages.classify_objects.objects.object_classes` on all the points at
+once.  Cells are those of the stage's north-up :class:`~lidar.grid.Grid`:
+a cell holds ``x`` in ``[c, c + 1)`` cells and ``y`` in ``(r - 1, r]`` cells.
+"""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
+from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
+import laspy
 import numpy as np
 
 from lidar import glossary
-from lidar.tile_classes import PointTask
+from lidar.grid import Grid
+from lidar.gridrun.kernel import Axis, Frame, GridKernel
 from stages.classify_objects.objects import (
     BRIDGE,
     BUILDING,
@@ -17,14 +31,19 @@ from stages.classify_objects.objects import (
     LOW_VEGETATION,
     MEDIUM_VEGETATION,
     WALLS,
+    ObjectCells,
+    add_sums,
+    cell_index,
+    cell_sums,
+    object_cells,
     object_classes,
+    point_classes,
+    surface_of,
 )
 from stages.classify_objects.params import ClassifyObjectsParams
 from stages.classify_objects.regions import RING, SHADOW
 
 if TYPE_CHECKING:
-    import laspy
-
     from lidar.clouds import CloudInfo
 
 #: Widest cell (m) the tile buffer allows for (a survey sparser than about 3 m between points).
@@ -71,45 +90,9 @@ def survey_cell(params: ClassifyObjectsParams, info: CloudInfo) -> float:
 
 def several_returns(path: Path) -> bool:
     """Whether the survey's pulses returned more than once (the header's count of second returns)."""
-    import laspy
-
     with laspy.open(str(path)) as reader:
         by_return = reader.header.number_of_points_by_return
     return len(by_return) > 1 and int(by_return[1]) > 0
-
-
-def objects_columns(chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-    """The columns a tile needs besides x, y, z (:func:`lidar.tile_points.split_cloud`)."""
-    return {
-        "classification": np.asarray(chunk.classification, dtype=np.uint8),
-        "number_of_returns": np.asarray(chunk.number_of_returns, dtype=np.uint8),
-        "withheld": np.asarray(chunk.withheld, dtype=bool),
-    }
-
-
-def objects_tile(task: PointTask) -> dict:
-    """Buildings and vegetation of one tile (core plus buffer) in a worker; the classes of its core points.
-
-    ``task.params``: ``{"params": ClassifyObjectsParams dump, "cell": m, "multi_echo": bool}``.
-    """
-    from lidar.tile_points import read_column, read_xyz, write_result
-
-    source = Path(task.source)
-    params = ClassifyObjectsParams.model_validate(task.params["params"])
-    cls = read_column(source, "classification")
-    usable = glossary.usable(cls, read_column(source, "withheld"))
-    new, _ = object_classes(
-        read_xyz(source),
-        cls,
-        read_column(source, "number_of_returns"),
-        usable,
-        params,
-        float(task.params["cell"]),
-        bool(task.params["multi_echo"]),
-    )
-    core = read_column(source, "core")
-    write_result(Path(task.result), idx=read_column(source, "idx")[core], classification=new[core])
-    return {"tile": task.tile, **dict(zip(COUNTS, class_counts(new[core], cls[core]), strict=True))}
 
 
 def class_counts(new: np.ndarray, was: np.ndarray) -> tuple[int, ...]:
@@ -124,3 +107,79 @@ def class_counts(new: np.ndarray, was: np.ndarray) -> tuple[int, ...]:
         int((new == MEDIUM_VEGETATION).sum()),
         int((new == HIGH_VEGETATION).sum()),
     )
+
+
+@dataclass(frozen=True)
+class ObjectsKernel(GridKernel):
+    """The stage's parameters (*params*: their JSON dump), the survey's *cell* (m) and whether it has several returns."""
+
+    params: dict
+    cell: float
+    multi_echo: bool
+
+    counts: ClassVar = COUNTS
+    axes: ClassVar = (Axis(1, down=True), Axis(0))  # the rows of a north-up grid
+
+    @cached_property
+    def model(self) -> ClassifyObjectsParams:
+        return ClassifyObjectsParams.model_validate(self.params)
+
+    @property
+    def reach(self) -> float:
+        return reach(self.model)
+
+    def columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
+        return {
+            "classification": np.asarray(chunk.classification, dtype=np.uint8),
+            "number_of_returns": np.asarray(chunk.number_of_returns, dtype=np.uint8),
+            "withheld": np.asarray(chunk.withheld, dtype=bool),
+        }
+
+    def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
+        return glossary.usable(cols["classification"], cols["withheld"])
+
+    def classes(
+        self, cols: dict[str, np.ndarray], tested: np.ndarray, values: np.ndarray
+    ) -> tuple[np.ndarray, tuple[int, ...]]:
+        out = cols["classification"].copy()
+        out[tested] = values
+        return out, class_counts(out, cols["classification"])
+
+    def tile(self, xyz: np.ndarray, cols: dict[str, np.ndarray], tested: np.ndarray) -> np.ndarray:
+        cls = cols["classification"]
+        new, _ = object_classes(xyz, cls, cols["number_of_returns"], tested, self.model, self.cell, self.multi_echo)
+        return new[tested]
+
+    # the grid form: each cell's statistics
+
+    def selected(self, cols: dict[str, np.ndarray]) -> np.ndarray:
+        return self.tested(cols)
+
+    def stats(self, size: int) -> dict[str, np.ndarray]:
+        return cell_sums(size)
+
+    def gather(self, stats: dict, step: int, k: np.ndarray, xyz: np.ndarray, cols: dict) -> None:
+        add_sums(stats, k, xyz[:, 2], cols["number_of_returns"] <= 1, cols["classification"] == glossary.GROUND)
+
+    def occupied(self, stats: dict[str, np.ndarray]) -> np.ndarray:
+        return stats["count"] > 0
+
+    def window(self, stats: dict[str, np.ndarray], frame: Frame, threads: int = 1) -> dict[str, np.ndarray]:
+        surface = surface_of(_grid(frame), **stats)
+        cells = object_cells(surface, self.model, self.multi_echo)
+        return {f.name: getattr(cells, f.name) for f in fields(cells) if f.name != "grid"}
+
+    def values(self, xyz: np.ndarray, cols: dict, results: dict | None, frame: Frame | None) -> np.ndarray:
+        cls = cols["classification"]
+        if results is None:
+            return cls.copy()
+        cells = ObjectCells(_grid(frame), **results)
+        k = cell_index(xyz, cells.grid)
+        if (k < 0).any():  # pragma: no cover - each point's cell is in its window by construction
+            raise RuntimeError(f"a point lies outside its window's grid {cells.grid}")
+        return point_classes(cells, k, cls, xyz[:, 2], cols["number_of_returns"], self.model)[0]
+
+
+def _grid(frame: Frame) -> Grid:
+    """The north-up grid of a frame (its rows' labels are the cells' tops)."""
+    return Grid(frame.corner(1), frame.corner(0), frame.cell, frame.shape[1], frame.shape[0])

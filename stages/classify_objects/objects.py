@@ -47,44 +47,37 @@ FACE_CELL = 1.0
 WALLS = 2.0
 
 
-class CellSums:
-    """What :class:`Surface` is made of, gathered a chunk of points at a time (in file order) on *grid*.
-
-    Maxima, minima and counts do not depend on the chunks; the ground
-    points' z are added one by one in file order (``np.add.at``), as
-    ``np.bincount`` adds them: the sums of the survey in chunks are those of
-    the survey at once, bit for bit.
-    """
-
-    def __init__(self, grid: Grid):
-        size = grid.rows * grid.cols
-        self.grid = grid
-        self.top = np.full(size, -np.inf)
-        self.bottom = np.full(size, np.inf)
-        # counts as int32: 12 bytes a cell fewer (150 MB at 100 M points); a cell of 2**31 points is no survey's
-        self.count = np.zeros(size, np.int32)
-        self.single = np.zeros(size, np.int32)
-        self.ground_sum = np.zeros(size)
-        self.ground_count = np.zeros(size, np.int32)
-
-    def add(self, k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray) -> None:
-        """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return and ground masks."""
-        np.maximum.at(self.top, k, z)
-        np.minimum.at(self.bottom, k, z)
-        add_counts(self.count, k)
-        add_counts(self.single, k[single])
-        k_ground = k[ground]
-        np.add.at(self.ground_sum, k_ground, z[ground])
-        add_counts(self.ground_count, k_ground)
-
-    def surface(self) -> Surface:
-        """The :class:`Surface` of the points added; it takes over these arrays (add no more points)."""
-        shape = (self.grid.rows, self.grid.cols)
-        return surface_of(self.grid, **{name: getattr(self, name).reshape(shape) for name in SUMS})
-
-
-#: The statistics :class:`CellSums` gathers per cell, in :class:`Surface`'s order.
+#: The statistics of each cell a :class:`Surface` is made of, in its order (:func:`cell_sums`, :func:`add_sums`).
 SUMS = ("top", "bottom", "count", "single", "ground_sum", "ground_count")
+
+
+def cell_sums(size: int) -> dict[str, np.ndarray]:
+    """Empty statistics of *size* cells: :data:`SUMS` as flat arrays (counts as int32: 12 bytes a cell fewer)."""
+    return {
+        "top": np.full(size, -np.inf),
+        "bottom": np.full(size, np.inf),
+        "count": np.zeros(size, np.int32),  # a cell of 2**31 points is no survey's
+        "single": np.zeros(size, np.int32),
+        "ground_sum": np.zeros(size),
+        "ground_count": np.zeros(size, np.int32),
+    }
+
+
+def add_sums(sums: dict[str, np.ndarray], k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray) -> None:
+    """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return and ground masks, added.
+
+    Maxima, minima and counts do not depend on the order; the ground
+    points' z are added one by one (``np.add.at``), as ``np.bincount`` adds
+    them: the sums of the survey in chunks (in file order) are those of the
+    survey at once, bit for bit.
+    """
+    np.maximum.at(sums["top"], k, z)
+    np.minimum.at(sums["bottom"], k, z)
+    add_counts(sums["count"], k)
+    add_counts(sums["single"], k[single])
+    k_ground = k[ground]
+    np.add.at(sums["ground_sum"], k_ground, z[ground])
+    add_counts(sums["ground_count"], k_ground)
 
 
 def surface_of(
@@ -96,7 +89,7 @@ def surface_of(
     ground_sum: np.ndarray,
     ground_count: np.ndarray,
 ) -> Surface:
-    """The :class:`Surface` of :class:`CellSums`' grids of *grid* (its shape); *top* and *bottom* made NaN, in
+    """The :class:`Surface` of :func:`cell_sums`' grids of *grid* (its shape); *top* and *bottom* made NaN, in
     place, where a cell holds no point."""
     empty = count == 0
     top[empty] = np.nan
@@ -137,9 +130,9 @@ def surface(xyz: np.ndarray, single: np.ndarray, ground: np.ndarray, cell: float
     lo, hi = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
     grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], cell)
     k = cell_index(xyz, grid)
-    sums = CellSums(grid)
-    sums.add(k, xyz[:, 2], single, ground)
-    return sums.surface(), k
+    sums = cell_sums(grid.rows * grid.cols)
+    add_sums(sums, k, xyz[:, 2], single, ground)
+    return surface_of(grid, **{name: a.reshape(grid.rows, grid.cols) for name, a in sums.items()}), k
 
 
 def plane_residual(top: np.ndarray) -> np.ndarray:

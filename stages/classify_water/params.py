@@ -73,3 +73,11 @@ class ClassifyWaterParams(StageParams):
     polygon_window: float = Field(
         10.0, gt=0, description="inside a polygon, the water level is the lowest ground within this distance (m)"
     )
+    one_grid_cells: int = Field(
+        2_000_000,
+        ge=0,
+        description="the whole survey is worked on one grid, in three passes over the points, when the grid has at "
+        "most this many cells (2 km2 of 1 m cells; about 300 bytes a cell at the peak: 0.6 GB); a grid up to 4 "
+        "times larger is worked in the tiles' windows (88 bytes a cell held), larger surveys are cut into tiles "
+        "of points with the buffer; 0: always tiles of points",
+    )

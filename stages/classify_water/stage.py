@@ -8,9 +8,10 @@ inside them near the water level there are water too
 are never ground.  After the tiles, bodies whose banks do not rise above
 them give their points' classes back; the others, one level each, go to
 ``water.gpkg`` (:mod:`lidar.water_bodies`), where ``rasterize``
-flattens the DTM.  Tiled like ``denoise``, with the buffer
-:func:`stages.classify_water.water_classes.reach`.  Method, thresholds
-and where each comes from: docs/stages/classify_water.md.
+flattens the DTM.  The run service decides how it runs
+(:func:`lidar.gridrun.service.run_grid_stage`; the buffer
+:func:`stages.classify_water.kernel.reach`).  Method, thresholds and where
+each comes from: docs/stages/classify_water.md.
 """
 
 from __future__ import annotations
@@ -20,13 +21,11 @@ from typing import ClassVar
 
 from pydantic import BaseModel
 
+from lidar.gridrun.service import run_grid_stage
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
+from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
-from stages.classify_water.water_classes import reach, water_columns, water_tile
-
-#: The counts each tile returns, summed into the stage's metrics.
-COUNTS = ("points", "water", "from_points", "from_polygons", "ground_to_water")
 
 
 class ClassifyWater(Stage, name="classify_water", version="4", params=ClassifyWaterParams):
@@ -50,22 +49,12 @@ class ClassifyWater(Stage, name="classify_water", version="4", params=ClassifyWa
         return layer_files(params.polygons) if params.polygons is not None else []
 
     def run(self, ctx: StageContext[ClassifyWaterParams]) -> None:
-        from lidar.tile_classes import classes_by_tile
-
         src = ctx.inputs["points_classified"]
-        task_params = ctx.params.model_dump(mode="json")
-        if ctx.params.polygons is not None:
-            task_params.update(_polygon_params(ctx, src))
-        results = classes_by_tile(
-            ctx,
-            src,
-            ctx.outputs["points_water"],
-            buffer=self.tile_buffer(ctx.params),
-            columns=water_columns,
-            task=water_tile,
-            params=task_params,
+        polygons = _polygon_params(ctx, src) if ctx.params.polygons is not None else {}
+        kernel = WaterKernel(ctx.params.model_dump(mode="json"), **polygons)
+        counts = run_grid_stage(
+            ctx, kernel, src, ctx.outputs["points_water"], one_grid_cells=ctx.params.one_grid_cells, what="water"
         )
-        counts = {k: int(sum(r[k] for r in results)) for k in COUNTS}
         _survey_steps(ctx, src, counts)
         ctx.metrics.update(counts)
         ctx.log.info(

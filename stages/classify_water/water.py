@@ -76,6 +76,44 @@ def window_planes(
     """Least-squares planes through the points of each cell's window of ``(2 half + 1)**2`` cells.
 
     *i*, *j*: each point's cell (:func:`cells_of`); *xy*, *z*: its position.
+    Returns :func:`planes_of` the points' :func:`cell_moments`.
+    """
+    k = i * shape[1] + j
+    # the arguments, often the caller's temporaries (a tile's ground points: 110 MB of 3.4 M), not held
+    # through the window sums
+    del i, j
+    low = lowest(k, z, shape[0] * shape[1])
+    m = cell_moments(k, xy, z, low, shape, cell)
+    del k, xy, z
+    return planes_of(m, low.reshape(shape), cell, half)
+
+
+def lowest(k: np.ndarray, z: np.ndarray, size: int) -> np.ndarray:
+    """The lowest *z* of each of *size* cells (flat cell indices *k*); inf where a cell holds none."""
+    low = np.full(size, np.inf)
+    np.minimum.at(low, k, z)
+    return low
+
+
+def cell_moments(
+    k: np.ndarray, xy: np.ndarray, z: np.ndarray, low: np.ndarray, shape: tuple[int, int], cell: float
+) -> dict[str, np.ndarray]:
+    """Per cell (flat index *k* of each point), the count and the sums of x, y, z and their products.
+
+    Each point's x, y is taken about its cell's centre and its z above the
+    whole metre below its cell's lowest point (*low*, :func:`lowest`): the
+    same in every tile, and no large numbers.
+    """
+    u, v = (_in_cell(xy[:, axis], cell) for axis in range(2))  # position in its cell: the same in every tile
+    base = np.floor(np.where(np.isfinite(low), low, 0.0))  # whole metres: exact differences
+    r = base[k]
+    np.subtract(z, r, out=r)
+    return _cell_moments(k, u, v, r, shape)
+
+
+def planes_of(m: dict[str, np.ndarray], low: np.ndarray, cell: float, half: int) -> dict[str, np.ndarray]:
+    """The planes of each cell's window from the cells' moments *m* (:func:`cell_moments`) and lowest points *low*.
+
     Returns per cell ``count`` (points in the cell), ``window`` (in its
     window), ``mean`` (mean height in the cell, NaN when empty), ``slope``
     (rise over run of the plane), ``rms`` (m, of the points about it) and
@@ -88,29 +126,14 @@ def window_planes(
     """
     from scipy import ndimage
 
-    k = i * shape[1] + j
-    size = shape[0] * shape[1]
-    u, v = (_in_cell(xy[:, axis], cell) for axis in range(2))  # position in its cell: the same in every tile
-    # the arguments, often the caller's temporaries (a tile's ground points: 110 MB of 3.4 M), not held
-    # through the window sums
-    del i, j, xy
-    low = np.full(size, np.inf)
-    np.minimum.at(low, k, z)
     held = np.isfinite(low)
-    base = np.floor(np.where(held, low, 0.0))  # whole metres: exact differences
-    r = base[k]
-    np.subtract(z, r, out=r)
-    del z
-
-    m = _cell_moments(k, u, v, r, shape)
-    del k, u, v, r  # the points' arrays: not held through the window sums
-    base = base.reshape(shape)
+    base = np.floor(np.where(held, low, 0.0))
     # The window's sums in two passes, along y then x: 2 (2 half + 1) shifted sums a cell, not (2 half + 1)**2.
     # Each pass moves its sums to a height of its own, the highest base within its reach (whole metres of the
     # terrain there): no large numbers cancel, and a cell's figures still depend only on its window, summed
     # in the same order in every tile.
     side = 2 * half + 1
-    top = np.where(held.reshape(shape), base, -np.inf)
+    top = np.where(held, base, -np.inf)
     row_top = ndimage.maximum_filter1d(top, side, axis=1, mode="constant", cval=-np.inf)
     win_top = ndimage.maximum_filter1d(row_top, side, axis=0, mode="constant", cval=-np.inf)
     row_top, win_top = (np.where(np.isfinite(t), t, 0.0) for t in (row_top, win_top))
@@ -200,12 +223,19 @@ def could_be_level(
     i: np.ndarray, j: np.ndarray, shape: tuple[int, int], half: int, min_points: int, min_cells: float
 ) -> bool:
     """Whether *min_cells* cells or more hold a ground point (at cells *i*, *j*) with *min_points* or more in their
-    window of ``(2 half + 1)**2`` cells: the most :func:`level_cells` could find.  When not, no body can reach
-    its area and the planes are not fitted (a sparse survey: milliseconds, not seconds).
+    window of ``(2 half + 1)**2`` cells: the most :func:`level_cells` could find (:func:`could_hold_level`)."""
+    count = np.bincount(i * shape[1] + j, minlength=shape[0] * shape[1]).reshape(shape)
+    return could_hold_level(count, half, min_points, min_cells)
+
+
+def could_hold_level(count: np.ndarray, half: int, min_points: int, min_cells: float) -> bool:
+    """Whether *min_cells* cells or more of the grid of ground points per cell *count* have *min_points* or more in
+    their window of ``(2 half + 1)**2`` cells.  When not, no body can reach its area and the planes are not fitted
+    (a sparse survey: milliseconds, not seconds).
     """
     from scipy import ndimage
 
-    count = np.bincount(i * shape[1] + j, minlength=shape[0] * shape[1]).reshape(shape).astype(np.float64)
+    count = count.astype(np.float64)
     side = 2 * half + 1
     window = ndimage.uniform_filter(count, side, mode="constant") * side * side
     return int(np.count_nonzero((count > 0) & (window >= min_points - 0.5))) >= min_cells

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from functools import cached_property
+from typing import ClassVar
 
+import laspy
 import numpy as np
 
 from lidar import glossary
-from lidar.tile_classes import PointTask
+from lidar.gridrun.kernel import GridKernel
 from stages.denoise.outliers import isolated_points, low_outliers, within_plan
 from stages.denoise.params import DenoiseParams
-
-if TYPE_CHECKING:
-    import laspy
 
 
 def reach(params: DenoiseParams) -> float:
@@ -86,40 +85,49 @@ def above_neighbours(points: np.ndarray, iso: np.ndarray, *, neighbors: int, rad
     return high
 
 
-def denoise_columns(chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-    """The columns the noise tests need besides x, y, z (:func:`lidar.tile_points.split_cloud`)."""
-    return {
-        "classification": np.asarray(chunk.classification, dtype=np.uint8),
-        "withheld": np.asarray(chunk.withheld, dtype=bool),
-    }
+@dataclass(frozen=True)
+class DenoiseKernel(GridKernel):
+    """The noise tests for the run service (*params*: the stage's dump): on tiles of points only.
 
-
-def denoise_tile(task: PointTask) -> dict:
-    """One tile of the noise tests (runs in a worker process).
-
-    Writes ``idx`` and ``classification`` of the core points and returns counts.
+    Values: each tested point's noise class (0: not noise).
     """
-    from lidar.tile_points import read_column, read_xyz, write_result
 
-    source = Path(task.source)
-    params = DenoiseParams.model_validate(task.params)
-    points = read_xyz(source)  # the columns mapped and stacked: no second copy of the coordinates in memory
-    cls = read_column(source, "classification")
-    done = ~glossary.usable(cls, read_column(source, "withheld"))
-    core = read_column(source, "core")
-    idx = read_column(source, "idx")
-    found = np.zeros(len(cls), dtype=np.uint8)
-    if done.any():
-        found[~done] = noise_classes(points[~done], params)
-    else:  # no copy of the points
-        found = noise_classes(points, params)
-    cls[found > 0] = found[found > 0]
-    write_result(Path(task.result), idx=idx[core], classification=cls[core])
-    return {
-        "tile": task.tile,
-        "points": int(core.sum()),
-        "low": int((found[core] == glossary.LOW_NOISE).sum()),
-        "high": int((found[core] == glossary.HIGH_NOISE).sum()),
-        "done": int(done[core].sum()),
-        "changed": int((found[core] > 0).sum()),
-    }
+    params: dict
+
+    counts: ClassVar = ("points", "low", "high", "done")
+    grid_form: ClassVar = False  # the tests need the points around each point
+
+    @cached_property
+    def model(self) -> DenoiseParams:
+        return DenoiseParams.model_validate(self.params)
+
+    @property
+    def cell(self) -> float:
+        return self.model.low.cell_size
+
+    @property
+    def reach(self) -> float:
+        return reach(self.model)
+
+    def columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
+        return {
+            "classification": np.asarray(chunk.classification, dtype=np.uint8),
+            "withheld": np.asarray(chunk.withheld, dtype=bool),
+        }
+
+    def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
+        """Points already classified as noise or withheld are not tested again."""
+        return glossary.usable(cols["classification"], cols["withheld"])
+
+    def tile(self, xyz: np.ndarray, cols: dict[str, np.ndarray], tested: np.ndarray) -> np.ndarray:
+        return noise_classes(xyz if tested.all() else xyz[tested], self.model)  # all tested: no copy of the points
+
+    def classes(
+        self, cols: dict[str, np.ndarray], tested: np.ndarray, values: np.ndarray
+    ) -> tuple[np.ndarray, tuple[int, ...]]:
+        cls = cols["classification"].copy()
+        found = np.zeros(len(cls), dtype=np.uint8)
+        found[tested] = values
+        cls[found > 0] = found[found > 0]
+        low, high = int((found == glossary.LOW_NOISE).sum()), int((found == glossary.HIGH_NOISE).sum())
+        return cls, (len(cls), low, high, int((~tested).sum()))

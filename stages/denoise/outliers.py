@@ -11,15 +11,20 @@ import itertools
 
 import numpy as np
 
+from stages.denoise.params import IsolatedParams, LowParams
+
+#: The tests' parameters at their defaults: the functions' defaults are the configuration's.
+_ISOLATED, _LOW = IsolatedParams(), LowParams()
+
 
 def isolated_points(
     xyz: np.ndarray,
     *,
-    neighbors: int = 2,
-    spacing_neighbors: int = 8,
-    multiplier: float = 10.0,
-    min_distance: float = 2.0,
-    radius: float = 30.0,
+    neighbors: int = _ISOLATED.neighbors,
+    spacing_neighbors: int = _ISOLATED.spacing_neighbors,
+    multiplier: float = _ISOLATED.multiplier,
+    min_distance: float = _ISOLATED.min_distance,
+    radius: float = _ISOLATED.radius,
 ) -> np.ndarray:
     """Points isolated in 3-D at the scale of the point spacing around them.
 
@@ -148,7 +153,9 @@ def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.nda
     return np.minimum(d[:, 0], radius)
 
 
-def low_outliers(xyz: np.ndarray, *, cell_size: float = 10.0, elevation_threshold: float = 1.0) -> np.ndarray:
+def low_outliers(
+    xyz: np.ndarray, *, cell_size: float = _LOW.cell_size, elevation_threshold: float = _LOW.elevation_threshold
+) -> np.ndarray:
     """Extended local minimum: points well below everything else in their cell.
 
     In each square cell of *cell_size* (m), points are taken from the lowest

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from lidar.gridrun.service import run_grid_stage
 from pipeline.stage import Stage, StageContext
-from stages.denoise.noise_classes import denoise_columns, denoise_tile, reach
+from stages.denoise.noise_classes import DenoiseKernel, reach
 from stages.denoise.params import DenoiseParams
 
 
@@ -32,18 +33,9 @@ class Denoise(Stage, name="denoise", version="3", params=DenoiseParams):
         return reach(params)
 
     def run(self, ctx: StageContext[DenoiseParams]) -> None:
-        from lidar.tile_classes import classes_by_tile
-
-        results = classes_by_tile(
-            ctx,
-            ctx.inputs["points_adjusted"],
-            ctx.outputs["points_denoised"],
-            buffer=self.tile_buffer(ctx.params),
-            columns=denoise_columns,
-            task=denoise_tile,
-            params=ctx.params.model_dump(mode="json"),
-        )
-        counts = {k: sum(r[k] for r in results) for k in ("points", "low", "high", "done")}
+        kernel = DenoiseKernel(ctx.params.model_dump(mode="json"))
+        src, dst = ctx.inputs["points_adjusted"], ctx.outputs["points_denoised"]
+        counts = run_grid_stage(ctx, kernel, src, dst, one_grid_cells=0, what="denoising")
         ctx.metrics.update(
             points=int(counts["points"]),
             low_noise=int(counts["low"]),

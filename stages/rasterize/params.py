@@ -1,44 +1,26 @@
-"""Parameters of ``rasterize``: the grid, the DTM's interpolation method and each method's options."""
+"""Parameters of ``rasterize``: the grid, the DTM's interpolation method and each method's parameters.
+
+``method`` names one of the registered methods (:data:`stages.rasterize.interpolators.INTERPOLATORS`);
+:class:`RasterizeParams` has a block for each method that has parameters, named as the method.
+"""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, create_model
 
 from lidar import glossary
-from pipeline.config import StrictModel
 from pipeline.stage import StageParams
-
-#: Most ``idw.neighbors``: each cell's search grows with it (1,000 take 30 s for the sample's 196,608 cells, 2 cores).
-MAX_NEIGHBORS = 1_000
+from stages.rasterize.interpolators import INTERPOLATORS
 
 
-class IdwParams(StrictModel):
-    neighbors: int = Field(
-        8,
-        ge=1,
-        le=MAX_NEIGHBORS,
-        description=f"nearest ground points averaged per cell (at most {MAX_NEIGHBORS:,}: each cell's cost grows "
-        "with it; fewer when the tile has fewer ground points)",
-    )
-    power: float = Field(2.0, gt=0, description="weights are 1 / distance**power")
+class GridParams(StageParams):
+    """``rasterize``'s own parameters; :class:`RasterizeParams` adds the methods' blocks."""
 
-
-class TinParams(StrictModel):
-    thin: bool = Field(
-        True,
-        description="in cells with more than 4 ground points, triangulate one per half cell (the nearest to its "
-        "centre); false: every ground point",
-    )
-
-
-class RasterizeParams(StageParams):
     resolution: float = glossary.resolution(1.0)
-    method: Literal["tin", "idw", "nearest"] = Field("tin", description="DTM interpolation: tin | idw | nearest")
+    method: Annotated[str, INTERPOLATORS.name()] = Field("tin", description="DTM interpolation method")
     nodata_distance: float = glossary.nodata_distance(50.0)
-    idw: IdwParams = Field(default_factory=IdwParams, description="parameters of method idw")
-    tin: TinParams = Field(default_factory=TinParams, description="parameters of method tin")
     outline_edge: float = Field(
         20.0,
         ge=0,
@@ -68,3 +50,17 @@ class RasterizeParams(StageParams):
         description="DTM cells whose centre lies in a flat water body of classify_water's water.gpkg take the "
         "body's level (hydro-flattening), and the bodies' shores (breaklines.gpkg) are enforced in the interpolation",
     )
+
+
+#: The stage's parameters: :class:`GridParams` and, for each registered method with parameters, its block.
+RasterizeParams = create_model(
+    "RasterizeParams",
+    __base__=GridParams,
+    __module__=__name__,
+    __doc__="The parameters of ``rasterize``: the grid's, and each interpolation method's block.",
+    **{
+        m.name: (m.params, Field(default_factory=m.params, description=f"parameters of method {m.name}: {m.summary}"))
+        for m in INTERPOLATORS
+        if m.params is not None
+    },
+)

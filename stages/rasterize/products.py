@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lidar.grid import Grid, cell_mean, fill_nearest
-from stages.rasterize.interpolate import idw, in_hull, nearest, tin
+from stages.rasterize.interpolate import in_hull
+from stages.rasterize.interpolators import INTERPOLATORS
 from stages.rasterize.params import RasterizeParams
 
 if TYPE_CHECKING:
@@ -26,25 +27,7 @@ def interpolate_dtm(
     ground: np.ndarray | list[np.ndarray], grid: Grid, params: RasterizeParams, progress: Progress | None = None
 ) -> np.ndarray:
     """The DTM of *ground* points on *grid* by the configured method (NaN = nodata)."""
-    if params.method == "tin":
-        return tin(
-            ground,
-            grid,
-            nodata_distance=params.nodata_distance,
-            thin=params.tin.thin,
-            progress=progress,
-            max_hull_edge=params.outline_edge,
-        )
-    if params.method == "idw":
-        return idw(
-            ground,
-            grid,
-            nodata_distance=params.nodata_distance,
-            neighbors=params.idw.neighbors,
-            power=params.idw.power,
-            progress=progress,
-        )
-    return nearest(ground, grid, nodata_distance=params.nodata_distance, progress=progress)
+    return INTERPOLATORS[params.method].function(ground, grid, params, progress)
 
 
 @dataclass
@@ -100,8 +83,9 @@ def tile_rasters(
     decks = cloud.decks is not None and params.bridge_decks and bool(cloud.decks.any())
     grid, sub = _around(core, wide, crop, params.max_deck_width if decks else 0.0)
     dtm = np.full((grid.rows, grid.cols), np.nan)
-    if core.rows and core.cols and len(ground) >= (3 if params.method == "tin" else 1):
-        if params.method == "tin" and cloud.sigma is None:
+    method = INTERPOLATORS[params.method]
+    if core.rows and core.cols and len(ground) >= method.min_points:
+        if method.hands_over and cloud.sigma is None:
             ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
         dtm = interpolate_dtm(ground, grid, params)  # collinear or coincident ground points: all nodata
     levels = flat(grid) if flat is not None else None

@@ -25,6 +25,7 @@ from lidar.mosaic import core_window
 from lidar.rasters import HEIGHT, NODATA
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.tiling import Layout
+from stages.rasterize.interpolators import INTERPOLATORS
 from stages.rasterize.outline import Outline, occupied_cells
 from stages.rasterize.params import RasterizeParams
 from stages.rasterize.products import TileCloud, tile_figures, tile_rasters
@@ -41,16 +42,16 @@ RASTERS = ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty")
 def reach(params: RasterizeParams, decks: bool = True) -> float:
     """The buffer (metres) a tile needs for its cells to equal the untiled ones.
 
-    IDW and nearest use points within ``nodata_distance`` of a cell centre,
-    as does the DSM's gap filling: ``nodata_distance`` plus a cell.  A TIN
-    triangle covering a cell may reach farther (across a gap up to
-    ``nodata_distance`` from both sides): twice ``nodata_distance``.  With
-    bridge decks (*decks*: the points hold class 17) and ``bridge_decks``,
-    the cells either side of a deck, ``max_deck_width`` more.
+    The method's reach (its declaration, :mod:`stages.rasterize.interpolators`:
+    IDW and nearest use points within ``nodata_distance`` of a cell centre; a
+    TIN triangle covering a cell may reach across a gap up to
+    ``nodata_distance`` from both sides, twice that), which covers the DSM's
+    gap filling (``nodata_distance``), plus two cells.  With bridge decks
+    (*decks*: the points hold class 17) and ``bridge_decks``, the cells
+    either side of a deck, ``max_deck_width`` more.
     """
-    far = 2.0 if params.method == "tin" else 1.0
     across = params.max_deck_width if params.bridge_decks and decks else 0.0
-    return far * params.nodata_distance + 2.0 * params.resolution + across
+    return INTERPOLATORS[params.method].reach(params) + 2.0 * params.resolution + across
 
 
 def has_decks(path: Path, chunk: int = 1_000_000) -> bool:
@@ -220,7 +221,7 @@ def tile_memory(task: RasterTask, params: RasterizeParams) -> tuple[int, int, in
     """
     _, wide, _ = tile_windows(task.grid, task.window, task.buffer)
     rows, cols = wide.rows, wide.cols
-    if params.method != "tin":
+    if not INTERPOLATORS[params.method].mask:
         return wide.rows * wide.cols * TILE_BYTES_PER_CELL, 0, rows, cols
     pad = 2 * (int(math.ceil(params.nodata_distance / params.resolution)) + 2)  # the margin of ``_far_from``
     rows, cols = rows + pad, cols + pad

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from commands.evaluate.command import evaluate_ground
-from stages.classify_ground.params import CsfParams, SmrfParams
+from stages.classify_ground.csf import CsfParams
+from stages.classify_ground.smrf import SmrfParams
 
 ROOT = Path(__file__).resolve().parents[2]
 ISPRS = Path(os.environ.get("ISPRS_DIR", ROOT.parent / "shared" / "data" / "isprs"))

@@ -126,6 +126,7 @@ def _run(out: Path, survey: Path, *sets: str) -> dict:
     args += ["--set", "stages.report.enabled=false"]  # 2 s, and it names the run's folders: not comparable
     # 100 m tiles, and SMRF on the tiles too (a survey this small would otherwise get one grid)
     args += ["--set", "tiling.size=100", "--set", "stages.classify_ground.one_grid_cells=0"]
+    args += ["--set", "stages.classify_water.one_grid_cells=0"]
     for s in sets:
         args += ["--set", s]
     assert main(args) == 0

@@ -54,6 +54,7 @@ def _run(tmp: Path, paths: list[Path], out: str, cache: str, dry_run: bool = Fal
         f"tiling: {{size: {TILE:g}}}\n"
         "stages:\n"
         "  classify_ground: {one_grid_cells: 0}\n  classify_objects: {one_grid_cells: 0}\n"
+        "  classify_water: {one_grid_cells: 0}\n"
         "  hillshade: {enabled: false}\n  contours: {enabled: false}\n  report: {enabled: false}\n"
     )
     if dry_run:

@@ -43,8 +43,13 @@ def _products(manifest: dict) -> dict[str, str]:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("tiled")
-    # SMRF filters a survey this small on one grid; zero cells makes it use the tiles too
-    tiles = ("tiling.size=200", "executor.workers=2", "stages.classify_ground.one_grid_cells=0")
+    # the ground and water grids of a survey this small fit whole; zero cells makes them use the tiles too
+    tiles = (
+        "tiling.size=200",
+        "executor.workers=2",
+        "stages.classify_ground.one_grid_cells=0",
+        "stages.classify_water.one_grid_cells=0",
+    )
     return tmp, {
         "untiled": _run(tmp, "untiled", "tiling.enabled=false"),
         "local": _run(tmp, "local", *tiles),

@@ -154,15 +154,15 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
 
 
 def test_a_tile_split_on_two_workers_gives_the_same_noise_classes(split, tmp_path):
-    from lidar.tile_classes import PointTask
-    from stages.denoise.noise_classes import denoise_tile
+    from lidar.gridrun.point_tiles import PointTask, tile_classes
+    from stages.denoise.noise_classes import DenoiseKernel
     from stages.denoise.params import DenoiseParams
 
     _, _, tmp, (rows, _), _ = split
-    params = DenoiseParams().model_dump(mode="json")
+    kernel = DenoiseKernel(DenoiseParams().model_dump(mode="json"))
     for t in rows:
         results = [
-            denoise_tile(PointTask(t, rows[t][0], str(tmp / run / str(t)), str(tmp_path / run / str(t)), params))
+            tile_classes(PointTask(t, rows[t][0], str(tmp / run / str(t)), str(tmp_path / run / str(t)), kernel))
             for run in ("one", "two")
         ]
         assert results[0] == results[1]

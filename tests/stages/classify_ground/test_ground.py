@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from commands.evaluate.scores import score
-from stages.classify_ground.csf import csf
+from stages.classify_ground.csf import CsfParams, csf
 from stages.classify_ground.ground_classes import classify
-from stages.classify_ground.params import ClassifyGroundParams, CsfParams, PmfParams, SmrfParams
-from stages.classify_ground.pmf import pmf
-from stages.classify_ground.smrf import smrf
+from stages.classify_ground.params import ClassifyGroundParams
+from stages.classify_ground.pmf import PmfParams, pmf
+from stages.classify_ground.smrf import SmrfParams, smrf
 from stages.classify_ground.surface import inpaint
 from stages.denoise.outliers import isolated_points, low_outliers
 

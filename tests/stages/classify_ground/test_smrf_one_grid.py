@@ -22,9 +22,10 @@ import pyproj
 import pytest
 
 from stages.classify_ground.ground_classes import classify
+from stages.classify_ground.kernel import GroundKernel
 from stages.classify_ground.params import ClassifyGroundParams
 from stages.classify_ground.smrf import progressive_filter
-from stages.classify_ground.streaming import smrf_one_grid
+from tests.gridruns import one_grid
 from tests.synthetic import make_scene
 
 X0, Y0 = 440_000.0, 4_474_000.0
@@ -59,6 +60,11 @@ def _survey(path: Path, *, stray: bool) -> laspy.LasData:
     las.withheld = withheld
     las.write(str(path))
     return laspy.read(str(path))
+
+
+def smrf_one_grid(src: Path, dst: Path, params: ClassifyGroundParams, tiles=None, **workers) -> dict | None:
+    """SMRF on one grid of the survey, as the stage runs it (:func:`tests.gridruns.one_grid`)."""
+    return one_grid(GroundKernel.of(params), src, dst, params.one_grid_cells, tiles, **workers)
 
 
 def _reference(las: laspy.LasData, params: ClassifyGroundParams) -> np.ndarray:
@@ -157,15 +163,15 @@ def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_poin
     """A header's grid over the limit but within STRAYS_BEYOND times it is a large survey, not stray points:
     tiled at once (no pass for the candidates' bounds, which at 100 M points cost a whole read); far over it
     (the stray point 40 km away), the bounds are read and one grid taken (test above)."""
-    from lidar.grid_classes import STRAYS_BEYOND
-    from stages.classify_ground import streaming
+    from lidar.gridrun import passes
+    from lidar.gridrun.passes import STRAYS_BEYOND
 
     las = _survey(tmp_path / "in.las", stray=False)
     cells = int(np.ceil(las.header.maxs[0] - las.header.mins[0]) + 1) * int(
         np.ceil(las.header.maxs[1] - las.header.mins[1]) + 1
     )
-    read, bounds = [], streaming._candidate_bounds
-    monkeypatch.setattr(streaming, "_candidate_bounds", lambda *a, **k: read.append(1) or bounds(*a, **k))
+    read, bounds = [], passes.selected_box
+    monkeypatch.setattr(passes, "selected_box", lambda *a, **k: read.append(1) or bounds(*a, **k))
     within = ClassifyGroundParams(one_grid_cells=int(cells / (0.5 * (1 + STRAYS_BEYOND))))
     assert smrf_one_grid(tmp_path / "in.las", tmp_path / "out.las", within) is None and read == []
     far = ClassifyGroundParams(one_grid_cells=int(cells / (2 * STRAYS_BEYOND)))

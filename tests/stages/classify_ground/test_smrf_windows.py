@@ -1,8 +1,8 @@
 """SMRF on one grid filtered in the tiles' windows: the classes of the tiles of points, without the tiles.
 
 A survey whose grid is over ``one_grid_cells`` was cut into tiles of points
-with SMRF's buffer; :mod:`stages.classify_ground.windows` cuts the grid
-of lowest candidates instead, and tests each point against its tile's
+with SMRF's buffer; the run service (:mod:`lidar.gridrun.windows`) cuts the
+grid of lowest candidates instead, and tests each point against its tile's
 window.  The reference here is the point tiles written out in the test: for
 each 100 m tile, :func:`~stages.classify_ground.ground_classes.classify`
 (SMRF on the points in memory) on the points within the tile and its buffer,
@@ -18,10 +18,9 @@ import laspy
 import numpy as np
 import pytest
 
-from lidar.grid_windows import tile_cells
+from lidar.gridrun.windows import tile_cells
 from stages.classify_ground.params import ClassifyGroundParams
-from stages.classify_ground.streaming import smrf_one_grid
-from tests.stages.classify_ground.test_smrf_one_grid import _reference, _survey
+from tests.stages.classify_ground.test_smrf_one_grid import _reference, _survey, smrf_one_grid
 
 SIZE, BUFFER = 100.0, 20.0
 TILES = (100, 20)  # in cells of 1 m
@@ -104,22 +103,23 @@ def test_each_point_gets_the_dem_of_its_tile_of_points(survey):
     threshold): the window's cut to its candidates, its corner and the cells
     kept around the core all show here.
     """
+    from lidar.gridrun.passes import survey_statistics
+    from lidar.gridrun.windows import run_windows
     from stages.classify_ground.ground_classes import candidates_of
+    from stages.classify_ground.kernel import GroundKernel
     from stages.classify_ground.smrf import provisional_dem
-    from stages.classify_ground.streaming import lowest_grid
-    from stages.classify_ground.surface import index_points, min_grid, sample_bilinear_all
-    from stages.classify_ground.windows import Windows, WindowSurfaces, filter_windows, window_tasks
+    from stages.classify_ground.surface import CellIndex, index_points, min_grid, sample_bilinear_all
 
     root, las, params, _ = survey
     algo = params.algorithm
     extent = (*las.header.mins[:2], *las.header.maxs[:2])
-    zmin, _, anchor = lowest_grid(root / "in.las", params, extent, cap=4 * params.one_grid_cells)
+    kernel = GroundKernel.of(params)
+    stats, frame = survey_statistics(root / "in.las", kernel, extent, cap=4 * params.one_grid_cells)
     folder = root / "windows"
     folder.mkdir()
-    np.save(folder / "zmin.npy", zmin)
-    tasks = window_tasks(zmin, (round(anchor[1]), round(anchor[0])), *TILES, algo, folder)
-    first = filter_windows(tasks, None)
-    surfaces = WindowSurfaces(Windows(1.0, TILES[0], str(folder), tuple((*k, *v) for k, v in first.items())))
+    windows = run_windows(kernel, frame, stats, TILES, folder, None)
+    saved = windows.lookup()
+    empty = np.zeros(0, np.int64)
 
     xyz = np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))
     _, cand = candidates_of(
@@ -134,8 +134,10 @@ def test_each_point_gets_the_dem_of_its_tile_of_points(survey):
     checked = 0
     for i, j in {(a, b) for a, b in zip(home_i, home_j, strict=True)}:
         mine = (home_i == i) & (home_j == j)
-        index, grids = surfaces.window((int(i), int(j)))
-        at, grad = sample_bilinear_all((grids[0], grids[1]), index, xyz[mine, 0], xyz[mine, 1])
+        key = (int(i), int(j))
+        grids, window = saved.recent.get(key, saved._read), saved.frames[key]
+        index = CellIndex(window.corner(1), window.corner(0), window.cell, *window.shape, empty, empty)
+        at, grad = sample_bilinear_all((grids["surface_0"], grids["surface_1"]), index, xyz[mine, 0], xyz[mine, 1])
         inside = (xyz[:, 0] >= j * SIZE - BUFFER) & (xyz[:, 0] < (j + 1) * SIZE + BUFFER)
         inside &= (xyz[:, 1] >= i * SIZE - BUFFER) & (xyz[:, 1] < (i + 1) * SIZE + BUFFER)
         tile = xyz[inside]
@@ -149,4 +151,4 @@ def test_each_point_gets_the_dem_of_its_tile_of_points(survey):
         np.testing.assert_array_equal(at, want[0])
         np.testing.assert_array_equal(grad, want[1])
         checked += int(mine.sum())
-    assert checked == len(xyz) and len(first) == 6
+    assert checked == len(xyz) and len(windows.frames) == windows.worked == 6

@@ -20,15 +20,22 @@ import pytest
 
 from lidar import glossary
 from lidar.grid import Grid
+from stages.classify_objects.kernel import ObjectsKernel
 from stages.classify_objects.objects import object_classes
-from stages.classify_objects.one_grid import objects_one_grid
 from stages.classify_objects.params import ClassifyObjectsParams
 from tests.conftest import run_stages, run_until
+from tests.gridruns import one_grid
 from tests.synthetic import make_scene, terrain
 
 X0, Y0 = 440_000.0, 4_474_000.0
 ROOF = (150.0, 100.0, 15.0, 12.0)  # centre x, y, half width, half depth: a flat roof taken for ground
 WALL = (80.0, 130.0, 159.9)  # from x, to x, at y: a wall whose roof lies beyond the survey's north edge
+
+
+def objects_one_grid(src: Path, dst: Path, params: ClassifyObjectsParams, cell: float, multi: bool, **workers):
+    """The survey's classes on one grid, as the stage runs it (:func:`tests.gridruns.one_grid`)."""
+    kernel = ObjectsKernel(params.model_dump(mode="json"), cell, multi)
+    return one_grid(kernel, src, dst, params.one_grid_cells, **workers)
 
 
 def _survey(path: Path) -> None:
@@ -105,7 +112,7 @@ def _reference(path: Path, params: ClassifyObjectsParams, cell: float) -> np.nda
 
 def test_one_grid_equals_the_tiles_byte_for_byte(runs):
     _, one, tiled = runs
-    assert one["metrics"]["tiling"]["tiles"] == 1 and one["metrics"]["tiling"]["executor"] == "one grid"
+    assert one["metrics"]["tiling"]["tiles"] == 1 and one["metrics"]["tiling"]["executor"] == "one grid, this process"
     assert tiled["metrics"]["tiling"]["tasks"] == 7  # 4 x 2 tiles over the noise too, one of them only noise
     assert one["outputs"]["points_objects"]["sha256"] == tiled["outputs"]["points_objects"]["sha256"]
     counts = {k: v for k, v in one["metrics"].items() if k != "tiling"}
@@ -160,16 +167,16 @@ def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_box(
     import laspy
 
     from lidar.grid import Grid
-    from lidar.grid_classes import STRAYS_BEYOND
-    from stages.classify_objects import one_grid
+    from lidar.gridrun import passes
+    from lidar.gridrun.passes import STRAYS_BEYOND
 
     src = _input_of(runs[0])
     with laspy.open(str(src)) as reader:
         (x0, y0), (x1, y1) = reader.header.mins[:2], reader.header.maxs[:2]
     header = Grid.covering(x0, y0, x1, y1, 1.0)
     cells = header.rows * header.cols
-    read, box = [], one_grid._usable_box
-    monkeypatch.setattr(one_grid, "_usable_box", lambda *a, **k: read.append(1) or box(*a, **k))
+    read, box = [], passes.selected_box
+    monkeypatch.setattr(passes, "selected_box", lambda *a, **k: read.append(1) or box(*a, **k))
     within = ClassifyObjectsParams(one_grid_cells=int(cells / (0.5 * (1 + STRAYS_BEYOND))))
     assert objects_one_grid(src, tmp_path / "out.las", within, 1.0, True) is None and read == []
     far = ClassifyObjectsParams(one_grid_cells=int(cells / (2 * STRAYS_BEYOND)))

@@ -156,26 +156,45 @@ def test_disabled_the_stage_passes_the_ground_classes_on(one_lake):
     assert stages["classify_water"]["status"] == "disabled"
 
 
-def test_tiled_equals_untiled_with_lakes_astride_the_tile_edges(tmp_path):
+#: The run modes of the water grid (300 x 300 cells of 1 m) cut in 100 m tiles: tiles of points, the grid in the
+#: tiles' windows (a cap under the grid, within 4 times it), the grid whole.
+MODES = {
+    "points": ("stages.classify_water.one_grid_cells=0",),
+    "windows": ("stages.classify_water.one_grid_cells=40000",),
+    "grid": (),
+}
+
+
+def test_every_run_mode_equals_untiled_with_lakes_astride_the_tile_edges(tmp_path):
     """Lakes cut by the tile edges x, y = 100, 200 m.  The one centred at (150, 118), 20 m wide, reaches 2 m into
     the tile below y = 100: its shore there is water because the lake's level cells beyond the edge make a body of
-    70 m2 or more.  A tile that sees 5 m across the edge sees under 70 m2 of them and leaves the shore ground."""
+    70 m2 or more.  A tile or window that sees 5 m across the edge sees under 70 m2 of them and leaves the shore
+    ground."""
     lakes = [(100.0, 150.0, 30.0), (200.0, 200.0, 12.0), (150.0, 118.0, 20.0), (260.0, 60.0, 40.0)]
     xyz, lake = _lakes(300.0, lakes)
     las = write_las(tmp_path / "lakes.las", xyz)
     config = _config(tmp_path, las)
-    untiled = run_until(config, "rasterize", tmp_path / "untiled", "tiling.enabled=false")
-    tiled = run_until(config, "rasterize", tmp_path / "tiled", "tiling.size=100")
-    assert tiled["classify_water"]["metrics"]["tiling"]["tiles"] == 9
-    a, b = _classes(untiled["classify_water"]), _classes(tiled["classify_water"])
+    untiled = run_until(config, "rasterize", tmp_path / "untiled", "tiling.enabled=false", *MODES["points"])
+    a = _classes(untiled["classify_water"])
     assert (a[lake] == 9).mean() > 0.99 and (a[~lake] == 9).mean() < 0.001
-    np.testing.assert_array_equal(b, a)
-    np.testing.assert_array_equal(
-        read_raster(tmp_path / "tiled" / "dtm.tif")[0], read_raster(tmp_path / "untiled" / "dtm.tif")[0]
-    )
-    narrow = run_until(config, "classify_water", tmp_path / "narrow", "tiling.size=100", "tiling.buffer=5")
+    executors = {}
+    for mode, sets in MODES.items():
+        tiled = run_until(config, "rasterize", tmp_path / mode, "tiling.size=100", *sets)
+        executors[mode] = tiled["classify_water"]["metrics"]["tiling"]
+        np.testing.assert_array_equal(_classes(tiled["classify_water"]), a, err_msg=mode)
+        np.testing.assert_array_equal(
+            read_raster(tmp_path / mode / "dtm.tif")[0], read_raster(tmp_path / "untiled" / "dtm.tif")[0]
+        )
+    assert executors["points"]["tiles"] == 9 and "extent" in executors["points"]
+    assert executors["windows"]["tiles"] == 9 and executors["windows"]["executor"].startswith("one grid in windows")
+    assert executors["grid"]["tiles"] == 1 and executors["grid"]["executor"] == "one grid, this process"
     shore = lake & (xyz[:, 1] < 100)
-    assert np.any(_classes(narrow["classify_water"])[shore] != 9) and np.all(a[shore] == 9)
+    assert np.all(a[shore] == 9)
+    for mode in ("points", "windows"):  # a buffer short of the stage's reach shows
+        narrow = run_until(
+            config, "classify_water", tmp_path / f"narrow-{mode}", "tiling.size=100", "tiling.buffer=5", *MODES[mode]
+        )
+        assert np.any(_classes(narrow["classify_water"])[shore] != 9), mode
 
 
 def _polygon_layer(path: Path, rings: list[np.ndarray], epsg: int) -> Path:

@@ -231,7 +231,7 @@ def test_sparse_surveys_filter_on_cells_of_their_spacing(tmp_path):
     """A 20 m lattice: the nominal spacing is measured over the occupied area, the SMRF cell follows it."""
     from lidar.clouds import cloud_info
     from stages.classify_ground.ground_classes import for_spacing, nominal_spacing
-    from stages.classify_ground.params import SmrfParams
+    from stages.classify_ground.smrf import SmrfParams
 
     g = np.arange(0.0, 1000.0, 20.0)
     x, y = (v.ravel() for v in np.meshgrid(g, g))

@@ -127,7 +127,7 @@ def _with_extra_bytes(path: Path, *, version: str, point_format: int, crs: str) 
     ids=["copied-as-delivered", "converted", "reprojected"],
 )
 def test_extra_bytes_are_carried_through(tmp_path, version, point_format, crs):
-    from lidar.tile_classes import merge_classes
+    from lidar.gridrun.point_tiles import merge_classes
 
     src = _with_extra_bytes(tmp_path / "in.las", version=version, point_format=point_format, crs=crs)
     _convert(tmp_path / "in.las", tmp_path / "points.las")

@@ -34,9 +34,12 @@ import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.errors import EnvironmentFailure, InputDataError
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
 
 ENTRY_FILE = "entry.json"
 #: Prefix of the name under which a damaged part of the cache is set aside, in the cache root.
@@ -49,6 +52,11 @@ META_SUM = "entry_sha256"  # checksum of entry.json's other fields
 _CHUNK = 1 << 20
 UMASK = os.umask(0)
 os.umask(UMASK)
+
+
+def cache_root(config: BaseModel) -> Path:
+    cache = getattr(config, "cache", None)
+    return Path(cache) if cache else Path(config.output) / ".cache"
 
 
 def canonical_json(value: Any) -> str:

@@ -32,6 +32,7 @@ from importlib import import_module
 from typing import Any
 
 from pipeline import interrupt
+from pipeline.cache import cache_root
 from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
 from pipeline.log import LOGGER_NAME
@@ -507,8 +508,6 @@ def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
     (:func:`capped_workers`); a remote cluster's workers are its own, and
     must see the cache folder at the same path (checked on connecting).
     """
-    from pipeline.runner import cache_root  # the runner imports this module
-
     ex = getattr(config, "executor", None)
     if ex is None:
         return LocalExecutor(1)

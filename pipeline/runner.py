@@ -38,6 +38,7 @@ from pipeline.cache import (
     NotRegularFile,
     TileCache,
     atomic_write_text,
+    cache_root,
     exclusive_lock,
     file_kind,
     folder_failure,
@@ -303,11 +304,6 @@ def _machine_failures(side: str, folder: Path, stage: str | None = None):
         if sentence is None:
             raise
         raise EnvironmentFailure(f"{prefix}{sentence}") from None
-
-
-def cache_root(config: BaseModel) -> Path:
-    cache = getattr(config, "cache", None)
-    return Path(cache) if cache else Path(config.output) / ".cache"
 
 
 def _stage_key(

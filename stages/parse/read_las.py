@@ -3,9 +3,9 @@
 Files are read in chunks and normalised to LAS 1.4 in the output CRS, in
 the point records of :func:`stages.parse.las_layout.point_layout`
 (format 6, 7 or 8, the extra bytes every input has).  The CRS of each file
-(:func:`file_crs`) is checked against its coordinates; what is repaired or
-assumed is counted in a :class:`LasReadReport` (what cannot be kept is
-named in :attr:`LasReadReport.dropped`).  :func:`convert_las_files` writes
+(:func:`stages.parse.las_index.file_crs`) is checked against its coordinates; what is
+repaired or assumed is counted in a :class:`~stages.parse.las_report.LasReadReport`
+(what cannot be kept is named in its ``dropped``).  :func:`convert_las_files` writes
 the stage's ``points.las``, copying one file already in the output's form
 record for record (:func:`copy_records`).  The rules: ``docs/stages/parse.md``.
 """
@@ -13,118 +13,29 @@ record for record (:func:`copy_records`).  The rules: ``docs/stages/parse.md``.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lidar.clouds import PointLayout, open_las_writer
-from lidar.crs import header_crs, output_crs
+from lidar.crs import output_crs
 from lidar.las_guard import check_strays, header_box, header_mins_maxs, open_las, read_chunks
 from pipeline.errors import InputDataError
 from pipeline.log import Progress
 from stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
+from stages.parse.las_index import HeaderIndex, file_crs, read_headers
 from stages.parse.las_layout import READ_APART, copied_dimensions, point_layout
+from stages.parse.las_report import LasReadReport
 
 if TYPE_CHECKING:
     import laspy
     import pyproj
 
-    from stages.parse.las_index import HeaderIndex
-
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
 SCAN_ANGLE_UNIT_DEG = 0.006
-
-
-@dataclass
-class LasReadReport:
-    """Counters of one read: points per file and what was assumed."""
-
-    points: dict[str, int] = field(default_factory=dict)
-    crs_source: dict[str, str] = field(default_factory=dict)
-    gps_time_missing: list[str] = field(default_factory=list)
-    #: Per file: points whose return number was 0 (invalid in LAS), read as 1.
-    return_number_zero: dict[str, int] = field(default_factory=dict)
-    #: Per file: the points kept in points.las (those read less those outside the header's bounds).
-    kept: dict[str, int] = field(default_factory=dict)
-    #: Per file: points outside the header's bounds (damaged records or strays), left out of points.las.
-    outside_header_bounds: dict[str, int] = field(default_factory=dict)
-    #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
-    header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
-    #: Points far from the survey's dense core (inside the header's bounds), flagged withheld.
-    far_from_survey: int = 0
-    #: Horizontal box (xmin, ymin, xmax, ymax, output CRS units) of the points not withheld as stray.
-    usable_box: list[float] | None = None
-    #: Per file: why its header CRS was not used (unreadable: input.crs used instead).
-    crs_notes: dict[str, str] = field(default_factory=dict)
-    #: Per file: how its header CRS was read (GeoKey units honoured, as GDAL reads them).
-    crs_read_as: dict[str, str] = field(default_factory=dict)
-    dropped: list[str] = field(default_factory=list)
-
-
-def file_crs(
-    path: Path,
-    header: laspy.LasHeader,
-    assign: pyproj.CRS | None,
-    override: pyproj.CRS | None = None,
-    report: LasReadReport | None = None,
-    read_crs=header_crs,
-) -> tuple[pyproj.CRS, str]:
-    """The CRS of one file's coordinates and where it came from, checked against them.
-
-    ``input.override_crs`` (*override*) replaces whatever the header says;
-    otherwise the header's CRS, and ``input.crs`` (*assign*) for a header
-    without one — or with one that cannot be read (an empty WKT), noted in
-    the *report*.  The coordinates the header's bounds announce must be possible
-    in that CRS (:func:`lidar.crs.crs_problem`), or the file is refused
-    with the key that fixes it.  *read_crs* reads the header's CRS
-    (:func:`lidar.crs.header_crs`; the header index passes one that
-    reads each distinct CRS record once).
-    """
-    if override is not None:
-        crs, source = override, "input.override_crs"
-    else:
-        try:
-            crs, note = read_crs(header)
-            source = "header"
-            if note is not None and report is not None:
-                report.crs_read_as[str(path)] = note
-        except Exception as exc:
-            if assign is None:
-                raise InputDataError(
-                    f"{path}: the CRS in the LAS header cannot be read ({exc}); set input.override_crs "
-                    "to the CRS of its coordinates (for example EPSG:2180)."
-                ) from None
-            crs, source = None, "input.crs"
-            if report is not None:
-                report.crs_notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
-        if crs is None:
-            if assign is None:
-                raise InputDataError(
-                    f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
-                )
-            crs, source = assign, "input.crs"
-    _check_fits(path, header, crs, source)
-    return crs, source
-
-
-def _check_fits(path: Path, header, crs, source: str) -> None:
-    """Refuse a file whose header bounds cannot be coordinates in *crs* (one sentence with the way out)."""
-    from lidar.crs import crs_problem
-
-    if int(header.point_count) == 0:
-        return
-    problem = crs_problem(crs, *header_mins_maxs(header))
-    if problem is None:
-        return
-    if source == "header":
-        way = "the header's CRS is wrong: set input.override_crs to the CRS the coordinates are in"
-    else:
-        way = f"the CRS given in {source} does not fit them: set {source} to the CRS the coordinates are in"
-    raise InputDataError(f"{path}: {problem}; {way}.")
 
 
 def count_points(paths: list[Path]) -> int:
@@ -166,7 +77,6 @@ def las_chunks(
     The headers and CRSs are the *index*'s (:mod:`stages.parse.las_index`;
     read here when it is not given): each file is opened once, for its points.
     """
-    from stages.parse.las_index import read_headers
 
     if index is None:
         index = read_headers(paths)
@@ -390,8 +300,6 @@ def header_bounds(
     """
     import pyproj
 
-    from stages.parse.las_index import read_headers
-
     if index is None:
         index = read_headers(paths)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -447,7 +355,6 @@ def convert_las_files(
     """
 
     from lidar.clouds import point_header
-    from stages.parse.las_index import read_headers
 
     if index is None:
         index = read_headers(paths)

@@ -29,8 +29,8 @@ from stages.parse.params import InputConfig, LasInput, LdmrsInput, LmsqNmeaInput
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
+    from stages.parse.las_report import LasReadReport
     from stages.parse.read_ins import TrajectoryCounters
-    from stages.parse.read_las import LasReadReport
     from stages.parse.read_ldmrs import Counters
     from stages.parse.read_lmsq import LmsqCounters
 

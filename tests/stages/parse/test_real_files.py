@@ -62,7 +62,7 @@ def test_header_crs_that_contradicts_the_coordinates_names_the_override():
     assert "damaged" not in msg
     with laspy.open(path) as reader:  # the override is taken before any point is read
         header = reader.header
-    from stages.parse.read_las import file_crs
+    from stages.parse.las_index import file_crs
 
     crs, source = file_crs(path, header, None, pyproj.CRS.from_epsg(26912))
     assert crs.to_epsg() == 26912 and source == "input.override_crs"
@@ -147,7 +147,8 @@ def test_the_copy_counts_the_isolation_grid_of_the_file_it_writes(tmp_path):
     """A LAS 1.4 copied as delivered: the points counted while copying are those of the file written, cell by cell."""
     from lidar.clouds import PointLayout
     from stages.parse.isolated import IsolationGrid
-    from stages.parse.read_las import LasReadReport, copy_records
+    from stages.parse.las_report import LasReadReport
+    from stages.parse.read_las import copy_records
 
     src = _survey_with_a_far_point(tmp_path)
     target, layout = pyproj.CRS.from_epsg(25830), PointLayout(point_format=6)

@@ -146,7 +146,7 @@ def write_per_input(ctx: StageContext[ExportLasParams], src_path: Path, folder: 
     import laspy
 
     from lidar.clouds import open_las_writer
-    from stages.parse.las_index import read_input_files_csv
+    from lidar.input_files import read_input_files_csv
 
     rows = read_input_files_csv(ctx.inputs["input_files"])
     kept = [int(r["points_kept"]) for r in rows]

@@ -7,7 +7,8 @@ the file first), keeps its header and closes it, on a pool of threads
 asks the index, not the files, for the point layout, the counts, the
 bounds and the CRS (:func:`file_crs`, worked out once per file); each file
 is opened once more, to read its points.
-:func:`write_input_files_csv` publishes the index as ``qc/input_files.csv``.
+:func:`write_input_files_csv` publishes the index as ``qc/input_files.csv``
+(:mod:`lidar.input_files`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lidar.crs import crs_problem, header_crs
+from lidar.input_files import CSV_COLUMNS
+from lidar.input_files import read_input_files_csv as read_input_files_csv  # stages/tile_plan.py imports it from here
 from lidar.las_guard import header_mins_maxs, open_las
 from pipeline.errors import InputDataError
 from stages.parse.las_report import LasReadReport
@@ -29,23 +32,6 @@ if TYPE_CHECKING:
 
 #: Most threads reading headers at a time (the disk, not the cores, is the limit).
 MAX_THREADS = 8
-
-#: The columns of ``qc/input_files.csv``, in order.
-CSV_COLUMNS = (
-    "path",
-    "bytes",
-    "points",
-    "points_kept",
-    "xmin",
-    "ymin",
-    "zmin",
-    "xmax",
-    "ymax",
-    "zmax",
-    "point_format",
-    "gps_time_type",
-    "crs",
-)
 
 
 @dataclass
@@ -262,9 +248,3 @@ def write_input_files_csv(
                     crs_names.get(key, ""),
                 ]
             )
-
-
-def read_input_files_csv(src: Path) -> list[dict[str, str]]:
-    """The rows of a ``qc/input_files.csv`` (:func:`write_input_files_csv`), in order."""
-    with open(src, newline="", encoding="utf-8") as fh:
-        return list(csv.DictReader(fh))

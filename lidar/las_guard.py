@@ -20,8 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.cache import FULL
-from pipeline.errors import InputDataError
+from pipeline.errors import FULL, InputDataError
 
 if TYPE_CHECKING:
     import laspy

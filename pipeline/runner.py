@@ -30,9 +30,7 @@ from pydantic import BaseModel
 
 from pipeline import __version__, interrupt
 from pipeline.cache import (
-    FULL,
     UMASK,
-    UNWRITABLE,
     Cache,
     Entry,
     NotRegularFile,
@@ -48,7 +46,15 @@ from pipeline.cache import (
     identity,
     path_size,
 )
-from pipeline.errors import ConfigError, EnvironmentFailure, InputDataError, PipelineError, PlanError
+from pipeline.errors import (
+    FULL,
+    UNWRITABLE,
+    ConfigError,
+    EnvironmentFailure,
+    InputDataError,
+    PipelineError,
+    PlanError,
+)
 from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger

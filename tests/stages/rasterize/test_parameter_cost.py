@@ -38,6 +38,7 @@ def run(tmp_path: Path, path: Path, *sets: str) -> int:
 def test_a_resolution_too_fine_for_free_memory_is_refused_after_reading(tmp_path, capsys, monkeypatch):
     """0.05 m cells over 20 x 20 m: 160,801 cells, about 19 MB; with 5 MB free: exit 2 naming the key, at once."""
     monkeypatch.setattr("lidar.memory.free_memory", lambda: 5_000_000)
+    monkeypatch.setattr("lidar.grid.free_memory", lambda: 5_000_000)  # lidar.grid imports it at its top
     path = small_survey(tmp_path)
     assert run(tmp_path, path, "stages.rasterize.resolution=0.05") == 2
     err = capsys.readouterr().err

@@ -14,23 +14,21 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
+import pyproj
 
-from lidar.clouds import PointLayout, open_las_writer
+from lidar.clouds import PointLayout, open_las_writer, point_header
 from lidar.crs import output_crs
 from lidar.las_guard import check_strays, header_box, header_mins_maxs, open_las, read_chunks
+from lidar.units import Units
 from pipeline.errors import InputDataError
 from pipeline.log import Progress
 from stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
 from stages.parse.las_index import HeaderIndex, file_crs, read_headers
 from stages.parse.las_layout import READ_APART, copied_dimensions, point_layout
 from stages.parse.las_report import LasReadReport
-
-if TYPE_CHECKING:
-    import laspy
-    import pyproj
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
@@ -107,8 +105,6 @@ def _file_chunks(
     path: Path, reader, src_crs, target, layout: PointLayout, chunk_size: int, report: LasReadReport, progress
 ) -> Iterator[dict[str, np.ndarray]]:
     """The columns of one file's chunks (see :func:`las_chunks`), repaired; its points counted in *report*."""
-    import pyproj
-
     header = reader.header
     bounds = header_box(header)
     transformer = None
@@ -298,8 +294,6 @@ def header_bounds(
     the writer's scale coarse; the points are checked against the writer's
     range as they are written (:func:`convert_las_files`).
     """
-    import pyproj
-
     if index is None:
         index = read_headers(paths)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -354,8 +348,6 @@ def convert_las_files(
         The output CRS, the :class:`LasReadReport`, the point source ids met.
     """
 
-    from lidar.clouds import point_header
-
     if index is None:
         index = read_headers(paths)
     report = LasReadReport()
@@ -405,8 +397,6 @@ def _output_header(
     paths: list[Path], target, cols: dict[str, np.ndarray], layout: PointLayout, assign_crs, override_crs, index
 ):
     """The converted file's header: offsets and scale from the inputs' header bounds, else from the first chunk."""
-    from lidar.clouds import point_header
-
     n = len(cols["x"])
     lo, hi = header_bounds(paths, target, assign_crs, override_crs, index)
     if not np.isfinite(lo).all():
@@ -440,8 +430,6 @@ def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray
     Extremes that are not finite (a huge scale overflows) or a span beyond
     any survey are errors naming the file.
     """
-    from lidar.units import Units
-
     if not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
         raise InputDataError(
             f"{path}: points have coordinates that are not finite numbers (damaged scale or offset in the header?)."
@@ -502,8 +490,6 @@ def copy_records(
     :func:`withhold_isolated` needs, without a pass of its own.
     """
 
-    from lidar.clouds import point_header
-
     n_read = n_kept = 0
     with open_las(path, check=False) as reader:  # the header index checked its header
         h = reader.header
@@ -549,8 +535,6 @@ def copy_records(
 
 def _record(cols: dict[str, np.ndarray], header):
     """A chunk of columns as a point record for *header* (format 6-8, extra bytes as stored)."""
-    import laspy
-
     n = len(cols["x"])
     rec = laspy.ScaleAwarePointRecord.zeros(n, header=header)
     rec.x, rec.y, rec.z = cols["x"], cols["y"], cols["z"]
@@ -566,10 +550,6 @@ def _record(cols: dict[str, np.ndarray], header):
 
 
 def _build(cols: dict[str, np.ndarray], crs, layout: PointLayout):
-    import laspy
-
-    from lidar.clouds import point_header
-
     n = len(cols["x"])
     if n:
         xyz = np.column_stack((cols["x"], cols["y"], cols["z"]))

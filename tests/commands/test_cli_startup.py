@@ -10,6 +10,7 @@ from pathlib import Path
 
 from commands.evaluate.arguments import ALGORITHM_NAMES
 from stages.classify_ground.params import ALGORITHMS
+from stages.plugin import plugin
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -40,8 +41,6 @@ def test_evaluate_offers_every_ground_algorithm():
 
 
 def test_the_plugin_loads_its_stages_on_first_use():
-    from stages.plugin import plugin
-
     assert plugin.name == "dtm-pipeline"
     names = [s.name for s in plugin.stages]
     assert names[0] == "parse" and names[-1] == "report" and plugin.stage("rasterize").name == "rasterize"

@@ -19,8 +19,13 @@ import numpy as np
 import pytest
 
 from lidar.grid_windows import tile_cells
+from pipeline.executor import LocalExecutor
+from stages.classify_ground.ground_classes import candidates_of
 from stages.classify_ground.params import ClassifyGroundParams
-from stages.classify_ground.streaming import smrf_one_grid
+from stages.classify_ground.smrf import provisional_dem
+from stages.classify_ground.streaming import lowest_grid, smrf_one_grid
+from stages.classify_ground.surface import index_points, min_grid, sample_bilinear_all
+from stages.classify_ground.windows import Windows, WindowSurfaces, filter_windows, window_tasks
 from tests.stages.classify_ground.test_smrf_one_grid import _reference, _survey
 
 SIZE, BUFFER = 100.0, 20.0
@@ -65,8 +70,6 @@ def test_windows_give_the_classes_of_the_point_tiles(survey):
 
 
 def test_windows_on_two_workers_write_the_same_file(survey):
-    from pipeline.executor import LocalExecutor
-
     root, _, params, _ = survey
     smrf_one_grid(root / "in.las", root / "one.las", params, chunk_size=7_000, tiles=TILES)
     work = root / "work"
@@ -104,12 +107,6 @@ def test_each_point_gets_the_dem_of_its_tile_of_points(survey):
     threshold): the window's cut to its candidates, its corner and the cells
     kept around the core all show here.
     """
-    from stages.classify_ground.ground_classes import candidates_of
-    from stages.classify_ground.smrf import provisional_dem
-    from stages.classify_ground.streaming import lowest_grid
-    from stages.classify_ground.surface import index_points, min_grid, sample_bilinear_all
-    from stages.classify_ground.windows import Windows, WindowSurfaces, filter_windows, window_tasks
-
     root, las, params, _ = survey
     algo = params.algorithm
     extent = (*las.header.mins[:2], *las.header.maxs[:2])

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyproj
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -30,11 +31,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _isolated import machine  # noqa: E402
 
+from lidar.geodesy import MapTransform  # noqa: E402
+from lidar.georeferencing import Mounting, georeference, prepare_trajectory  # noqa: E402
+from tests.flights import lines as flight_lines  # noqa: E402
+from tests.flights import simulate_flight  # noqa: E402
+
 
 def bench_core(n: int) -> list[tuple[int, float]]:
-    from lidar.geodesy import MapTransform
-    from lidar.georeferencing import Mounting, georeference, prepare_trajectory
-
     m = 200 * 600  # 10 minutes at 200 Hz
     t = np.arange(m) / 200.0
     traj = prepare_trajectory(
@@ -47,7 +50,6 @@ def bench_core(n: int) -> list[tuple[int, float]]:
     cols = (np.zeros(n), np.sin(theta) * r, np.cos(theta) * r)
     lo = traj.position.min(axis=0) - 600
     hi = traj.position.max(axis=0) + 600
-    import pyproj
 
     to_map = MapTransform(traj.frame, pyproj.CRS.from_epsg(32630), lo, hi)
     out = []
@@ -71,9 +73,6 @@ def _time(fn) -> float:
 
 
 def bench_flights(pulses: int, tmp: Path) -> list[tuple[str, int, float, float]]:
-    from tests.flights import lines as flight_lines
-    from tests.flights import simulate_flight
-
     rate = 50_000
     seconds = pulses / rate * 1.15
     lines = 4

@@ -13,16 +13,16 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
 from _isolated import emit, machine, run_child
+
+# from this tree: importing _isolated put it first on sys.path
+from lidar.grid import Grid
+from stages.rasterize.interpolate import idw, nearest, tin
+from tests.synthetic import terrain
 
 
 def _one(points: float, method: str) -> None:
-    import numpy as np
-
-    from lidar.grid import Grid
-    from stages.rasterize.interpolate import idw, nearest, tin
-    from tests.synthetic import terrain
-
     rng = np.random.default_rng(1)
     n = int(points)
     side = float(np.sqrt(n / 1.5))

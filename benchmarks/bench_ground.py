@@ -14,20 +14,21 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
 from _isolated import emit, machine, run_child
+
+# from this tree: importing _isolated put it first on sys.path
+from tests.synthetic import make_scene
 
 ALGORITHMS = ["denoise", "smrf", "pmf", "csf"]
 
 
 def _one(points: float, algorithm: str) -> None:
-    import numpy as np
-
-    from tests.synthetic import make_scene
-
     side = float(np.sqrt(points / 1.6))  # about 1.6 points per pulse-m2 with tree returns
     scene = make_scene(width=side, height=side, density=1.5, n_trees=int(side * side / 4000))
     xyz = np.column_stack([scene.x, scene.y, scene.z])
     t0 = time.perf_counter()
+    # lazy: each child imports only the algorithm it measures (its peak memory counts its imports)
     if algorithm == "denoise":
         from stages.denoise.noise_classes import noise_classes
         from stages.denoise.params import DenoiseParams

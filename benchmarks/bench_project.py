@@ -31,20 +31,19 @@ import sys
 import time
 from pathlib import Path
 
+import laspy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from tests.synthetic import make_scene, write_scene_las  # noqa: E402
 
 TILED = ("denoise", "classify_ground", "rasterize")
 
 
 def make_files(work: Path, side: float, files: int) -> list[Path]:
     """The scene cut into files x files LAZ files under ``work/files``; their paths, row by row."""
-    import laspy
-
-    from tests.synthetic import make_scene, write_scene_las
-
     folder = work / "files"
     if folder.exists() and len(list(folder.glob("*.laz"))) == files * files:
         return sorted(folder.glob("*.laz"))
@@ -91,8 +90,6 @@ def run(work: Path, paths: list[Path], name: str, cache: str) -> tuple[float, di
 
 
 def change(path: Path) -> None:
-    import laspy
-
     las = laspy.read(path)
     las.z = np.asarray(las.z) + 0.5
     las.write(path)

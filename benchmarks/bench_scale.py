@@ -36,9 +36,11 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
+import laspy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,8 +95,7 @@ def _make(laz: Path, points: float) -> None:
     seams, as between flights of different days; nothing the timing needs
     to avoid); ``blocks.json`` beside the survey tells :func:`_rmse`.
     """
-    import laspy
-
+    # lazy: the --one floor child imports only laspy (the I/O floor counts its imports)
     from tests.synthetic import make_scene, write_scene_las
 
     if points <= 2 * BLOCK_POINTS:
@@ -131,8 +132,6 @@ def _make(laz: Path, points: float) -> None:
 
 
 def _floor(laz: Path, out: Path) -> None:
-    import laspy
-
     t0 = time.perf_counter()
     n = 0
     par = laspy.LazBackend.LazrsParallel  # as the pipeline reads and writes
@@ -164,7 +163,7 @@ def _measured(cmd: list[str], stdout=subprocess.DEVNULL) -> tuple[float, float, 
     processes that share them: the memory the job really takes).  *stdout*:
     where the child's output goes.
     """
-    import psutil
+    import psutil  # lazy: the --one floor child imports only laspy (the I/O floor counts its imports)
 
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=stdout)
@@ -193,6 +192,7 @@ def _measured(cmd: list[str], stdout=subprocess.DEVNULL) -> tuple[float, float, 
 
 def _rmse(dtm: Path) -> float:
     """RMSE (m) of a DTM of the scene against its true terrain, over every cell with a value."""
+    # lazy: the --one floor child imports only laspy (the I/O floor counts its imports)
     import rasterio
 
     from tests.synthetic import SAMPLE_ORIGIN, terrain
@@ -227,8 +227,6 @@ def _job_config(work: Path, laz: Path, job: str) -> Path:
 
 def _floor_process(laz: Path, out: Path) -> tuple[tuple[float, float, float], dict]:
     """The I/O floor as a whole process (as the jobs are timed), and the figures its loop printed."""
-    import tempfile
-
     with tempfile.TemporaryFile(mode="w+") as printed:
         measured = _measured(_floor_command(laz, out), stdout=printed)
         printed.seek(0)
@@ -245,8 +243,6 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     work = workdir / tag
     laz = work / "survey.laz"
     if laz.exists():  # the survey of an earlier run (it depends on nothing but the point count)
-        import laspy
-
         with laspy.open(str(laz)) as reader:
             n = int(reader.header.point_count)
         for old in work.iterdir():

@@ -25,12 +25,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _isolated import machine  # noqa: E402
 
+from tests.flights import PERFECT_NAVIGATION, lines, simulate_flight  # noqa: E402
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--rate", type=float, default=80_000)
     args = parser.parse_args()
-    from tests.flights import PERFECT_NAVIGATION, lines, simulate_flight
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -35,6 +35,18 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pyogrio.raw
+import rasterio
+import shapely
+
+from lidar.water_bodies import breakline_points
+from stages.accuracy.vertical import (
+    TRUTH_STEEP_M,
+    land_cover_on_dtm_cells,
+    truth_accuracy,
+    truth_on_dtm_cells,
+    truth_relief,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLE = ROOT / "data_samples" / "flight_ldmrs" / "truth"
@@ -46,10 +58,6 @@ def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
     The fine truth's cells are the DTM's, so ``accuracy``'s own bilinear resampling onto them returns its
     values unchanged.
     """
-    import rasterio
-
-    from stages.accuracy.vertical import truth_on_dtm_cells
-
     with rasterio.open(dtm_path) as src:
         resolution, transform = src.res[0], src.transform
     command = [
@@ -75,8 +83,6 @@ def perfect_dtm(dtm: np.ndarray, dtm_path: Path, workdir: Path) -> np.ndarray:
 
 def where_off(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray, cell: float) -> dict:
     """Cells more than 1 m off, split by where they lie (counts, and per cent of the cells compared)."""
-    from stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
-
     error = dtm - truth
     compared = np.isfinite(error)
     off = compared & (np.abs(error) > 1.0)
@@ -108,13 +114,11 @@ def main(argv: list[str] | None = None) -> int:
     if not dtm_path.is_file():
         print(f"{dtm_path}: not found; run `pipeline run configs/flight.yaml` first", file=sys.stderr)
         return 2
-    from stages.accuracy.vertical import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
 
     dtm, truth = truth_on_dtm_cells(dtm_path, SAMPLE / "terrain.tif")
     land_cover = land_cover_on_dtm_cells(dtm_path, SAMPLE / "land_cover.tif")
     with tempfile.TemporaryDirectory() as tmp:
         perfect = perfect_dtm(dtm, dtm_path, Path(tmp))
-    import rasterio
 
     with rasterio.open(dtm_path) as src:
         cell = src.res[0]
@@ -151,8 +155,6 @@ def breakline_offsets(ours: Path, truth: Path) -> str:
     its z minus the true shore's z at the same easting (the simulated river
     runs east-west), over the vertices within 2 m of a true shore.
     """
-    import pyogrio.raw
-    import shapely
 
     def lines(path: Path) -> list[np.ndarray]:
         out = []
@@ -160,8 +162,6 @@ def breakline_offsets(ours: Path, truth: Path) -> str:
             g = shapely.from_wkb(bytes(wkb))
             out += [np.asarray(p.coords) for p in getattr(g, "geoms", [g])]
         return out
-
-    from lidar.water_bodies import breakline_points
 
     shores = lines(truth)
     xyz = breakline_points(lines(ours), 0.5)  # a vertex every 0.5 m, as the truth's
@@ -194,8 +194,6 @@ def by_cover_table(dtm: np.ndarray, perfect: np.ndarray, truth: np.ndarray, land
     targets: bridge deck within 0.3 m, water within 0.15 m and flat), ours beside the perfect DTM; and the
     spread (standard deviation) of each DTM's values over the water cells, which hydro-flattening makes 0
     per water body."""
-    from stages.accuracy.vertical import TRUTH_STEEP_M, truth_relief
-
     level = truth_relief(truth) < TRUTH_STEEP_M
     lines = [
         "| land cover (truth relief < 2 m) | cells | ours RMS m | perfect RMS m | ours / perfect |",

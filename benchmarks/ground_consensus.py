@@ -21,6 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from commands.evaluate.command import evaluate_ground, reference_ground
+from commands.evaluate.scores import dtm_check, score
+from lidar import glossary
+from stages.classify_ground.csf import CsfParams
+from stages.classify_ground.smrf import SmrfParams
+from stages.classify_ground.surface import index_points, inpaint, min_grid, slope_grid
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from ground_real import FILES, SHARED, coordinates  # noqa: E402
@@ -28,7 +35,6 @@ from ground_real import FILES, SHARED, coordinates  # noqa: E402
 
 def flat_slope(xyz: np.ndarray, ground: np.ndarray, cell: float = 2.0) -> np.ndarray:
     """At each point, the slope of the surface of the lowest *ground* point per cell (inpainted)."""
-    from stages.classify_ground.surface import index_points, inpaint, min_grid, slope_grid
 
     idx = index_points(xyz[:, :2], cell)
     lowest = min_grid(np.where(ground, xyz[:, 2], np.inf), idx)  # cells without ground: NaN
@@ -37,11 +43,6 @@ def flat_slope(xyz: np.ndarray, ground: np.ndarray, cell: float = 2.0) -> np.nda
 
 def measure(name: str, crs: str | None, threshold: float) -> dict[str, tuple]:
     """Scores of SMRF, CSF, AND and OR on one file: {label: (total, type 1, type 2, DTM RMS, % > 2 m)}."""
-    from commands.evaluate.command import evaluate_ground, reference_ground
-    from commands.evaluate.scores import dtm_check, score
-    from lidar import glossary
-    from stages.classify_ground.csf import CsfParams
-    from stages.classify_ground.smrf import SmrfParams
 
     path = SHARED / name
     algorithms = [SmrfParams(name="smrf"), CsfParams(name="csf", class_threshold=threshold)]

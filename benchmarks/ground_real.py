@@ -25,7 +25,15 @@ import sys
 import time
 from pathlib import Path
 
+import laspy
 import numpy as np
+from pyproj import CRS
+
+from commands.evaluate.command import evaluate_ground, reference_ground
+from commands.evaluate.scores import dtm_check as check
+from lidar import glossary
+from lidar.clouds import cloud_crs
+from lidar.units import Units
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
@@ -45,8 +53,6 @@ FILES = {
 
 def dtm_check(xyz: np.ndarray, ours: np.ndarray, reference: np.ndarray, cell: float = 1.0) -> dict:
     """The DTM check of ``pipeline evaluate ground`` (:func:`commands.evaluate.scores.dtm_check`) as table columns."""
-    from commands.evaluate.scores import dtm_check as check
-
     c = check(xyz, reference, ours, cell=cell)
     if not c.n:
         return {"cells": 0}
@@ -61,12 +67,6 @@ def dtm_check(xyz: np.ndarray, ours: np.ndarray, reference: np.ndarray, cell: fl
 
 def coordinates(path: Path, crs: str | None) -> np.ndarray:
     """The file's coordinates in metres (its header's CRS units, or *crs*'s)."""
-    import laspy
-    from pyproj import CRS
-
-    from lidar.clouds import cloud_crs
-    from lidar.units import Units
-
     with laspy.open(str(path)) as reader:
         found = CRS.from_user_input(crs) if crs else cloud_crs(reader)
         las = reader.read()
@@ -76,9 +76,6 @@ def coordinates(path: Path, crs: str | None) -> np.ndarray:
 
 def measure(path: Path, crs: str | None) -> dict:
     """Scores and DTM check of the run's default classification of *path*."""
-    from commands.evaluate.command import evaluate_ground, reference_ground
-    from lidar import glossary
-
     start = time.perf_counter()
     rows, classes = evaluate_ground(path, crs=crs)
     seconds = time.perf_counter() - start

@@ -30,11 +30,13 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pyogrio.raw
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.flight_truth import breakline_offsets, by_cover_table  # noqa: E402
+from stages.accuracy.vertical import land_cover_on_dtm_cells, truth_on_dtm_cells  # noqa: E402
 
 #: The survey: the RIEGL system of the flight_lmsq sample, three lines at 250 m over a 420 m scene.
 SURVEY = """\
@@ -101,10 +103,6 @@ def main(argv: list[str] | None = None) -> int:
 
 def report(out: Path, truth_dir: Path, fine_dir: Path) -> None:
     """Print the figures of the run in *out* against the truth in *truth_dir* (and *fine_dir*'s, at its cells)."""
-    import pyogrio.raw
-
-    from stages.accuracy.vertical import land_cover_on_dtm_cells, truth_on_dtm_cells
-
     dtm, truth = truth_on_dtm_cells(out / "dtm.tif", truth_dir / "terrain.tif")
     _, perfect = truth_on_dtm_cells(out / "dtm.tif", fine_dir / "terrain.tif")
     perfect = np.where(np.isfinite(dtm), perfect, np.nan)

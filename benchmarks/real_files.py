@@ -23,6 +23,7 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+import rasterio
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -68,8 +69,6 @@ def run_file(path: Path, work: Path, timeout: float, extra: list[str] | None = N
         row["points"] = f"unreadable ({type(exc).__name__})"
     dtm = out / "dtm.tif"
     if code == 0 and dtm.exists():
-        import rasterio
-
         with rasterio.open(dtm) as src:
             a = src.read(1, masked=True)
             row["dtm_cells"] = f"{src.width} x {src.height}"

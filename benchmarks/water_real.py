@@ -28,11 +28,15 @@ import sys
 import tempfile
 from pathlib import Path
 
+import laspy
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+from pipeline.cli import main as pipeline_main  # noqa: E402
+
 SHARED = ROOT.parent / "shared" / "data"
 TOPOGRAPHY = SHARED / "real" / "lidR" / "Topography.laz"
 
@@ -58,24 +62,18 @@ def scores(found: np.ndarray, truth: np.ndarray) -> dict:
 
 def _run(config: Path, out: Path, until: str) -> dict:
     """``pipeline run`` of *config* up to *until*; the run's stage entries by name."""
-    from pipeline.cli import main
-
     args = ["run", str(config), "-q", "--until", until, "--set", f"output={out}", "--set", f"cache={out / 'cache'}"]
-    if main(args) != 0:
+    if pipeline_main(args) != 0:
         raise RuntimeError(f"the run of {config} failed")
     return {s["name"]: s for s in json.loads((out / "run.json").read_text())["stages"]}
 
 
 def _water_classes(stages: dict) -> np.ndarray:
-    import laspy
-
     return np.asarray(laspy.read(stages["classify_water"]["outputs"]["points_water"]["file"]).classification)
 
 
 def topography(work: Path) -> dict:
     """Scores of ``classify_water`` (defaults) on Topography.laz against the provider's class 9."""
-    import laspy
-
     las = laspy.read(str(TOPOGRAPHY))
     truth = np.asarray(las.classification) == 9
     las.classification = np.ones(len(truth), dtype=np.uint8)  # nothing of the provider's labels goes in
@@ -111,11 +109,9 @@ def _truth_of(points, truth) -> tuple[np.ndarray, np.ndarray]:
 
 def flight(work: Path) -> dict:
     """Recall and precision of class 9 on configs/flight.yaml's simulated survey against the echoes' true classes."""
-    import laspy
-
-    from pipeline.cli import main
-
-    if main(["simulate", str(ROOT / "configs" / "simulate.yaml"), "--only", "flight_ldmrs", "--out", str(work)]):
+    if pipeline_main(
+        ["simulate", str(ROOT / "configs" / "simulate.yaml"), "--only", "flight_ldmrs", "--out", str(work)]
+    ):
         raise RuntimeError("the simulation failed")
     text = (ROOT / "configs" / "flight.yaml").read_text()
     text = text.replace("../data_samples/flight_ldmrs", str(work / "flight_ldmrs"))

@@ -83,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidar.las_summary import summary  # NumPy and laspy: not for `pipeline --help`
+    from lidar.las_summary import summary  # lazy: NumPy and laspy, not for pipeline --help (start-up time)
 
     for path in args.files:
         if not path.is_file():

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lidar.rasters import read_raster
+from lidar.units import raster_units
 from pipeline.errors import InputDataError
 
 _ALIASES = {"x": ("x", "easting", "e"), "y": ("y", "northing", "n"), "z": ("z", "elevation", "h", "height")}
@@ -57,9 +59,6 @@ def read_checkpoints(path: Path, land_cover_column: str = "land_cover") -> tuple
 
 def checkpoint_errors(dtm_path: Path, points: np.ndarray) -> np.ndarray:
     """DTM - check point height at each (x, y, z) in the DTM's CRS units, in metres (NaN: not covered)."""
-    from lidar.rasters import read_raster
-    from lidar.units import raster_units
-
     band, transform, crs, _ = read_raster(dtm_path)
     return (sample_dtm(band, transform, points[:, :2]) - points[:, 2]) * raster_units(crs).vertical
 

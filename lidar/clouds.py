@@ -15,7 +15,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import laspy
 import numpy as np
+
+from lidar.units import Units
+from pipeline import __version__
 
 #: Point format of every point cloud the pipeline writes (LAS 1.4).
 POINT_FORMAT = 6
@@ -27,8 +31,6 @@ SYSTEM_IDENTIFIER = "dtm-pipeline"
 
 def generating_software() -> str:
     """``generating_software`` of every point cloud the pipeline writes: this tool and its version."""
-    from pipeline import __version__
-
     return f"dtm-pipeline {__version__}"[:32]
 
 
@@ -63,8 +65,6 @@ def point_header(crs, lo=None, hi=None, *, layout: PointLayout | None = None):
     format 6, GPS week time); ``system_identifier`` and
     ``generating_software`` name this tool and its version.
     """
-    import laspy
-
     layout = layout or PointLayout()
     header = laspy.LasHeader(point_format=layout.point_format, version="1.4")
     if layout.extra:
@@ -100,8 +100,6 @@ def open_las_writer(path, header, **options):
     returns with ``np.bincount`` instead (:func:`grow_header`): the same
     header, byte for byte (``tests/lidar/test_las_writer.py``).
     """
-    import laspy
-
     writer = laspy.open(str(path), mode="w", header=header, **options)
     writer.header.grow = partial(grow_header, writer.header)  # this header only: laspy itself is untouched
     return writer
@@ -166,11 +164,6 @@ class CloudInfo:
 
 def cloud_info(path: Path) -> CloudInfo:
     """The extent (metres), units, CRS, point count and dimensions a LAS file's header gives."""
-    import laspy
-
-    from lidar.clouds import cloud_crs
-    from lidar.units import Units
-
     with laspy.open(str(path)) as reader:
         header = reader.header
         crs = cloud_crs(reader)

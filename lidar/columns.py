@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -51,8 +52,6 @@ class NpyColumns:
         self.rows += lengths.pop()
 
     def close(self) -> None:
-        import json
-
         for name, fh in self._files.items():
             fh.seek(0)
             fh.write(npy_header(self.schema[name], self.rows))
@@ -69,8 +68,6 @@ class NpyColumns:
 
 def read_columns(folder: Path) -> tuple[dict[str, np.ndarray], dict]:
     """The columns (memory-mapped) and ``meta.json`` of a folder written by :class:`NpyColumns`."""
-    import json
-
     folder = Path(folder)
     meta = json.loads((folder / "meta.json").read_text())
     return {name: np.load(folder / f"{name}.npy", mmap_mode="r") for name in meta["columns"]}, meta

@@ -14,12 +14,13 @@ from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+import pyproj
 
+from lidar.units import Units
 from pipeline.errors import InputDataError
 
 if TYPE_CHECKING:
     import laspy
-    import pyproj
 
 #: Longitudes accepted by the geographic test (degrees): some software writes 0..360.
 MAX_LONGITUDE = 360.0
@@ -44,8 +45,6 @@ def crs_problem(crs: pyproj.CRS, mins: Sequence[float], maxs: Sequence[float]) -
     >>> crs_problem(pyproj.CRS("EPSG:26912"), (515368.6, 4918340.4), (515401.0, 4918381.1)) is None
     True
     """
-    import pyproj
-
     lo = np.asarray(mins, dtype=np.float64)[:2]
     hi = np.asarray(maxs, dtype=np.float64)[:2]
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
@@ -135,8 +134,6 @@ def _axis_in(crs, code: int) -> bool:
 
 def _linear_unit(code: int):
     """The EPSG linear unit *code* as pyproj's unit info, or None when PROJ does not know it."""
-    import pyproj
-
     units = pyproj.database.get_units_map(auth_name="EPSG", category="linear")
     return next((u for u in units.values() if u.code == str(code)), None)
 
@@ -173,8 +170,6 @@ def honour_linear_units(crs: pyproj.CRS | None, geo_keys: Iterable) -> tuple[pyp
 
     Returns the CRS and what was changed, for the log (or None).
     """
-    import pyproj
-
     if crs is None or not crs.is_projected or crs.is_compound:
         return crs, None
     code = _key(geo_keys, _PROJ_LINEAR_UNITS_KEY)
@@ -207,8 +202,6 @@ def honour_vertical_keys(crs: pyproj.CRS | None, geo_keys: Iterable) -> tuple[py
 
     Returns the CRS and what was read or assumed, for the log (or None).
     """
-    import pyproj
-
     if crs is None or crs.is_compound or crs.is_vertical:
         return crs, None
     keys = list(geo_keys)
@@ -273,8 +266,6 @@ def output_crs(setting: str, first_crs: pyproj.CRS | None, lon_lat_centre: tuple
     (``EPSG:25830``, WKT, ...).  The CRS must be projected; its linear unit
     may be any (metre, foot, US survey foot: see :mod:`lidar.units`).
     """
-    import pyproj
-
     if setting == "auto-utm":
         if first_crs is not None and first_crs.is_projected:
             crs = first_crs
@@ -287,7 +278,6 @@ def output_crs(setting: str, first_crs: pyproj.CRS | None, lon_lat_centre: tuple
     horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
     if not horizontal.is_projected:
         raise InputDataError(f"output CRS {crs.name} is not projected; choose a projected CRS for crs.")
-    from lidar.units import Units
 
     try:
         Units.of(crs)
@@ -300,7 +290,6 @@ def check_crs_setting(value: str | None) -> str | None:
     """A configured CRS (``auto-utm`` or what pyproj reads), unchanged; ValueError for one pyproj does not know."""
     if value is None or value == "auto-utm":
         return value
-    import pyproj
 
     try:
         pyproj.CRS.from_user_input(value)
@@ -311,8 +300,6 @@ def check_crs_setting(value: str | None) -> str | None:
 
 def horizontal_crs_matches(layer_crs: str | None, points_crs: pyproj.CRS | None) -> str | None:
     """Why a vector layer's CRS does not fit the points' (their horizontal parts compared); None when it does."""
-    import pyproj
-
     if points_crs is None:
         return None  # points without a CRS: nothing to compare with
     if not layer_crs:

@@ -9,17 +9,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+import pyproj
 
-if TYPE_CHECKING:
-    import pyproj
+from lidar.units import Units
 
 
 def _transformer(src, dst):
-    import pyproj
-
     return pyproj.Transformer.from_crs(src, dst, always_xy=True)
 
 
@@ -148,16 +145,12 @@ class MapTransform:
         tolerance: float = 1e-4,
         geoid: Path | None = None,
     ):
-        import pyproj
-
         self.frame = frame
         self.crs = crs
         self.geoid = geoid
         self._exact = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
         # PROJ leaves the ellipsoidal height in metres when the CRS has no vertical axis; heights are
         # written in the CRS's units (lidar.units: its horizontal unit then), so scale them here
-        from lidar.units import Units
-
         self._height_unit = 1.0 if len(crs.axis_info) >= 3 else Units.of(crs).vertical
         if geoid is not None:
             pipeline = (

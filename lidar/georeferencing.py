@@ -18,16 +18,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+import pyproj
 
 from lidar.geodesy import LocalFrame, MapTransform, local_level_to_ecef
 from lidar.rotation import euler_quat, matrix_quat, quat_mul, slerp_weights, unwrap_signs
 from pipeline.errors import InputDataError
-
-if TYPE_CHECKING:
-    import pyproj
+from pipeline.executor import thread_map
 
 
 @dataclass
@@ -206,8 +204,6 @@ def georeference(
             view[ok, 0], view[ok, 1], view[ok, 2] = x, y, z
         ok_all[sl] = ok
 
-    from pipeline.executor import thread_map
-
     thread_map(block, range(0, n, chunk), workers)
     return out, ok_all
 
@@ -217,8 +213,6 @@ LAS_GPS_OFFSET = 1e9  # LAS 1.4 adjusted standard GPS time = GPS seconds - 1e9
 
 def ltp_crs(lat0: float, lon0: float, radius: float) -> pyproj.CRS:
     """The seed-0 LTP as a PROJ CRS: equidistant cylindrical on a sphere, true scale at lat0."""
-    import pyproj
-
     return pyproj.CRS.from_proj4(
         f"+proj=eqc +lat_ts={float(lat0)!r} +lat_0={float(lat0)!r} +lon_0={float(lon0)!r} +x_0=0 +y_0=0 +R={float(radius)!r} +units=m +no_defs"
     )

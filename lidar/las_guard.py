@@ -13,26 +13,20 @@ the machine (:func:`is_machine_error`) are never the file's.
 from __future__ import annotations
 
 import errno
+import struct
 from collections.abc import Iterator
 from contextlib import nullcontext
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import laspy
+import lazrs
 import numpy as np
 
-from pipeline.cache import FULL
-from pipeline.errors import InputDataError
-
-if TYPE_CHECKING:
-    import laspy
+from pipeline.errors import FULL, InputDataError
 
 
 def las_parse_errors() -> tuple[type[BaseException], ...]:
     """What laspy raises on damaged files (found by fuzzing): all mean "unreadable"."""
-    import struct
-
-    import laspy
-
     return (
         laspy.LaspyException,
         OSError,
@@ -199,8 +193,6 @@ def _check_chunk_sizes(path: Path, fh, offset_points: int, table: int, vlr_count
     table (lazrs ``read_chunk_table``) gives each chunk's bytes, which
     together fill the space between the point data's first 8 bytes and the table.
     """
-    import lazrs
-
     with nullcontext(fh):
         vlr, at = _laszip_vlr(fh, vlr_count), fh.tell()
         if vlr is None or len(vlr) < 34:
@@ -236,8 +228,6 @@ def open_las(path: Path, check: bool = True) -> laspy.LasReader:
     :func:`check_header_sizes`, for a file whose header was checked in this
     run already (a header index).
     """
-    import laspy
-
     try:
         if check:
             check_header_sizes(path)
@@ -260,8 +250,6 @@ def laz_chunk_of(path: Path, header, point: int) -> tuple[int, int, int, int] | 
 
     From the file's chunk table (lazrs); None when the file is not LAZ or its table cannot be read.
     """
-    import lazrs
-
     try:
         with open(path, "rb") as fh:
             vlr = _laszip_vlr(fh, len(header.vlrs) + 1)  # laspy took the LASzip VLR out

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from lidar import glossary
+from lidar.crs import crs_problem, header_crs
 from lidar.las_guard import check_strays, header_box, open_las, read_chunks
+from lidar.units import Units
 
 #: Points read at a time.
 CHUNK = 1_000_000
@@ -28,15 +30,12 @@ def gps_time_type(header) -> str | None:
 
 def _crs(header) -> tuple[dict, object]:
     """The CRS of a header as a dict (name, EPSG code, units; or why there is none) and as a pyproj CRS."""
-    from lidar.crs import header_crs
-
     try:
         crs, _ = header_crs(header)  # as the run reads it
     except Exception as exc:  # laspy raises various errors for malformed GeoTIFF keys or WKT
         return {"name": None, "error": f"unreadable ({exc})"}, None
     if crs is None:
         return {"name": None, "error": "none in the header"}, None
-    from lidar.units import Units
 
     try:
         units = Units.of(crs).describe()
@@ -50,8 +49,6 @@ def crs_fit(crs, mins, maxs) -> tuple[bool | None, str | None]:
 
     The check is the run's (:func:`lidar.crs.crs_problem`).
     """
-    from lidar.crs import crs_problem
-
     problem = crs_problem(crs, mins, maxs)
     return problem is None, problem
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import resource
 from pathlib import Path
 
+import psutil
+
 #: Where Linux says how much memory can be had without swapping.
 MEMINFO = Path("/proc/meminfo")
 
@@ -92,8 +94,6 @@ def _address_room() -> int | None:
 
 def _psutil_available() -> int:
     """The machine's available memory as psutil sees it (systems without /proc)."""
-    import psutil
-
     return int(psutil.virtual_memory().available)
 
 

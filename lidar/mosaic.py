@@ -7,12 +7,15 @@ the windows into one raster and converts it to a Cloud Optimized GeoTIFF.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+import rasterio
+from rasterio.windows import Window
 
-from lidar.rasters import HEIGHT
+from lidar.rasters import COG_BLOCKSIZE, HEIGHT, copy_to_cog, float_raster_profile, set_unit
 
 if TYPE_CHECKING:
     import pyproj
@@ -30,8 +33,6 @@ def core_window(grid: Grid, tile: Tile, layout: Layout) -> tuple[int, int, int, 
     layout's outer tiles also take the grid's cells beyond it (a grid may
     reach a cell past the points).
     """
-    import math
-
     res = grid.resolution
     c0 = math.ceil((tile.xmin - grid.xmin) / res - 0.5)
     c1 = math.ceil((tile.xmax - grid.xmin) / res - 0.5)
@@ -74,10 +75,6 @@ class RasterMosaic:
         fill: float,
         unit: str | None = HEIGHT,
     ):
-        import rasterio
-
-        from lidar.rasters import COG_BLOCKSIZE, float_raster_profile, set_unit
-
         self.path = Path(path)
         self.tmp = self.path.with_name(f".{self.path.name}.mosaic.tif")
         self.rows, self.cols, self.fill = rows, cols, fill
@@ -95,8 +92,6 @@ class RasterMosaic:
         self.covered = 0
 
     def write(self, r0: int, c0: int, array: np.ndarray) -> None:
-        from rasterio.windows import Window
-
         data = np.asarray(array, dtype=np.float32)
         if data.size:
             self.ds.write(data, 1, window=Window(c0, r0, data.shape[1], data.shape[0]))
@@ -108,10 +103,6 @@ class RasterMosaic:
             self.write(r0, c0, np.full((r1 - r0, c1 - c0), self.fill, dtype=np.float32))
 
     def finish(self) -> None:
-        import rasterio
-
-        from lidar.rasters import copy_to_cog
-
         if self.covered != self.rows * self.cols:  # pragma: no cover - a broken layout, never a user error
             raise RuntimeError(f"mosaic {self.path.name}: {self.covered} of {self.rows * self.cols} cells written")
         self.ds.close()

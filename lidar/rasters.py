@@ -10,9 +10,16 @@ Images meant for the eye (the hillshade) are Byte with nodata 0.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
+import rasterio
+import rasterio.shutil
+from rasterio.errors import NotGeoreferencedWarning
+from rasterio.io import MemoryFile
+
+from lidar.units import raster_units
 
 #: Nodata value of the float rasters (documented in docs/PRODUCTS.md) but the DEMs of a USGS LBS deliverable.
 NODATA = -9999.0
@@ -40,8 +47,6 @@ HEIGHT = "height"
 
 def read_raster(path: Path):
     """Band 1 as float64 with NaN for nodata, and the raster's transform, CRS and cell size."""
-    import rasterio
-
     with rasterio.open(path) as ds:
         band = ds.read(1).astype(np.float64)
         if ds.nodata is not None:
@@ -66,8 +71,6 @@ def write_cog(
     band's unit type: :data:`HEIGHT` for the unit of the CRS's heights
     (:func:`height_unit`), a name, or None for counts and shades.
     """
-    from rasterio.io import MemoryFile
-
     data = np.asarray(array, dtype=dtype)
     rows, cols = data.shape
     profile = float_raster_profile(rows, cols, transform=transform, crs=crs, nodata=nodata, dtype=dtype)
@@ -81,8 +84,6 @@ def write_cog(
 
 def height_unit(crs) -> str:
     """The name of the unit heights are in, in *crs* (a pyproj, rasterio or WKT CRS): 'metre', 'foot', ..."""
-    from lidar.units import raster_units
-
     return raster_units(crs).vertical_name
 
 
@@ -97,8 +98,6 @@ def float_raster_profile(
     rows: int, cols: int, *, transform, crs, nodata: float = NODATA, dtype: str = "float32"
 ) -> dict:
     """The rasterio profile of a single-band GeoTIFF, float32 by default (CRS written as WKT)."""
-    import rasterio
-
     wkt = crs.to_wkt() if hasattr(crs, "to_wkt") else str(crs)
     return {
         "driver": "GTiff",
@@ -118,9 +117,6 @@ def copy_to_cog(src, path: Path) -> None:
     GDAL's block cache is held to 64 MB here: its default, 5 % of the
     machine's memory, took 65 MB more for a 12.8-million-cell grid.
     """
-    import rasterio
-    import rasterio.shutil
-
     with rasterio.Env(GDAL_CACHEMAX=64):
         rasterio.shutil.copy(
             src,
@@ -137,11 +133,6 @@ def copy_to_cog(src, path: Path) -> None:
 
 def png_bytes(image: np.ndarray) -> bytes:
     """Encode a (rows, cols) or (rows, cols, 3) uint8 image as PNG (GDAL's PNG driver)."""
-    import warnings
-
-    from rasterio.errors import NotGeoreferencedWarning
-    from rasterio.io import MemoryFile
-
     warnings.filterwarnings("ignore", category=NotGeoreferencedWarning)
     img = np.asarray(image, dtype=np.uint8)
     bands = img[np.newaxis] if img.ndim == 2 else np.moveaxis(img, -1, 0)

@@ -13,6 +13,7 @@ pipeline needs several times that (issue 4).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def rot_x(angle: float) -> np.ndarray:
@@ -77,8 +78,6 @@ def euler_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarr
 
 def matrix_quat(m: np.ndarray) -> np.ndarray:
     """Quaternion(s) of rotation matrices ``(..., 3, 3)`` (scipy, w first, w >= 0)."""
-    from scipy.spatial.transform import Rotation
-
     m = np.asarray(m, dtype=np.float64)
     xyzw = Rotation.from_matrix(m.reshape(-1, 3, 3)).as_quat()
     q = np.concatenate((xyzw[:, 3:], xyzw[:, :3]), axis=1)

@@ -5,7 +5,7 @@ reads a LAS file chunk by chunk and writes, for every tile, the columns its
 task needs of the points inside the tile plus its buffer, in file order, with
 each point's index in the file (``idx``) and whether it lies in its core
 (``core``); :func:`read_tile` reads them back.  The tiles' classes go back into
-one file with :func:`lidar.tile_classes.merge_classes`, their rasters into
+one file with :func:`lidar.gridrun.point_tiles.merge_classes`, their rasters into
 one with :class:`lidar.mosaic.RasterMosaic`.
 
 Why tiled and untiled results are identical: every algorithm the tiles run

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+import pyproj
+from affine import Affine
 
 if TYPE_CHECKING:
-    import pyproj
     import rasterio.crs
-    from affine import Affine
 
 
 @dataclass(frozen=True)
@@ -79,16 +79,12 @@ class Units:
 
     def transform_from_metres(self, transform: Affine) -> Affine:
         """A raster's affine transform built in metres -> the same grid in CRS units."""
-        from affine import Affine
-
         if self.horizontal == 1.0:
             return transform
         return Affine.scale(1.0 / self.horizontal) @ transform
 
     def transform_to_metres(self, transform: Affine) -> Affine:
         """A raster's affine transform in CRS units -> metres."""
-        from affine import Affine
-
         if self.horizontal == 1.0:
             return transform
         return Affine.scale(self.horizontal) @ transform
@@ -115,6 +111,5 @@ def raster_units(crs: rasterio.crs.CRS | str | None) -> Units:
     """Units of a rasterio CRS (through pyproj)."""
     if crs is None:
         return METRE
-    import pyproj
 
     return Units.of(pyproj.CRS.from_user_input(crs.to_wkt() if hasattr(crs, "to_wkt") else crs))

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
+import pyogrio
+import pyogrio.raw
+from pyogrio.errors import DataLayerError, DataSourceError
 
 #: GeoPackage version written (GDAL's ``VERSION`` creation option).  GDAL 3.6
 #: and QGIS 3.22 read 1.2 without warnings; GDAL 3.8's default, 1.4, makes them
@@ -14,8 +18,6 @@ GPKG_VERSION = "1.2"
 
 def line_wkb(xy: np.ndarray) -> bytes:
     """A 2D LineString as WKB (little-endian flag, type 2, the point count, the coordinates)."""
-    import struct
-
     coords = np.ascontiguousarray(np.asarray(xy)[:, :2], dtype="<f8")
     return struct.pack("<BII", 1, 2, len(coords)) + coords.tobytes()
 
@@ -36,9 +38,6 @@ def write_gpkg(
     products are compared and cached by checksum.  The file is a GeoPackage
     :data:`GPKG_VERSION` (GDAL's ``VERSION`` dataset creation option).
     """
-    import pyogrio
-    import pyogrio.raw
-
     pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
     wkb = np.empty(len(geometry), dtype=object)
     wkb[:] = list(geometry)
@@ -64,8 +63,6 @@ def write_lines_gpkg(path: Path, lines: list[tuple[float, np.ndarray]], *, crs, 
 
 def polygon_z_wkb(rings: list[np.ndarray], z: float | list[np.ndarray]) -> bytes:
     """A PolygonZ as ISO WKB (type 1003): *rings* of (n, 2) coordinates at height *z*, or each ring's heights."""
-    import struct
-
     out = [struct.pack("<BII", 1, 1003, len(rings))]
     for i, ring in enumerate(rings):
         heights = np.full(len(ring), float(z)) if np.isscalar(z) else np.asarray(z[i], dtype=np.float64)
@@ -79,7 +76,6 @@ def wkb_polygons(wkb: bytes, z: bool = False) -> list[list[np.ndarray]]:
 
     *z*: rings of (n, 3), x, y and height (0 where the geometry has none).
     """
-    import struct
 
     def geometry(at: int) -> tuple[list[list[np.ndarray]], int]:
         order = "<" if wkb[at] == 1 else ">"
@@ -129,9 +125,6 @@ def read_polygons(path: Path) -> tuple[list[list[np.ndarray]], str | None]:
     ValueError
         A geometry that is not a (multi)polygon, or a file GDAL cannot read.
     """
-    import pyogrio.raw
-    from pyogrio.errors import DataLayerError, DataSourceError
-
     try:
         meta, _, geometry, _ = pyogrio.raw.read(str(path), columns=[])
     except (DataSourceError, DataLayerError) as exc:

@@ -9,10 +9,19 @@ hydro-flattening".
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import pyogrio.raw
+import rasterio.features
+import shapely
+from affine import Affine
+from scipy import ndimage
+from scipy.optimize import isotonic_regression
+
+from lidar.grid import step_labels
+from lidar.vectors import polygon_z_wkb, wkb_polygons, write_gpkg
 
 #: The layer's name in ``water.gpkg``.
 LAYER = "water_bodies"
@@ -97,8 +106,6 @@ def river_profile(xyz: np.ndarray, ring: np.ndarray, max_spread: float) -> tuple
     bin); None when the water points spread more than *max_spread* (5th to
     95th percentile) about it.
     """
-    from scipy.optimize import isotonic_regression
-
     centre, direction = river_axis(ring)
     across = np.array([-direction[1], direction[0]])
     vertices = np.asarray(ring)[:, :2] - centre
@@ -175,8 +182,6 @@ def water_bodies(
     95th percentile) is at most *max_spread*.  Also returns the cells of the
     bodies taken for no water.
     """
-    from scipy import ndimage
-
     if len(water) == 0:
         return [], CellMask((0.0, 0.0), cell, np.zeros((0, 0), dtype=bool))
     pad = close + 3
@@ -235,10 +240,6 @@ def _levels(
     is the water's); a cell the closing filled takes its neighbours' lowest.
     A river and a level bank above it are two bodies.
     """
-    from scipy import ndimage
-
-    from lidar.grid import step_labels
-
     mask = np.zeros(shape, dtype=bool)
     mask[row, col] = True
     if close > 0:
@@ -253,8 +254,6 @@ def _levels(
 
 def _beyond_the_survey(seen: np.ndarray) -> np.ndarray:
     """The cells not *seen* that reach the grid's border through unseen cells (4 neighbours): beyond the survey."""
-    from scipy import ndimage
-
     unseen, _ = ndimage.label(~seen)
     border = np.unique(np.r_[unseen[0], unseen[-1], unseen[:, 0], unseen[:, -1]])
     return np.isin(unseen, border[border > 0])
@@ -271,8 +270,6 @@ def _drains(body: np.ndarray, ring: np.ndarray, least: np.ndarray, below: np.nda
 
 def _neighbours_mean(values: np.ndarray, size: int) -> np.ndarray:
     """The mean of the finite *values* in each cell's *size* x *size* window (NaN where there is none)."""
-    from scipy import ndimage
-
     known = np.isfinite(values)
     total = ndimage.uniform_filter(np.where(known, values, 0.0), size, mode="constant")
     count = ndimage.uniform_filter(known.astype(np.float64), size, mode="constant")
@@ -282,8 +279,6 @@ def _neighbours_mean(values: np.ndarray, size: int) -> np.ndarray:
 
 def _as_river(body: WaterBody, xyz: np.ndarray, max_spread: float) -> WaterBody:
     """*body* flattened as a river when its water points *xyz* fall along it (:func:`river_profile`), else as it is."""
-    from dataclasses import replace
-
     profile = river_profile(xyz, body.rings[0], max_spread)
     if profile is None:
         return body
@@ -302,10 +297,6 @@ def _polygons(body, corner, cell, level, points, spread, flat, banks=None) -> li
     (:func:`shore_lines`); where it faces the unseen beyond the survey's
     edge, it stays.
     """
-    import rasterio.features
-    from affine import Affine
-    from scipy import ndimage
-
     side = np.zeros(body.shape, dtype=bool)
     if banks is not None and banks.any():
         twice = np.ones((2, 2), dtype=bool)
@@ -335,8 +326,6 @@ def shore_lines(body: np.ndarray, side: np.ndarray, corner: tuple[float, float],
     >>> [line.tolist() for line in shore_lines(body, side, (0.0, 4.0), 1.0)]
     [[[1.0, 1.0], [3.0, 1.0]]]
     """
-    import shapely
-
     b = np.pad(body, 1)
     o = np.pad(side & ~body, 1)
     # horizontal sides: between rows r - 1 and r (padded), columns c; vertical: between columns c - 1 and c
@@ -357,8 +346,6 @@ def shore_lines(body: np.ndarray, side: np.ndarray, corner: tuple[float, float],
 
 def write_water_bodies(path: Path, bodies: list[WaterBody], *, crs, units) -> None:
     """The bodies as a GeoPackage 1.2 of PolygonZ (every vertex at the body's level), in the CRS's *units*."""
-    from lidar.vectors import polygon_z_wkb, write_gpkg
-
     h, v = units.horizontal, units.vertical
     geometry = [
         polygon_z_wkb([r / h for r in b.rings], b.level / v if b.heights is None else [z / v for z in b.heights])
@@ -376,10 +363,6 @@ def write_water_bodies(path: Path, bodies: list[WaterBody], *, crs, units) -> No
 
 def read_water_bodies(path: Path, units) -> list[tuple[list[np.ndarray], float]]:
     """The flattened bodies of a ``water.gpkg``: (rings, level) each, in metres; rings (n, 3): x, y, height."""
-    import pyogrio.raw
-
-    from lidar.vectors import wkb_polygons
-
     _, _, geometry, fields = pyogrio.raw.read(str(path), layer=LAYER, columns=["level", "flattened"])
     out = []
     for wkb, level, flat in zip(geometry, fields[0], fields[1], strict=True):
@@ -399,8 +382,6 @@ def burn_levels(bodies: list[tuple[list[np.ndarray], float]], shape: tuple[int, 
     :func:`river_axis` (the same bank to bank, falling downstream); any
     other, its level.
     """
-    import rasterio.features
-
     levels = np.full(shape, np.nan)
     if not bodies or shape[0] == 0 or shape[1] == 0:
         return levels
@@ -432,10 +413,6 @@ def write_breaklines(path: Path, bodies: list[WaterBody], *, crs, units) -> None
     DTM is burnt.  Fields: ``water_body`` (the body's feature id in
     ``water.gpkg``), ``kind`` (lake or river), ``level``.
     """
-    import shapely
-
-    from lidar.vectors import write_gpkg
-
     h, v = units.horizontal, units.vertical
     geometry, ids, kinds, levels = [], [], [], []
     for fid, b in enumerate(bodies, start=1):
@@ -464,9 +441,6 @@ def write_breaklines(path: Path, bodies: list[WaterBody], *, crs, units) -> None
 
 def read_breaklines(path: Path, units) -> list[np.ndarray]:
     """The lines of a ``breaklines.gpkg`` ((k, 3): x, y, height), in metres."""
-    import pyogrio.raw
-    import shapely
-
     _, _, geometry, _ = pyogrio.raw.read(str(path), layer=BREAKLINES)
     scale = np.array([units.horizontal, units.horizontal, units.vertical])
     out = []

@@ -34,21 +34,25 @@ import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pipeline.errors import EnvironmentFailure, InputDataError
+from pipeline.errors import FULL, UNWRITABLE, EnvironmentFailure, InputDataError
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
 
 ENTRY_FILE = "entry.json"
 #: Prefix of the name under which a damaged part of the cache is set aside, in the cache root.
 DAMAGED = ".damaged-"
-#: errno values of a disk that is full (or a quota that is used up).
-FULL = frozenset({errno.ENOSPC, errno.EDQUOT})
-#: errno values of a folder that cannot be written (a read-only mount, permissions).
-UNWRITABLE = frozenset({errno.EACCES, errno.EPERM, errno.EROFS})
 META_SUM = "entry_sha256"  # checksum of entry.json's other fields
 _CHUNK = 1 << 20
 UMASK = os.umask(0)
 os.umask(UMASK)
+
+
+def cache_root(config: BaseModel) -> Path:
+    cache = getattr(config, "cache", None)
+    return Path(cache) if cache else Path(config.output) / ".cache"
 
 
 def canonical_json(value: Any) -> str:

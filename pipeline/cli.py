@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 from pipeline import __version__, interrupt
 from pipeline.discovery import LazyPlugin, load_plugin
-from pipeline.errors import EXIT_ENVIRONMENT, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, PipelineError
+from pipeline.errors import EXIT_ENVIRONMENT, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, FULL, PipelineError
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, setup_logging
 
@@ -97,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "validate":
             return _cmd_validate(args, plugin)
         if args.command == "schema":
+            # lazy: pydantic and the stages load when the command runs, not by pipeline --help (start-up time)
             from pipeline.stage import config_model
 
             print(json.dumps(config_model(plugin).model_json_schema(), indent=2))
@@ -119,8 +120,6 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except OSError as exc:
-        from pipeline.cache import FULL
-
         if exc.errno in FULL:
             where = f" while writing {exc.filename}" if exc.filename else ""
             print(f"pipeline: error: the disk is full{where}; no partial result was kept.", file=sys.stderr)
@@ -141,6 +140,7 @@ def _internal_error(exc: BaseException, verbose: bool) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
+    # lazy: pydantic and the stages load when the command runs, not by pipeline --help (start-up time)
     from pipeline.config import load_config
     from pipeline.runner import build_plan
     from pipeline.stage import config_model
@@ -153,6 +153,7 @@ def _cmd_validate(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
 
 
 def _cmd_run(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
+    # lazy: pydantic and the stages load when the command runs, not by pipeline --help (start-up time)
     from pipeline.config import load_config
     from pipeline.runner import run
     from pipeline.stage import config_model

@@ -18,6 +18,7 @@ import argparse
 import importlib
 import os
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any
 
 from pipeline.errors import ConfigError
@@ -108,11 +109,9 @@ def load_plugin() -> Plugin | LazyPlugin:
         except (ImportError, AttributeError) as exc:
             raise ConfigError(f"PIPELINE_PLUGIN={spec}: cannot load it ({exc}).") from None
         return _instance(obj)
-    from importlib.metadata import entry_points
-
     found = list(entry_points(group=ENTRY_POINT_GROUP))
     if not found:
-        from pipeline.stage import Plugin
+        from pipeline.stage import Plugin  # lazy: pydantic, not for pipeline --help (start-up time)
 
         return Plugin(name="pipeline", stages=[])
     if len(found) > 1:

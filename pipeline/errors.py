@@ -3,15 +3,24 @@
 Every error a user can cause is a :class:`PipelineError` carrying one sentence
 that names the file, the line or record, and the field.  The command line maps
 them to the documented exit codes and never prints a traceback for them.
+:data:`FULL` and :data:`UNWRITABLE` are the ``errno`` values of the disk
+failures reported as an :class:`EnvironmentFailure` (exit code 4).
 """
 
 from __future__ import annotations
+
+import errno
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
 EXIT_USAGE = 2
 EXIT_INPUT = 3
 EXIT_ENVIRONMENT = 4
+
+#: errno values of a disk that is full (or a quota that is used up).
+FULL = frozenset({errno.ENOSPC, errno.EDQUOT})
+#: errno values of a folder that cannot be written (a read-only mount, permissions).
+UNWRITABLE = frozenset({errno.EACCES, errno.EPERM, errno.EROFS})
 
 
 class PipelineError(Exception):

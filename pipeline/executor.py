@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import ctypes
 import logging
 import multiprocessing
 import os
@@ -29,9 +30,11 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from importlib import import_module
+from multiprocessing import resource_tracker
 from typing import Any
 
 from pipeline import interrupt
+from pipeline.cache import cache_root
 from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
 from pipeline.log import LOGGER_NAME
@@ -189,6 +192,7 @@ class DaskExecutor:
         if self._client is not None:
             return self._client
         try:
+            # lazy: Dask takes ~0.6 s to import, for executor kind dask only; every stage's process imports this module
             from distributed import Client, LocalCluster
         except ImportError:  # pragma: no cover - a dependency
             raise ConfigError(
@@ -295,6 +299,7 @@ class DaskExecutor:
         """
         if not tasks:
             return []
+        # lazy: Dask takes ~0.6 s to import, for executor kind dask only; every stage's process imports this module
         import distributed
 
         client = self._connect()
@@ -344,6 +349,7 @@ def _speaks_first(address: str, deadline: float) -> bool:
     Addresses of other schemes (tls, ucx, ws) are not probed: True.  An
     address Dask cannot read is a ``ConfigError``.
     """
+    # lazy: Dask takes ~0.6 s to import, for executor kind dask only; every stage's process imports this module
     from distributed.comm.addressing import parse_address, parse_host_port
     from distributed.comm.registry import get_backend
 
@@ -407,8 +413,6 @@ def release_freed_memory() -> None:
     2026-12-03), enough to take the TIN job to 1.18 GB.  Does nothing where
     the C library has no ``malloc_trim`` (macOS, musl).
     """
-    import ctypes
-
     try:
         trim = ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError):  # pragma: no cover - not glibc
@@ -447,8 +451,6 @@ def _start_resource_tracker() -> None:
     launched after it then started with SIGINT open, and a Ctrl-C landing
     before its initializer ignored the signal printed a traceback.
     """
-    from multiprocessing import resource_tracker
-
     resource_tracker.ensure_running()
 
 
@@ -507,8 +509,6 @@ def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
     (:func:`capped_workers`); a remote cluster's workers are its own, and
     must see the cache folder at the same path (checked on connecting).
     """
-    from pipeline.runner import cache_root  # the runner imports this module
-
     ex = getattr(config, "executor", None)
     if ex is None:
         return LocalExecutor(1)

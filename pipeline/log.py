@@ -76,7 +76,7 @@ class Progress:
             and logger.isEnabledFor(logging.INFO)
         )
         if interactive:
-            from tqdm import tqdm
+            from tqdm import tqdm  # lazy: ~70 ms to import; pipeline --help imports this module (start-up time)
 
             total_shown = int(self.total) if float(self.total).is_integer() else self.total
             self._bar = tqdm(total=total_shown, desc=f"{stage}: {desc}", unit=unit, leave=False, file=sys.stderr)

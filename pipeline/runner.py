@@ -30,14 +30,13 @@ from pydantic import BaseModel
 
 from pipeline import __version__, interrupt
 from pipeline.cache import (
-    FULL,
     UMASK,
-    UNWRITABLE,
     Cache,
     Entry,
     NotRegularFile,
     TileCache,
     atomic_write_text,
+    cache_root,
     exclusive_lock,
     file_kind,
     folder_failure,
@@ -47,7 +46,15 @@ from pipeline.cache import (
     identity,
     path_size,
 )
-from pipeline.errors import ConfigError, EnvironmentFailure, InputDataError, PipelineError, PlanError
+from pipeline.errors import (
+    FULL,
+    UNWRITABLE,
+    ConfigError,
+    EnvironmentFailure,
+    InputDataError,
+    PipelineError,
+    PlanError,
+)
 from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
@@ -303,11 +310,6 @@ def _machine_failures(side: str, folder: Path, stage: str | None = None):
         if sentence is None:
             raise
         raise EnvironmentFailure(f"{prefix}{sentence}") from None
-
-
-def cache_root(config: BaseModel) -> Path:
-    cache = getattr(config, "cache", None)
-    return Path(cache) if cache else Path(config.output) / ".cache"
 
 
 def _stage_key(

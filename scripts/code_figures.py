@@ -151,10 +151,10 @@ def cross_stage(graph: dict[str, set[str]]) -> list[str]:
     for a, targets in graph.items():
         for b in targets:
             pa, pb = a.split("."), b.split(".")
-            if pa[:2] == pb[:2] == ["dtm", "stages"] and len(pa) > 3 and len(pb) > 3:
-                if pa[2] != pb[2]:
+            if pa[0] == pb[0] == "stages" and len(pa) > 2 and len(pb) > 2:
+                if pa[1] != pb[1]:
                     out.append(f"{a} -> {b}")
-                elif pb[3] == "stage" and pa[3] != "stage":
+                elif pb[2] == "stage" and pa[2] != "stage":
                     out.append(f"{a} -> {b} (an algorithm imports its driver)")
     return sorted(out)
 

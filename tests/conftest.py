@@ -20,7 +20,12 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
+import rasterio
+from rasterio.transform import from_origin
+
+from pipeline.cli import main
 
 
 def in_ci() -> bool:
@@ -52,10 +57,6 @@ def run_stages(out: Path) -> dict[str, dict]:
 
 def constant_geoid(grid: Path, separation: float) -> Path:
     """A GeoTIFF geoid grid of one separation (metres) over 40-41 N, 4-3 W (the samples' area)."""
-    import numpy as np
-    import rasterio
-    from rasterio.transform import from_origin
-
     with rasterio.open(
         grid,
         "w",
@@ -76,8 +77,6 @@ def run_until(config: Path, until: str, out: Path, *sets: str, cache: Path | Non
 
     Returns the run's stage entries by name (:func:`run_stages`); a run that fails fails the test.
     """
-    from pipeline.cli import main
-
     args = ["run", str(config), "-q", "--until", until, "--set", f"output={out}"]
     args += ["--set", f"cache={cache or Path(out) / 'cache'}"]
     for s in sets:

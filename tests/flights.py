@@ -5,6 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from commands.simulate.settings import SimulateConfig
+from commands.simulate.simulator import simulate
+
 #: Cell of the true terrain grid of the tests' flights, metres (none of them reads that grid).
 TRUTH_CELL = 4.0
 
@@ -24,9 +27,6 @@ def simulate_flight(output: Path, *, seed: int, formats: list[str], scanner: dic
     The true terrain (``truth/terrain.tif``) on 4-m cells unless *more* asks: these flights' tests read
     the true echoes, not that grid, and at the default 1 m it is a quarter of a small flight's time.
     """
-    from commands.simulate.settings import SimulateConfig
-    from commands.simulate.simulator import simulate
-
     config = {"checkpoints": 0, "truth_resolution": TRUTH_CELL, **more}
     return simulate(SimulateConfig(output=output, seed=seed, formats=formats, scanner=scanner, flight=flight, **config))
 

@@ -19,7 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import date
 
+import laspy
 import numpy as np
+import pyproj
+
+from lidar.grid import Grid
+from lidar.rasters import write_cog
 
 #: Where the sample sits: ETRS89 / UTM zone 30N, near Madrid (the seeds' area).
 SAMPLE_CRS = "EPSG:25830"
@@ -215,9 +220,6 @@ def write_scene_las(
 
     *created* and *software*: the header's creation date (default: today) and generating software.
     """
-    import laspy
-    import pyproj
-
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.array([origin[0], origin[1], 0.0])
@@ -281,11 +283,6 @@ def write_truth_raster(
     crs: str = SAMPLE_CRS,
 ) -> None:
     """The true bare earth sampled at cell centres, as a COG (for ``evaluate dtm --truth``)."""
-    import pyproj
-
-    from lidar.grid import Grid
-    from lidar.rasters import write_cog
-
     grid = Grid.covering(origin[0], origin[1], origin[0] + width - 1e-6, origin[1] + height - 1e-6, resolution)
     gx, gy = grid.centres()
     write_cog(

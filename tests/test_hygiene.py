@@ -5,6 +5,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from commands.configdoc import render, render_simulator
+from tests.conftest import LONGEST_FIRST
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -40,11 +43,8 @@ def test_no_unsafe_deserialisation_or_eval():
 
 
 def test_config_reference_is_current():
-    from commands.configdoc import render
-
     committed = (ROOT / "docs" / "CONFIG.md").read_text()
     assert committed == render(), "docs/CONFIG.md is stale: python -m commands.configdoc > docs/CONFIG.md"
-    from commands.configdoc import render_simulator
 
     committed = (ROOT / "docs" / "SIMULATOR.md").read_text()
     assert committed == render_simulator(), "stale: python -m commands.configdoc --simulator > docs/SIMULATOR.md"
@@ -52,6 +52,4 @@ def test_config_reference_is_current():
 
 def test_the_longest_files_named_for_scheduling_exist():
     """tests/conftest.py's LONGEST_FIRST orders the run; a name that no longer exists would order nothing."""
-    from tests.conftest import LONGEST_FIRST
-
     assert [name for name in LONGEST_FIRST if not (ROOT / name).is_file()] == []

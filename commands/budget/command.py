@@ -42,6 +42,7 @@ def _cell(value, md: bool) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: pydantic and YAML, loaded when the command runs, not by pipeline --help (start-up time)
     from commands.budget.model import BudgetRow, budget_table, load_catalogue
 
     if args.altitude <= 0:
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         for row in rows:
             print("| " + " | ".join(_cell(getattr(row, c), True) for c in BudgetRow.COLUMNS) + " |")
     if args.plots:
-        from commands.budget.plots import write_plots
+        from commands.budget.plots import write_plots  # lazy: Matplotlib, not for pipeline --help (start-up time)
 
         for path in write_plots(catalogue, args.plots):
             print(f"wrote {path}", file=sys.stderr)

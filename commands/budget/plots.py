@@ -6,6 +6,8 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from commands.budget.model import Catalogue, budget_table, ins_error, lx_max
@@ -84,11 +86,7 @@ CHARTS = (
 
 def write_plots(catalogue: Catalogue, folder: Path) -> list[Path]:
     """Write the five charts into *folder*; return their paths."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     out = []

@@ -25,6 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: pydantic, NumPy and SciPy, loaded when the command runs, not by pipeline --help (start-up time)
     from commands.simulate.settings import SimConfigError, SimulateConfig, SimulateFile
     from commands.simulate.simulator import simulate
     from pipeline.config import load_config, load_yaml

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.ndimage import binary_dilation
 
 G = 9.80665
 DT = 0.005  # truth sampling step (s); the INS and SBET are written at these epochs
@@ -103,8 +105,6 @@ class Flight:
     speed: float
 
     def __post_init__(self) -> None:
-        from scipy.interpolate import CubicSpline
-
         self._pos = CubicSpline(self.t, self.pos, axis=0)
         self._att = CubicSpline(self.t, np.column_stack((self.roll, self.pitch, self.heading)), axis=0)
 
@@ -143,8 +143,6 @@ def recording_mask(flight: Flight, lead_s: float | None) -> np.ndarray:
     on = flight.line > 0 if lead_s is not None else np.ones(len(flight.t), bool)
     k = int(round(lead_s / DT)) if lead_s is not None else 0
     if k:
-        from scipy.ndimage import binary_dilation
-
         on = binary_dilation(on, np.ones(2 * k + 1, bool))
     edge = int(round(2.0 / DT))  # the navigation files start and end 2 s beyond the scanner's data
     on[:edge] = False

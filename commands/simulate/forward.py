@@ -17,6 +17,7 @@ forward-right-down, attitude ``R_ned<-body = Rz(heading) Ry(pitch) Rx(roll)``
 from __future__ import annotations
 
 import numpy as np
+import pyproj
 from scipy.spatial.transform import Rotation, Slerp
 
 #: NED axes as rows of ENU: v_enu = NED_TO_ENU @ v_ned
@@ -51,8 +52,6 @@ class Earth:
     """WGS 84 around the survey: the local ENU frame at an origin, geodetic coordinates, the output CRS."""
 
     def __init__(self, lat0: float, lon0: float, h0: float):
-        import pyproj
-
         self.lat0, self.lon0, self.h0 = float(lat0), float(lon0), float(h0)
         self._topo = pyproj.Transformer.from_pipeline(
             f"+proj=topocentric +ellps=WGS84 +lat_0={float(self.lat0)!r} +lon_0={float(self.lon0)!r} +h_0={float(self.h0)!r}"
@@ -104,8 +103,6 @@ class MapProjection:
     """
 
     def __init__(self, earth: Earth, crs):
-        import pyproj
-
         self.earth, self.crs = earth, crs
         self._to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
         axes = crs.axis_info

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from commands.budget.model import load_catalogue
 from commands.simulate.settings import NavigationConfig, ScannerConfig
 
 #: Seed 0: the SICK LD-MRS.  Range noise: the data sheet's 10 cm is
@@ -84,8 +85,6 @@ def make_scanner(cfg: ScannerConfig) -> Scanner:
     if cfg.preset == "ldmrs":
         base = dict(LDMRS, kind="ldmrs", model=0, pulse_rate_hz=0.0)
     else:
-        from commands.budget.model import load_catalogue
-
         spec = load_catalogue(None).scanners[RIEGL[cfg.preset]]
         base = {
             "kind": "line",
@@ -109,8 +108,6 @@ def navigation_sigmas(cfg: NavigationConfig) -> tuple[float, float]:
     if cfg.preset == "mtig":
         pos, att = MTIG["position_noise_m"], MTIG["attitude_noise_deg"]
     else:
-        from commands.budget.model import load_catalogue
-
         cat = load_catalogue(None)
         ins, gps = INS[cfg.preset]
         pos, att = float(cat.gps[gps].accuracy_m), float(cat.ins[ins].attitude_deg)

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+import pyproj
 
 from commands.simulate import scene as sc
 from commands.simulate.echoes import Survey, echoes
@@ -34,9 +35,6 @@ from commands.simulate.sensors import Scanner, make_scanner, navigation_sigmas
 from commands.simulate.settings import SimConfigError, SimulateConfig
 from commands.simulate.sinks import Sinks
 from commands.simulate.truth import write_checkpoints, write_truth_breaklines, write_truth_terrain
-
-if TYPE_CHECKING:
-    import pyproj
 
 
 @dataclass
@@ -132,8 +130,6 @@ def _scanner(cfg: SimulateConfig) -> Scanner:
 
 def truth_crs(setting: str, lon: float, lat: float) -> pyproj.CRS:
     """The projected CRS of the simulated LAS and truth files: *setting*, or the WGS 84 / UTM zone of the origin."""
-    import pyproj
-
     crs = pyproj.CRS.from_epsg(utm_epsg(lon, lat)) if setting == "auto-utm" else pyproj.CRS.from_user_input(setting)
     horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
     if not horizontal.is_projected:
@@ -143,8 +139,6 @@ def truth_crs(setting: str, lon: float, lat: float) -> pyproj.CRS:
 
 def start_seconds(start_utc: str, leap: float) -> float:
     """GPS seconds of the flight's start, a whole second given in ISO 8601 UTC."""
-    from datetime import datetime
-
     try:
         stamp = datetime.fromisoformat(start_utc.replace("Z", "+00:00"))
     except ValueError:

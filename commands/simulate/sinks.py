@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
 
 from commands.simulate import scene as sc
@@ -20,6 +21,7 @@ from commands.simulate.navigation import Navigation
 from commands.simulate.sensors import Scanner
 from commands.simulate.settings import SimulateConfig
 from commands.simulate.writers import LmsqWriter, create_text, utc_iso
+from lidar.clouds import point_header
 
 if TYPE_CHECKING:
     import pyproj
@@ -38,8 +40,6 @@ class LasSink:
         self, xyz: np.ndarray, *, classification: np.ndarray, fault: np.ndarray | None = None, **cols: np.ndarray
     ) -> None:
         """Points at local ENU *xyz*, with their classes, their ``fault`` codes (the truth) and columns *cols*."""
-        import laspy
-
         if len(xyz) == 0:
             return
         pts = self.to_map(xyz)  # local ENU -> output CRS
@@ -60,10 +60,6 @@ class LasSink:
 
     def _open(self, pts: np.ndarray) -> None:
         """The file, its header made for the first chunk's points (*pts*, output CRS)."""
-        import laspy
-
-        from lidar.clouds import point_header
-
         # later chunks lie elsewhere in the survey: a kilometre of margin below, and the scale
         # chosen for 200 km around the first chunk
         lo = pts.min(axis=0) - np.array([0.0, 0.0, 1000.0])

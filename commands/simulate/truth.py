@@ -3,23 +3,23 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+import pyproj
+import shapely
+from rasterio.transform import from_origin
+from scipy.ndimage import binary_closing, binary_dilation, binary_erosion
 
 from commands.simulate import scene as sc
 from commands.simulate.forward import Earth
-
-if TYPE_CHECKING:
-    import pyproj
+from lidar.rasters import NODATA, write_cog
+from lidar.vectors import write_gpkg
 
 
 def ground_height(
     world: sc.Scene, frame: Earth, crs: pyproj.CRS, x: np.ndarray, y: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Height in the output CRS where the vertical through (x, y) meets the bare earth, and the local (e, n)."""
-    import pyproj
-
     from_crs = pyproj.Transformer.from_crs(crs, "EPSG:4978", always_xy=True)
     h = np.full(len(x), frame.h0)
     for _ in range(5):
@@ -48,8 +48,6 @@ def write_checkpoints(
     every part of the survey and every land cover, the ground beside the
     channel included.
     """
-    import pyproj
-
     rows = _checkpoint_places(world, ground_xy, n, rng)
     local = np.array([[r[0], r[1], 0.0] for r in rows]).reshape(-1, 3)
     ecef = frame.to_ecef(local)
@@ -80,8 +78,6 @@ def _checkpoint_places(
     candidate of the wanted land cover farthest from every point placed so
     far, jittered inside its cell.
     """
-    from scipy.ndimage import binary_closing, binary_dilation, binary_erosion
-
     shape = world.cls.shape
     gy, gx = np.gradient(world.ground, world.cell)
     steep = np.hypot(gx, gy) > 0.2  # breaklines and steep slopes: no check point within 5 m (ASPRS practice)
@@ -131,11 +127,6 @@ def write_truth_terrain(
     9 water, 17 bridge deck), 5 where tree crowns stand more than 0.5 m above
     it (the rule the check points' "vegetated" follows).
     """
-    import pyproj
-    from rasterio.transform import from_origin
-
-    from lidar.rasters import NODATA, write_cog
-
     e_min, e_max, n_min, n_max = extent
     corners = np.array([[e_min, n_min, 0.0], [e_max, n_min, 0.0], [e_min, n_max, 0.0], [e_max, n_max, 0.0]])
     to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
@@ -171,11 +162,6 @@ def write_truth_breaklines(
     and each lake's (``world.lakes``: a closed circle at its level, a
     vertex every 0.5 m), in the output CRS.
     """
-    import pyproj
-    import shapely
-
-    from lidar.vectors import write_gpkg
-
     e_min, e_max, _, _ = extent
     to_crs = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True)
     shores: list[tuple[str, np.ndarray]] = []

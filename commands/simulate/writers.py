@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gzip
+import io
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -18,8 +19,6 @@ def create_text(path: Path):
     path = Path(path)
     if path.suffix == ".gz":
         # mtime=0: the same content gives the same bytes (reproducible samples)
-        import io
-
         return io.TextIOWrapper(gzip.GzipFile(path, "wb", mtime=0), encoding="ascii", newline="\n")
     return open(path, "w", encoding="ascii", newline="\n")
 

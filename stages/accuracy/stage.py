@@ -11,10 +11,12 @@ land cover).  The check-point format and the reasons for each figure:
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import ClassVar
 
 from pydantic import Field, model_validator
+from rasterio.errors import RasterioError
 
 from lidar.checkpoints import checkpoint_errors, read_checkpoints
 from pipeline.config import InputFile
@@ -61,8 +63,6 @@ class Accuracy(Stage, name="accuracy", version="3", params=AccuracyParams):
         return [f for f in (params.checkpoints, params.truth_dtm, params.truth_land_cover) if f is not None]
 
     def run(self, ctx: StageContext[AccuracyParams]) -> None:
-        import json
-
         p = ctx.params
         result: dict = {}
         if p.checkpoints is not None:
@@ -91,8 +91,6 @@ class Accuracy(Stage, name="accuracy", version="3", params=AccuracyParams):
 
 def _truth_block(dtm_path: Path, truth_path: Path, land_cover_path: Path | None = None) -> dict:
     """accuracy.json's ``truth``: the files, how they were resampled, :func:`truth_accuracy`."""
-    from rasterio.errors import RasterioError
-
     path = truth_path
     try:
         dtm, truth = truth_on_dtm_cells(dtm_path, truth_path)

@@ -14,6 +14,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import rasterio
+from rasterio.warp import Resampling, reproject
+from scipy import ndimage
+
+from lidar.glossary import class_name
+from lidar.rasters import read_raster
+from lidar.units import raster_units
 
 
 def vertical_accuracy(
@@ -64,11 +71,6 @@ def truth_on_dtm_cells(dtm_path: Path, truth_path: Path) -> tuple[np.ndarray, np
     warper renormalises over the valid ones); DTM cells outside the truth
     raster are NaN.
     """
-    from rasterio.warp import Resampling
-
-    from lidar.rasters import read_raster
-    from lidar.units import raster_units
-
     dtm, transform, crs, _ = read_raster(dtm_path)
     truth, truth_crs = _onto(truth_path, dtm.shape, transform, crs, Resampling.bilinear)
     return dtm * raster_units(crs).vertical, truth * raster_units(truth_crs).vertical
@@ -76,10 +78,6 @@ def truth_on_dtm_cells(dtm_path: Path, truth_path: Path) -> tuple[np.ndarray, np
 
 def land_cover_on_dtm_cells(dtm_path: Path, land_cover_path: Path) -> np.ndarray:
     """The codes of a land-cover raster at the DTM's cells (the nearest cell's; -1 outside it or on its nodata)."""
-    from rasterio.warp import Resampling
-
-    from lidar.rasters import read_raster
-
     dtm, transform, crs, _ = read_raster(dtm_path)
     codes, _ = _onto(land_cover_path, dtm.shape, transform, crs, Resampling.nearest)
     return np.where(np.isfinite(codes), np.nan_to_num(codes), -1).astype(np.int64)
@@ -87,9 +85,6 @@ def land_cover_on_dtm_cells(dtm_path: Path, land_cover_path: Path) -> np.ndarray
 
 def _onto(path: Path, shape: tuple[int, int], transform, crs, resampling):
     """Band 1 of a raster resampled onto a grid (float64, NaN = nodata or outside), and the raster's CRS."""
-    import rasterio
-    from rasterio.warp import reproject
-
     with rasterio.open(path) as src:
         out = np.full(shape, np.nan)
         reproject(
@@ -140,8 +135,6 @@ def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | 
         "2m_or_more": _error_figures((dtm - truth)[both & steep]),
     }
     if land_cover is not None:
-        from lidar.glossary import class_name
-
         out["by_land_cover"] = {
             str(code): {"name": class_name(int(code)), **_error_figures((dtm - truth)[both & (land_cover == code)])}
             for code in np.unique(land_cover[both])
@@ -153,8 +146,6 @@ def truth_accuracy(dtm: np.ndarray, truth: np.ndarray, land_cover: np.ndarray | 
 def truth_relief(truth: np.ndarray) -> np.ndarray:
     """Max - min of *truth* over the 3 x 3 cells around each cell (cells without a value left out; NaN where
     none has one)."""
-    from scipy import ndimage
-
     has = np.isfinite(truth)
     high = ndimage.maximum_filter(np.where(has, truth, -np.inf), size=3, mode="nearest")
     low = ndimage.minimum_filter(np.where(has, truth, np.inf), size=3, mode="nearest")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import contourpy
 import numpy as np
 
 if TYPE_CHECKING:
@@ -34,8 +35,6 @@ def contour_lines(
     contours) on cell-centre values; levels are whole multiples of
     *interval*.
     """
-    import contourpy
-
     z = np.asarray(dem, dtype=np.float64)
     mask = ~np.isfinite(z) if nodata_mask is None else (nodata_mask | ~np.isfinite(z))
     if mask.all() or min(z.shape) < 2:  # marching squares needs a 2 x 2 block of cells

@@ -15,11 +15,13 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
+from lidar.grid import round_up
 from lidar.rasters import read_raster
 from lidar.units import raster_units
 from lidar.vectors import write_lines_gpkg
 from pipeline.errors import ConfigError
 from pipeline.stage import Stage, StageContext, StageParams
+from stages.contours.lines import contour_lines, levels_between
 
 #: Most contour levels one run draws, whatever the memory: each level is a pass over the DTM.
 MAX_LEVELS = 10_000
@@ -42,8 +44,6 @@ class Contours(Stage, name="contours", version="2", params=ContoursParams):
     products: ClassVar = {"contours": "contours.gpkg"}
 
     def run(self, ctx: StageContext[ContoursParams]) -> None:
-        from stages.contours.lines import contour_lines
-
         dem, transform, crs, _ = read_raster(ctx.inputs["dtm"])
         units = raster_units(crs)  # levels every interval metres; written in the CRS's units
         dem = dem * units.vertical
@@ -65,9 +65,6 @@ class Contours(Stage, name="contours", version="2", params=ContoursParams):
 
 def _check_levels(dem: np.ndarray, interval: float) -> None:
     """Refuse, before drawing, an interval that makes more than :data:`MAX_LEVELS` levels over *dem* (metres)."""
-    from lidar.grid import round_up
-    from stages.contours.lines import levels_between
-
     finite = dem[np.isfinite(dem)]
     if not len(finite):
         return

@@ -16,12 +16,13 @@ import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import laspy
+import lazrs
 import numpy as np
-
-if TYPE_CHECKING:
-    import laspy
+from laspy.vlrs.known import LasZipVlr
+from laspy.vlrs.vlr import VLR
+from laspy.vlrs.vlrlist import VLRList
 
 #: voxels per side of a node's sampling grid (PDAL writers.copc and untwine use 128)
 GRID = 128
@@ -189,8 +190,6 @@ class _Source:
 
 def _read_source(src: Path) -> _Source:
     """The header, EVLRs and point records of *src*, checked for what COPC requires."""
-    import laspy
-
     with laspy.open(str(src)) as reader:
         header = reader.header
         fmt = header.point_format
@@ -233,11 +232,6 @@ def _copc_header(header, lo: np.ndarray, hi: np.ndarray):
 
     Returns the header, the LAZ VLR (variable-size chunks) and the info VLR (its payload written last).
     """
-    import lazrs
-    from laspy.vlrs.known import LasZipVlr
-    from laspy.vlrs.vlr import VLR
-    from laspy.vlrs.vlrlist import VLRList
-
     fmt = header.point_format
     out = copy.deepcopy(header)
     out.point_count = int(header.point_count)
@@ -252,8 +246,6 @@ def _copc_header(header, lo: np.ndarray, hi: np.ndarray):
 
 def _write_chunks(f, out, laz_vlr, records: np.ndarray, tree: Octree, chunk_size: int) -> tuple[np.ndarray, ...]:
     """One LAZ chunk per node, compressed on every core; the byte size and point count of each chunk."""
-    import lazrs
-
     # batches of about chunk_size points bound the memory
     compressor = lazrs.ParLasZipCompressor(f, laz_vlr)
     batch: list[np.ndarray] = []
@@ -286,9 +278,6 @@ def _hierarchy_page(tree: Octree, first_chunk: int, sizes: np.ndarray, counts: n
 
 def _write_evlrs(f, out, page: bytes, evlrs: list) -> int:
     """The hierarchy EVLR first, then the source's EVLRs, at the end of *f*; the offset of the hierarchy."""
-    from laspy.vlrs.vlr import VLR
-    from laspy.vlrs.vlrlist import VLRList
-
     f.seek(0, 2)
     out.start_of_first_evlr = f.tell()
     hierarchy = VLR("copc", 1000, "EPT hierarchy", page)

@@ -14,10 +14,14 @@ import os
 from pathlib import Path
 from typing import ClassVar, Literal
 
+import laspy
 from pydantic import Field
 
-from pipeline.errors import ConfigError, PipelineError
+from lidar.clouds import open_las_writer
+from lidar.input_files import read_input_files_csv
+from pipeline.errors import ConfigError, InputDataError, PipelineError
 from pipeline.stage import Stage, StageContext, StageIO, StageParams
+from stages.export_las.copc import write_copc
 
 
 class ExportLasParams(StageParams):
@@ -57,10 +61,6 @@ class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
         return StageIO(inputs, outputs, dict(outputs))
 
     def run(self, ctx: StageContext[ExportLasParams]) -> None:
-        import laspy
-
-        from lidar.clouds import open_las_writer
-
         src_path = ctx.inputs["points_objects"]
         if "points_per_input" in ctx.outputs:
             write_per_input(ctx, src_path, ctx.outputs["points_per_input"])
@@ -86,9 +86,6 @@ class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
 
 def write_copc_product(ctx: StageContext[ExportLasParams], src_path: Path, dst_path: Path) -> None:
     """``points.copc.laz`` from the classified points (:mod:`stages.export_las.copc`), its octree in the metrics."""
-    from pipeline.errors import InputDataError
-    from stages.export_las.copc import write_copc
-
     try:
         tree = write_copc(src_path, dst_path)
     except ValueError as exc:
@@ -143,11 +140,6 @@ def write_per_input(ctx: StageContext[ExportLasParams], src_path: Path, folder: 
     order, in the product's records, header rules and CRS (its bounds and
     counts its own); LAZ when the input's name ends in ``.laz``.
     """
-    import laspy
-
-    from lidar.clouds import open_las_writer
-    from stages.parse.las_index import read_input_files_csv
-
     rows = read_input_files_csv(ctx.inputs["input_files"])
     kept = [int(r["points_kept"]) for r in rows]
     folder.mkdir()

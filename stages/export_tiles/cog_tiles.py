@@ -13,8 +13,10 @@ from typing import TYPE_CHECKING
 from xml.sax.saxutils import escape
 
 import numpy as np
+import rasterio
+from rasterio.windows import Window
 
-from lidar.rasters import NODATA
+from lidar.rasters import NODATA, write_cog
 from pipeline.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -74,8 +76,6 @@ def write_tiles(src: Path, folder: Path, vrt: Path, name: str, cells: int, folde
     list of dict
         One per tile written: ``file``, ``lower_left`` (E, N), ``valid_cells``.
     """
-    import rasterio
-
     folder.mkdir(parents=True, exist_ok=True)
     tiles = []
     sources = []
@@ -102,11 +102,6 @@ def _write_tile(ds, corner: tuple[float, float], cells: int, prefix: Path, nodat
     Returns its record and its source and destination rectangles in the VRT
     (x, y, width, height in cells), or None when it holds no valid cell (not written).
     """
-    import rasterio
-    from rasterio.windows import Window
-
-    from lidar.rasters import write_cog
-
     t = ds.transform
     cell = t.a
     side = cells * cell

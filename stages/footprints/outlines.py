@@ -16,8 +16,12 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+import rasterio.features
+import shapely
+from scipy import ndimage
 
 from lidar.arrays import add_counts
+from lidar.grid import Grid, cell_of
 
 BUILDING = 6
 VEGETATION = (3, 4, 5)
@@ -48,8 +52,6 @@ class CellTally:
 
 def flat_cells(x: np.ndarray, y: np.ndarray, transform, shape: tuple[int, int]) -> np.ndarray:
     """Flat index of the DTM cell of each point (-1 off the grid); *transform* north-up (:func:`~lidar.grid.cell_of`)."""
-    from lidar.grid import Grid, cell_of
-
     rows, cols = shape
     row, col = cell_of(np.column_stack((x, y)), Grid(transform.c, transform.f, transform.a, cols, rows))
     return np.where(row >= 0, row * cols + col, -1)
@@ -57,8 +59,6 @@ def flat_cells(x: np.ndarray, y: np.ndarray, transform, shape: tuple[int, int]) 
 
 def building_labels(roof_count: np.ndarray) -> tuple[np.ndarray, int]:
     """Buildings as labels (1, 2, ...; 0 none) of the cells holding class-6 points, one-cell gaps closed."""
-    from scipy import ndimage
-
     has = roof_count > 0
     closed = ndimage.binary_closing(has, structure=np.ones((3, 3), bool)) | has
     return ndimage.label(closed, structure=np.ones((3, 3), bool))
@@ -66,10 +66,6 @@ def building_labels(roof_count: np.ndarray) -> tuple[np.ndarray, int]:
 
 def building_rows(labels: np.ndarray, count: int, tally: CellTally, dtm: np.ndarray, transform) -> dict:
     """The buildings' outlines (WKB MultiPolygons) and attributes, one per label, in label order."""
-    import rasterio.features
-    import shapely
-    from scipy import ndimage
-
     if count == 0:
         empty = np.zeros(0)
         fields = {"ground_z": empty, "roof_z": empty, "highest_z": empty, "height": empty}

@@ -15,9 +15,14 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+import laspy
 import numpy as np
+import rasterio
 
+from lidar.rasters import read_raster, write_cog
+from lidar.vectors import write_gpkg
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
+from stages.footprints.outlines import CellTally, building_labels, building_rows, canopy_height, flat_cells
 
 
 class FootprintsParams(StageParams):
@@ -43,12 +48,6 @@ class Footprints(Stage, name="footprints", version="1", params=FootprintsParams)
         return StageIO(tuple(self.inputs), outputs, products)
 
     def run(self, ctx: StageContext[FootprintsParams]) -> None:
-        import laspy
-        import rasterio
-
-        from lidar.rasters import read_raster, write_cog
-        from stages.footprints.outlines import CellTally, canopy_height, flat_cells
-
         dtm, transform, crs, _ = read_raster(ctx.inputs["dtm"])
         with rasterio.open(ctx.inputs["dtm"]) as ds:
             nodata = ds.nodata
@@ -69,9 +68,6 @@ class Footprints(Stage, name="footprints", version="1", params=FootprintsParams)
 
 def _buildings(ctx: StageContext[FootprintsParams], tally, dtm: np.ndarray, transform, crs) -> int:
     """buildings.gpkg from the tally (:func:`~stages.footprints.outlines.building_rows`); the buildings."""
-    from lidar.vectors import write_gpkg
-    from stages.footprints.outlines import building_labels, building_rows
-
     labels, count = building_labels(tally.roof_count.reshape(dtm.shape))
     rows = building_rows(labels, count, tally, dtm, transform)
     write_gpkg(

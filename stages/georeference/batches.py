@@ -14,15 +14,16 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
 
+from lidar.clouds import point_header
 from lidar.georeferencing import LAS_GPS_OFFSET, Mounting, OutputFrame, georeference
 from pipeline.errors import InputDataError
 from stages.georeference.params import GeoreferenceParams
 from stages.georeference.uncertainty import PointUncertainty
 
 if TYPE_CHECKING:
-    import laspy
     import pyproj
 
 
@@ -59,10 +60,6 @@ def group_returns(time: np.ndarray, channel: np.ndarray, angle: np.ndarray) -> n
 
 def las_header(crs: pyproj.CRS, bounds: np.ndarray, uncertainty: bool) -> laspy.LasHeader:
     """The header of ``points.las``: the box of *bounds*, standard GPS time, the sigma extra bytes if asked."""
-    import laspy
-
-    from lidar.clouds import point_header
-
     header = point_header(crs, bounds.min(axis=0), bounds.max(axis=0))
     header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
     if uncertainty:
@@ -107,8 +104,6 @@ def georeference_batch(
 
 def point_record(header: laspy.LasHeader, pulses: dict, b: Batch, keep: np.ndarray) -> laspy.ScaleAwarePointRecord:
     """The LAS record of the pulses *keep* of batch *b* (the sigma extra bytes left for the caller)."""
-    import laspy
-
     n_ret = group_returns(b.t, b.channel, b.angle)
     rec = laspy.ScaleAwarePointRecord.zeros(int(keep.sum()), header=header)
     rec.x, rec.y, rec.z = b.xyz[keep, 0], b.xyz[keep, 1], b.xyz[keep, 2]

@@ -15,8 +15,13 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from lidar import glossary
+from lidar.clouds import open_las_writer
+from lidar.columns import read_columns
+from lidar.crs import output_crs
 from lidar.georeferencing import exact_output, ltp_output, prepare_exact, prepare_ltp, pulse_reach
-from pipeline.errors import InputDataError
+from lidar.units import Units
+from pipeline.errors import ConfigError, InputDataError
 from pipeline.stage import Stage, StageContext
 from stages.georeference.batches import las_header, write_batches
 from stages.georeference.ltp_check import ltp_metrics
@@ -37,8 +42,6 @@ class Georeference(Stage, name="georeference", version="8", params=GeoreferenceP
         if config.input.format == "las":
             return False  # already georeferenced: "not applicable"
         if not params.enabled:
-            from pipeline.errors import ConfigError
-
             raise ConfigError(
                 f"stages.georeference.enabled: false, but input.format {config.input.format} is a raw format: "
                 "its pulses must be georeferenced before anything else can run."
@@ -49,11 +52,6 @@ class Georeference(Stage, name="georeference", version="8", params=GeoreferenceP
         return [params.geoid] if params.geoid is not None else []
 
     def run(self, ctx: StageContext[GeoreferenceParams]) -> None:
-        from lidar.clouds import open_las_writer
-        from lidar.columns import read_columns
-        from lidar.crs import output_crs
-        from lidar.units import Units
-
         p = ctx.params
         traj, tmeta = read_columns(ctx.inputs["trajectory"])
         pulses, pmeta = read_columns(ctx.inputs["pulses"])
@@ -106,8 +104,6 @@ class Georeference(Stage, name="georeference", version="8", params=GeoreferenceP
 
 def _check_lines(ctx: StageContext[GeoreferenceParams], time: np.ndarray, epoch_strip: np.ndarray) -> None:
     """Refuse, before any pulse is georeferenced, a flight without one line when the turns are dropped."""
-    from lidar import glossary
-
     strips = ctx.params.strips
     if strips.keep_turns or (epoch_strip > 0).any():
         return

@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lidar.vectors import line_wkb, write_gpkg
+
 if TYPE_CHECKING:
     import pyproj
 
@@ -128,8 +130,6 @@ def write_flight_lines(path: Path, time: np.ndarray, xyz: np.ndarray, strip: np.
     platform in the output CRS (mean, lowest, highest); epochs in turns
     (strip 0) are left out, as is a line of one epoch (no line to draw).
     """
-    from lidar.vectors import line_wkb, write_gpkg
-
     ids = [int(s) for s in np.unique(strip) if s > 0 and np.count_nonzero(strip == s) > 1]
     lines, rows = [], []
     for s in ids:

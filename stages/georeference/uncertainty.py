@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar.georeferencing import Mounting, Trajectory, locate
+from lidar.rotation import quat_matrix, slerp
 from pipeline.errors import ConfigError
 from stages.georeference.params import UncertaintyParams
 
@@ -62,8 +63,6 @@ def propagate(
     ``scan_axis`` is the scanner-frame axis the beam turns about when the
     scan angle changes (x for the RIEGL line scanners, z for the LD-MRS).
     """
-    from lidar.rotation import quat_matrix, slerp
-
     q = slerp(traj.attitude[i], traj.attitude[i + 1], f, traj.theta[i], traj.inv_sin[i])
     m = quat_matrix(q)  # (n, 3, 3) local ENU <- body
     body = tuple(tuple(m[:, j, k] for j in range(3)) for k in range(3))  # columns of R

@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import Field
 
 from lidar.rasters import png_bytes, read_raster, write_cog
+from lidar.shading import hillshade
 from lidar.units import raster_units
 from pipeline.stage import Stage, StageContext, StageParams
 
@@ -38,8 +39,6 @@ class Hillshade(Stage, name="hillshade", version="2", params=HillshadeParams):
     products: ClassVar = {"hillshade": "hillshade.tif", "hillshade_png": "hillshade.png"}
 
     def run(self, ctx: StageContext[HillshadeParams]) -> None:
-        from lidar.shading import hillshade
-
         dem, transform, crs, res = read_raster(ctx.inputs["dtm"])
         p = ctx.params
         units = raster_units(crs)  # slopes from metres on both axes, whatever the CRS's units

@@ -10,7 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import laspy
 import numpy as np
+from scipy import ndimage
 
 #: Cells per side of the occupancy grid that finds points far from the survey.
 ISOLATION_GRID = 256
@@ -113,8 +115,6 @@ class _Records:
     @classmethod
     def of(cls, path: Path) -> _Records | None:
         """The file's records, or None when it has no point, another format, or bounds without area."""
-        import laspy
-
         with laspy.open(str(path)) as reader:
             h = reader.header
             records = cls(path, h)
@@ -155,8 +155,6 @@ def _far_cells(grid: IsolationGrid, count: int) -> np.ndarray:
     ``ISOLATED_MAX_POINTS``) and lie farther from the largest group than
     ``ISOLATED_GAP`` of its extent (and ``ISOLATED_MIN_GAP_UNITS``).
     """
-    from scipy import ndimage
-
     hist = grid.counts
     occupied = (hist > 0).reshape(ISOLATION_GRID, ISOLATION_GRID)
     labels, n_groups = ndimage.label(ndimage.binary_dilation(occupied, np.ones((3, 3))), np.ones((3, 3)))

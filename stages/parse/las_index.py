@@ -5,8 +5,10 @@
 the file first), keeps its header and closes it, on a pool of threads
 (reading headers waits on the disk, not on Python).  The parse stage then
 asks the index, not the files, for the point layout, the counts, the
-bounds and the CRS; each file is opened once more, to read its points.
-:func:`write_input_files_csv` publishes the index as ``qc/input_files.csv``.
+bounds and the CRS (:func:`file_crs`, worked out once per file); each file
+is opened once more, to read its points.
+:func:`write_input_files_csv` publishes the index as ``qc/input_files.csv``
+(:mod:`lidar.input_files`).
 """
 
 from __future__ import annotations
@@ -17,33 +19,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lidar.crs import crs_problem, header_crs
+from lidar.input_files import CSV_COLUMNS
+from lidar.input_files import read_input_files_csv as read_input_files_csv  # stages/tile_plan.py imports it from here
 from lidar.las_guard import header_mins_maxs, open_las
+from pipeline.errors import InputDataError
+from stages.parse.las_report import LasReadReport
 
 if TYPE_CHECKING:
     import laspy
     import pyproj
 
-    from stages.parse.read_las import LasReadReport
-
 #: Most threads reading headers at a time (the disk, not the cores, is the limit).
 MAX_THREADS = 8
-
-#: The columns of ``qc/input_files.csv``, in order.
-CSV_COLUMNS = (
-    "path",
-    "bytes",
-    "points",
-    "points_kept",
-    "xmin",
-    "ymin",
-    "zmin",
-    "xmax",
-    "ymax",
-    "zmax",
-    "point_format",
-    "gps_time_type",
-    "crs",
-)
 
 
 @dataclass
@@ -96,13 +84,11 @@ class HeaderIndex:
         override: pyproj.CRS | None = None,
         report: LasReadReport | None = None,
     ) -> tuple[pyproj.CRS, str]:
-        """:func:`stages.parse.read_las.file_crs` of the input *path*, worked out once per file and settings.
+        """:func:`file_crs` of the input *path*, worked out once per file and settings.
 
         Its notes (how the header CRS was read, why it was not used) go
         into *report* every time, as the function itself puts them.
         """
-        from stages.parse.read_las import LasReadReport, file_crs
-
         key = (str(path), _crs_key(assign), _crs_key(override))
         if key not in self._crs:
             own = LasReadReport()
@@ -118,8 +104,6 @@ class HeaderIndex:
 
     def _header_crs(self, header) -> tuple:
         """:func:`lidar.crs.header_crs`, parsed once per distinct set of CRS records (pyproj: ~20 ms each)."""
-        from lidar.crs import header_crs
-
         key = _crs_records(header)
         if key not in self._parsed:
             try:
@@ -130,6 +114,66 @@ class HeaderIndex:
         if error is not None:
             raise error
         return result
+
+
+def file_crs(
+    path: Path,
+    header: laspy.LasHeader,
+    assign: pyproj.CRS | None,
+    override: pyproj.CRS | None = None,
+    report: LasReadReport | None = None,
+    read_crs=header_crs,
+) -> tuple[pyproj.CRS, str]:
+    """The CRS of one file's coordinates and where it came from, checked against them.
+
+    ``input.override_crs`` (*override*) replaces whatever the header says;
+    otherwise the header's CRS, and ``input.crs`` (*assign*) for a header
+    without one — or with one that cannot be read (an empty WKT), noted in
+    the *report*.  The coordinates the header's bounds announce must be possible
+    in that CRS (:func:`lidar.crs.crs_problem`), or the file is refused
+    with the key that fixes it.  *read_crs* reads the header's CRS
+    (:func:`lidar.crs.header_crs`; the header index passes one that
+    reads each distinct CRS record once).
+    """
+    if override is not None:
+        crs, source = override, "input.override_crs"
+    else:
+        try:
+            crs, note = read_crs(header)
+            source = "header"
+            if note is not None and report is not None:
+                report.crs_read_as[str(path)] = note
+        except Exception as exc:
+            if assign is None:
+                raise InputDataError(
+                    f"{path}: the CRS in the LAS header cannot be read ({exc}); set input.override_crs "
+                    "to the CRS of its coordinates (for example EPSG:2180)."
+                ) from None
+            crs, source = None, "input.crs"
+            if report is not None:
+                report.crs_notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
+        if crs is None:
+            if assign is None:
+                raise InputDataError(
+                    f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
+                )
+            crs, source = assign, "input.crs"
+    _check_fits(path, header, crs, source)
+    return crs, source
+
+
+def _check_fits(path: Path, header, crs, source: str) -> None:
+    """Refuse a file whose header bounds cannot be coordinates in *crs* (one sentence with the way out)."""
+    if int(header.point_count) == 0:
+        return
+    problem = crs_problem(crs, *header_mins_maxs(header))
+    if problem is None:
+        return
+    if source == "header":
+        way = "the header's CRS is wrong: set input.override_crs to the CRS the coordinates are in"
+    else:
+        way = f"the CRS given in {source} does not fit them: set {source} to the CRS the coordinates are in"
+    raise InputDataError(f"{path}: {problem}; {way}.")
 
 
 def _crs_records(header) -> tuple:
@@ -204,9 +248,3 @@ def write_input_files_csv(
                     crs_names.get(key, ""),
                 ]
             )
-
-
-def read_input_files_csv(src: Path) -> list[dict[str, str]]:
-    """The rows of a ``qc/input_files.csv`` (:func:`write_input_files_csv`), in order."""
-    with open(src, newline="", encoding="utf-8") as fh:
-        return list(csv.DictReader(fh))

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
 
 from lidar.clouds import PointLayout
@@ -64,15 +65,11 @@ def point_layout(paths: list[Path], index: HeaderIndex | None = None) -> tuple[P
 
 def copied_dimensions(layout: PointLayout) -> list[str]:
     """The standard dimensions of *layout*'s point format copied as they are."""
-    import laspy
-
     return [n for n in laspy.PointFormat(layout.point_format).standard_dimension_names if n not in READ_APART]
 
 
 def _dropped_dimensions(headers: list, dims: list[set[str]], point_format: int) -> list[str]:
     """A note per input file whose standard dimensions *point_format* does not hold."""
-    import laspy
-
     out_dims = set(laspy.PointFormat(point_format).standard_dimension_names)
     notes = []
     for (path, _), d in zip(headers, dims, strict=True):
@@ -183,8 +180,6 @@ def _same_dimension(a, b) -> bool:
 
 def _extra_bytes_params(dim):
     """laspy's description of an extra-byte dimension to write, or None when it has no usable type."""
-    import laspy
-
     try:
         return laspy.ExtraBytesParams(
             name=dim.name,

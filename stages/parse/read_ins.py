@@ -13,6 +13,7 @@ whose time does not increase, are counted and skipped
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,8 +90,6 @@ def read_ins_csv(path: Path, week: int, counters: TrajectoryCounters) -> dict[st
     Read line by line into compact arrays (8 bytes a value), so a long
     flight's log costs what its columns cost and no more.
     """
-    from array import array
-
     cols = [array("d") for _ in range(4)]
     lines = array("q")
     with open_text(path, "ascii") as fh:

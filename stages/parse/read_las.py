@@ -3,9 +3,9 @@
 Files are read in chunks and normalised to LAS 1.4 in the output CRS, in
 the point records of :func:`stages.parse.las_layout.point_layout`
 (format 6, 7 or 8, the extra bytes every input has).  The CRS of each file
-(:func:`file_crs`) is checked against its coordinates; what is repaired or
-assumed is counted in a :class:`LasReadReport` (what cannot be kept is
-named in :attr:`LasReadReport.dropped`).  :func:`convert_las_files` writes
+(:func:`stages.parse.las_index.file_crs`) is checked against its coordinates; what is
+repaired or assumed is counted in a :class:`~stages.parse.las_report.LasReadReport`
+(what cannot be kept is named in its ``dropped``).  :func:`convert_las_files` writes
 the stage's ``points.las``, copying one file already in the output's form
 record for record (:func:`copy_records`).  The rules: ``docs/stages/parse.md``.
 """
@@ -13,118 +13,27 @@ record for record (:func:`copy_records`).  The rules: ``docs/stages/parse.md``.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
+import pyproj
 
-from lidar.clouds import PointLayout, open_las_writer
-from lidar.crs import header_crs, output_crs
+from lidar.clouds import PointLayout, open_las_writer, point_header
+from lidar.crs import output_crs
 from lidar.las_guard import check_strays, header_box, header_mins_maxs, open_las, read_chunks
+from lidar.units import Units
 from pipeline.errors import InputDataError
 from pipeline.log import Progress
 from stages.parse.isolated import IsolationGrid, Withheld, withhold_isolated
+from stages.parse.las_index import HeaderIndex, file_crs, read_headers
 from stages.parse.las_layout import READ_APART, copied_dimensions, point_layout
-
-if TYPE_CHECKING:
-    import laspy
-    import pyproj
-
-    from stages.parse.las_index import HeaderIndex
+from stages.parse.las_report import LasReadReport
 
 #: Largest extent accepted in any axis (m): twice the Earth's diameter.
 MAX_SPAN_M = 2.6e7
 #: Scan-angle unit of point formats 6-10 (LAS 1.4: 0.006 degree).
 SCAN_ANGLE_UNIT_DEG = 0.006
-
-
-@dataclass
-class LasReadReport:
-    """Counters of one read: points per file and what was assumed."""
-
-    points: dict[str, int] = field(default_factory=dict)
-    crs_source: dict[str, str] = field(default_factory=dict)
-    gps_time_missing: list[str] = field(default_factory=list)
-    #: Per file: points whose return number was 0 (invalid in LAS), read as 1.
-    return_number_zero: dict[str, int] = field(default_factory=dict)
-    #: Per file: the points kept in points.las (those read less those outside the header's bounds).
-    kept: dict[str, int] = field(default_factory=dict)
-    #: Per file: points outside the header's bounds (damaged records or strays), left out of points.las.
-    outside_header_bounds: dict[str, int] = field(default_factory=dict)
-    #: Per file: (points the header announces, records the file holds) when it holds more; all are read.
-    header_count_short: dict[str, tuple[int, int]] = field(default_factory=dict)
-    #: Points far from the survey's dense core (inside the header's bounds), flagged withheld.
-    far_from_survey: int = 0
-    #: Horizontal box (xmin, ymin, xmax, ymax, output CRS units) of the points not withheld as stray.
-    usable_box: list[float] | None = None
-    #: Per file: why its header CRS was not used (unreadable: input.crs used instead).
-    crs_notes: dict[str, str] = field(default_factory=dict)
-    #: Per file: how its header CRS was read (GeoKey units honoured, as GDAL reads them).
-    crs_read_as: dict[str, str] = field(default_factory=dict)
-    dropped: list[str] = field(default_factory=list)
-
-
-def file_crs(
-    path: Path,
-    header: laspy.LasHeader,
-    assign: pyproj.CRS | None,
-    override: pyproj.CRS | None = None,
-    report: LasReadReport | None = None,
-    read_crs=header_crs,
-) -> tuple[pyproj.CRS, str]:
-    """The CRS of one file's coordinates and where it came from, checked against them.
-
-    ``input.override_crs`` (*override*) replaces whatever the header says;
-    otherwise the header's CRS, and ``input.crs`` (*assign*) for a header
-    without one — or with one that cannot be read (an empty WKT), noted in
-    the *report*.  The coordinates the header's bounds announce must be possible
-    in that CRS (:func:`lidar.crs.crs_problem`), or the file is refused
-    with the key that fixes it.  *read_crs* reads the header's CRS
-    (:func:`lidar.crs.header_crs`; the header index passes one that
-    reads each distinct CRS record once).
-    """
-    if override is not None:
-        crs, source = override, "input.override_crs"
-    else:
-        try:
-            crs, note = read_crs(header)
-            source = "header"
-            if note is not None and report is not None:
-                report.crs_read_as[str(path)] = note
-        except Exception as exc:
-            if assign is None:
-                raise InputDataError(
-                    f"{path}: the CRS in the LAS header cannot be read ({exc}); set input.override_crs "
-                    "to the CRS of its coordinates (for example EPSG:2180)."
-                ) from None
-            crs, source = None, "input.crs"
-            if report is not None:
-                report.crs_notes[str(path)] = f"header CRS unreadable ({exc}); input.crs used"
-        if crs is None:
-            if assign is None:
-                raise InputDataError(
-                    f"{path}: the LAS header has no CRS; set input.crs in the configuration (for example EPSG:25830)."
-                )
-            crs, source = assign, "input.crs"
-    _check_fits(path, header, crs, source)
-    return crs, source
-
-
-def _check_fits(path: Path, header, crs, source: str) -> None:
-    """Refuse a file whose header bounds cannot be coordinates in *crs* (one sentence with the way out)."""
-    from lidar.crs import crs_problem
-
-    if int(header.point_count) == 0:
-        return
-    problem = crs_problem(crs, *header_mins_maxs(header))
-    if problem is None:
-        return
-    if source == "header":
-        way = "the header's CRS is wrong: set input.override_crs to the CRS the coordinates are in"
-    else:
-        way = f"the CRS given in {source} does not fit them: set {source} to the CRS the coordinates are in"
-    raise InputDataError(f"{path}: {problem}; {way}.")
 
 
 def count_points(paths: list[Path]) -> int:
@@ -166,7 +75,6 @@ def las_chunks(
     The headers and CRSs are the *index*'s (:mod:`stages.parse.las_index`;
     read here when it is not given): each file is opened once, for its points.
     """
-    from stages.parse.las_index import read_headers
 
     if index is None:
         index = read_headers(paths)
@@ -197,8 +105,6 @@ def _file_chunks(
     path: Path, reader, src_crs, target, layout: PointLayout, chunk_size: int, report: LasReadReport, progress
 ) -> Iterator[dict[str, np.ndarray]]:
     """The columns of one file's chunks (see :func:`las_chunks`), repaired; its points counted in *report*."""
-    import pyproj
-
     header = reader.header
     bounds = header_box(header)
     transformer = None
@@ -388,10 +294,6 @@ def header_bounds(
     the writer's scale coarse; the points are checked against the writer's
     range as they are written (:func:`convert_las_files`).
     """
-    import pyproj
-
-    from stages.parse.las_index import read_headers
-
     if index is None:
         index = read_headers(paths)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -446,9 +348,6 @@ def convert_las_files(
         The output CRS, the :class:`LasReadReport`, the point source ids met.
     """
 
-    from lidar.clouds import point_header
-    from stages.parse.las_index import read_headers
-
     if index is None:
         index = read_headers(paths)
     report = LasReadReport()
@@ -498,8 +397,6 @@ def _output_header(
     paths: list[Path], target, cols: dict[str, np.ndarray], layout: PointLayout, assign_crs, override_crs, index
 ):
     """The converted file's header: offsets and scale from the inputs' header bounds, else from the first chunk."""
-    from lidar.clouds import point_header
-
     n = len(cols["x"])
     lo, hi = header_bounds(paths, target, assign_crs, override_crs, index)
     if not np.isfinite(lo).all():
@@ -533,8 +430,6 @@ def _extend(path: Path, lo, hi, mins, maxs, crs) -> tuple[np.ndarray, np.ndarray
     Extremes that are not finite (a huge scale overflows) or a span beyond
     any survey are errors naming the file.
     """
-    from lidar.units import Units
-
     if not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
         raise InputDataError(
             f"{path}: points have coordinates that are not finite numbers (damaged scale or offset in the header?)."
@@ -595,8 +490,6 @@ def copy_records(
     :func:`withhold_isolated` needs, without a pass of its own.
     """
 
-    from lidar.clouds import point_header
-
     n_read = n_kept = 0
     with open_las(path, check=False) as reader:  # the header index checked its header
         h = reader.header
@@ -642,8 +535,6 @@ def copy_records(
 
 def _record(cols: dict[str, np.ndarray], header):
     """A chunk of columns as a point record for *header* (format 6-8, extra bytes as stored)."""
-    import laspy
-
     n = len(cols["x"])
     rec = laspy.ScaleAwarePointRecord.zeros(n, header=header)
     rec.x, rec.y, rec.z = cols["x"], cols["y"], cols["z"]
@@ -659,10 +550,6 @@ def _record(cols: dict[str, np.ndarray], header):
 
 
 def _build(cols: dict[str, np.ndarray], crs, layout: PointLayout):
-    import laspy
-
-    from lidar.clouds import point_header
-
     n = len(cols["x"])
     if n:
         xyz = np.column_stack((cols["x"], cols["y"], cols["z"]))

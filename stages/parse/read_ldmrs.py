@@ -13,7 +13,10 @@ a survey.  The validity rules and an example: ``docs/stages/parse.md``.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import zlib
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -248,8 +251,6 @@ def read_survey(
 
 def _guard_stream(iterator: Iterator[Scan], path: Path, counters: Counters) -> Iterator[Scan]:
     """Iterate a reader; a damaged compressed stream ends the file with a note, not a traceback."""
-    import zlib
-
     try:
         yield from iterator
     except (EOFError, zlib.error, OSError) as exc:
@@ -338,8 +339,6 @@ class TimeOrder:
 
     @staticmethod
     def _digest(scan: Scan) -> bytes:
-        import hashlib
-
         head = np.array([scan.number, scan.time_gps, scan.status, *scan.lla, *scan.euler, *scan.vel])
         return hashlib.sha1(head.tobytes() + scan.points.tobytes()).digest()
 
@@ -410,8 +409,6 @@ class _Ends:
     """
 
     def __init__(self, skip):
-        from collections import deque
-
         self.skip = skip
         self.early: list[Scan] | None = []  # the first scans, until the first one is judged
         self.prev: Scan | None = None

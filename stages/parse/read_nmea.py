@@ -19,6 +19,7 @@ from datetime import UTC, date, datetime
 from pathlib import Path
 
 import numpy as np
+import pyproj
 
 from pipeline.errors import ConfigError
 from stages.parse.read_ldmrs import GPS_EPOCH
@@ -382,8 +383,6 @@ def geoid_separation(grid: Path, lat: np.ndarray, lon: np.ndarray) -> np.ndarray
     ConfigError
         The grid does not cover a position (or cannot be read).
     """
-    import pyproj
-
     pipeline = (
         "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
         f"+step +proj=vgridshift +grids={grid} +multiplier=1 +step +proj=unitconvert +xy_in=rad +xy_out=deg"

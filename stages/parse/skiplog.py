@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gzip
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
@@ -23,7 +24,5 @@ class SkipLog:
 def open_text(path: str | Path, encoding: str = "utf-8") -> TextIO:
     """Open a text input for reading; ``.gz`` files are decompressed on the fly (streamed)."""
     if Path(path).suffix == ".gz":
-        import gzip
-
         return gzip.open(path, "rt", encoding=encoding, errors="replace")
     return open(path, encoding=encoding, errors="replace")

@@ -21,18 +21,36 @@ from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
+import pyproj
 
+from lidar.columns import NpyColumns
+from lidar.grid import Grid, check_grid_size
+from lidar.units import Units
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO, get_dotted
+from stages.parse.intermediates import (
+    LDMRS_TRAJECTORY_SCHEMA,
+    PULSES_SCHEMA,
+    ldmrs_conventions,
+    lmsq_conventions,
+    lmsq_pulses,
+    scan_pose,
+    scan_pulses,
+    write_trajectory,
+)
+from stages.parse.las_index import read_headers, write_input_files_csv
 from stages.parse.params import InputConfig, LasInput, LdmrsInput, LmsqNmeaInput, LmsqSbetInput
+from stages.parse.qc import ScanQc, ldmrs_figures, lmsq_figures, write_debug, write_trajectory_csv
+from stages.parse.read_ins import TrajectoryCounters
+from stages.parse.read_las import convert_las_files
+from stages.parse.read_ldmrs import Counters, read_survey
+from stages.parse.read_lmsq import LmsqCounters, first_pps_week, read_streams
+from stages.parse.trajectory import nmea_ins_trajectory, sbet_trajectory
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
-    from stages.parse.read_ins import TrajectoryCounters
-    from stages.parse.read_las import LasReadReport
-    from stages.parse.read_ldmrs import Counters
-    from stages.parse.read_lmsq import LmsqCounters
+    from stages.parse.las_report import LasReadReport
 
 
 class Parse(Stage, name="parse", version="11", params=InputConfig):
@@ -73,17 +91,6 @@ class Parse(Stage, name="parse", version="11", params=InputConfig):
 
     def _run_ldmrs(self, ctx: StageContext[LdmrsInput]) -> None:
         """3.A: the logs' scans, in time order, into the trajectory, the pulses and ``qc/``."""
-        from lidar.columns import NpyColumns
-        from stages.parse.intermediates import (
-            LDMRS_TRAJECTORY_SCHEMA,
-            PULSES_SCHEMA,
-            ldmrs_conventions,
-            scan_pose,
-            scan_pulses,
-        )
-        from stages.parse.qc import ScanQc, ldmrs_figures, write_debug
-        from stages.parse.read_ldmrs import Counters, read_survey
-
         p = ctx.params
         counters = Counters()
         qc = ctx.outputs["qc"]
@@ -112,12 +119,6 @@ class Parse(Stage, name="parse", version="11", params=InputConfig):
 
     def _run_lmsq(self, ctx: StageContext[LmsqNmeaInput | LmsqSbetInput]) -> None:
         """3.B, 3.C: the navigation files into the trajectory, the scanner streams into the pulses; ``qc/``."""
-        from lidar.columns import NpyColumns
-        from stages.parse.intermediates import PULSES_SCHEMA, lmsq_conventions, lmsq_pulses, write_trajectory
-        from stages.parse.qc import lmsq_figures, write_debug, write_trajectory_csv
-        from stages.parse.read_ins import TrajectoryCounters
-        from stages.parse.read_lmsq import LmsqCounters, read_streams
-
         p = ctx.params
         qc = ctx.outputs["qc"]
         qc.mkdir()
@@ -149,12 +150,6 @@ class Parse(Stage, name="parse", version="11", params=InputConfig):
 
     def _run_las(self, ctx: StageContext[LasInput]) -> None:
         """3.D: the LAS/LAZ files into one LAS 1.4 file in the output CRS."""
-        import pyproj
-
-        from lidar.units import Units
-        from stages.parse.las_index import read_headers, write_input_files_csv
-        from stages.parse.read_las import convert_las_files
-
         params = ctx.params
         paths = distinct_files(list(params.paths), ctx.log)
         index = read_headers(paths)
@@ -219,8 +214,6 @@ def distinct_files(paths: list[Path], log: logging.LoggerAdapter) -> list[Path]:
 
 def _gps_week(p: LmsqNmeaInput | LmsqSbetInput, log: logging.LoggerAdapter) -> int:
     """The GPS week of the navigation files: ``input.gps_week``, else the first PPS record's."""
-    from stages.parse.read_lmsq import first_pps_week
-
     if p.gps_week is not None:
         return p.gps_week
     week = first_pps_week(p.paths[0])
@@ -237,8 +230,6 @@ def _navigation(
     ctx: StageContext[LmsqNmeaInput | LmsqSbetInput], week: int, counters: TrajectoryCounters
 ) -> tuple[dict, dict]:
     """The trajectory of 3.B (NMEA + INS) or 3.C (SBET) and its figures; fewer than two epochs is an error."""
-    from stages.parse.trajectory import nmea_ins_trajectory, sbet_trajectory
-
     p = ctx.params
     if p.format == "lmsq_nmea":
         geoid = ctx.setting("stages.georeference.geoid")
@@ -302,7 +293,6 @@ def _check_dtm_size(config, box, units, source: str) -> None:
     raster = getattr(config.stages, "rasterize", None)
     if box is None or raster is None or not raster.enabled:
         return
-    from lidar.grid import Grid, check_grid_size
 
     lo = units.to_metres(np.array([[box[0], box[1], 0.0]]))[0]
     hi = units.to_metres(np.array([[box[2], box[3], 0.0]]))[0]

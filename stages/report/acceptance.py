@@ -17,6 +17,11 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
+
+from lidar.glossary import BRIDGE_DECK
+from lidar.water_bodies import binned_medians, burn_levels, is_river, river_axis
 
 LBS = "USGS Lidar Base Specification"
 LBS_EDITION = "2023 rev. A"
@@ -218,8 +223,6 @@ def unflat_water_bodies(dtm_m: np.ndarray, bodies: list, transform_m) -> int:
     >>> unflat_water_bodies(dtm, [(ring, 10.0)], t), unflat_water_bodies(dtm + np.eye(4), [(ring, 10.0)], t)
     (0, 1)
     """
-    from lidar.water_bodies import burn_levels
-
     bad = 0
     for body in bodies:
         level = burn_levels([body], dtm_m.shape, transform_m)
@@ -236,8 +239,6 @@ def rising_rivers(dtm_m: np.ndarray, bodies: list, transform_m) -> int | None:
     vertex heights fall: a station more than :data:`FLAT_TOLERANCE_M` above
     one upstream of it is a rise.
     """
-    from lidar.water_bodies import binned_medians, burn_levels, is_river, river_axis
-
     rivers = [b for b in bodies if is_river(b[0])] if bodies else []
     if not rivers:
         return None
@@ -280,10 +281,6 @@ def decks_in_dem(dtm_m: np.ndarray, top_class: np.ndarray, top_m: np.ndarray) ->
     >>> decks_in_dem(np.full((5, 5), 10.0), cls, top), decks_in_dem(top - 0.1, cls, top)
     (0, 1)
     """
-    from scipy import ndimage
-
-    from lidar.glossary import BRIDGE_DECK
-
     deck = top_class == BRIDGE_DECK
     if not deck.any():
         return None
@@ -324,8 +321,6 @@ def checkpoint_warnings(x_m: np.ndarray, y_m: np.ndarray, covered_m2: float | No
 
 def hull_area(x: np.ndarray, y: np.ndarray) -> float:
     """Area of the convex hull of the points (0 for fewer than 3, or all on one line)."""
-    from scipy.spatial import ConvexHull, QhullError
-
     if len(x) < 3:
         return 0.0
     try:
@@ -436,8 +431,6 @@ def voids(first_returns: np.ndarray, cell_m: float, anps_m: float) -> tuple[int,
     survey is outside it).  Returns the count, the mask of the cells inside an
     empty square, and the square's side in metres.
     """
-    from scipy import ndimage
-
     k = max(1, int(math.ceil(4.0 * anps_m / cell_m)))
     blocks = block_sum(first_returns, k)
     covered = blocks > 0

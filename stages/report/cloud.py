@@ -10,17 +10,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
+from affine import Affine
 
 from lidar import glossary
 from lidar.checkpoints import sample_dtm
-
-if TYPE_CHECKING:
-    from affine import Affine
-
-    from lidar.units import Units
+from lidar.clouds import cloud_crs
+from lidar.las_summary import summary
+from lidar.units import Units
 
 #: Strips x cells above which the repeatability grids are kept on a lattice of cells.
 MAX_SPAN_CELLS = 20_000_000
@@ -51,8 +50,6 @@ def las_info(path: str | Path, gps_range: tuple[float, float] | None = None) -> 
     *gps_range*: the GPS time range when the caller has already read it (the
     header is then all that is read); otherwise one pass over the points.
     """
-    from lidar.las_summary import summary
-
     s = summary(path, points=gps_range is None)
     if gps_range is None:
         gps = s.get("gps_time") or {}
@@ -229,12 +226,6 @@ def summarise_cloud(
     dtm : ndarray, optional
         The DTM, for the repeatability (None: not measured).
     """
-    import laspy
-    from affine import Affine
-
-    from lidar.clouds import cloud_crs
-    from lidar.units import Units
-
     rows, cols = shape
     x0, y1 = origin
     tally = CloudTally.empty(shape)

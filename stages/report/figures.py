@@ -6,7 +6,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import ndimage
 
+from lidar import glossary
+from lidar.shading import hillshade
 from stages.report.acceptance import block_sum
 from stages.report.cloud import CloudSummary
 from stages.report.inputs import ReportInputs
@@ -32,8 +35,6 @@ class Canvas:
 
     @classmethod
     def of(cls, dtm: np.ndarray, frame: MapFrame, units: Units, max_size: int) -> Canvas:
-        from lidar.shading import hillshade
-
         valid = np.isfinite(dtm)
         lo, hi = (float(np.nanmin(dtm)), float(np.nanmax(dtm))) if valid.any() else (0.0, 1.0)
         shade = hillshade(np.where(valid, dtm, lo), frame.cell * units.horizontal / units.vertical)
@@ -207,8 +208,6 @@ CLASS_COLOURS = {
 
 def classes_figure(cv: Canvas, class_grid: np.ndarray) -> str:
     """The class of the highest point (noise and withheld left out) in each DTM cell, over the hillshade."""
-    from lidar import glossary
-
     present = [int(k) for k in np.unique(class_grid) if k >= 0]
     if not present:
         return ""
@@ -254,8 +253,6 @@ def difference_figures(cv: Canvas, before: np.ndarray, after: np.ndarray, frame:
 
 def voids_figure(cv: Canvas, void_mask: np.ndarray, side_m: float, count: int) -> str:
     """DTM nodata enclosed by the DTM, and the squares without a first return (the specification's voids)."""
-    from scipy import ndimage
-
     nodata_inside = ~cv.valid
     area = ndimage.binary_fill_holes(cv.valid)
     cats = np.full(cv.dtm.shape, -1)

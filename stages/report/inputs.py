@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pyogrio
 
+from lidar.checkpoints import checkpoint_errors, read_checkpoints
+from lidar.rasters import read_raster
+from lidar.units import raster_units
 from stages.report.acceptance import DEFAULT_SPECIFICATION
 from stages.report.cloud import CloudSummary
 from stages.report.maps import MapFrame
@@ -42,10 +47,6 @@ def checkpoint_rows(path: str | Path, land_cover_column: str, dtm_path: str | Pa
         ``id`` (the file's ``id`` column, or 1, 2, ...), ``land_cover``, ``x``,
         ``y``, ``z`` and ``dtm`` (CRS units), ``error`` (metres; NaN off the DTM).
     """
-    from lidar.checkpoints import checkpoint_errors, read_checkpoints
-    from lidar.rasters import read_raster
-    from lidar.units import raster_units
-
     xyz, cover = read_checkpoints(path, land_cover_column)
     errors = checkpoint_errors(dtm_path, xyz)
     ids = checkpoint_ids(path, len(xyz))
@@ -64,8 +65,6 @@ def checkpoint_rows(path: str | Path, land_cover_column: str, dtm_path: str | Pa
 
 def checkpoint_ids(path: str | Path, count: int) -> list[str]:
     """The ``id`` column of a check-point CSV, or 1 to *count* when it has none."""
-    import csv
-
     lines = [
         ln
         for ln in Path(path).read_text(encoding="utf-8").splitlines()
@@ -80,8 +79,6 @@ def checkpoint_ids(path: str | Path, count: int) -> list[str]:
 
 def read_flight_lines(path: str | Path) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """The flight lines of ``trajectory.gpkg`` (:func:`stages.georeference.strips.write_flight_lines`): (x, y, 'strip N')."""
-    import pyogrio
-
     meta, _, geometry, fields = pyogrio.raw.read(str(path))
     strips = fields[list(meta["fields"]).index("strip")]
     out = []

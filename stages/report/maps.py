@@ -21,7 +21,10 @@ import io
 import math
 from dataclasses import dataclass
 
+import contourpy
 import numpy as np
+from affine import Affine
+from PIL import Image
 
 from stages.report.colormaps import table
 
@@ -67,8 +70,6 @@ class MapFrame:
     @property
     def transform(self):
         """The raster's north-up affine transform (CRS units)."""
-        from affine import Affine
-
         return Affine(self.cell, 0.0, self.x0, 0.0, -self.cell, self.y1)
 
     def extent(self, shape: tuple[int, int], step: int = 1) -> tuple[float, float, float, float]:
@@ -134,8 +135,6 @@ def _rgb(colour) -> str:
 
 def _png(pixels: np.ndarray) -> bytes:
     """An (rows, cols, 3 or 4) uint8 array as PNG bytes (Pillow)."""
-    from PIL import Image
-
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(pixels)).save(buf, format="PNG", compress_level=6)
     return buf.getvalue()
@@ -281,8 +280,6 @@ def _colour_bar(box: _Box, cmap: str, lo: float, hi: float, label: str) -> tuple
 
 def _contour(box: _Box, thin: np.ndarray, threshold: float, fill: float) -> list[str]:
     """The *threshold* contour of *thin* (cell centres; NaN taken as *fill*) as red polylines inside the plot area."""
-    import contourpy
-
     if not np.isfinite(thin).any() or min(thin.shape) < 2:  # a contour needs 2 x 2 cells
         return []
     x0, x1, y0, y1 = box.extent

@@ -16,8 +16,12 @@ import json
 from pathlib import Path
 from typing import ClassVar, Literal
 
+import numpy as np
+import rasterio
 from pydantic import Field
 
+from lidar.rasters import read_raster
+from lidar.water_bodies import read_water_bodies
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
 from stages.report.acceptance import DEFAULT_SPECIFICATION, SPECIFICATIONS
 from stages.report.cloud import las_info, summarise_cloud
@@ -86,8 +90,6 @@ class Report(Stage, name="report", version="15", params=ReportParams):
 def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
     """What the page draws: the DTM, the density, the classified cloud's summary, and the optional inputs the
     survey has (strip adjustment, DTM uncertainty, flight lines, check points)."""
-    from lidar.rasters import read_raster
-
     dtm, transform, _, resolution = read_raster(ctx.inputs["dtm"])
     density, _, _, _ = read_raster(ctx.inputs["density"])
     cloud = summarise_cloud(
@@ -118,8 +120,6 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
     if "dtm_uncertainty" in ctx.inputs:
         data.uncertainty = read_raster(ctx.inputs["dtm_uncertainty"])[0]
     if "water_bodies" in ctx.inputs:
-        from lidar.water_bodies import read_water_bodies
-
         data.water_bodies = read_water_bodies(Path(ctx.inputs["water_bodies"]), cloud.units)
     if "trajectory_lines" in ctx.inputs:
         data.trajectory = read_flight_lines(ctx.inputs["trajectory_lines"])
@@ -131,9 +131,6 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
 
 def dem_format(path: Path) -> tuple[int, float | None]:
     """The DEM's floating-point bits (0: not floating point) and its nodata value, as its GeoTIFF tags say."""
-    import numpy as np
-    import rasterio
-
     with rasterio.open(path) as ds:
         dtype = np.dtype(ds.dtypes[0])
         return (dtype.itemsize * 8 if dtype.kind == "f" else 0), ds.nodata

@@ -17,8 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
+from lidar.checkpoints import read_control
+from lidar.clouds import open_las_writer
+from lidar.crs import output_crs
 from lidar.georeferencing import (
     LAS_GPS_OFFSET,  # how the georeference stage writes gps_time
     Mounting,
@@ -95,8 +101,6 @@ def rebuild_geometry(
     settings, *crs* the configured output CRS.  The map transform's box is
     10 m wider on every side than the georeference stage's.
     """
-    from lidar.crs import output_crs
-
     convention = tmeta["convention"]
     lat0, lon0 = float(traj["lat"][0]), float(traj["lon"][0])
     exact, mounting = prepare_exact(traj, convention, pmeta)
@@ -137,8 +141,6 @@ def pulse_index(pulse_time: np.ndarray, las_time: np.ndarray) -> np.ndarray:
 
 def read_points(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """gps_time, strip and whether it is a single return, of every point (11 bytes a point)."""
-    import laspy
-
     parts = {k: [] for k in ("t", "sid", "single")}
     with laspy.open(str(path)) as reader:
         for chunk in reader.chunk_iterator(1_000_000):
@@ -174,8 +176,6 @@ def estimation_sample(
 
 def local_control(geo: Geometry, path: Path, log: logging.Logger) -> np.ndarray | None:
     """Ground control points (output CRS) in the estimation's local frame; None with the ltp frame."""
-    from lidar.checkpoints import read_control
-
     control = geo.map_to_local(read_control(path))
     if geo.output is not geo.exact:  # ltp output: control in the ltp plane; estimate in it too
         log.warning("control points are not used by model: mounting with frame: ltp")
@@ -363,8 +363,6 @@ class LinkFinder:
 
     def _control(self, patches: dict, parts: _LinkParts) -> None:
         """The control points inside a strip's patch: that patch's points the surface, the point observed."""
-        from scipy.spatial import cKDTree
-
         control = self.control
         for s in self.strips:
             if not len(patches[s].centroid):
@@ -452,8 +450,6 @@ def mounting_summary(mounting: Mounting, theta: np.ndarray, pmeta: dict) -> dict
 
     For the lmsq formats also ``estimated_boresight_deg``, the value to configure as ``input.boresight_deg``.
     """
-    from scipy.spatial.transform import Rotation
-
     new = corrected_mounting(mounting, theta)
     out = {
         "configured_rotation": np.round(mounting.rotation, 9).tolist(),
@@ -559,10 +555,6 @@ def rewrite_points(
     advance: Callable[[int], object],
 ) -> float:
     """Copy *src* to *dst* with every point georeferenced again under *theta*; the largest move (m)."""
-    import laspy
-
-    from lidar.clouds import open_las_writer
-
     new = corrected_mounting(geo.mounting, theta)
     table = np.zeros((65536, 3))
     for k, s in enumerate(unknowns.offset_strips):

@@ -12,6 +12,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lidar.grid import Grid, cell_mean
+from lidar.rasters import NODATA, colour_ramp, png_bytes, write_cog
+
 if TYPE_CHECKING:
     import pyproj
 
@@ -46,9 +49,6 @@ def write_difference_maps(
     sparse survey over a large area costs nothing.  The rasters are written
     in the CRS's units (cells and values).
     """
-    from lidar.grid import Grid, cell_mean
-    from lidar.rasters import NODATA, write_cog
-
     # the grid covers the overlaps measured, not the survey: its cost follows the patches, not the area
     centres_all = [c for parts in (before or [], after or []) for c, _ in parts if len(c)]
     if centres_all:
@@ -75,8 +75,6 @@ def write_difference_maps(
 
 def _picture(images: list[np.ndarray], rows: int) -> bytes:
     """PNG: before | after, blue (-0.3 m) - white (0) - red (+0.3 m), grey where no overlap."""
-    from lidar.rasters import colour_ramp, png_bytes
-
     ramp = [(0.0, (59, 76, 192)), (0.5, (245, 245, 245)), (1.0, (180, 4, 38))]
     panels = []
     for image in images:

@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 
 @dataclass
@@ -72,8 +74,6 @@ class Transform:
     @property
     def rotation_vector(self) -> np.ndarray:
         """Axis x angle (radians) of R."""
-        from scipy.spatial.transform import Rotation
-
         return Rotation.from_matrix(self.rotation).as_rotvec()
 
 
@@ -234,8 +234,6 @@ def match(
 
     The two centroids must be within *max_offset* horizontally (default: half a cell).
     """
-    from scipy.spatial import cKDTree
-
     if not len(pa.centroid) or not len(pb.centroid):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     ca, cb = ta.apply(pa.centroid), tb.apply(pb.centroid)
@@ -251,8 +249,6 @@ def match(
 
 
 def _rotation(omega: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(omega).as_matrix()
 
 
@@ -411,8 +407,6 @@ def _pair_observations(patches, tf, points, col, n_cols, max_distance):
 
 def _control_observations(patches, tf, control, col, n_cols):
     """The observation rows of ground control points: each one's distance to the patch of a strip it lies in."""
-    from scipy.spatial import cKDTree
-
     rows = []
     for s in sorted(patches):
         if not len(patches[s].centroid) or s not in col:

@@ -14,8 +14,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import laspy
 import numpy as np
 
+from lidar.clouds import open_las_writer
+from pipeline.errors import ConfigError
 from stages.strip_adjust.difference_maps import combined_rms
 from stages.strip_adjust.icp import (
     Pair,
@@ -43,8 +46,6 @@ def gather(
     cells whose indices are multiples of *step* (every cell for 1), as
     (points, strip ids); everything in metres.
     """
-    import laspy
-
     count = np.zeros(65536, dtype=np.int64)
     sums = np.zeros((65536, 3))
     keep_pts, keep_sid = [], []
@@ -106,8 +107,6 @@ def overlap_datum(
     if reference_strip == "most_overlap":
         return ident, linked, (max(linked, key=lambda s: overlap[s]) if linked else None)
     if linked and reference_strip not in linked:
-        from pipeline.errors import ConfigError
-
         raise ConfigError(
             f"stages.strip_adjust.reference_strip: strip {reference_strip} has no overlap with another strip "
             f"(strips with overlap: {', '.join(map(str, linked))})."
@@ -276,10 +275,6 @@ def apply_transforms(
     src: Path, dst: Path, transforms: dict[int, Transform], units: Units, advance: Callable[[int], object]
 ) -> None:
     """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform."""
-    import laspy
-
-    from lidar.clouds import open_las_writer
-
     with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
         for chunk in reader.chunk_iterator(1_000_000):
             if transforms:

@@ -21,7 +21,11 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from lidar.checkpoints import read_control
+from lidar.clouds import cloud_info
+from lidar.columns import read_columns
 from pipeline.errors import ConfigError
+from pipeline.runner import UNPUBLISHED
 from pipeline.stage import Stage, StageContext, StageIO
 from stages.strip_adjust import calibration, rigid
 from stages.strip_adjust.difference_maps import DIFFERENCE_MAPS, write_difference_maps
@@ -74,9 +78,6 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
 
     def _rigid(self, ctx: StageContext[StripAdjustParams]) -> None:
         """One rigid correction per strip (any input)."""
-        from lidar.checkpoints import read_control
-        from lidar.clouds import cloud_info
-
         p = ctx.params
         src = ctx.inputs["points_georef"]
         info = cloud_info(src)
@@ -110,9 +111,6 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
 
     def _mounting(self, ctx: StageContext[StripAdjustParams]) -> None:
         """The system calibration from the overlaps, every pulse georeferenced again (raw flights)."""
-        from lidar.clouds import cloud_info
-        from lidar.columns import read_columns
-
         p = ctx.params
         src = ctx.inputs["points_georef"]
         traj, tmeta = read_columns(ctx.inputs["trajectory"])
@@ -170,6 +168,4 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
     def _unpublish_empty_maps(ctx: StageContext, pairs: list) -> None:
         """No overlap measured: the difference maps would be empty, so they are not published."""
         if not pairs:
-            from pipeline.runner import UNPUBLISHED
-
             ctx.metrics[UNPUBLISHED] = list(DIFFERENCE_MAPS)

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from stages.plugin import plugin
+
 ROOT = Path(__file__).resolve().parents[2]
 
 PROBE = """
@@ -33,7 +35,6 @@ def test_help_imports_no_stage_nor_numpy():
 
 
 def test_the_plugin_loads_its_stages_on_first_use():
-    from stages.plugin import plugin
 
     assert plugin.name == "dtm-pipeline"
     names = [s.name for s in plugin.stages]

@@ -16,8 +16,12 @@ import laspy
 import numpy as np
 import pyproj
 import pytest
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import cKDTree
 
+from commands.evaluate.command import evaluate_ground
 from commands.evaluate.scores import dtm_check
+from lidar.grid import Grid
 from pipeline.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -76,8 +80,6 @@ def test_cells_where_the_reference_has_no_ground_are_left_out():
     (A point inside a triangle sees its vertices under angles summing to 360 degrees, so one is at least
     120 degrees; its opposite edge is then at least sqrt(3) times the point's distance to the vertices.)
     """
-    from scipy.spatial import cKDTree
-
     ground = _lattice()
     hole = _patch(ground, 17, 17, 26)  # 26 x 26 cells without reference ground
     xyz = np.vstack((ground[~hole], ground[hole] + [0.0, 0.0, 2.5]))  # the run finds ground there, 2.5 m up
@@ -159,11 +161,6 @@ def test_a_survey_in_feet_is_checked_in_metres(tmp_path, capsys):
 @pytest.mark.slow
 def test_megaplot_figures_match_an_independent_tin(need_data):
     """Real forest: the check's figures are those of SciPy's Qhull TINs of the same classes (any filter)."""
-    from scipy.interpolate import LinearNDInterpolator
-
-    from commands.evaluate.command import evaluate_ground
-    from lidar.grid import Grid
-
     need_data(MEGAPLOT, what="lidR's Megaplot.laz")
     rows, classes = evaluate_ground(MEGAPLOT, dtm_max_edge=np.inf)
     las = laspy.read(str(MEGAPLOT))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -37,9 +39,6 @@ def scored(tmp_path_factory) -> tuple[Path, dict]:
 
 
 def _run(ref: Path, *args: str) -> str:
-    import contextlib
-    import io
-
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         assert main(["evaluate", "classes", str(ref), *args]) == 0

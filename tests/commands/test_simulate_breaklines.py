@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import numpy as np
+import pyogrio.raw
 import pyproj
+import shapely
 
 from commands.simulate.forward import Earth
-from commands.simulate.scene import RIVER_SLOPE, make_scene
+from commands.simulate.scene import RIVER_SLOPE, WATER, make_scene
 from commands.simulate.truth import write_truth_breaklines
 
 
 def test_the_true_breaklines_are_the_shores_at_the_water_level(tmp_path):
-    import pyogrio.raw
-    import shapely
-
     extent = (-80.0, 80.0, -75.0, 75.0)
     world, frame, crs = make_scene(extent), Earth(40.4168, -3.7038, 650.0), pyproj.CRS.from_epsg(32630)
     write_truth_breaklines(tmp_path, world, frame, crs, extent)
@@ -32,11 +31,6 @@ def test_the_true_breaklines_are_the_shores_at_the_water_level(tmp_path):
 
 
 def test_the_lbs_scene_holds_water_the_lidar_base_specification_flattens(tmp_path):
-    import pyogrio.raw
-    import shapely
-
-    from commands.simulate.scene import WATER
-
     extent = (-200.0, 200.0, -200.0, 200.0)
     world = make_scene(extent, water="lbs")
     centre, half = world.river

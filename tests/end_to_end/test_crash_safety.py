@@ -19,6 +19,7 @@ to execute once.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import multiprocessing
 import os
@@ -26,14 +27,19 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import laspy
 import numpy as np
+import psutil
 import pytest
 
+import pipeline.cache as cachemod
+import pipeline.runner as runnermod
 from pipeline.cli import main
 from stages.plugin import plugin
+from tests.pipeline import toy
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.slow
@@ -92,9 +98,6 @@ def _die() -> None:
 
 def _killed_child(args: list[str], stage: str, point: str) -> None:
     """Run the pipeline and SIGKILL this process at *point* of *stage*."""
-    import pipeline.cache as cachemod
-    import pipeline.runner as runnermod
-
     if point == "products":
 
         def copy_then_die(src, dst):
@@ -267,8 +270,6 @@ def test_a_run_writes_only_inside_its_output_and_cache_folders(small_job, tmp_pa
 
 
 def test_a_product_name_leaving_the_output_folder_is_refused(tmp_path, monkeypatch, capsys):
-    from tests.pipeline import toy
-
     monkeypatch.setenv("PIPELINE_PLUGIN", "tests.pipeline.toy:plugin")
     monkeypatch.setattr(toy.Total, "products", {"total": "../escaped.json"})
     (tmp_path / "numbers.txt").write_text("1\n2\n")
@@ -291,18 +292,12 @@ def test_two_concurrent_runs_of_one_configuration_same_output(small_job):
     if reference is not None:
         assert products == reference
     for name, digest in products.items():
-        import hashlib
-
         assert hashlib.sha256((root / "same" / "out" / name).read_bytes()).hexdigest() == digest
     assert not list((root / "same" / "out").glob(".*.tmp"))
 
 
 def test_a_killed_run_leaves_no_worker_behind(small_job, tmp_path):
     """SIGKILL a tiled run while its worker processes work: they exit too (no orphans), and a re-run completes."""
-    import time
-
-    import psutil
-
     out = tmp_path / "out"
     cmd = [str(Path(sys.executable).with_name("pipeline")), "run", str(small_job / "job.yaml"), "-q"]
     cmd += ["--set", f"output={out}", "--set", f"cache={tmp_path / 'cache'}"]
@@ -326,8 +321,6 @@ def test_a_killed_run_leaves_no_worker_behind(small_job, tmp_path):
 
 def _run_until(cmd: list[str], trigger: str, signum: int, group: bool):
     """Start a run, send *signum* when its log shows *trigger*; return (exit code, log, processes it had)."""
-    import psutil
-
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
     lines = []
     for line in proc.stderr:
@@ -369,8 +362,6 @@ def test_sigint_and_sigterm_stop_a_tiled_run_cleanly(small_job, trigger, signum,
 
     The products of the last complete run stay, and run.json still describes them.
     """
-    import psutil
-
     root = small_job
     base = root / "signals"
     tiled = ["--set", "tiling.size=50", "--set", "executor.workers=2", "--set", "executor.kind=local"]
@@ -393,8 +384,6 @@ def test_sigint_and_sigterm_stop_a_tiled_run_cleanly(small_job, trigger, signum,
     assert manifest["error"] == f"interrupted by {signal.Signals(signum).name}"
     assert manifest["products"] == before["products"]
     for name, product in manifest["products"].items():
-        import hashlib
-
         assert hashlib.sha256((base / "out" / name).read_bytes()).hexdigest() == product["sha256"], name
     gone, alive = psutil.wait_procs(children, timeout=5)
     assert not alive, f"{len(alive)} process(es) outlived the interrupted run"

@@ -28,6 +28,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 import pytest
+from distributed import Client
 
 from pipeline.cli import main
 from pipeline.errors import EnvironmentFailure
@@ -66,8 +67,6 @@ def _stop(proc: subprocess.Popen) -> None:
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """The address of a scheduler with two single-threaded worker processes on loopback."""
-    from distributed import Client
-
     tmp = tmp_path_factory.mktemp("cluster")
     workers_cwd = tmp / "workers"
     workers_cwd.mkdir()

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+import pyogrio.raw
 import pyproj
 import pytest
 import rasterio
@@ -118,8 +119,6 @@ def test_same_dtm_in_feet(twin_runs):
 
 
 def test_same_contours_and_hillshade(twin_runs):
-    import pyogrio.raw
-
     _, _, gm, fm = pyogrio.raw.read(twin_runs / "out_m" / "contours.gpkg")
     _, _, gf, ff = pyogrio.raw.read(twin_runs / "out_ft" / "contours.gpkg")
     assert len(gm) == len(gf) > 10

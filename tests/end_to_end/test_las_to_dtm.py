@@ -6,15 +6,22 @@ true terrain and the true ground label of every point are known.
 
 from __future__ import annotations
 
+import base64
 import json
+import re
+import sqlite3
 from pathlib import Path
+from xml.etree import ElementTree
 
 import laspy
 import numpy as np
+import pyogrio
 import pytest
 import rasterio
 
+from commands.simulate.settings import SimulateFile
 from pipeline.cli import main
+from pipeline.config import load_config
 from tests.synthetic import SAMPLE_ORIGIN, make_scene, terrain
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -131,9 +138,6 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
 
 
 def test_every_config_validates():
-    from commands.simulate.settings import SimulateFile
-    from pipeline.config import load_config
-
     for config in sorted((ROOT / "configs").glob("*.yaml")):
         if config.name == "simulate.yaml":  # a simulation, not a pipeline run
             assert set(load_config(config, SimulateFile).surveys) == {"flight_ldmrs", "flight_lmsq"}
@@ -195,8 +199,6 @@ def test_surface_models_are_consistent(run_dir):
 
 
 def test_hillshade_png_and_contours(run_dir):
-    import pyogrio
-
     out, _ = run_dir
     assert (out / "out" / "hillshade.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     info = pyogrio.read_info(out / "out" / "contours.gpkg")
@@ -220,10 +222,6 @@ def test_accuracy_at_check_points(run_dir):
 
 
 def test_report_is_self_contained(run_dir):
-    import base64
-    import re
-    from xml.etree import ElementTree
-
     out, _ = run_dir
     page = (out / "out" / "report.html").read_text()
     for section in ("acceptance", "summary", "inputs", "maps", "classes", "strips", "accuracy"):
@@ -259,10 +257,6 @@ def test_evaluate_dtm_against_truth_and_checkpoints(run_dir, capsys):
 
 def test_building_outlines_and_canopy_height_are_products(run_dir):
     """The sample's scene has buildings and trees: outlines as a GeoPackage 1.2 layer, canopy above the DTM."""
-    import sqlite3
-
-    import pyogrio
-
     out, _ = run_dir
     info = pyogrio.read_info(str(out / "out" / "buildings.gpkg"))
     assert info["features"] > 0 and info["geometry_type"] == "MultiPolygon" and info["crs"] == "EPSG:25830"

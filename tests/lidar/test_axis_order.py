@@ -15,11 +15,13 @@ a peer computation from geodetic coordinates, not through our code).
 
 from __future__ import annotations
 
+import laspy
 import numpy as np
 import pyproj
 import pytest
 
 from lidar.geodesy import LocalFrame, MapTransform
+from stages.parse.read_las import convert_las_files
 
 
 @pytest.mark.parametrize(
@@ -66,10 +68,6 @@ def test_las_reprojected_to_northing_first_crs_stays_easting_first(tmp_path, src
     scale: a point on the meridian keeps easting 500 000 m, and its northing
     moves by the WGS 84 -> SWEREF99 datum difference only (well under a metre).
     """
-    import laspy
-
-    from stages.parse.read_las import convert_las_files
-
     lon, lat = np.array([15.0, 15.01, 14.99]), np.array([60.0, 60.005, 59.995])
     if src == "EPSG:4326":
         x, y, scale = lon, lat, 1e-8

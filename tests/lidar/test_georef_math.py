@@ -8,14 +8,19 @@ of R_b^n . (R_s^b . v_s + a_b) can be done by hand (written out below).
 
 from __future__ import annotations
 
+import laspy
 import numpy as np
 import pyproj
 import pytest
 
+from commands.simulate.writers import write_sbet
+from lidar.geodesy import LocalFrame, MapTransform
 from lidar.georeferencing import Mounting, georeference_local, locate, prepare_trajectory
 from lidar.rotation import rot_y, rot_z
 from pipeline.cli import main
-from tests.conftest import run_stages
+from stages.parse.read_lmsq import write_lmsq
+from tests.conftest import constant_geoid, run_stages
+from tests.flights import lines, simulate_flight
 
 A = 6_378_137.0
 S30, C30 = 0.5, np.sqrt(3) / 2
@@ -83,9 +88,6 @@ def test_sbet_pulse_end_to_end_by_hand(tmp_path):
     NED = Rz(90) (1, 0, 100) = (0, 1, 100): 1 m east, 100 m down of the INS at (0 N, 0 E, 500 m):
     ECEF (a + 500 - 100, 1, 0) = (a + 400, 1, 0).
     """
-    from commands.simulate.writers import write_sbet
-    from stages.parse.read_lmsq import write_lmsq
-
     week, sow = 2400, 100_000.0
     write_lmsq(tmp_path / "scan.lmsq", 140, [("pps", sow, week), ("m", 100.0, 200, 0.0, 40, 0, 500_000, (0, 0, 0))])
     rec = np.zeros((2, 17))
@@ -101,7 +103,6 @@ def test_sbet_pulse_end_to_end_by_hand(tmp_path):
     )
     assert main(["run", str(config), "-q", "--until", "georeference"]) == 0
     stages = run_stages(tmp_path / "out")
-    import laspy
 
     las = laspy.read(stages["georeference"]["outputs"]["points_georef"]["file"])
     assert len(las) == 1
@@ -120,8 +121,6 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
     d^2 / 2R.  The reported figures must be those, within 1 cm (they are decimetres, not the
     "negligible" the seed assumes).
     """
-    from tests.flights import lines, simulate_flight
-
     scanner = {"preset": "q140", "pulse_rate_hz": 2000}
     flight = lines(150, 60, 1, 1000)
     simulate_flight(
@@ -156,9 +155,6 @@ def test_ltp_difference_is_what_geometry_predicts(tmp_path):
 
 def test_geoid_grid_gives_orthometric_heights(tmp_path):
     """A geoid grid of N = 50 m: heights drop by 50 m (H = h - N), positions do not move."""
-    from lidar.geodesy import LocalFrame, MapTransform
-    from tests.conftest import constant_geoid
-
     grid = constant_geoid(tmp_path / "geoid.tif", 50.0)
     frame = LocalFrame(40.4168, -3.7038, 650.0)
     lo, hi = np.array([-500.0, -500.0, -100.0]), np.array([500.0, 500.0, 300.0])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import resource
+from pathlib import Path as RealPath
 
 from lidar import memory
 
@@ -58,7 +59,6 @@ def test_a_cgroup_v1_limit_counts_too(tmp_path, monkeypatch):
 
 def _redirect_cgroups(monkeypatch, cgroup_file, sys_root):
     """memory reads /proc/self/cgroup from *cgroup_file* and /sys/fs/cgroup/... under *sys_root*."""
-    from pathlib import Path as RealPath
 
     def fake(path):
         text = str(path)

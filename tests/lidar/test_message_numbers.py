@@ -8,7 +8,13 @@ strings (quoted on purpose) or in other areas' files, awaiting their fix.
 from __future__ import annotations
 
 import ast
+import struct
 from pathlib import Path
+
+import pytest
+
+from pipeline.errors import InputDataError
+from stages.parse.read_lmsq import LmsqCounters, read_lmsq
 
 ROOT = Path(__file__).resolve().parents[2]
 SINKS = {"info", "warning", "error", "debug", "exception", "note", "warn"}
@@ -59,13 +65,6 @@ def test_no_message_prints_a_number_by_its_repr():
 
 def test_a_damaged_pps_is_reported_with_its_number_formatted(tmp_path):
     """An .lmsq PPS record whose seconds of week are out of range: the number as text, not a repr."""
-    import struct
-
-    import pytest
-
-    from pipeline.errors import InputDataError
-    from stages.parse.read_lmsq import LmsqCounters, read_lmsq
-
     head = ROOT / "data_samples" / "flight_lmsq"
     sample = next(head.rglob("*.lmsq"))
     data = bytearray(sample.read_bytes())

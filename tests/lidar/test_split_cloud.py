@@ -21,11 +21,14 @@ import pytest
 
 from lidar.clouds import cloud_info
 from lidar.grid import Grid
+from lidar.gridrun.point_tiles import PointTask, tile_classes
 from lidar.mosaic import core_window
 from lidar.tile_points import read_tile, split_cloud, tile_parts
 from lidar.units import Units
 from pipeline.executor import LocalExecutor
 from pipeline.tiling import Layout
+from stages.denoise.noise_classes import DenoiseKernel
+from stages.denoise.params import DenoiseParams
 from stages.rasterize.params import RasterizeParams
 from stages.rasterize.tile_rasters import RasterTask, Usable, raster_columns, rasterize_tile
 
@@ -154,9 +157,6 @@ def test_a_tile_split_on_two_workers_gives_the_same_raster_bytes(split, method, 
 
 
 def test_a_tile_split_on_two_workers_gives_the_same_noise_classes(split, tmp_path):
-    from lidar.gridrun.point_tiles import PointTask, tile_classes
-    from stages.denoise.noise_classes import DenoiseKernel
-    from stages.denoise.params import DenoiseParams
 
     _, _, tmp, (rows, _), _ = split
     kernel = DenoiseKernel(DenoiseParams().model_dump(mode="json"))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from affine import Affine
 
 from lidar.water_bodies import burn_levels, water_bodies
 
@@ -83,8 +84,6 @@ def test_dropouts_are_closed_and_small_patches_left_out():
 
 
 def test_burn_levels_takes_the_cells_whose_centre_is_inside():
-    from affine import Affine
-
     square = np.array([[2.0, 2.0], [6.0, 2.0], [6.0, 6.0], [2.0, 6.0], [2.0, 2.0]])
     hole = np.array([[3.0, 3.0], [4.0, 3.0], [4.0, 4.0], [3.0, 4.0], [3.0, 3.0]])
     grid = burn_levels([([square, hole], 7.5)], (8, 8), Affine(1.0, 0.0, 0.0, 0.0, -1.0, 8.0))

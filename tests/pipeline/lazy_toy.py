@@ -11,6 +11,7 @@ from pipeline.discovery import LazyCommand, LazyPlugin
 
 
 def _load():
+    # lazy: the plugin's stages load on first use, not by pipeline --help (test_discovery.py checks it)
     from tests.pipeline.toy import plugin as toy
 
     return toy

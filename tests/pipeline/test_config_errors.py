@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 from pipeline.cli import main
@@ -125,9 +128,6 @@ def test_alias_bomb_is_refused_under_a_memory_limit(tmp_path):
     Before the fix the line recorder followed every alias: MemoryError after
     9 s at this limit.
     """
-    import subprocess
-    import sys
-
     path = tmp_path / "bomb.yaml"
     path.write_text(_bomb())
     assert len(path.read_bytes()) == 342

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.cli import main
+from tests.pipeline.lazy_toy import wrong_name
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -56,7 +57,5 @@ def test_run_loads_the_stages(tmp_path, monkeypatch, capsys):
 
 
 def test_a_loader_that_builds_another_plugin_is_an_error():
-    from tests.pipeline.lazy_toy import wrong_name
-
     with pytest.raises(ValueError, match="not-toy"):
         _ = wrong_name.stages

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import hashlib
 import json
+import logging
 import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -13,7 +21,7 @@ from pipeline.cli import main
 from pipeline.config import load_config
 from pipeline.errors import PlanError
 from pipeline.runner import build_plan
-from pipeline.stage import config_model
+from pipeline.stage import StageContext, config_model
 from tests.pipeline import toy as toymod
 
 
@@ -119,9 +127,6 @@ def test_force_reruns_a_cached_stage(toy):
 
 def test_force_replaces_the_cached_entry(toy):
     """--force computes the stage again and keeps the new entry (not the old one as from a concurrent run)."""
-    import time
-    from pathlib import Path
-
     assert toy.run() == 0
     record = next(s for s in toy.manifest()["stages"] if s["name"] == "total")
     entry = Path(next(iter(record["outputs"].values()))["file"]).parent / "entry.json"
@@ -185,7 +190,6 @@ def test_manifest_records_versions_hashes_and_timings(toy):
     assert str(toy.root / "numbers.txt") in m["inputs"]
     for stage in m["stages"]:
         assert stage["seconds"] >= 0 and len(stage["key"]) == 64
-    import hashlib
 
     data = (toy.root / "out" / "total.json").read_bytes()
     assert m["products"]["total.json"]["sha256"] == hashlib.sha256(data).hexdigest()
@@ -294,8 +298,6 @@ def test_unwritable_output_folder_is_one_sentence_exit_2(toy, capsys):
 
 
 def test_full_disk_is_reported_in_one_sentence(toy, capsys, monkeypatch):
-    import errno
-
     def full(self, ctx):
         raise OSError(errno.ENOSPC, "No space left on device", str(ctx.outputs["numbers"]))
 
@@ -323,17 +325,12 @@ def test_tampered_entry_json_is_recomputed(toy, capsys):
 
 
 def test_workspace_of_a_killed_run_is_removed_but_a_live_one_is_kept(tmp_path):
-    import fcntl
-    import os
-
     dead, live = tmp_path / "s" / ".tmp-k1-abc", tmp_path / "s" / ".tmp-k2-def"
     dead.mkdir(parents=True)
     live.mkdir()
     fd = os.open(tmp_path / "s" / ".k2.lock", os.O_RDWR | os.O_CREAT)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)  # as a live run computing k2 would
-        import subprocess
-        import sys
 
         # Another process sweeps: it must see k2's lock as taken.
         code = f"from pipeline.cache import Cache; print(Cache({str(tmp_path)!r}).sweep('s', 'k3'))"
@@ -346,12 +343,6 @@ def test_workspace_of_a_killed_run_is_removed_but_a_live_one_is_kept(tmp_path):
 
 def test_a_stage_reads_another_blocks_setting_only_when_declared():
     """ctx.setting: a declared key (or a key inside a declared block) is read; an undeclared one is a bug."""
-    import logging
-    from pathlib import Path
-    from types import SimpleNamespace
-
-    from pipeline.stage import StageContext
-
     config = SimpleNamespace(crs="EPSG:25830", stages=SimpleNamespace(rasterize=SimpleNamespace(resolution=0.5)))
     log = logging.LoggerAdapter(logging.getLogger("t"), {})
     keys = ("crs", "stages.rasterize")

@@ -24,7 +24,7 @@ import pytest
 
 import pipeline.executor as executor_module
 from pipeline.cli import main
-from pipeline.errors import EnvironmentFailure
+from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.executor import DaskExecutor, LocalExecutor, make_executor
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -81,8 +81,6 @@ def test_a_closed_port_is_the_same_sentence():
 
 
 def test_an_address_dask_cannot_read_is_a_configuration_error():
-    from pipeline.errors import ConfigError
-
     for address, words in [("foo://host:1", "unknown address scheme 'foo'"), ("host", "missing port number")]:
         with pytest.raises(ConfigError, match=f"executor.address {address}: not a Dask address .*{words}"):
             DaskExecutor(address, 1, connect_timeout=1).map(square, [{"i": 1}])

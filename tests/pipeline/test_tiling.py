@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import logging
+import os
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
+from distributed import LocalCluster
 
-from pipeline.errors import InputDataError
+from pipeline.config import ExecutorConfig
+from pipeline.errors import EnvironmentFailure, InputDataError
 from pipeline.executor import DaskExecutor, LocalExecutor
-from pipeline.tiling import Layout
+from pipeline.tiling import Layout, run_tiled
 
 
 def _brute(layout: Layout, x, y):
@@ -84,8 +90,6 @@ def test_dask_local_cluster_matches_local_executor():
 
 
 def test_dask_executor_uses_the_scheduler_at_its_address():
-    from distributed import LocalCluster
-
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         ex = DaskExecutor(cluster.scheduler_address, 1)
         try:
@@ -98,8 +102,6 @@ def test_dask_executor_uses_the_scheduler_at_its_address():
 
 
 def test_unreachable_scheduler_is_one_sentence():
-    from pipeline.errors import EnvironmentFailure
-
     ex = DaskExecutor("tcp://127.0.0.1:9", 1, connect_timeout=1)  # the discard port: nothing listens
     with pytest.raises(EnvironmentFailure, match=r"tcp://127.0.0.1:9: no Dask scheduler answered within 1 s"):
         ex.map(square, [{"i": 1}])
@@ -108,21 +110,12 @@ def test_unreachable_scheduler_is_one_sentence():
 
 def where(task: dict) -> tuple[int, int]:
     """The task's number and the process that ran it."""
-    import os
-
     return task["i"], os.getpid()
 
 
 @pytest.mark.parametrize("weight, here", [(99_999, True), (100_000, False), (None, False)])
 def test_light_work_runs_in_this_process_and_gives_the_same_results(weight, here):
     """Below ``executor.in_process_below`` (100,000 by default) the tiles run here, no worker started."""
-    import logging
-    import os
-    from types import SimpleNamespace
-
-    from pipeline.config import ExecutorConfig
-    from pipeline.tiling import run_tiled
-
     ex = LocalExecutor(2)
     config = SimpleNamespace(executor=ExecutorConfig(workers=2), tiling=None)
     ctx = SimpleNamespace(config=config, executor=ex, metrics={}, log=logging.getLogger("test"))

@@ -13,10 +13,12 @@ import hashlib
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 
+from pipeline import executor as executor_mod
 from pipeline import runner
 from pipeline.cache import Cache
 from pipeline.cli import main
@@ -88,8 +90,6 @@ def test_an_entry_damaged_in_any_shape_is_recomputed(toy, capsys, tmp_path, dama
 
 
 def test_a_stage_folder_that_stays_unwritable_is_one_sentence_exit_4(toy, capsys, monkeypatch):
-    import tempfile
-
     assert toy.run() == 0
 
     def refused(*args, **kwargs):
@@ -150,8 +150,6 @@ def test_a_full_disk_while_publishing_keeps_every_old_product(toy, capsys, monke
 
 def test_another_run_publishing_in_between_never_makes_run_json_false(toy, monkeypatch):
     """Two configurations, one output folder: the other run publishes while this one shuts its workers down."""
-    from pipeline import executor as executor_mod
-
     other = toy.root / "other.yaml"
     (toy.root / "other.txt").write_text("100\n200\n")
     other.write_text(toy.path.read_text().replace("numbers.txt", "other.txt"))

@@ -7,6 +7,8 @@ load -> scale -> total (product)
 from __future__ import annotations
 
 import json
+import os
+import signal
 from pathlib import Path
 from typing import ClassVar
 
@@ -129,9 +131,6 @@ plugin = Plugin(
 def square_or_die(task: dict) -> float:
     """A worker task: the square of ``task["value"]``; a task with ``die`` kills its own process (SIGKILL)."""
     if task.get("die"):
-        import os
-        import signal
-
         os.kill(os.getpid(), signal.SIGKILL)
     return task["value"] ** 2
 

@@ -22,7 +22,8 @@ from lidar.rasters import write_cog
 from pipeline.cli import main
 from pipeline.errors import InputDataError
 from stages.accuracy.stage import Accuracy, AccuracyParams
-from stages.accuracy.vertical import truth_accuracy, truth_on_dtm_cells
+from stages.accuracy.vertical import land_cover_on_dtm_cells, truth_accuracy, truth_on_dtm_cells
+from stages.report.sections import accuracy_section
 
 ROOT = Path(__file__).resolve().parents[3]
 CRS = pyproj.CRS.from_epsg(32630)
@@ -70,7 +71,6 @@ def test_figures_by_land_cover(tmp_path):
     cover[10:15, 15:20] = 6
     cover[20:40, 0:10] = 9  # water, west of the DTM (which starts at x = 10 m): no DTM cell
     write_cog(tmp_path / "cover.tif", cover, transform=Affine(1.0, 0.0, X0, 0.0, -1.0, Y1), crs=CRS, unit=None)
-    from stages.accuracy.vertical import land_cover_on_dtm_cells
 
     r = truth_accuracy(*truth_on_dtm_cells(path, truth), land_cover_on_dtm_cells(path, tmp_path / "cover.tif"))
     by = r["by_land_cover"]
@@ -176,8 +176,6 @@ def test_main_job_reports_its_dtm_against_the_simulator_truth(tmp_path):
 
 
 def test_report_splits_the_truth_figures_by_land_cover():
-    from stages.report.sections import accuracy_section
-
     truth = {"file": "terrain.tif", "resampling": "bilinear", "n": 1000, "rmse": 0.7, "mean": -0.06}
     truth |= {"off_1m": 0.046, "off_5m": 0.0033, "max_above": 10.4, "max_below": -14.4}
     cover = {"n": 672, "rmse": 1.81, "mean": 1.15, "off_1m": 0.47, "off_5m": 0.018, "max_above": 9.07}
@@ -194,8 +192,6 @@ def test_report_splits_the_truth_figures_by_land_cover():
 
 
 def test_report_shows_the_truth_figures_apart_from_the_check_points():
-    from stages.report.sections import accuracy_section
-
     truth = {"file": "terrain.tif", "resampling": "bilinear", "n": 1000, "rmse": 0.7, "mean": -0.06}
     truth |= {"off_1m": 0.046, "off_5m": 0.0033, "max_above": 10.4, "max_below": -14.4}
     alone = accuracy_section({"truth": truth}, None)

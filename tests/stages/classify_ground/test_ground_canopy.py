@@ -13,9 +13,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import laspy
 import numpy as np
 import pytest
+from scipy.interpolate import LinearNDInterpolator
 
+from stages.classify_ground.ground_classes import classify
+from stages.classify_ground.params import ClassifyGroundParams
 from stages.classify_ground.smrf import smrf
 
 MEGAPLOT = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "lidR" / "Megaplot.laz"
@@ -99,8 +103,6 @@ def test_pits_of_low_echoes_on_a_hillside_do_not_cast_shadows_of_objects(seed):
 
 def _tin_difference(xyz: np.ndarray, ours: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Our ground's TIN minus the reference ground's TIN at 1 m cell centres, where both are defined."""
-    from scipy.interpolate import LinearNDInterpolator
-
     lo, hi = np.floor(xyz[:, :2].min(axis=0)), xyz[:, :2].max(axis=0)
     cx, cy = np.meshgrid(np.arange(lo[0] + 0.5, hi[0], 1.0), np.arange(lo[1] + 0.5, hi[1], 1.0))
     at = np.column_stack((cx.ravel(), cy.ravel()))
@@ -113,11 +115,6 @@ def test_megaplot_dtm_matches_the_provider_ground(need_data):
     """lidR's Megaplot (dense forest, 81,590 points): the DTM from our ground points against a TIN of the
     provider's ground (class 2) at 1 m cells — RMS <= 0.25 m and no cell more than 2 m above it (issue 16;
     before the low-outlier fix: RMS 2.7 m, 20 % of the cells more than 2 m above, +13.9 m at most)."""
-    import laspy
-
-    from stages.classify_ground.ground_classes import classify
-    from stages.classify_ground.params import ClassifyGroundParams
-
     need_data(MEGAPLOT, what="lidR's Megaplot.laz")
     las = laspy.read(str(MEGAPLOT))
     xyz = np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))

@@ -12,19 +12,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import laspy
 import numpy as np
 import pytest
+
+from stages.classify_ground.ground_classes import classify
+from stages.classify_ground.params import ClassifyGroundParams
 
 ISPRS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "isprs"
 BEFORE = {"samp11": 3436, "samp31": 578, "samp51": 543}
 
 
 def _errors(name: str) -> tuple[int, int]:
-    import laspy
-
-    from stages.classify_ground.ground_classes import classify
-    from stages.classify_ground.params import ClassifyGroundParams
-
     las = laspy.read(str(ISPRS / f"{name}.laz"))
     xyz = np.column_stack((np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)))
     n = len(xyz)

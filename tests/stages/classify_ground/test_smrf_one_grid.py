@@ -14,13 +14,20 @@ from the roof and make the building too wide to remove.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import laspy
 import numpy as np
 import pyproj
 import pytest
+from laspy.vlrs.vlrlist import VLRList
 
+import stages.classify_ground.smrf as smrf_module
+from lidar.gridrun import passes
+from lidar.gridrun.passes import STRAYS_BEYOND
+from pipeline.executor import LocalExecutor
 from stages.classify_ground.ground_classes import classify
 from stages.classify_ground.kernel import GroundKernel
 from stages.classify_ground.params import ClassifyGroundParams
@@ -102,7 +109,6 @@ def test_the_grid_filter_runs_in_as_many_bands_as_the_stage_has_workers(tmp_path
 
     On 37.5 M points the filter of 4.8 M cells took 8.5 s on one thread, 4.1 s on two.
     """
-    import stages.classify_ground.smrf as smrf_module
 
     seen = []
     real = smrf_module.object_filter
@@ -125,9 +131,6 @@ def test_the_point_test_on_workers_writes_the_same_file(tmp_path, evlr):
     The ranges' records are joined between the source's header and its
     EVLRs; the header's bounds and counts must be what laspy's writer gives.
     """
-    from laspy.vlrs.vlrlist import VLRList
-
-    from pipeline.executor import LocalExecutor
 
     las = _survey(tmp_path / "in.las", stray=False)
     if evlr:
@@ -163,8 +166,6 @@ def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_poin
     """A header's grid over the limit but within STRAYS_BEYOND times it is a large survey, not stray points:
     tiled at once (no pass for the candidates' bounds, which at 100 M points cost a whole read); far over it
     (the stray point 40 km away), the bounds are read and one grid taken (test above)."""
-    from lidar.gridrun import passes
-    from lidar.gridrun.passes import STRAYS_BEYOND
 
     las = _survey(tmp_path / "in.las", stray=False)
     cells = int(np.ceil(las.header.maxs[0] - las.header.mins[0]) + 1) * int(
@@ -222,8 +223,6 @@ def test_the_grid_filter_on_two_threads_hands_back_the_memory_it_freed():
     measured 2026-12-04, 30 runs each).  In a fresh interpreter, so that no other test's arrays
     are in the arenas.  The line is 80 MB, halfway: a full suite on two cores once measured over
     40 MB (2026-12-04, not reproduced in 16 runs under load)."""
-    import subprocess
-    import sys
 
     out = subprocess.run([sys.executable, "-c", _GROWTH], capture_output=True, text=True, check=True)
     assert float(out.stdout) < 80.0, f"the process grew by {float(out.stdout):.1f} MB"

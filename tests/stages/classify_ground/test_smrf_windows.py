@@ -18,8 +18,14 @@ import laspy
 import numpy as np
 import pytest
 
-from lidar.gridrun.windows import tile_cells
+from lidar.gridrun.passes import survey_statistics
+from lidar.gridrun.windows import run_windows, tile_cells
+from pipeline.executor import LocalExecutor
+from stages.classify_ground.ground_classes import candidates_of
+from stages.classify_ground.kernel import GroundKernel
 from stages.classify_ground.params import ClassifyGroundParams
+from stages.classify_ground.smrf import provisional_dem
+from stages.classify_ground.surface import CellIndex, index_points, min_grid, sample_bilinear_all
 from tests.stages.classify_ground.test_smrf_one_grid import _reference, _survey, smrf_one_grid
 
 SIZE, BUFFER = 100.0, 20.0
@@ -64,7 +70,6 @@ def test_windows_give_the_classes_of_the_point_tiles(survey):
 
 
 def test_windows_on_two_workers_write_the_same_file(survey):
-    from pipeline.executor import LocalExecutor
 
     root, _, params, _ = survey
     smrf_one_grid(root / "in.las", root / "one.las", params, chunk_size=7_000, tiles=TILES)
@@ -103,12 +108,6 @@ def test_each_point_gets_the_dem_of_its_tile_of_points(survey):
     threshold): the window's cut to its candidates, its corner and the cells
     kept around the core all show here.
     """
-    from lidar.gridrun.passes import survey_statistics
-    from lidar.gridrun.windows import run_windows
-    from stages.classify_ground.ground_classes import candidates_of
-    from stages.classify_ground.kernel import GroundKernel
-    from stages.classify_ground.smrf import provisional_dem
-    from stages.classify_ground.surface import CellIndex, index_points, min_grid, sample_bilinear_all
 
     root, las, params, _ = survey
     algo = params.algorithm

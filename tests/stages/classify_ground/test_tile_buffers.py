@@ -30,6 +30,8 @@ import numpy as np
 import pytest
 
 from lidar.rasters import read_raster
+from stages.classify_ground.filters import reach
+from stages.classify_ground.smrf import SmrfParams, smrf
 from tests.conftest import run_until
 from tests.stages.denoise.test_noise_classes import X0, Y0, write_las
 from tests.synthetic import make_scene
@@ -173,8 +175,6 @@ def test_a_new_tiling_buffer_reruns_the_ground_stage(survey):
 def test_smrf_near_the_survey_boundary_does_not_depend_on_the_tile():
     """Buildings 5-10 m from the survey's north edge: SMRF on each 100 m tile plus the declared buffer
     (146 m) must classify its core points as SMRF on the whole survey does."""
-    from stages.classify_ground.filters import reach
-    from stages.classify_ground.smrf import SmrfParams, smrf
 
     s = make_scene(width=300, height=200, seed=2, density=1.0)
     xyz = np.column_stack((s.x, s.y, s.z))[s.return_number >= s.number_of_returns]

@@ -17,6 +17,7 @@ import pytest
 
 from tests.conftest import run_until
 from tests.stages.classify_objects.test_one_grid import _survey
+from tests.stages.parse.test_real_files import REAL
 
 #: The usable points' grid has about 241 x 161 cells, the header's 271 x 191: over 15,000, within 4 x 15,000.
 WINDOWED = "stages.classify_objects.one_grid_cells=15000"
@@ -67,8 +68,6 @@ def test_a_real_survey_in_windows_equals_its_tiles_of_points(tmp_path):
     their caps (grids of 286 x 286 cells of 1 m and 144 x 144 of 2 m) work in 16 windows and give the files
     the tiles of points give, byte for byte.  (The same held on 8 of the 12 real files that run; the other
     4 are sparse, their cells no whole part of a tile, and fall back to tiles of points: 2026-12-05.)"""
-    from tests.stages.parse.test_real_files import REAL
-
     (tmp_path / "job.yaml").write_text(
         f"name: real\ninput: {{format: las, paths: [{REAL / 'lidR' / 'Topography.laz'}]}}\ncrs: auto-utm\n"
         "output: out\ncache: cache\nexecutor: {kind: local, workers: 2}\ntiling: {size: 100}\n"

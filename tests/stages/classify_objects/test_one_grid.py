@@ -20,6 +20,9 @@ import pytest
 
 from lidar import glossary
 from lidar.grid import Grid
+from lidar.gridrun import passes
+from lidar.gridrun.passes import STRAYS_BEYOND
+from pipeline.executor import LocalExecutor
 from stages.classify_objects.kernel import ObjectsKernel
 from stages.classify_objects.objects import object_classes
 from stages.classify_objects.params import ClassifyObjectsParams
@@ -128,7 +131,6 @@ def test_one_grid_equals_the_tiles_byte_for_byte(runs):
 
 def test_one_grid_gives_the_classes_of_all_points_at_once(runs, tmp_path):
     """In small chunks, in this process and on two workers writing ranges of records in place."""
-    from pipeline.executor import LocalExecutor
 
     root, one, _ = runs
     src, written = _input_of(root), Path(one["outputs"]["points_objects"]["file"])
@@ -164,11 +166,6 @@ def _input_of(root: Path) -> Path:
 def test_a_header_grid_a_little_over_the_limit_is_tiled_without_reading_the_box(runs, tmp_path, monkeypatch):
     """Within STRAYS_BEYOND times the limit, the header's grid is the survey's: tiled, the points not read for
     their box; far beyond it they are (stray points could have made it large)."""
-    import laspy
-
-    from lidar.grid import Grid
-    from lidar.gridrun import passes
-    from lidar.gridrun.passes import STRAYS_BEYOND
 
     src = _input_of(runs[0])
     with laspy.open(str(src)) as reader:

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+import sqlite3
+import struct
 from pathlib import Path
 
 import laspy
 import numpy as np
+import pyogrio
+import pyogrio.raw
 import pyproj
 import pytest
+import shapely
 
 from lidar.rasters import read_raster
 from pipeline.cli import main
@@ -81,11 +86,6 @@ def test_the_dtm_is_flat_at_the_water_level_over_the_lake(one_lake):
 
 
 def test_water_gpkg_is_one_polygon_z_at_the_level_in_a_geopackage_1_2(one_lake):
-    import sqlite3
-
-    import pyogrio
-    import pyogrio.raw
-
     path = one_lake[0] / "out" / "water.gpkg"
     info = pyogrio.read_info(path)
     assert info["geometry_type"] == "Polygon Z" and info["features"] == 1 and info["crs"] == "EPSG:25830"
@@ -103,12 +103,6 @@ def test_water_gpkg_is_one_polygon_z_at_the_level_in_a_geopackage_1_2(one_lake):
 
 
 def test_breaklines_gpkg_is_the_shore_at_the_level_in_3d(one_lake):
-    import sqlite3
-
-    import pyogrio
-    import pyogrio.raw
-    import shapely
-
     out = one_lake[0] / "out"
     info = pyogrio.read_info(out / "breaklines.gpkg")
     assert info["geometry_type"] == "MultiLineString Z" and info["features"] == 1 and info["crs"] == "EPSG:25830"
@@ -126,9 +120,6 @@ def test_breaklines_gpkg_is_the_shore_at_the_level_in_3d(one_lake):
 
 def test_ground_at_the_shore_is_ignored_ground_and_the_rest_stays(one_lake):
     """Class 20 within 0.7 m (``ignored_ground``) of the lake's outline in water.gpkg, the hydro breakline."""
-    import pyogrio.raw
-    import shapely
-
     root, stages, lake = one_lake
     cls = _classes(stages["classify_water"])
     geometry = pyogrio.raw.read(root / "out" / "water.gpkg")[2]
@@ -199,10 +190,6 @@ def test_every_run_mode_equals_untiled_with_lakes_astride_the_tile_edges(tmp_pat
 
 def _polygon_layer(path: Path, rings: list[np.ndarray], epsg: int) -> Path:
     """A GeoPackage of one PolygonZ (z = 0) with *rings* in local metres."""
-    import struct
-
-    import pyogrio.raw
-
     parts = [struct.pack("<BII", 1, 1003, len(rings))]
     for ring in rings:
         xyz = np.column_stack((ring[:, 0] + X0, ring[:, 1] + Y0, np.zeros(len(ring))))

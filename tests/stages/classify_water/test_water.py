@@ -8,8 +8,11 @@ import pytest
 from stages.classify_water.params import DetectParams
 from stages.classify_water.water import (
     cells_of,
+    could_be_level,
     inside_polygons,
+    level_cells,
     reach,
+    water_bodies,
     water_from_points,
     water_from_polygons,
     window_planes,
@@ -134,8 +137,6 @@ def test_polygons_make_water_the_points_near_the_level_inside_them():
 def test_planes_are_skipped_only_where_no_body_could_be_found(density):
     """could_be_level is False only when fewer cells than a body's smallest area could be level; then the full
     fit finds no water either.  The lake of _valley at 2, 0.5, 0.2 and 0.05 points per m²."""
-    from stages.classify_water.water import could_be_level, level_cells, water_bodies
-
     xyz, _ = _valley(density=density)
     p = DetectParams()
     i, j, shape = cells_of(xyz[:, :2], p.cell_size)

@@ -7,12 +7,12 @@ import pytest
 from affine import Affine
 
 from pipeline.errors import ConfigError
+from stages.contours.lines import contour_lines, levels_between
+from stages.contours.stage import MAX_LEVELS, _check_levels
 from tests.stages.rasterize.test_parameter_cost import run, small_survey
 
 
 def test_levels_between_counts_what_contour_lines_draws():
-    from stages.contours.lines import contour_lines, levels_between
-
     dem = np.add.outer(np.arange(10.0), np.arange(10.0)) * 0.7 + 3.2  # 3.2 .. 15.8
     lines = contour_lines(dem, Affine(1, 0, 0, 0, -1, 10), interval=2.0)
     assert levels_between(3.2, 15.8, 2.0) == len({level for level, _ in lines}) == 6
@@ -21,8 +21,6 @@ def test_levels_between_counts_what_contour_lines_draws():
 
 
 def test_a_tiny_interval_is_refused_with_one_that_fits():
-    from stages.contours.stage import MAX_LEVELS, _check_levels
-
     dem = np.array([[647.132, 650.0], [np.nan, 666.726]])
     with pytest.raises(ConfigError) as refused:
         _check_levels(dem, 1e-9)

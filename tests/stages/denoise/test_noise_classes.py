@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 
 from lidar.rasters import read_raster
 from pipeline.cli import main
+from stages.denoise import outliers
 from tests.conftest import run_stages
 
 X0, Y0 = 440_000.0, 4_474_000.0
@@ -131,8 +132,6 @@ def test_isolated_points_equal_their_definition_however_the_cubes_are_counted(mo
     """Ground, a sparse crown (points that share no cube with two others, yet are not isolated) and birds:
     the points flagged are exactly those of the definition (scipy over every point), whether the cubes are
     counted in one array with the trees asked about the points near the candidates only, or by sorting."""
-    from stages.denoise import outliers
-
     monkeypatch.setattr(outliers, "DENSE_CUBES", 1 << 24 if dense else 0)
     rng = np.random.default_rng(11)
     crown = rng.normal(0, 2.0, (60, 3)) + (30.0, 30.0, 612.0)

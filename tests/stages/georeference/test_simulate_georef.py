@@ -8,6 +8,7 @@ noise must come out as it went in.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from commands.simulate.settings import SimulateConfig
 from commands.simulate.simulator import simulate
 from lidar.columns import read_columns
 from pipeline.cli import main
+from stages.parse.read_nmea import with_checksum
 from tests.flights import TRUTH_CELL
 
 LDMRS = {
@@ -151,8 +153,6 @@ def test_missed_pps_echoes_are_dated_and_georeferenced_exactly(zero_noise, fmt):
 def test_attitude_from_pashr_when_there_is_no_ins_csv(zero_noise, tmp_path):
     """The INS CSV's attitudes written as $PASHR sentences into the NMEA log (and no input.ins): the same
     points as with the CSV."""
-    from stages.parse.read_nmea import with_checksum
-
     _, sims, runs = zero_noise
     sim = runs["lmsq_nmea"][1]
     ins = np.loadtxt(sim / "lmsq" / "ins.csv", delimiter=",", skiprows=1)
@@ -319,8 +319,6 @@ def test_counters_equal_injected_faults(tmp_path):
 
 
 def test_simulation_is_reproducible(tmp_path):
-    import hashlib
-
     digests = []
     for k in range(2):
         # one short line: every random draw of the simulator (noise, dust, navigation) is on it

@@ -7,10 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from commands.simulate.settings import SimulateConfig
+from commands.simulate.simulator import simulate
 from lidar.georeferencing import Mounting, locate, prepare_trajectory
 from pipeline.cli import main
 from stages.georeference.uncertainty import Sigmas, propagate
 from tests.conftest import run_stages
+from tests.flights import TRUTH_CELL
+from tests.stages.georeference.test_simulate_georef import _match
 
 
 def _level_pulse(v_s, sig, lever=(0.0, 0.0, 0.0)):
@@ -80,11 +84,6 @@ def test_monte_carlo_matches_the_propagated_sigma(tmp_path):
     observed bias: the true code passes with more than 99.9 % confidence (3.3 sigma) even with
     the spread 30 % larger than measured.  A propagation off by a third or more fails (3.4 sigma).
     """
-    from commands.simulate.settings import SimulateConfig
-    from commands.simulate.simulator import simulate
-    from tests.flights import TRUTH_CELL
-    from tests.stages.georeference.test_simulate_georef import _match
-
     errors, sig_v, sig_h, keys = [], None, None, None
     for k in range(REALISATIONS):
         sim = tmp_path / f"r{k}"

@@ -13,6 +13,8 @@ import builtins
 import errno
 import logging
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import laspy
@@ -21,6 +23,7 @@ import pytest
 
 from pipeline.errors import InputDataError
 from stages.parse.read_las import convert_las_files, read_las_files
+from stages.parse.stage import distinct_files
 
 SAMPLE = Path(__file__).resolve().parents[3] / "data_samples" / "las" / "sample.laz"
 POINTS = 20_000
@@ -162,8 +165,6 @@ def test_a_full_disk_while_writing_is_not_blamed_on_the_input(small, tmp_path, m
 
 def test_the_same_file_twice_is_read_once_with_a_warning(small, tmp_path, caplog, monkeypatch):
     """Two spellings (relative, absolute), a symbolic link and a repeat: one file."""
-    from stages.parse.stage import distinct_files
-
     link = tmp_path / "link.las"
     link.symlink_to(small["las"])
     monkeypatch.chdir(small["las"].parent)
@@ -177,9 +178,6 @@ def test_the_same_file_twice_is_read_once_with_a_warning(small, tmp_path, caplog
 
 def test_a_laz_chunk_size_beyond_the_file_is_refused_before_the_decoder_aborts(small, tmp_path):
     """A damaged LASzip VLR chunk size made lazrs allocate 48 GB and abort the process (run apart here)."""
-    import subprocess
-    import sys
-
     blob = small["laz"].read_bytes()
     data = blob.index(b"laszip encoded") - 2 + 54  # the LASzip VLR's data
     path = _damaged(small["laz"], tmp_path / "chunks.laz", {data + 12: (1_700_000_000).to_bytes(4, "little")})

@@ -18,8 +18,14 @@ from lidar.checkpoints import read_checkpoints
 from pipeline.config import load_config
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.stage import config_model
-from stages.parse.read_las import read_las_files
+from stages.parse.read_ins import TrajectoryCounters, read_ins_csv, read_sbet, read_smrmsg
+from stages.parse.read_las import convert_las_files, read_las_files
+from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
+from stages.parse.read_lmsq import LmsqCounters, read_lmsq
+from stages.parse.read_nmea import NmeaCounters, read_nmea
 from stages.plugin import plugin
+from tests.flights import lines, simulate_flight
+from tests.stages.parse.test_read_ldmrs import LOG
 
 ROOT = Path(__file__).resolve().parents[3]
 SAMPLE_CONFIG = (ROOT / "configs" / "las.yaml").read_text()
@@ -72,8 +78,6 @@ def test_checkpoint_csv_fails_cleanly(tmp_path, rows):
 
 @pytest.fixture(scope="module")
 def small_laz(tmp_path_factory):
-    import laspy
-
     las = laspy.read(ROOT / "data_samples" / "las" / "sample.laz")
     small = laspy.LasData(las.header)
     small.points = las.points[:2000].copy()
@@ -115,8 +119,6 @@ def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
     else:
         assert np.all(np.isfinite(las.x)) and np.all(np.isfinite(las.z))
     # the parse stage's streaming conversion (a record-for-record copy for this sample's format)
-    from stages.parse.read_las import convert_las_files
-
     try:
         convert_las_files([path], tmp_path / "out.las", crs_setting="auto-utm", assign_crs=None, chunk_size=500)
     except InputDataError as exc:
@@ -129,9 +131,6 @@ def test_damaged_las_fails_cleanly(tmp_path, small_laz, data):
 @FUZZ
 @given(data=st.data())
 def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
-    from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
-    from tests.stages.parse.test_read_ldmrs import LOG
-
     lines = LOG.splitlines()
     for _ in range(data.draw(st.integers(1, 6))):
         i = data.draw(st.integers(0, len(lines) - 1))
@@ -162,8 +161,6 @@ def test_ldmrs_log_mutations_are_counted_never_raised(tmp_path, data):
 
 @pytest.fixture(scope="module")
 def raw_flight(tmp_path_factory):
-    from tests.flights import lines, simulate_flight
-
     root = tmp_path_factory.mktemp("fuzz_raw")
     simulate_flight(
         root,
@@ -205,8 +202,6 @@ RAW_FUZZ = settings(
 
 
 def _check_lmsq(path: Path) -> None:
-    from stages.parse.read_lmsq import LmsqCounters, read_lmsq
-
     counters = LmsqCounters()
     n = 0
     try:
@@ -221,9 +216,6 @@ def _check_lmsq(path: Path) -> None:
 
 def _check_text_navigation(path: Path) -> None:
     """nav.nmea or ins.csv."""
-    from stages.parse.read_ins import TrajectoryCounters, read_ins_csv
-    from stages.parse.read_nmea import NmeaCounters, read_nmea
-
     try:
         if path.suffix == ".nmea":
             log = read_nmea(path, NmeaCounters())
@@ -246,8 +238,6 @@ def _check_text_navigation(path: Path) -> None:
 
 def _check_binary_trajectory(path: Path) -> None:
     """An SBET or an smrmsg file: damage is counted, never raised."""
-    from stages.parse.read_ins import TrajectoryCounters, read_sbet, read_smrmsg
-
     counters = TrajectoryCounters()
     sbet = path.suffix == ".sbet"
     out = (read_sbet if sbet else read_smrmsg)(path, 2400, counters)
@@ -310,9 +300,6 @@ def _nmea_checksum(sentence: str) -> str:
 @RAW_FUZZ
 @given(data=st.data())
 def test_extreme_values_in_text_records(tmp_path, raw_flight, data):
-    from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig
-    from tests.stages.parse.test_read_ldmrs import LOG
-
     which = data.draw(st.sampled_from(["nav.nmea", "ins.csv", "acq.log"]))
     path = tmp_path / which
     if which == "acq.log":

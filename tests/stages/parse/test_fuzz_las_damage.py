@@ -23,7 +23,9 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+import pyproj
 import pytest
+import rasterio
 
 from pipeline.errors import InputDataError
 from stages.parse.read_las import convert_las_files
@@ -121,8 +123,6 @@ def crs_lookups_once(monkeypatch):
     campaign asked the same question hundreds of times.  The reader's code runs unchanged; a lookup
     that raises is not remembered and raises again.
     """
-    import pyproj
-
     lookup, known = pyproj.CRS.to_epsg, {}
 
     def to_epsg(self, min_confidence=70):
@@ -158,8 +158,6 @@ def test_damaged_real_files_campaign(intact, tmp_path, crs_lookups_once):
 @pytest.mark.parametrize("kind", ["las", "laz"])
 def test_damaged_real_files_through_the_cli(intact, tmp_path, kind, seed):
     """The LAS job up to the DTM: exit 0 with heights within the survey's, or exit 3 naming the file."""
-    import rasterio
-
     path, part = intact[kind].damaged(seed, tmp_path)
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "pipeline", "run", str(ROOT / "configs" / "las.yaml"), "--until", "rasterize"]

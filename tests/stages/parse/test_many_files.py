@@ -13,11 +13,13 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+import pyproj
 import pytest
 from pydantic import TypeAdapter
 
 from pipeline.cli import main
 from stages.parse.params import LasInput
+from stages.parse.read_las import convert_las_files
 from tests.conftest import run_until
 from tests.stages.parse.tiles import AUTZEN, cut_tiles, tile_name
 
@@ -95,10 +97,6 @@ def test_the_index_is_published_and_strays_are_counted_per_file(tmp_path, need_d
 
 def test_each_input_is_opened_twice_header_then_points(tmp_path, need_data, monkeypatch):
     """The header index opens each file once, the reading once more (was 3 to 4 opens a file)."""
-    import pyproj
-
-    from stages.parse.read_las import convert_las_files
-
     need_data(AUTZEN)
     tiles = cut_tiles(tmp_path / "tiles", count=4)
     opened: dict[str, int] = {}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tracemalloc
 from pathlib import Path
 
 import laspy
@@ -12,7 +13,7 @@ import pytest
 from lidar.crs import output_crs
 from pipeline.cli import main
 from pipeline.errors import InputDataError
-from stages.parse.read_las import read_las_files
+from stages.parse.read_las import convert_las_files, read_las_files
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -143,7 +144,6 @@ def test_headers_announcing_impossible_sizes_are_refused_before_allocating(tmp_p
     trillion = bytearray(blob)
     trillion[247:255] = (10**12).to_bytes(8, "little")
     (tmp_path / "trillion.las").write_bytes(bytes(trillion))
-    import tracemalloc
 
     tracemalloc.start()
     with pytest.raises(InputDataError, match=r"trillion.las, byte 107: the header announces 1,000,000,000,000 points"):
@@ -181,8 +181,6 @@ def test_laz_chunk_table_claiming_billions_of_chunks_is_refused_before_allocatin
 
 def test_las14_format6_in_the_output_crs_is_copied_as_delivered(tmp_path):
     """One LAS 1.4 format-6 file already in the output CRS: every record byte kept, scale and offsets too."""
-    from stages.parse.read_las import convert_las_files
-
     rng = np.random.default_rng(1)
     x, y = 440_000 + rng.uniform(0, 300, 5000), 4_474_000 + rng.uniform(0, 300, 5000)
     src = _write(tmp_path / "in.las", x, y, rng.uniform(600, 700, 5000), "EPSG:25830", point_format=6, version="1.4")

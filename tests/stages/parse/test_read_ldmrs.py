@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +16,6 @@ from stages.parse.read_ldmrs import Counters, read_ldmrs_mtig, utc_to_gps
 
 def scan(number, *, utc=None, status="0x07", valid=1, points=None, npoints=None, extra=""):
     if utc is None:  # scans 0.1 s apart, scan 125 at 10:32:15.25 (times must increase: TimeOrder)
-        from datetime import datetime, timedelta
-
         t = datetime(2011, 6, 21, 10, 32, 15, 250000) + timedelta(seconds=0.1 * (number - 125))
         utc = t.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
     points = [(0, 0, 0x00, 12.345, 0.512, -0.034), (2, 1, 0x02, 3.1, -0.2, 0.05)] if points is None else points

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from datetime import date
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lidar.columns import read_columns
+from pipeline.cli import main
 from pipeline.errors import ConfigError
 from stages.parse.read_ldmrs import utc_to_gps
 from stages.parse.read_nmea import NmeaCounters, read_nmea, with_checksum
@@ -212,11 +215,6 @@ def test_2d_fix_and_any_finite_heading(tmp_path):
 def test_geoid_of_the_georeference_stage_gives_the_separation(tmp_path, capsys):
     """The 3.B sample with every separation field emptied: exit 2 with one sentence; with
     stages.georeference.geoid (N = 50 m here) or input.geoid_separation_m the trajectory is the original's."""
-    import json
-
-    from lidar.columns import read_columns
-    from pipeline.cli import main
-
     root = Path(__file__).resolve().parents[3]
     lines = (root / "data_samples" / "flight_lmsq" / "lmsq" / "nav.nmea").read_text().splitlines()
     emptied = [with_checksum(s[1:].split("*")[0].replace(",M,50.0000,M,", ",M,,M,")) for s in lines[:400]]

@@ -16,10 +16,19 @@ import laspy
 import numpy as np
 import pyproj
 import pytest
+import rasterio
 
+from lidar.clouds import PointLayout, cloud_info
+from lidar.grid import Grid, check_grid_size
+from lidar.units import METRE
 from pipeline.cli import main
 from pipeline.errors import ConfigError, InputDataError
-from stages.parse.read_las import read_las_files
+from stages.classify_ground.ground_classes import for_spacing, nominal_spacing
+from stages.classify_ground.smrf import SmrfParams
+from stages.parse.isolated import IsolationGrid, withhold_isolated
+from stages.parse.las_index import file_crs
+from stages.parse.las_report import LasReadReport
+from stages.parse.read_las import convert_las_files, copy_records, read_las_files
 
 ROOT = Path(__file__).resolve().parents[3]
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -62,7 +71,6 @@ def test_header_crs_that_contradicts_the_coordinates_names_the_override():
     assert "damaged" not in msg
     with laspy.open(path) as reader:  # the override is taken before any point is read
         header = reader.header
-    from stages.parse.read_las import file_crs
 
     crs, source = file_crs(path, header, None, pyproj.CRS.from_epsg(26912))
     assert crs.to_epsg() == 26912 and source == "input.override_crs"
@@ -112,7 +120,6 @@ def test_a_stray_point_outside_the_header_bounds_is_left_out():
 
 def test_a_stray_point_inside_the_header_bounds_is_withheld(tmp_path):
     """Header bounds computed with the stray point: it is found far from the survey's dense core instead."""
-    from stages.parse.read_las import convert_las_files
 
     rng = np.random.default_rng(1)
     n = 50_000
@@ -145,9 +152,6 @@ def _set_header_bounds(path: Path, mins, maxs) -> None:
 
 def test_the_copy_counts_the_isolation_grid_of_the_file_it_writes(tmp_path):
     """A LAS 1.4 copied as delivered: the points counted while copying are those of the file written, cell by cell."""
-    from lidar.clouds import PointLayout
-    from stages.parse.isolated import IsolationGrid
-    from stages.parse.read_las import LasReadReport, copy_records
 
     src = _survey_with_a_far_point(tmp_path)
     target, layout = pyproj.CRS.from_epsg(25830), PointLayout(point_format=6)
@@ -161,7 +165,6 @@ def test_the_copy_counts_the_isolation_grid_of_the_file_it_writes(tmp_path):
 
 def test_counts_of_another_grid_or_of_too_few_points_are_not_trusted(tmp_path):
     """withhold_isolated counts the points itself unless the counts given are of its grid and hold every point."""
-    from stages.parse.isolated import IsolationGrid, withhold_isolated
 
     path = _survey_with_a_far_point(tmp_path)
     with laspy.open(path) as reader:
@@ -186,7 +189,6 @@ def _write_las_flags_clear(path: Path) -> None:
 def test_a_copied_file_whose_header_bounds_are_not_its_points_still_finds_the_far_point(tmp_path, shift):
     """Header x bounds 400 m inside or outside the points (more than a cell of the isolation grid, within the
     stray tolerance of 1 % of 80 km): same points withheld."""
-    from stages.parse.read_las import convert_las_files
 
     src = _survey_with_a_far_point(tmp_path)
     with laspy.open(src) as reader:
@@ -218,8 +220,6 @@ def test_a_header_announcing_fewer_points_than_the_file_holds(tmp_path):
 
 
 def test_grid_size_is_checked_against_memory_before_allocating():
-    from lidar.grid import Grid, check_grid_size
-    from lidar.units import METRE
 
     grid = Grid.covering(0.0, 0.0, 50_000.0, 50_000.0, 1.0)
     with pytest.raises(ConfigError, match=r"^stages.rasterize.resolution: 1 m cells .* make 2,500,100,001 cells"):
@@ -229,9 +229,6 @@ def test_grid_size_is_checked_against_memory_before_allocating():
 
 def test_sparse_surveys_filter_on_cells_of_their_spacing(tmp_path):
     """A 20 m lattice: the nominal spacing is measured over the occupied area, the SMRF cell follows it."""
-    from lidar.clouds import cloud_info
-    from stages.classify_ground.ground_classes import for_spacing, nominal_spacing
-    from stages.classify_ground.smrf import SmrfParams
 
     g = np.arange(0.0, 1000.0, 20.0)
     x, y = (v.ravel() for v in np.meshgrid(g, g))
@@ -341,7 +338,6 @@ def test_the_table_covers_every_real_file():
 @pytest.mark.parametrize("name", sorted(set(EXPECTED) - _IN_A_PROJECT))
 def test_every_real_file_runs_or_says_why(tmp_path, capsys, name):
     """Exit 0 with a DTM sized by the points, or exit 3 with one sentence naming the file and the cause."""
-    import rasterio
 
     code_wanted, extra = EXPECTED[name]
     paths = [real(f) for f in PROJECTS.get(name, [name])]

@@ -7,6 +7,7 @@ with laspy, and what the LAS 1.4 and GeoPackage specifications say.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import sqlite3
 from pathlib import Path
@@ -18,9 +19,14 @@ import pytest
 import rasterio
 from affine import Affine
 
+from lidar.gridrun.point_tiles import merge_classes
+from lidar.mosaic import RasterMosaic
+from lidar.rasters import write_cog
+from lidar.vectors import write_lines_gpkg
 from pipeline import __version__
 from pipeline.cli import main
 from pipeline.errors import InputDataError
+from stages.classify_ground.csf import csf
 from stages.parse.read_las import convert_las_files
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -127,7 +133,6 @@ def _with_extra_bytes(path: Path, *, version: str, point_format: int, crs: str) 
     ids=["copied-as-delivered", "converted", "reprojected"],
 )
 def test_extra_bytes_are_carried_through(tmp_path, version, point_format, crs):
-    from lidar.gridrun.point_tiles import merge_classes
 
     src = _with_extra_bytes(tmp_path / "in.las", version=version, point_format=point_format, crs=crs)
     _convert(tmp_path / "in.las", tmp_path / "points.las")
@@ -164,8 +169,6 @@ def test_inputs_with_different_gps_time_types_are_refused(tmp_path):
 
 
 def test_elevation_rasters_name_their_unit_and_vertical_crs(tmp_path):
-    from lidar.mosaic import RasterMosaic
-    from lidar.rasters import write_cog
 
     transform = Affine(1, 0, 0, 0, -1, 300)
     compound = pyproj.CRS.from_user_input("EPSG:2992+8228")  # Oregon Lambert (ft) + NAVD88 height (ft)
@@ -195,7 +198,6 @@ def test_elevation_rasters_name_their_unit_and_vertical_crs(tmp_path):
 
 def test_contours_are_geopackage_1_2(tmp_path):
     """GeoPackage stores its version in SQLite's user_version: 1.2 is 10200 (GDAL 3.8's default 1.4: 10400)."""
-    from lidar.vectors import write_lines_gpkg
 
     path = tmp_path / "contours.gpkg"
     write_lines_gpkg(path, [(100.0, np.array([[0.0, 0.0], [1.0, 1.0]]))], crs=pyproj.CRS.from_epsg(25830))
@@ -206,9 +208,6 @@ def test_contours_are_geopackage_1_2(tmp_path):
 
 def test_csf_library_prints_nothing_on_stdout(capfd):
     """The C++ CSF code prints "[0] Configuring terrain..." through std::cout; stdout is the user's."""
-    import ctypes
-
-    from stages.classify_ground.csf import csf
 
     rng = np.random.default_rng(1)
     points = np.column_stack((rng.uniform(0, 30, (2000, 2)), rng.normal(0, 0.05, 2000)))

@@ -12,6 +12,7 @@ import json
 import re
 from pathlib import Path
 
+import pyogrio
 import pytest
 
 from pipeline.cli import main
@@ -90,8 +91,7 @@ def test_sample_counts_what_was_injected_and_warns_of_nothing_else(tmp_path, cap
     assert warnings == explained
     debug = _debug(out / "qc" / "debug.txt")
     assert {k: debug.get(k) for k in counters} == counters
-    import pyogrio  # qc/trajectory.gpkg: one LineString per flight line
-
+    # qc/trajectory.gpkg: one LineString per flight line
     lines = pyogrio.read_info(str(out / "qc" / "trajectory.gpkg"))
     assert lines["features"] == len(faults["line_biases_m"]) and lines["geometry_type"] == "LineString"
     run = run_stages(out)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import gzip
 import json
 import re
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ import pytest
 from lidar.georeferencing import prepare_trajectory
 from pipeline.cli import main
 from pipeline.errors import InputDataError
+from stages.parse.read_ldmrs import Counters, Scan, TimeOrder
 from tests.flights import simulate_ldmrs_line
 
 
@@ -41,8 +43,6 @@ def _scans(text: str) -> tuple[list[str], list[str]]:
 
 
 def _shift(block: str, seconds: float) -> str:
-    from datetime import datetime, timedelta
-
     def move(m: re.Match) -> str:
         t = datetime.fromisoformat(m.group(1).replace("Z", "+00:00")) + timedelta(seconds=seconds)
         return "UTC " + t.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
@@ -191,14 +191,10 @@ def test_the_first_scan_a_day_early_is_skipped_and_counted(flight, clean, tmp_pa
 
 
 def _scan(number: int, time: float):
-    from stages.parse.read_ldmrs import Scan
-
     return Scan(number, time, 7, (40.0, -3.0, 700.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros((2, 6)), number)
 
 
 def _order(times: list[float], numbers: list[int] | None = None) -> tuple[list[int], int]:
-    from stages.parse.read_ldmrs import Counters, TimeOrder
-
     counters = Counters(scans_accepted=len(times), points_valid=2 * len(times))
     order = TimeOrder(counters)
     out = []

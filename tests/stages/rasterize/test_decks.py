@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import laspy
 import numpy as np
 
 from stages.rasterize.decks import across_decks, deck_footprint
+from stages.rasterize.params import RasterizeParams
+from stages.rasterize.tile_rasters import has_decks, reach
 
 
 def test_a_deck_strip_takes_the_plane_of_the_terrain_either_side():
@@ -71,8 +74,6 @@ def test_a_tile_with_the_margin_gives_the_whole_grids_cells():
 
 
 def _las(path, classes, compress=False, point_format=6):
-    import laspy
-
     las = laspy.LasData(laspy.LasHeader(point_format=point_format, version="1.4" if point_format >= 6 else "1.2"))
     n = len(classes)
     las.x, las.y, las.z = np.arange(n, dtype=float), np.zeros(n), np.zeros(n)
@@ -82,9 +83,6 @@ def _las(path, classes, compress=False, point_format=6):
 
 
 def test_the_deck_margin_is_kept_only_where_there_are_deck_points(tmp_path):
-    from stages.rasterize.params import RasterizeParams
-    from stages.rasterize.tile_rasters import has_decks, reach
-
     assert has_decks(_las(tmp_path / "deck.las", [2] * 2500 + [17] + [2] * 10), chunk=1000)  # in the last chunk
     assert not has_decks(_las(tmp_path / "none.las", [2, 6, 9, 1, 20]))
     assert has_decks(_las(tmp_path / "none.laz", [2, 6], compress=True))  # compressed: cannot tell, keep it

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidar.grid import Grid
-from stages.rasterize.interpolate import tin
+import stages.rasterize.interpolate as gi
+from lidar.grid import Grid, cell_max_count
+from stages.rasterize.interpolate import thin_points, tin
 
 
 def test_grid_is_cell_aligned_and_covers_every_point():
@@ -47,8 +48,6 @@ def test_tin_needs_three_points():
 
 
 def test_thinning_keeps_the_point_nearest_each_half_cell_centre():
-    from stages.rasterize.interpolate import thin_points
-
     # squares of 0.5 m anchored at the grid corner; centres at 0.25 + 0.5 i, -(0.25 + 0.5 j)
     xy = np.array(
         [
@@ -82,8 +81,6 @@ def test_thinned_tin_keeps_a_surface_it_can_resolve():
 
 
 def test_thinning_keeps_every_point_of_a_sparse_cell():
-    from stages.rasterize.interpolate import thin_points
-
     # cell (0, 0) of 1 m (four 0.5 m squares) holds 3 points: all kept, the
     # duplicate once; cell (1, 0) holds 5: one per square
     sparse = [[0.10, -0.10], [0.20, -0.20], [0.10, -0.10], [0.80, -0.80]]
@@ -123,8 +120,6 @@ def test_tin_of_the_near_points_equals_the_tin_of_all_points(monkeypatch, gap, r
     the check must notice and take every point.  The case marked
     ``matters`` fails if the check is skipped.
     """
-    import stages.rasterize.interpolate as gi
-
     pts = _survey_with_a_gap(np.random.default_rng(7), gap)
     grid = Grid(500_000.0, 4_000_200.0, 1.0, 200, 200).window(rows[0], rows[1], cols[0], cols[1])
     every = tin(pts.copy(), grid, nodata_distance=50.0, margin=None)
@@ -145,8 +140,6 @@ def test_a_point_beyond_the_margin_inside_a_near_triangles_circumcircle_is_seen(
     (5, 16.5), 3.5 m beyond the margin: in the triangulation of all points
     the top edge flips and the cells near the top take other planes.
     """
-    import stages.rasterize.interpolate as gi
-
     pts = np.array(
         [[-1, -1, 10.0], [11, -1, 12.0], [11, 11, 15.0], [-1, 11, 11.0], [5, 5, 20.0], [5, 16.5, 0.0]], dtype=float
     )
@@ -165,8 +158,6 @@ def test_cells_the_near_points_leave_undrawn_inside_the_whole_hull_are_seen(monk
     The near triangle's circumcircle holds no far point, so only the test
     of the undrawn cells against the hull of all points catches it.
     """
-    import stages.rasterize.interpolate as gi
-
     pts = np.array(
         [[0.2, 0.2, 1.0], [2.2, 0.2, 2.0], [0.2, 2.2, 3.0], [20, 0, 4.0], [20, 20, 5.0], [0, 20, 6.0]], dtype=float
     )
@@ -180,8 +171,6 @@ def test_cells_the_near_points_leave_undrawn_inside_the_whole_hull_are_seen(monk
 
 def test_highest_point_and_count_per_cell_from_columns_or_rows():
     """Cell (row 0, col 1) of a 2 x 3 grid of 1 m holds z 5 and 7; points off the grid count nowhere."""
-    from lidar.grid import cell_max_count
-
     pts = np.array([[1.5, 9.5, 5.0], [1.2, 9.1, 7.0], [0.5, 8.5, 1.0], [-0.5, 9.5, 99.0], [3.5, 9.5, 99.0]])
     grid = Grid(xmin=0.0, ymax=10.0, resolution=1.0, cols=3, rows=2)
     expected_max = np.array([[np.nan, 7.0, np.nan], [1.0, np.nan, np.nan]])

@@ -8,8 +8,12 @@ import laspy
 import numpy as np
 import pytest
 
+from lidar.grid import BYTES_PER_CELL, Grid, check_grid_size
 from pipeline.cli import main
 from pipeline.errors import ConfigError
+from stages.rasterize import interpolate
+from stages.rasterize.params import RasterizeParams
+from stages.rasterize.tile_rasters import RasterTask, check_tile_memory, tile_memory
 from tests.conftest import run_stages
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -38,6 +42,7 @@ def run(tmp_path: Path, path: Path, *sets: str) -> int:
 def test_a_resolution_too_fine_for_free_memory_is_refused_after_reading(tmp_path, capsys, monkeypatch):
     """0.05 m cells over 20 x 20 m: 160,801 cells, about 19 MB; with 5 MB free: exit 2 naming the key, at once."""
     monkeypatch.setattr("lidar.memory.free_memory", lambda: 5_000_000)
+    monkeypatch.setattr("lidar.grid.free_memory", lambda: 5_000_000)  # lidar.grid imports it at its top
     path = small_survey(tmp_path)
     assert run(tmp_path, path, "stages.rasterize.resolution=0.05") == 2
     err = capsys.readouterr().err
@@ -49,8 +54,6 @@ def test_a_resolution_too_fine_for_free_memory_is_refused_after_reading(tmp_path
 
 
 def test_the_check_suggests_a_resolution_that_fits():
-    from lidar.grid import BYTES_PER_CELL, Grid, check_grid_size
-
     grid = Grid.covering(0.0, 0.0, 120.0, 118.0, 0.01)
     free = 9_800_000_000
     with pytest.raises(ConfigError) as refused:
@@ -65,10 +68,6 @@ def test_the_check_suggests_a_resolution_that_fits():
 
 def test_tiles_too_large_for_the_workers_are_refused_before_they_are_made():
     """Each tile's grid plus the TIN's nodata margin, times the tiles made at once, against free memory."""
-    from lidar.grid import Grid
-    from stages.rasterize.params import RasterizeParams
-    from stages.rasterize.tile_rasters import RasterTask, check_tile_memory, tile_memory
-
     grid = Grid.covering(0.0, 0.0, 99.9, 99.9, 0.25)
     tasks = [RasterTask(i, (0, grid.rows, 0, grid.cols), 10, "", "", grid, {}, 0.0, 1.0, ()) for i in range(3)]
     tin = RasterizeParams(resolution=0.25, nodata_distance=5.0)
@@ -92,9 +91,6 @@ def test_neighbors_beyond_the_cap_are_refused_by_name(tmp_path, capsys):
 
 def test_idw_in_blocks_of_a_few_cells_is_the_same(monkeypatch):
     """Many neighbours per cell: blocks of fewer cells (never more than NEIGHBOUR_BLOCK neighbours), same values."""
-    from lidar.grid import Grid
-    from stages.rasterize import interpolate
-
     rng = np.random.default_rng(7)
     pts = np.column_stack((rng.uniform(0, 30, (500, 2)) + [440_000.0, 4_474_000.0], rng.uniform(600, 610, 500)))
     grid = Grid.covering(440_000.0, 4_474_000.0, 440_030.0, 4_474_030.0, 1.0)

@@ -10,7 +10,7 @@ import pytest
 from affine import Affine
 
 from lidar.rasters import LBS_NODATA, NODATA, dem_nodata, write_cog
-from stages.report.acceptance import MIN_CHECKPOINTS, checkpoint_warnings, evaluate, truth_disagreement
+from stages.report.acceptance import MIN_CHECKPOINTS, checkpoint_warnings, decks_in_dem, evaluate, truth_disagreement
 from stages.report.stage import dem_format
 from tests.stages.report.test_report import _check, _dtm, _report, _survey, _text
 
@@ -219,8 +219,6 @@ def test_without_decks_the_bridges_are_not_measured(tmp_path):
 def test_a_sparse_decks_cells_are_one_deck_its_ends_on_the_ground_included():
     """A deck of 20 x 3 cells, every other cell holding a deck point (a sparse survey on a fine grid); its end
     cells meet the ground (the deck's top within 1 m of the DEM there), the rest stand 8 m above it."""
-    from stages.report.acceptance import decks_in_dem
-
     cls = np.full((30, 9), 2)
     cls[5:25:2, 3:6:2] = 17
     ground = np.full(cls.shape, 10.0)

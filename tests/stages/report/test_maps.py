@@ -7,6 +7,7 @@ import io
 import re
 from xml.etree import ElementTree
 
+import matplotlib
 import numpy as np
 import pytest
 from PIL import Image
@@ -32,8 +33,6 @@ def _plot_area(svg: str) -> ElementTree.Element:
 
 @pytest.mark.parametrize("name", colormaps.NAMES)
 def test_colour_tables_are_matplotlibs(name):
-    import matplotlib
-
     if name == "relief":  # terrain without its blue sea end
         rgba = matplotlib.colormaps["terrain"](np.linspace(0.25, 1.0, 256))
     else:

@@ -7,20 +7,27 @@ pulse density is known exactly) written as LAS; the DTM is the plane itself
 
 from __future__ import annotations
 
+import json
 import re
+import sqlite3
+from pathlib import Path
 from unittest import mock
 
 import laspy
 import numpy as np
+import pyogrio
 import pyproj
 import pytest
+from affine import Affine
 
 from lidar.checkpoints import sample_dtm
+from pipeline.cli import main
 from stages.accuracy.vertical import vertical_accuracy
+from stages.georeference.strips import write_flight_lines
 from stages.report.acceptance import SPECIFICATIONS, evaluate
 from stages.report.cloud import summarise_cloud
 from stages.report.figures import map_figures
-from stages.report.inputs import ReportInputs
+from stages.report.inputs import ReportInputs, read_flight_lines
 from stages.report.maps import MapFrame
 from stages.report.measures import measure
 from stages.report.page import build_report
@@ -59,8 +66,6 @@ def _dtm(cell=1.0, z0=650.0, noise=0.0, seed=0):
 
 def _transform(cell=1.0):
     """The DTM's map transform: cells of *cell* from the survey's north-west corner."""
-    from affine import Affine
-
     return Affine(cell, 0, 1000.0, 0, -cell, 2000.0 + SIZE)
 
 
@@ -278,11 +283,6 @@ def test_measure_reports_why_a_value_is_missing(plain):
 
 def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     """qc/trajectory.gpkg: a LineString per flight line with its id, times and heights; turns (0) left out."""
-    import pyogrio
-
-    from stages.georeference.strips import write_flight_lines
-    from stages.report.inputs import read_flight_lines
-
     t = np.arange(0.0, 30.0, 1.0)
     strip = np.repeat([1, 0, 2], 10)
     xyz = np.column_stack((440000 + 10 * t, 4474000 + 0 * t, 700 + t))
@@ -299,8 +299,6 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
     lines = read_flight_lines(path)
     assert [name for *_, name in lines] == ["strip 1", "strip 2"]
     # without GDAL too (ogrinfo is not installed here): the standard library's SQLite reads a GeoPackage 1.2
-    import sqlite3
-
     with sqlite3.connect(path) as db:
         assert db.execute("PRAGMA application_id").fetchone()[0] == 0x47504B47  # 'GPKG'
         assert db.execute("PRAGMA user_version").fetchone()[0] == 10200
@@ -318,11 +316,6 @@ def test_flight_lines_are_written_one_feature_a_strip(tmp_path):
 @pytest.mark.slow
 def test_main_job_report_and_acceptance_against_two_specifications(tmp_path):
     """configs/flight.yaml end to end: qc/acceptance.json for QL2 (default) and ASPRS 2023, every section."""
-    import json
-    from pathlib import Path
-
-    from pipeline.cli import main
-
     config = Path(__file__).resolve().parents[3] / "configs" / "flight.yaml"
     verdicts = {}
     for spec in ("usgs-lbs-ql2", "asprs-2023-10cm"):

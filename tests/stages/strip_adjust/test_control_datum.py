@@ -16,7 +16,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import laspy
 import numpy as np
+import pyproj
 
 from pipeline.cli import main
 from tests.conftest import run_stages
@@ -29,9 +31,6 @@ WIDTH, LENGTH, DENSITY = 120.0, 250.0, 0.7  # metres, metres, points per m2
 
 
 def _write_strips(path: Path) -> None:
-    import laspy
-    import pyproj
-
     rng = np.random.default_rng(33)
     xs, ys, zs, ids = [], [], [], []
     for sid, x0 in STRIPS.items():
@@ -72,8 +71,6 @@ def _write_control(path: Path) -> np.ndarray:
 
 
 def test_control_points_move_the_datum_onto_the_control(tmp_path):
-    import laspy
-
     _write_strips(tmp_path / "strips.las")
     _write_control(tmp_path / "gcp.csv")
     config = tmp_path / "adjust.yaml"

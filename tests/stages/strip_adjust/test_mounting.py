@@ -16,6 +16,7 @@ import pytest
 from commands.simulate.settings import SimulateConfig
 from commands.simulate.simulator import simulate
 from pipeline.cli import main
+from stages.report.sections import strip_table
 from tests.conftest import run_stages
 from tests.flights import TRUTH_CELL
 from tests.stages.georeference.test_simulate_georef import _match
@@ -163,8 +164,6 @@ def test_lines_flown_one_way_cannot_determine_pitch(tmp_path, capfd):
     assert abs(u["boresight_roll"]["correction"] - BORESIGHT[0]) <= 0.005
     assert abs(u["boresight_yaw"]["correction"] - BORESIGHT[2]) <= 0.01
     # the report's strip-adjustment section is the calibration: each unknown with its estimate and fate
-    from stages.report.sections import strip_table
-
     page = strip_table(corr, np.array([]))
     assert "strip_adjust.model: mounting" in page
     row = page.split("<td>boresight_pitch</td>")[1].split("</tr>")[0]

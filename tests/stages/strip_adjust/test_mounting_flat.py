@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from stages.report.sections import mounting_table
 from tests.conftest import run_stages
 from tests.stages.georeference.test_simulate_georef import _match
 from tests.stages.strip_adjust.test_mounting import BORESIGHT, _flight, _run, _unknowns
@@ -95,7 +96,6 @@ def test_a_held_lever_arm_does_not_bias_the_boresight_silently(tmp_path):
     for name, truth in zip(("boresight_roll", "boresight_pitch", "boresight_yaw"), BORESIGHT, strict=True):
         if u[name]["applied"]:
             assert abs(u[name]["correction"] - truth) <= 3 * u[name]["sigma"], (name, u[name])
-    from stages.report.sections import mounting_table
 
     row = mounting_table(corr).split("<td>boresight_pitch</td>")[1].split("</tr>")[0]
     assert "lever_arm_x" in row

@@ -19,7 +19,7 @@ import pytest
 
 from lidar.geodesy import LocalFrame
 from lidar.georeferencing import Mounting, trajectory_from
-from stages.strip_adjust.mounting import Links, Sample, jacobian, make_unknowns, residuals
+from stages.strip_adjust.mounting import Links, Sample, georeference_sample, jacobian, make_unknowns, residuals
 
 H, D = 1000.0, 400.0  # flying height and ground distance of the patch, metres
 
@@ -64,7 +64,6 @@ def test_flat_ground_jacobian_has_the_geometric_values(flat_patch):
         lever_arm=True, range_offset=True, offset_strips=[], reference=None, limits=(1.0, 1.0, 1.0, 1.0)
     )
     theta = np.zeros(unknowns.size)
-    from stages.strip_adjust.mounting import georeference_sample
 
     xyz = georeference_sample(traj, mounting, sample, theta, unknowns)
     assert np.allclose(xyz[:, 2], 0.0, atol=1e-9)  # every pulse ends on the ground

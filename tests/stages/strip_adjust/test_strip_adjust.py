@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lidar.rasters import read_raster
 from pipeline.cli import main
 from tests.conftest import run_stages
 from tests.flights import PERFECT_NAVIGATION, lines, simulate_flight
 from tests.stages.georeference.test_simulate_georef import _match
+from tests.synthetic import make_scene, write_scene_las
 
 SIGMA = 0.02
 pytestmark = pytest.mark.slow  # simulates a flight (five lines and a cross line at 30 kHz)
@@ -89,8 +91,6 @@ def test_control_points_fix_the_datum(injected, tmp_path):
 
 
 def test_difference_map_shows_the_improvement(injected):
-    from lidar.rasters import read_raster
-
     root, _, _ = injected
     before, *_ = read_raster(root / "out" / "strip_difference_before.tif")
     after, *_ = read_raster(root / "out" / "strip_difference_after.tif")
@@ -99,8 +99,6 @@ def test_difference_map_shows_the_improvement(injected):
 
 def test_single_strip_passes_through(tmp_path):
     """One strip: nothing to adjust, points unchanged, a note instead of figures."""
-    from tests.synthetic import make_scene, write_scene_las
-
     scene = make_scene(seed=3)
     scene.point_source_id[:] = 1
     (tmp_path / "las").mkdir()

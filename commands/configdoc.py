@@ -14,7 +14,9 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from commands.simulate.settings import SimulateConfig
 from pipeline.config import field_models
+from pipeline.discovery import load_plugin
 from pipeline.registry import RegistryField, RegistryName
 from pipeline.stage import config_model
 
@@ -100,7 +102,6 @@ def _rows(model: type[BaseModel], prefix: str) -> list[str]:
 
 
 def render() -> str:
-    from pipeline.discovery import load_plugin  # the installed plugin, as `pipeline schema` finds it
 
     return HEADER + "\n".join(_rows(config_model(load_plugin()), "")) + "\n"
 
@@ -147,7 +148,6 @@ files use `leap_seconds`.
 
 
 def render_simulator() -> str:
-    from commands.simulate.settings import SimulateConfig
 
     return SIMULATOR_HEADER + "\n".join(_rows(SimulateConfig, "")) + "\n"
 

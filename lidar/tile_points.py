@@ -16,6 +16,7 @@ least as wide as its reach; the same code runs untiled as a single tile.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 from collections.abc import Callable, Iterator
@@ -23,10 +24,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import laspy
 import numpy as np
 
-from lidar.clouds import chunk_xyz_metres
+from lidar.clouds import chunk_xyz_metres, cloud_crs
 from lidar.columns import NpyColumns, npy_header
+from lidar.units import Units
 from pipeline.tiling import Layout
 
 if TYPE_CHECKING:
@@ -179,7 +182,6 @@ def split_range(task: SplitTask) -> tuple[dict[int, tuple[int, int]], Any]:
 
 
 def _open_las(path: Path):
-    import laspy
 
     return laspy.open(str(path))
 
@@ -188,8 +190,6 @@ def _split_records(
     reader: laspy.LasReader, task: SplitTask, progress: Progress | None = None
 ) -> tuple[dict[int, tuple[int, int]], Any]:
     """Split the records of *task* from an open LAS *reader* into the tiles (the work of :func:`split_cloud`)."""
-    from lidar.clouds import cloud_crs
-    from lidar.units import Units
 
     units = Units.of(cloud_crs(reader))
     spill = _Spill(Path(task.folder), task.spill, part=task.part)
@@ -288,7 +288,6 @@ def column_digests(folder: Path, skip: tuple[str, ...] = ()) -> dict[str, str]:
     The values are hashed with their dtype, not the files: the same points
     give the same digests however the split cut them into parts.
     """
-    import hashlib
 
     parts = tile_parts(folder)
     out = {}

@@ -58,6 +58,7 @@ from pipeline.errors import (
 from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, stage_logger
+from pipeline.replan import PlannedStage, tile_notes
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
 
 MANIFEST = "run.json"
@@ -368,7 +369,7 @@ def run(
             records[step.name] = {"name": step.name, "status": step.note or "disabled"}
         manifest["stages"] = [records[s.name] for s in sorted(plan.steps + plan.skipped, key=lambda s: s.order)]
         if dry_run:
-            _plan_tiles(plugin, config, output, manifest)
+            _plan_tiles(plan, plugin, config, output, manifest)
             return manifest
         executor.close()
         _finish(manifest, started)
@@ -517,9 +518,9 @@ def _check_product_link(place: Path, name: str, output: Path, inputs: list[Path]
     )
 
 
-def _plan_tiles(plugin: Plugin, config: BaseModel, output: Path, manifest: dict[str, Any]) -> None:
-    """Dry run: the plugin's note on the tiles each stage will run, when input files changed since the last run."""
-    hook = getattr(plugin, "plan_tiles", None)
+def _plan_tiles(plan: Plan, plugin: Plugin, config: BaseModel, output: Path, manifest: dict[str, Any]) -> None:
+    """Dry run: how many tiles each tiled stage will run (:mod:`pipeline.replan`), when input files changed."""
+    hook = getattr(plugin, "changed_areas", None)
     previous = _read_manifest(output)
     if hook is None or not previous.get("inputs"):
         return
@@ -528,7 +529,19 @@ def _plan_tiles(plugin: Plugin, config: BaseModel, output: Path, manifest: dict[
     changed.update({p: "removed" for p in before if p not in now})
     if not changed:
         return
-    notes = hook(config, changed, previous, output)
+    areas = hook(config, changed, previous, output)
+    if areas is None:
+        return
+    records = {s["name"]: s for s in previous.get("stages", [])}
+    stages = [
+        PlannedStage(
+            step.name,
+            step.stage.tile_buffer(step.params) is not None,
+            step.stage.spreads_changes(step.params, records.get(step.name, {})),
+        )
+        for step in plan.steps
+    ]
+    notes = tile_notes(stages, areas, previous)
     for record in manifest["stages"]:
         if record["name"] in notes and record.get("status", "").startswith("run"):
             record["tiles"] = notes[record["name"]]

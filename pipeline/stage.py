@@ -143,6 +143,15 @@ class Stage:
         """
         return None
 
+    def spreads_changes(self, params: BaseModel, previous: dict[str, Any]) -> str | None:
+        """Why a change in one part of the input may change this stage's output everywhere (None: it does not).
+
+        *previous*: the stage's entry in the last run's ``run.json``.  The
+        dry run then counts every tile of the stages after it
+        (:mod:`pipeline.replan`).
+        """
+        return None
+
     def external_files(self, params: BaseModel, config: BaseModel) -> list[Path]:
         """Files outside the cache that the stage reads (their content enters the key)."""
         return []
@@ -172,10 +181,12 @@ class Plugin:
     :func:`pydantic.create_model`; ``commands``: extra sub-commands (:class:`Command`,
     or any object with its attributes, e.g. :class:`pipeline.discovery.LazyCommand`);
     ``versions``: ``{package: version}`` of the libraries that shape results,
-    for the manifest; ``plan_tiles``: in a dry run after input files changed,
-    ``plan_tiles(config, changed, previous, output) -> {stage: note}`` says
-    how many tiles each tiled stage will run (*changed*: path -> "changed",
-    "new" or "removed" against the last run's ``run.json``, *previous*).
+    for the manifest; ``changed_areas``: in a dry run after input files
+    changed, ``changed_areas(config, changed, previous, output)`` places them
+    (a :class:`pipeline.replan.ChangedAreas`, or None when it cannot say) so
+    that the dry run says how many tiles each tiled stage will run
+    (*changed*: path -> "changed", "new" or "removed" against the last run's
+    ``run.json``, *previous*, in the folder *output*).
     """
 
     name: str
@@ -183,7 +194,7 @@ class Plugin:
     global_fields: dict[str, tuple[Any, Any]] = field(default_factory=dict)
     commands: list[Any] = field(default_factory=list)
     versions: Callable[[], dict[str, str]] = dict
-    plan_tiles: Callable[..., dict[str, str]] | None = None
+    changed_areas: Callable[..., Any] | None = None
 
     def stage(self, name: str) -> type[Stage]:
         for stage in self.stages:

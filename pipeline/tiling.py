@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import ConfigError
+from pipeline.executor import LocalExecutor, thread_map
 
 #: Most tiles one layout may have: the tile list and the tasks are made in memory.
 MAX_TILES = 100_000
@@ -242,8 +243,6 @@ def run_tiled(
     """
     executor, here = ctx.executor, _runs_here(ctx.config, weight)
     if here:
-        from pipeline.executor import LocalExecutor
-
         ctx.executor = LocalExecutor(1)  # the split, the tasks: all here, no worker started
     where = f"this process (work {weight:,.0f}, below executor.in_process_below)" if here else executor.describe()
     try:
@@ -280,7 +279,6 @@ def run_tiled(
 
 def _reusing(ctx: Any, cache: Any, memo: TileMemo, task: Callable[[Any], Any], tasks: list[Any], what: str) -> list:
     """Run the *tasks* whose results the tile *cache* does not hold, keep theirs, load the others'."""
-    from pipeline.executor import thread_map
 
     keys = thread_map(lambda t: cache.key(memo.key(t)), tasks, max(int(getattr(ctx, "workers", 1)), 1))
     kept = [cache.get(k) for k in keys]

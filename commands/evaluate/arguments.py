@@ -17,7 +17,17 @@ DTM_MAX_EDGE = 20.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="what", required=True)
-    p = sub.add_parser("ground", help="ground classification against a labelled LAS/LAZ (class 2 = ground)")
+    _ground_args(sub.add_parser("ground", help="ground classification against a labelled LAS/LAZ (class 2 = ground)"))
+    p = sub.add_parser("classes", help="every class against a labelled LAS/LAZ: recall, precision, kappa")
+    p.add_argument("reference", type=Path, help="labelled LAS/LAZ file (ASPRS classes)")
+    _run_args(p)
+    p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    _hidden_log_args(p)
+    _dtm_args(sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points"))
+
+
+def _ground_args(p: argparse.ArgumentParser) -> None:
+    """``evaluate ground``: the run, the algorithms and the DTM check."""
     p.add_argument("reference", type=Path, help="labelled LAS/LAZ file")
     _run_args(p)
     p.add_argument(
@@ -66,12 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     _hidden_log_args(p)
-    p = sub.add_parser("classes", help="every class against a labelled LAS/LAZ: recall, precision, kappa")
-    p.add_argument("reference", type=Path, help="labelled LAS/LAZ file (ASPRS classes)")
-    _run_args(p)
-    p.add_argument("--json", action="store_true", help="print the scores as JSON")
-    _hidden_log_args(p)
-    p = sub.add_parser("dtm", help="DTM vertical accuracy against a truth raster or check points")
+
+
+def _dtm_args(p: argparse.ArgumentParser) -> None:
+    """``evaluate dtm``: the DTM and its reference."""
     p.add_argument("dtm", type=Path, help="DTM GeoTIFF")
     ref = p.add_mutually_exclusive_group(required=True)
     ref.add_argument("--truth", type=Path, help="reference elevation raster (resampled onto the DTM grid)")

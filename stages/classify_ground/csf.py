@@ -14,6 +14,7 @@ takes it at the file-descriptor level and hands it to the debug log.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import os
 import sys
@@ -21,10 +22,12 @@ import tempfile
 from collections.abc import Iterator
 from typing import Literal
 
+import CSF
 import numpy as np
 from pydantic import Field
 
 from pipeline.config import StrictModel
+from stages.classify_ground.surface import as_xyz
 
 _log = logging.getLogger(__name__)
 
@@ -60,7 +63,6 @@ def captured_stdout() -> Iterator[None]:
     C and C++ output (``printf``, ``std::cout``, synchronised with C stdio)
     is flushed with ``fflush(NULL)`` before the descriptor is given back.
     """
-    import ctypes
 
     sys.stdout.flush()
     libc = ctypes.CDLL(None)
@@ -102,9 +104,6 @@ def csf(
     defaults are the single setting that scored best on the shared ISPRS
     samples (docs/GROUND.md).
     """
-    import CSF
-
-    from stages.classify_ground.surface import as_xyz
 
     xyz = np.ascontiguousarray(as_xyz(xyz))
     if len(xyz) == 0:

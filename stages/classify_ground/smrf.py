@@ -21,6 +21,7 @@ from scipy import ndimage
 
 from lidar import glossary
 from pipeline.config import StrictModel
+from pipeline.executor import release_freed_memory, thread_map
 from stages.classify_ground.surface import (
     CellIndex,
     as_xyz,
@@ -144,7 +145,6 @@ def object_filter(
         return objects[inner], None if floor is None else floor[inner]
     cuts = np.linspace(0, rows, bands + 1).round().astype(int)
     spans = [(max(a - reach, 0), min(b + reach, rows), a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
-    from pipeline.executor import release_freed_memory, thread_map
 
     parts = thread_map(lambda s: _flag(surface[s[0] : s[1]], cell_size, slope, max_radius, floor_radius), spans, bands)
     objects = np.empty(surface.shape, dtype=bool)

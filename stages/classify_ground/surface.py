@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import splu
 
 
 def as_xyz(xyz: np.ndarray) -> np.ndarray:
@@ -85,8 +87,6 @@ def inpaint(grid: np.ndarray) -> np.ndarray:
     against 29 s and 4.0 GB; the two solutions differ by about 1e-10 m, the
     rounding of either solve.
     """
-    from scipy import sparse
-    from scipy.sparse.linalg import splu
 
     unknown = np.isnan(grid)
     if not unknown.any():

@@ -18,6 +18,7 @@ docs/stages/classify_objects.md.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from stages.classify_objects.regions import (
     SHADOW,
@@ -32,7 +33,6 @@ from stages.classify_objects.regions import (
 
 def _lowest_beyond(low: np.ndarray, reach: int, axis: int) -> tuple[np.ndarray, np.ndarray]:
     """The lowest of *low* within *reach* cells before and after each cell along *axis* (the cell itself not)."""
-    from scipy import ndimage
 
     ahead = ndimage.minimum_filter1d(low, reach, axis=axis, origin=-(reach // 2), mode="constant", cval=np.inf)
     behind = ndimage.minimum_filter1d(low, reach, axis=axis, origin=(reach - 1) // 2, mode="constant", cval=np.inf)
@@ -52,7 +52,6 @@ def over_gap(s: Surface, clearance: float, reach: int) -> np.ndarray:
     where a ridge's or a hill's flanks slope down and have none).  Both sides
     are looked at within *reach* cells; empty cells do not count.
     """
-    from scipy import ndimage
 
     above = ndimage.maximum_filter(np.where(np.isfinite(s.top), s.top, -np.inf), size=3, mode="nearest")
     foot = np.isfinite(s.bottom) & (above >= s.bottom + clearance)
@@ -116,7 +115,6 @@ def deck_cells(s: Surface, params, planarity: float, min_area: float) -> np.ndar
     continue level into the ground at both ends (:func:`approach_ends`); with
     the cells of their side edges.
     """
-    from scipy import ndimage
 
     cell = s.grid.resolution
     step = max(0.5 * params.clearance, cell)

@@ -17,10 +17,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from lidar import glossary
 from lidar.arrays import add_counts
 from lidar.grid import Grid, cell_of, fill_nearest
+from stages.classify_objects.bridges import deck_cells
 from stages.classify_objects.regions import (
     SHADOW,
     Surface,
@@ -146,7 +148,6 @@ def plane_residual(top: np.ndarray) -> np.ndarray:
     >>> float(np.nanmax(plane_residual(z))) < 1e-6
     True
     """
-    from scipy import ndimage
 
     w = np.isfinite(top).astype(np.float64)
     z = np.where(w > 0, top, 0.0)
@@ -181,7 +182,6 @@ def plane_residual(top: np.ndarray) -> np.ndarray:
 
 def building_cells(s: Surface, params) -> np.ndarray:
     """The cells of buildings (bool grid): roof regions passing every test of ``params`` (:class:`BuildingParams`)."""
-    from scipy import ndimage
 
     cell = s.grid.resolution
     step = max(0.5 * params.min_height, cell)
@@ -217,7 +217,6 @@ def lone_walls(s: Surface, params, rings: int) -> np.ndarray:
     survey's edge, or a roof in a shadow) while at least half of them hold
     points; and it is one of ``FACE`` metres of such cells joined.
     """
-    from scipy import ndimage
 
     span = s.top - s.bottom
     wall = (span >= params.min_height) & (s.count >= 3) & (s.single >= params.single_returns * s.count)
@@ -286,7 +285,6 @@ def vegetation_cells(s: Surface, params, multi_echo: bool) -> np.ndarray:
     multiple-return pulses; else the surface is rough, or the cell's points
     span the medium-vegetation break (a crown).
     """
-    from scipy import ndimage
 
     if multi_echo:  # a canopy: a share of the pulses around returned more than once
         several = np.where(s.count > 0, 1.0 - s.single / np.maximum(s.count, 1), 0.0)  # a void is no canopy
@@ -306,15 +304,12 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
     From the grid's statistics only (no point); *params*:
     :class:`~stages.classify_objects.params.ClassifyObjectsParams`.
     """
-    from scipy import ndimage
 
     cell = s.grid.resolution
     b = params.buildings
     roofs = building_cells(s, b) if b.enabled else np.zeros(s.top.shape, dtype=bool)
     decks = np.zeros(s.top.shape, dtype=bool)
     if params.bridges.enabled:
-        from stages.classify_objects.bridges import deck_cells
-
         decks = deck_cells(s, params.bridges, b.planarity, b.min_area)
         roofs &= ~decks
     rings = max(1, round(WALLS / cell))

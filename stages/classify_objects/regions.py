@@ -10,8 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
-from lidar.grid import Grid
+from lidar.grid import Grid, step_labels
 
 #: Cells around a roof looked at for its walls: this many cells out.
 RING = 1
@@ -40,7 +41,6 @@ def planar_segments(top: np.ndarray, residual: np.ndarray, planarity: float, ste
     A cell is planar when its residual is at most *planarity*; two planar
     neighbours (4-connected) join when their heights differ by at most *step*.
     """
-    from lidar.grid import step_labels
 
     return step_labels(residual <= planarity, top, step, corners=False)  # NaN residual: not planar
 
@@ -122,7 +122,6 @@ def seen_below(bottom: np.ndarray, roofs: np.ndarray, reach_cells: int) -> np.nd
     *bottom* of the cells outside *roofs* within *reach_cells* cells (a
     square); NaN where there is none.
     """
-    from scipy import ndimage
 
     outside = np.where(roofs | np.isnan(bottom), np.inf, bottom)
     low = ndimage.minimum_filter(outside, size=2 * reach_cells + 1, mode="constant", cval=np.inf)

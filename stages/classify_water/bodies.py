@@ -3,13 +3,18 @@ taken for no water given back their class: the survey-wide steps after the tiles
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 
+import laspy
 import numpy as np
+import shapely
 
 from lidar import glossary
+from lidar.clouds import chunk_xyz_metres, open_las_writer
 from lidar.water_bodies import CellMask, WaterBody, water_bodies
 from stages.classify_water.params import ClassifyWaterParams
+from stages.classify_water.water import inside_polygons
 
 #: Points read at a time.
 CHUNK = 1_000_000
@@ -17,9 +22,6 @@ CHUNK = 1_000_000
 
 def _points(path: Path, units, keep) -> np.ndarray:
     """The points of the LAS *path* (metres) for which ``keep(classes, xyz)`` holds, read in chunks."""
-    import laspy
-
-    from lidar.clouds import chunk_xyz_metres
 
     parts = [np.zeros((0, 3))]
     with laspy.open(str(path)) as reader:
@@ -66,11 +68,6 @@ def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
     *xy*: its coordinates in metres; *was*: the same points' classes in
     *src* (None without one).
     """
-    from contextlib import ExitStack
-
-    import laspy
-
-    from lidar.clouds import chunk_xyz_metres, open_las_writer
 
     tmp = dst.with_name(f".{dst.name}.tmp")
     with ExitStack() as files:
@@ -92,7 +89,6 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
     rewritten (through a temporary file).  Returns the points given back
     and how many of them were ground.
     """
-    from stages.classify_water.water import inside_polygons
 
     counts = [0, 0]
 
@@ -117,7 +113,6 @@ def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, unit
     20, "breakline proximity").  *dst* is rewritten through a temporary
     file; returns the points changed.
     """
-    import shapely
 
     shores = [shapely.Polygon(b.rings[0], b.rings[1:]).boundary for b in bodies if b.flat]
     if not shores or distance <= 0:

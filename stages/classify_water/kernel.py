@@ -29,8 +29,8 @@ from lidar.vectors import read_polygons
 from stages.classify_water.params import ClassifyWaterParams
 from stages.classify_water.water import (
     CANDIDATES,
-    _in_cell,
     could_hold_level,
+    in_cell,
     inside_polygons,
     level_cells,
     near_level,
@@ -182,7 +182,7 @@ class WaterKernel(GridKernel):
             return
         low = stats["low"]
         base = np.floor(np.where(np.isfinite(low[k]), low[k], 0.0))  # whole metres: exact differences
-        u, v, r = _in_cell(xyz[:, 0], self.cell), _in_cell(xyz[:, 1], self.cell), z - base
+        u, v, r = in_cell(xyz[:, 0], self.cell), in_cell(xyz[:, 1], self.cell), z - base
         add_counts(stats["n"], k)
         for name, values in (("x", u), ("y", v), ("z", r)):
             np.add.at(stats[name], k, values)

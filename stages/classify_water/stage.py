@@ -16,14 +16,20 @@ each comes from: docs/stages/classify_water.md.
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from typing import ClassVar
 
 from pydantic import BaseModel
 
+from lidar.clouds import cloud_info
+from lidar.crs import horizontal_crs_matches
 from lidar.gridrun.service import run_grid_stage
+from lidar.vectors import read_polygons
+from lidar.water_bodies import write_breaklines, write_water_bodies
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
+from stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores
 from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
 
@@ -69,9 +75,6 @@ class ClassifyWater(Stage, name="classify_water", version="4", params=ClassifyWa
 
 def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dict) -> None:
     """The water bodies of the whole survey: those whose banks do not rise given back, the others to water.gpkg."""
-    from lidar.clouds import cloud_info
-    from lidar.water_bodies import write_breaklines, write_water_bodies
-    from stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores
 
     dst = ctx.outputs["points_water"]
     info = cloud_info(dst)
@@ -102,7 +105,6 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
 
 
 def _polygons_in_metres(params: ClassifyWaterParams, units) -> list | None:
-    from lidar.vectors import read_polygons
 
     if params.polygons is None:
         return None
@@ -111,11 +113,6 @@ def _polygons_in_metres(params: ClassifyWaterParams, units) -> list | None:
 
 def _polygon_params(ctx: StageContext[ClassifyWaterParams], src: Path) -> dict:
     """The polygons' scale to metres and digest for the tiles, once their layer is read and its CRS checked."""
-    import hashlib
-
-    from lidar.clouds import cloud_info
-    from lidar.crs import horizontal_crs_matches
-    from lidar.vectors import read_polygons
 
     path = ctx.params.polygons
     try:

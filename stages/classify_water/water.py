@@ -31,8 +31,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from matplotlib.path import Path
+from scipy import ndimage
 
 from lidar import glossary
+from lidar.grid import step_labels
 
 #: Classes a point may have to become water: never classified, unclassified, ground.
 CANDIDATES = (0, glossary.UNCLASSIFIED, glossary.GROUND)
@@ -104,7 +107,7 @@ def cell_moments(
     whole metre below its cell's lowest point (*low*, :func:`lowest`): the
     same in every tile, and no large numbers.
     """
-    u, v = (_in_cell(xy[:, axis], cell) for axis in range(2))  # position in its cell: the same in every tile
+    u, v = (in_cell(xy[:, axis], cell) for axis in range(2))  # position in its cell: the same in every tile
     base = np.floor(np.where(np.isfinite(low), low, 0.0))  # whole metres: exact differences
     r = base[k]
     np.subtract(z, r, out=r)
@@ -124,7 +127,6 @@ def planes_of(m: dict[str, np.ndarray], low: np.ndarray, cell: float, half: int)
     (:func:`_window_pass`, along y then x) about the window's centre cell:
     no large numbers cancel, and a cell's figures depend only on its window.
     """
-    from scipy import ndimage
 
     held = np.isfinite(low)
     base = np.floor(np.where(held, low, 0.0))
@@ -172,7 +174,7 @@ def _cell_moments(k: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, sh
     return m
 
 
-def _in_cell(x: np.ndarray, cell: float) -> np.ndarray:
+def in_cell(x: np.ndarray, cell: float) -> np.ndarray:
     """``x - (floor(x / cell) + 0.5) * cell``, one temporary array instead of four (a tile's largest)."""
     t = x / cell
     np.floor(t, out=t)
@@ -233,7 +235,6 @@ def could_hold_level(count: np.ndarray, half: int, min_points: int, min_cells: f
     their window of ``(2 half + 1)**2`` cells.  When not, no body can reach its area and the planes are not fitted
     (a sparse survey: milliseconds, not seconds).
     """
-    from scipy import ndimage
 
     count = count.astype(np.float64)
     side = 2 * half + 1
@@ -264,7 +265,6 @@ def water_bodies(level: np.ndarray, mean: np.ndarray, *, step: float, min_cells:
 
     Returns a boolean grid: the cells of the bodies kept.
     """
-    from lidar.grid import step_labels
 
     label = step_labels(level, mean, step)
     size = np.bincount(label[level], minlength=label.max() + 1)
@@ -329,7 +329,6 @@ def water_from_points(
 
 def inside_polygons(xy: np.ndarray, polygons: list[list[np.ndarray]]) -> np.ndarray:
     """Which points lie inside a polygon (its outer ring, not in one of its holes); rings as (n, 2) arrays."""
-    from matplotlib.path import Path
 
     out = np.zeros(len(xy), dtype=bool)
     for rings in polygons:

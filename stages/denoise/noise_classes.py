@@ -8,9 +8,11 @@ from typing import ClassVar
 
 import laspy
 import numpy as np
+from scipy.spatial import cKDTree
 
 from lidar import glossary
 from lidar.gridrun.kernel import GridKernel
+from lidar.neighbours import canonical_neighbours
 from stages.denoise.outliers import isolated_points, low_outliers, within_plan
 from stages.denoise.params import DenoiseParams
 
@@ -64,9 +66,6 @@ def above_neighbours(points: np.ndarray, iso: np.ndarray, *, neighbors: int, rad
     nearest within *radius* (in plan, ties by index); a point with none of
     them within *radius* is above (a bird, a cloud).
     """
-    from scipy.spatial import cKDTree
-
-    from lidar.neighbours import canonical_neighbours
 
     anchor = np.floor(points[:, :2].min(axis=0))  # whole metres: exact, tile or not
     # only the points that may lie within radius of an isolated one, in their order (ties go the same way)

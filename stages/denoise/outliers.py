@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from stages.denoise.params import IsolatedParams, LowParams
 
@@ -143,7 +144,6 @@ def _around(key: np.ndarray, which: np.ndarray, dims: list[int], reach: int) -> 
 
 def _kth(points: np.ndarray, which: np.ndarray, k: int, radius: float) -> np.ndarray:
     """Distance from each of ``points[which]`` to its k-th nearest other point, counted up to *radius*."""
-    from scipy.spatial import cKDTree
 
     if len(points) <= k:  # fewer other points than k: the missing ones are far
         return np.full(len(which), radius)

@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING
 
 from lidar.crs import crs_problem, header_crs
 from lidar.input_files import CSV_COLUMNS
-from lidar.input_files import read_input_files_csv as read_input_files_csv  # stages/tile_plan.py imports it from here
 from lidar.las_guard import header_mins_maxs, open_las
 from pipeline.errors import InputDataError
 from stages.parse.las_report import LasReadReport

@@ -13,6 +13,7 @@ deck on either side, across the deck (the shortest of four crossings).
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 
 def deck_footprint(deck_points: np.ndarray) -> np.ndarray:
@@ -22,7 +23,6 @@ def deck_footprint(deck_points: np.ndarray) -> np.ndarray:
     up to four cells are closed (a closing of two, local: tiles with a
     margin give the same cells), then one cell added around.
     """
-    from scipy import ndimage
 
     seen = deck_points > 0
     if not seen.any():

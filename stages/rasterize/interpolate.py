@@ -11,7 +11,10 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+import triangle
 from pydantic import Field
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from lidar.arrays import sorted_union
 from lidar.grid import Grid
@@ -206,7 +209,6 @@ def _tin_draw(
     xy, z, keep, grid: Grid, batch_cells: int, progress, max_hull_edge: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate the points *keep* (ascending) and draw them on *grid*: flat values, drawing triangles."""
-    import triangle
 
     out = np.full(grid.rows * grid.cols, np.nan)
     drawn = np.zeros((0, 3), dtype=np.int64)
@@ -269,7 +271,6 @@ def _same_as_all(xy, keep, outer, drawn, grid: Grid, margin: float, undrawn: np.
     out_of = ~((ux - radius > x0) & (ux + radius < x1) & (uy - radius > y0) & (uy + radius < y1))
     if not out_of.any():
         return True
-    from scipy.spatial import cKDTree
 
     rest = outer()
     if not len(rest):
@@ -301,8 +302,6 @@ def _far_from(xy: np.ndarray, grid: Grid, distance: float) -> np.ndarray:
     doubt (within that margin of *distance*) are measured exactly, on a
     k-d tree of the points: the same answer as a k-d tree for every cell.
     """
-    from scipy import ndimage
-    from scipy.spatial import cKDTree
 
     res = grid.resolution
     pad = int(math.ceil(distance / res)) + 2
@@ -493,7 +492,6 @@ def _query_grid(
     either way (the same points, the same distances, ties by the same
     index order); a tile's buffer is mostly far from its cells.
     """
-    from scipy.spatial import cKDTree
 
     origin = np.array([grid.xmin, grid.ymax])
     xy = points[:, :2] - origin

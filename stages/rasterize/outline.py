@@ -32,6 +32,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import triangle
+
+from lidar.grid import Grid
+from stages.rasterize.interpolate import triangle_cover
 
 #: Side of the outline's cells, metres.
 CELL_M = 5.0
@@ -91,10 +95,6 @@ EVERYWHERE = Outline(0, 0, np.zeros((0, 0), dtype=bool), everywhere=True)
 def survey_outline(keys: np.ndarray, min_edge: float) -> Outline:
     """The χ-shape of the occupied cells *keys* (:func:`occupied_cells`), peeled along boundary edges longer
     than ``max(min_edge, MEDIAN_EDGES x median edge)`` metres; *min_edge* 0: no outline (everywhere)."""
-    import triangle
-
-    from lidar.grid import Grid
-    from stages.rasterize.interpolate import triangle_cover
 
     ix, iy = _unkey(np.asarray(keys, dtype=np.int64))
     if min_edge <= 0 or len(ix) < 3:

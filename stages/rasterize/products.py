@@ -11,8 +11,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from lidar.grid import Grid, cell_mean, fill_nearest
+from stages.rasterize.decks import across_decks, deck_footprint
 from stages.rasterize.interpolate import in_hull
 from stages.rasterize.interpolators import INTERPOLATORS
 from stages.rasterize.params import RasterizeParams
@@ -92,8 +94,6 @@ def tile_rasters(
     if levels is not None:
         dtm = np.where(np.isfinite(levels), levels, dtm)
     if decks:
-        from stages.rasterize.decks import across_decks, deck_footprint
-
         feet = deck_footprint(cloud.decks)[sub_of(wide, grid)]  # on the wide grid: the closing's edge is far
         dtm = across_decks(dtm, feet, params.max_deck_width / params.resolution)
         if levels is not None:  # a water body under a deck's edge keeps its level
@@ -121,7 +121,6 @@ def inside_hull(points: np.ndarray, xy: np.ndarray) -> np.ndarray:
     half a cell past its water) would make the TIN's hull reach out with
     it, and thin triangles from it to the far corners of the survey.
     """
-    from scipy.spatial import ConvexHull, QhullError
 
     try:
         hull = ConvexHull(np.asarray(points)[:, :2])

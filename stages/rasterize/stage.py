@@ -14,6 +14,8 @@ detail: docs/stages/rasterize.md.
 
 from __future__ import annotations
 
+import hashlib
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
@@ -21,10 +23,15 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from lidar import glossary
+from lidar.clouds import cloud_info
 from lidar.grid import Grid, check_grid_size
-from lidar.rasters import dem_nodata
+from lidar.rasters import dem_nodata, read_raster
+from lidar.tile_points import cleanup, split_cloud, task_folder
+from lidar.water_bodies import read_breaklines, read_water_bodies
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
+from pipeline.tiling import run_tiled
+from stages.rasterize.kept_tiles import MEMO
 from stages.rasterize.outline import survey_outline
 from stages.rasterize.params import RasterizeParams
 from stages.rasterize.products import survey_figures
@@ -72,10 +79,6 @@ class Rasterize(Stage, name="rasterize", version="11", params=RasterizeParams):
         return reach(params)
 
     def run(self, ctx: StageContext[RasterizeParams]) -> None:
-        from lidar.clouds import cloud_info
-        from lidar.tile_points import cleanup, task_folder
-        from pipeline.tiling import run_tiled
-        from stages.rasterize.kept_tiles import MEMO
 
         p = ctx.params
         src = ctx.inputs["points_objects"]
@@ -138,10 +141,6 @@ def _check_points(ctx: StageContext[RasterizeParams], info: CloudInfo) -> None:
 def _with_water(tasks: list[RasterTask], path: Path, lines_path: Path, units: Units) -> list[RasterTask]:
     """The tasks with the water bodies to flatten the DTM in and the breaklines to enforce; each kept tile's key
     holds the bodies and breaklines over its cells and its buffer."""
-    import hashlib
-    from dataclasses import replace
-
-    from lidar.water_bodies import read_breaklines, read_water_bodies
 
     bodies = [
         (np.concatenate(rings), b"".join(np.ascontiguousarray(r).tobytes() for r in rings), level)
@@ -170,7 +169,6 @@ def _with_water(tasks: list[RasterTask], path: Path, lines_path: Path, units: Un
 
 def _median_sigma(path: Path, units: Units) -> float | None:
     """The median vertical sigma (metres) of the uncertainty raster's cells; None when it has none."""
-    from lidar.rasters import read_raster
 
     unc = read_raster(path)[0] * units.vertical
     return float(np.nanmedian(unc)) if np.isfinite(unc).any() else None
@@ -195,7 +193,6 @@ class _Tiles:
 
     def split(self, layout: Layout) -> list[RasterTask]:
         """Cut the points into the tiles, size the grid by the usable ones, and make the tiles' tasks."""
-        from lidar.tile_points import split_cloud
 
         ctx, info, p = self.ctx, self.info, self.ctx.params
         with ctx.progress(info.count, "tiling", unit="pt") as bar:

@@ -16,13 +16,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import laspy
 import numpy as np
+import rasterio
 
 from lidar import glossary
 from lidar.arrays import sorted_union
 from lidar.grid import Grid, cell_max_count, cell_of
-from lidar.mosaic import core_window
+from lidar.memory import free_memory, gigabytes
+from lidar.mosaic import RasterMosaic, core_window
 from lidar.rasters import HEIGHT, NODATA
+from lidar.tile_points import tile_parts
+from lidar.units import Units
+from lidar.water_bodies import breakline_points, burn_levels, read_breaklines, read_water_bodies
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.tiling import Layout
 from stages.rasterize.interpolators import INTERPOLATORS
@@ -62,7 +68,6 @@ def has_decks(path: Path, chunk: int = 1_000_000) -> bool:
     (the cache's intermediates); otherwise True: the tiles keep the margin
     for decks.
     """
-    import laspy
 
     with laspy.open(str(path)) as reader:
         header = reader.header
@@ -237,7 +242,6 @@ def check_tile_memory(
     most of it, else ``resolution``.  *memory* (bytes) defaults to
     :func:`lidar.memory.free_memory`.
     """
-    from lidar.memory import free_memory, gigabytes
 
     if not tasks:
         return
@@ -273,9 +277,6 @@ def rasterize_tile(task: RasterTask) -> dict:
     cloud = read_tile_cloud(Path(task.source), wide, sigma="dtm_uncertainty" in task.outputs)
     flat, breaklines = None, None
     if task.water is not None:
-        from lidar.units import Units
-        from lidar.water_bodies import breakline_points, burn_levels, read_breaklines, read_water_bodies
-
         units = Units(*task.water_units)
         bodies = read_water_bodies(Path(task.water), units)
 
@@ -317,7 +318,6 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
     The coordinates are mapped, not read: only the rows each raster needs
     are in memory.
     """
-    from lidar.tile_points import tile_parts
 
     parts = tile_parts(folder)  # the tile's points in file order, a range of records each
     masks = []
@@ -408,9 +408,6 @@ def mosaic_jobs(
 
 def mosaic_raster(job: MosaicJob) -> None:
     """Assemble one raster of the survey from its tiles' windows and write it as a COG (runs in a worker)."""
-    import rasterio
-
-    from lidar.mosaic import RasterMosaic
 
     # GDAL's block cache, 64 MB for all the workers at once: its default, 5 % of the RAM, would grow with the grid
     with rasterio.Env(GDAL_CACHEMAX=job.cache_mb):

@@ -53,6 +53,10 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
     passthrough: ClassVar = {"points_adjusted": "points_georef"}
     config_keys = ("crs", "stages.georeference")  # model: mounting georeferences the pulses again
 
+    def spreads_changes(self, params: StripAdjustParams, previous: dict) -> str | None:
+        """Strip adjustment fits whole strips: one changed file may move every point (unless no strip was adjusted)."""
+        return "strip adjustment fits whole strips" if previous.get("metrics", {}).get("strips_adjusted", 1) else None
+
     def external_files(self, params: StripAdjustParams, config: BaseModel) -> list[Path]:
         return [params.control_points] if params.control_points is not None else []
 

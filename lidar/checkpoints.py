@@ -16,10 +16,13 @@ from lidar.rasters import read_raster
 from lidar.units import raster_units
 from pipeline.errors import InputDataError
 
+#: The check points' land-cover column unless said otherwise.
+LAND_COVER_COLUMN = "land_cover"
+
 _ALIASES = {"x": ("x", "easting", "e"), "y": ("y", "northing", "n"), "z": ("z", "elevation", "h", "height")}
 
 
-def read_checkpoints(path: Path, land_cover_column: str = "land_cover") -> tuple[np.ndarray, np.ndarray | None]:
+def read_checkpoints(path: Path, land_cover_column: str = LAND_COVER_COLUMN) -> tuple[np.ndarray, np.ndarray | None]:
     """Read check points: (n, 3) coordinates and the land cover (or None)."""
     try:
         text = Path(path).read_text(encoding="utf-8")

@@ -27,6 +27,11 @@ from lidar.rotation import euler_quat, matrix_quat, quat_mul, slerp_weights, unw
 from pipeline.errors import InputDataError
 from pipeline.executor import thread_map
 
+#: A gap in the trajectory longer than this (s) leaves its pulses without a position, unless said otherwise.
+MAX_GAP_S = 0.5
+#: Pulses georeferenced per batch (memory about 200 bytes each), unless said otherwise.
+BATCH_SIZE = 2_000_000
+
 
 @dataclass
 class Mounting:
@@ -165,7 +170,7 @@ def georeference(
     mounting: Mounting,
     to_map: Callable[..., tuple[np.ndarray, ...]],
     *,
-    max_gap_s: float = 0.5,
+    max_gap_s: float = MAX_GAP_S,
     chunk: int = 32_768,
     workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -246,7 +251,7 @@ def prepare_ltp(traj: dict, convention: str, lat0: float, lon0: float, radius: f
     return trajectory_from(time, position, q, LocalFrame(lat0, lon0, float(h[0])))
 
 
-def pulse_reach(x: np.ndarray, y: np.ndarray, z: np.ndarray, batch_size: int = 2_000_000) -> float:
+def pulse_reach(x: np.ndarray, y: np.ndarray, z: np.ndarray, batch_size: int = BATCH_SIZE) -> float:
     """The longest pulse vector (scanner frame, metres), read *batch_size* pulses at a time."""
     reach = 0.0
     for s in range(0, len(x), batch_size):

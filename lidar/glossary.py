@@ -108,3 +108,7 @@ def input_names(config: Any) -> str:
         return "the input"
     names = ", ".join(str(p) for p in paths[:3])
     return names + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
+
+
+#: GPS - UTC (s) since 2017-01-01: the leap seconds that turn a UTC time into GPS time, unless a run says otherwise.
+LEAP_SECONDS = 18.0

@@ -4,9 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
+#: The light of a shaded relief unless said otherwise: from the north-west (degrees clockwise from north), 45
+#: degrees above the horizon, no vertical exaggeration (the cartographers' convention, and gdaldem's defaults).
+AZIMUTH, ALTITUDE, Z_FACTOR = 315.0, 45.0, 1.0
+
 
 def hillshade(
-    dem: np.ndarray, resolution: float, *, azimuth: float = 315.0, altitude: float = 45.0, z_factor: float = 1.0
+    dem: np.ndarray,
+    resolution: float,
+    *,
+    azimuth: float = AZIMUTH,
+    altitude: float = ALTITUDE,
+    z_factor: float = Z_FACTOR,
 ) -> np.ndarray:
     """Illumination of a north-up DEM, 0 (dark) to 255 (lit); NaN where the DEM is NaN.
 

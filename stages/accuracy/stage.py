@@ -18,7 +18,7 @@ from typing import ClassVar
 from pydantic import Field, model_validator
 from rasterio.errors import RasterioError
 
-from lidar.checkpoints import checkpoint_errors, read_checkpoints
+from lidar.checkpoints import LAND_COVER_COLUMN, checkpoint_errors, read_checkpoints
 from pipeline.config import InputFile
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageParams
@@ -39,7 +39,7 @@ class AccuracyParams(StageParams):
         description="raster of land-cover codes (ASPRS class numbers: 2 ground, 5 vegetation, 6 building, 9 water, "
         "17 bridge deck) for the truth_dtm figures by land cover (nearest cell onto the DTM's); none = not split",
     )
-    land_cover_column: str = Field("land_cover", description="name of the land-cover column in the check points")
+    land_cover_column: str = Field(LAND_COVER_COLUMN, description="name of the land-cover column in the check points")
     vegetated: list[str] = Field(["vegetated"], description="land-cover values counted as vegetated (for VVA)")
 
     @model_validator(mode="after")

@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
+from lidar.georeferencing import BATCH_SIZE, MAX_GAP_S
 from pipeline.config import InputFile, StrictModel
 from pipeline.stage import StageParams
 
@@ -36,14 +37,14 @@ class GeoreferenceParams(StageParams):
         "exact", description="exact (PROJ to crs) or ltp (seed-0 local tangent plane)"
     )
     max_gap_s: float = Field(
-        0.5, gt=0, description="pulses inside a gap of the trajectory longer than this get no position, seconds"
+        MAX_GAP_S, gt=0, description="pulses inside a gap of the trajectory longer than this get no position, seconds"
     )
     geoid: InputFile | None = Field(
         None, description="geoid grid (GeoTIFF/GTX, PROJ vgridshift) for orthometric heights"
     )
     ltp_radius_m: float = Field(6_371_000.0, gt=0, description="ltp: the Earth radius R of the seed-0 formula, metres")
     strips: StripParams = Field(default_factory=StripParams)
-    batch_size: int = Field(2_000_000, ge=10_000, description="pulses georeferenced per batch (memory ~ 200 B each)")
+    batch_size: int = Field(BATCH_SIZE, ge=10_000, description="pulses georeferenced per batch (memory ~ 200 B each)")
     uncertainty: UncertaintyParams | None = Field(
         None,
         description="per-point propagated uncertainty (LAS extra bytes sigma_horizontal, sigma_vertical); off when absent",

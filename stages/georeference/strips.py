@@ -13,6 +13,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lidar.vectors import line_wkb, write_gpkg
+from stages.georeference.params import StripParams
+
+#: The segmentation's parameters at their defaults: the function's defaults are the configuration's.
+_STRIPS = StripParams()
 
 if TYPE_CHECKING:
     import pyproj
@@ -26,8 +30,8 @@ def segment_strips(
     time: np.ndarray,
     heading_deg: np.ndarray,
     *,
-    turn_rate_deg_s: float = 1.0,
-    min_line_s: float = 10.0,
+    turn_rate_deg_s: float = _STRIPS.turn_rate_deg_s,
+    min_line_s: float = _STRIPS.min_line_s,
     smooth_s: float = 2.0,
 ) -> np.ndarray:
     """Strip number per epoch: 1, 2, ... for the lines in time order, 0 in turns.

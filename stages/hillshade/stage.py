@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field
 
 from lidar.rasters import png_bytes, read_raster, write_cog
-from lidar.shading import hillshade
+from lidar.shading import ALTITUDE, AZIMUTH, Z_FACTOR, hillshade
 from lidar.units import raster_units
 from pipeline.stage import Stage, StageContext, StageParams
 
@@ -25,10 +25,10 @@ HILLSHADE_NODATA = 0
 
 class HillshadeParams(StageParams):
     azimuth: float = Field(
-        315.0, ge=0, lt=360, description="direction the light comes from, degrees clockwise from north"
+        AZIMUTH, ge=0, lt=360, description="direction the light comes from, degrees clockwise from north"
     )
-    altitude: float = Field(45.0, gt=0, le=90, description="light elevation above the horizon, degrees")
-    z_factor: float = Field(1.0, gt=0, description="vertical exaggeration")
+    altitude: float = Field(ALTITUDE, gt=0, le=90, description="light elevation above the horizon, degrees")
+    z_factor: float = Field(Z_FACTOR, gt=0, description="vertical exaggeration")
 
 
 class Hillshade(Stage, name="hillshade", version="2", params=HillshadeParams):

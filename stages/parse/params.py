@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator
 
 from lidar.crs import check_crs_setting
+from lidar.glossary import LEAP_SECONDS
 from pipeline.config import InputFile, StrictModel, input_files
 
 FORMAT_HELP = "input format: las | ldmrs_mtig | lmsq_nmea | lmsq_sbet (SPEC 3.A-3.D)"
@@ -62,7 +63,9 @@ class LdmrsInput(StrictModel):
     mounting: Literal["laboratorio", "pilatus", "cb5000"] | LeverArm = Field(
         description="seed-0 Table 15 preset, or {lever_arm_m: [x, y, z]} (required: it is never guessed)"
     )
-    leap_seconds: float = Field(18.0, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time")
+    leap_seconds: float = Field(
+        LEAP_SECONDS, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time"
+    )
 
 
 class _LmsqCommon(StrictModel):
@@ -98,7 +101,9 @@ class LmsqNmeaInput(_LmsqCommon):
         description="geoid separation (m) of fixes whose GGA/GNS separation field is empty (default: from "
         "stages.georeference.geoid; neither: an error, never 0)",
     )
-    leap_seconds: float = Field(18.0, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time")
+    leap_seconds: float = Field(
+        LEAP_SECONDS, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time"
+    )
     max_gap_s: float = Field(
         1.0, gt=0, description="INS epochs inside a gap of GNSS positions longer than this get no position, seconds"
     )

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lidar.glossary import LEAP_SECONDS
 from pipeline.errors import InputDataError
 from pipeline.log import Progress
 from stages.parse.skiplog import SkipLog, open_text
@@ -111,7 +112,7 @@ def _floats(parts: list[str], n: int, key: str, where: str) -> tuple[float, ...]
     return values
 
 
-def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = 18.0) -> Iterator[Scan]:
+def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = LEAP_SECONDS) -> Iterator[Scan]:
     """Yield the accepted scans of one log, updating *counters*.
 
     Parameters
@@ -225,7 +226,7 @@ def _point(parts: list[str], where: str) -> tuple[int, int, int, float, float, f
 
 
 def read_survey(
-    paths: list[Path], counters: Counters, *, leap_seconds: float = 18.0, progress: Progress | None = None
+    paths: list[Path], counters: Counters, *, leap_seconds: float = LEAP_SECONDS, progress: Progress | None = None
 ) -> Iterator[Scan]:
     """Yield the accepted scans of a survey's logs in time order (:class:`TimeOrder`, across the files).
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
+from lidar.glossary import LEAP_SECONDS
 from pipeline.errors import ConfigError
 from stages.parse.read_ldmrs import GPS_EPOCH
 from stages.parse.skiplog import SkipLog, open_text
@@ -139,7 +140,7 @@ def read_nmea(
     counters: NmeaCounters,
     *,
     day: date | None = None,
-    leap_seconds: float = 18.0,
+    leap_seconds: float = LEAP_SECONDS,
     separation_m: float | None = None,
     geoid: Path | None = None,
 ) -> NmeaLog:

@@ -20,6 +20,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from stages.strip_adjust.params import StripAdjustParams
+
+#: The stage's parameters at their defaults: the function's defaults are the configuration's.
+_DEFAULT = StripAdjustParams()
+
 
 @dataclass
 class Patches:
@@ -292,8 +297,8 @@ def adjust(
     reference: int | None,
     control: np.ndarray | None = None,
     fixed: tuple[int, ...] = (),
-    max_distance: float = 2.0,
-    max_iterations: int = 10,
+    max_distance: float = _DEFAULT.max_distance,
+    max_iterations: int = _DEFAULT.max_iterations,
     prior_translation: float = 1.0,
     prior_rotation: float = np.radians(0.5),
     prior_yaw: float = np.radians(0.01),

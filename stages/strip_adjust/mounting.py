@@ -23,6 +23,10 @@ import numpy as np
 
 from lidar.georeferencing import Mounting, Trajectory, georeference_local
 from lidar.rotation import euler_matrix
+from stages.strip_adjust.params import MountingParams, StripAdjustParams
+
+#: The parameters at their defaults: the function's defaults are the configuration's.
+_DEFAULT, _MOUNTING = StripAdjustParams(), MountingParams()
 
 NAMES = (
     "boresight_roll",
@@ -447,10 +451,10 @@ def solve(
     find_links: Callable[[np.ndarray], tuple[Links, np.ndarray] | None],
     unknowns: Unknowns,
     *,
-    rounds: int = 3,
-    max_iterations: int = 10,
-    max_correlation: float = 0.95,
-    min_significance: float = 3.0,
+    rounds: int = _MOUNTING.rounds,
+    max_iterations: int = _DEFAULT.max_iterations,
+    max_correlation: float = _MOUNTING.max_correlation,
+    min_significance: float = _MOUNTING.min_significance,
     log: Callable | None = None,
 ) -> Calibration | None:
     """Gauss-Newton over *rounds* correspondence searches (docs/CALIBRATION.md).

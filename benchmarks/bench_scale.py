@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_scale.py --points 10e6 [--points 40e6] [--workdir /tmp/bench_scale]
     .venv/bin/python benchmarks/bench_scale.py --points 10e6 --pairs 5 [--job idw]   # paired job / floor
+    .venv/bin/python benchmarks/bench_scale.py --points 10e6 --pairs 5 --job defaults --against 9bc4798
 
 The jobs (strip adjustment and the map products off):
 
@@ -38,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 from pathlib import Path
 
 import laspy
@@ -313,6 +315,69 @@ def pairs(points: float, workdir: Path, jobs: list[str], n: int) -> list[str]:
     return rows
 
 
+def _tree(commit: str, workdir: Path) -> tuple[Path, dict[str, str]]:
+    """*commit* checked out in a worktree under *workdir*, and the environment that runs its pipeline."""
+    tree = workdir / f"tree-{commit}"
+    if not tree.exists():
+        subprocess.run(["git", "worktree", "add", "--detach", str(tree), commit], cwd=ROOT, check=True)
+    with open(tree / "pyproject.toml", "rb") as fh:
+        (spec,) = tomllib.load(fh)["project"]["entry-points"]["pipeline.plugins"].values()
+    return tree, dict(os.environ, PYTHONPATH=str(tree), PIPELINE_PLUGIN=spec)
+
+
+def _waited(cmd: list[str], cwd: Path, env: dict[str, str]) -> tuple[float, float]:
+    """Wall seconds of a whole process, and the peak resident memory (MB) of the largest process it and its
+    workers had (the kernel's accounting of the waited-for tree, ``wait4``'s ``ru_maxrss``)."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"failed: {' '.join(cmd)}")
+    return time.perf_counter() - t0, usage.ru_maxrss / 1024
+
+
+def against(points: float, workdir: Path, jobs: list[str], n: int, commit: str) -> list[str]:
+    """Each job run from this tree and from *commit*, in turn (this, that, this, that ...), *n* pairs after one
+    warm-up pair: the medians of the pair ratios of wall time and of the largest process's peak memory.
+
+    Both sides on an empty cache, the same survey and configuration, as
+    whole processes.  Needs the survey of an earlier run at the same size.
+    """
+    tag = f"{points / 1e6:g}M"
+    work = workdir / tag
+    laz = work / "survey.laz"
+    if not laz.exists():
+        raise SystemExit(f"{laz}: no survey; run this script once with --points {points:g} first")
+    tree, env = _tree(commit, workdir)
+    rows = []
+    for job in jobs:
+        config = _job_config(work, laz, job)
+        sides = {
+            "this": (ROOT, dict(os.environ, PYTHONPATH=str(ROOT)), work / "this"),
+            commit: (tree, env, work / "that"),
+        }
+        figures: dict[str, list[tuple[float, float]]] = {k: [] for k in sides}
+        for k in range(n + 1):
+            for name, (cwd, run_env, out) in sides.items():
+                shutil.rmtree(out, ignore_errors=True)
+                cmd = [sys.executable, "-m", "pipeline", "run", str(config), "-q"]
+                cmd += ["--set", f"output={out}", "--set", f"cache={out}-cache"]
+                measured = _waited(cmd, cwd, run_env)
+                shutil.rmtree(f"{out}-cache", ignore_errors=True)
+                if k:  # the first pair warms the caches of the machine
+                    figures[name].append(measured)
+        this, that = (np.array(figures[name]) for name in sides)
+        wall, memory = this[:, 0] / that[:, 0], this[:, 1] / that[:, 1]
+        rows.append(
+            f"| {tag} | {job}, {n} pairs | {np.median(this[:, 0]):.1f} | {np.median(that[:, 0]):.1f} "
+            f"| **{np.median(wall):.3f}** ({wall.min():.3f}–{wall.max():.3f}) "
+            f"| {np.median(this[:, 1]):.0f} | {np.median(that[:, 1]):.0f} | **{np.median(memory):.3f}** |"
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--one":
         what, *rest = sys.argv[2:]
@@ -328,8 +393,18 @@ def main() -> None:
     parser.add_argument(
         "--pairs", type=int, default=0, help="instead: each job and the floor in turn, this many times (median ratio)"
     )
+    parser.add_argument("--against", metavar="COMMIT", help="with --pairs: each job against the same at COMMIT")
     args = parser.parse_args()
     print(machine())
+    if args.pairs and args.against:
+        print(
+            f"| points | pair | this tree: wall s (median) | {args.against}: wall s | wall ratio: median (min–max) "
+            f"| this tree: largest process MB | {args.against}: MB | memory ratio |"
+        )
+        print("|---|---|---|---|---|---|---|---|")
+        for points in args.points or [10e6]:
+            against(points, args.workdir, args.job or ["defaults"], args.pairs, args.against)
+        return
     if args.pairs:
         print("| points | pair | job s (median) | floor s (median) | job / floor: median (min–max) |")
         print("|---|---|---|---|---|")

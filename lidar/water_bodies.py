@@ -18,7 +18,6 @@ import rasterio.features
 import shapely
 from affine import Affine
 from scipy import ndimage
-from scipy.optimize import isotonic_regression
 
 from lidar.grid import step_labels
 from lidar.vectors import polygon_z_wkb, wkb_polygons, write_gpkg
@@ -117,6 +116,9 @@ def river_profile(xyz: np.ndarray, ring: np.ndarray, max_spread: float) -> tuple
     if len(centres) < 2:
         return None
     falls = np.polyfit(centres, median, 1, w=np.sqrt(counts))[0] < 0
+    # lazy: scipy.optimize takes about 0.25 s to import, in every worker that makes rasters; only rivers need it
+    from scipy.optimize import isotonic_regression
+
     levels = isotonic_regression(median, weights=counts, increasing=not falls).x
     residual = xyz[:, 2] - np.interp(station, centres, levels)
     if np.percentile(residual, 95) - np.percentile(residual, 5) > max_spread:

@@ -32,9 +32,8 @@ from stages.classify_water.water import (
     could_hold_level,
     in_cell,
     inside_polygons,
-    level_cells,
+    level_and_mean,
     near_level,
-    planes_of,
     water_bodies,
     water_from_points,
     water_from_polygons,
@@ -210,10 +209,16 @@ class WaterKernel(GridKernel):
         water = np.zeros(frame.shape, dtype=bool)
         mean = np.full(frame.shape, np.nan)
         if d.enabled and could_hold_level(stats["n"], half, d.min_points, min_cells):
-            planes = planes_of({"n": stats["n"], **{m: stats[m] for m in MOMENTS}}, stats["low"], cell, half)
-            level = level_cells(planes, cell=cell, min_points=d.min_points, max_slope=d.max_slope, max_rms=d.max_rms)
-            water = water_bodies(level, planes["mean"], step=d.step, min_cells=min_cells)
-            mean = planes["mean"]
+            level, mean = level_and_mean(
+                {"n": stats["n"], **{m: stats[m] for m in MOMENTS}},
+                stats["low"],
+                cell=cell,
+                half=half,
+                min_points=d.min_points,
+                max_slope=d.max_slope,
+                max_rms=d.max_rms,
+            )
+            water = water_bodies(level, mean, step=d.step, min_cells=min_cells)
         results = {"water": water, "mean": mean}
         if self.model.polygons is not None:
             n = stats["inside_n"]

@@ -31,7 +31,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from matplotlib.path import Path
 from scipy import ndimage
 
 from lidar import glossary
@@ -221,6 +220,46 @@ def _window_pass(
     return out
 
 
+#: Rows of a grid :func:`level_and_mean` fits at a time (each band read with the window's reach of rows either side).
+BAND_ROWS = 256
+
+
+def level_and_mean(
+    m: dict[str, np.ndarray],
+    low: np.ndarray,
+    *,
+    cell: float,
+    half: int,
+    min_points: int,
+    max_slope: float,
+    max_rms: float,
+    rows: int = BAND_ROWS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The level cells (:func:`level_cells`) and each cell's mean height, from the cells' moments *m* and lowest *low*.
+
+    :func:`planes_of` *rows* rows at a time, each band read with *half*
+    rows on either side: the same values (a cell's planes depend on its
+    window only, summed in the same order), with a band's temporaries (about
+    300 bytes a cell) instead of the grid's.
+    """
+    shape = low.shape
+    level, mean = np.zeros(shape, dtype=bool), np.full(shape, np.nan)
+    for r0 in range(0, shape[0], rows):
+        r1 = min(r0 + rows, shape[0])
+        a, b = max(r0 - half, 0), min(r1 + half, shape[0])
+        planes = planes_of({name: v[a:b] for name, v in m.items()}, low[a:b], cell, half)
+        own = slice(r0 - a, r1 - a)
+        level[r0:r1] = level_cells(
+            {name: v[own] for name, v in planes.items()},
+            cell=cell,
+            min_points=min_points,
+            max_slope=max_slope,
+            max_rms=max_rms,
+        )
+        mean[r0:r1] = planes["mean"][own]
+    return level, mean
+
+
 def could_be_level(
     i: np.ndarray, j: np.ndarray, shape: tuple[int, int], half: int, min_points: int, min_cells: float
 ) -> bool:
@@ -317,18 +356,26 @@ def water_from_points(
     g = np.flatnonzero(ground)
     if not could_be_level(i[g], j[g], shape, half, min_points, min_area / cell_size**2):
         return found
-    planes = window_planes(i[g], j[g], shape, xyz[g, :2], xyz[g, 2], cell_size, half)
-    level = level_cells(planes, cell=cell_size, min_points=min_points, max_slope=max_slope, max_rms=max_rms)
-    water = water_bodies(level, planes["mean"], step=step, min_cells=min_area / cell_size**2)
+    k = i[g] * shape[1] + j[g]
+    low = lowest(k, xyz[g, 2], shape[0] * shape[1])
+    m = cell_moments(k, xyz[g, :2], xyz[g, 2], low, shape, cell_size)
+    del k, g
+    level, mean = level_and_mean(
+        m, low.reshape(shape), cell=cell_size, half=half, min_points=min_points, max_slope=max_slope, max_rms=max_rms
+    )
+    del m
+    water = water_bodies(level, mean, step=step, min_cells=min_area / cell_size**2)
     candidate = usable & np.isin(classification, CANDIDATES)
     c = np.flatnonzero(candidate)
     grow_cells = math.ceil(grow / cell_size - 1e-9)
-    found[c] = near_level(i[c], j[c], xyz[c, 2], water, planes["mean"], grow_cells, tolerance)
+    found[c] = near_level(i[c], j[c], xyz[c, 2], water, mean, grow_cells, tolerance)
     return found
 
 
 def inside_polygons(xy: np.ndarray, polygons: list[list[np.ndarray]]) -> np.ndarray:
     """Which points lie inside a polygon (its outer ring, not in one of its holes); rings as (n, 2) arrays."""
+    # lazy: Matplotlib takes about 0.15 s to import, in every run; only a water polygon layer needs it
+    from matplotlib.path import Path
 
     out = np.zeros(len(xy), dtype=bool)
     for rings in polygons:

@@ -11,7 +11,6 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from pipeline.errors import ConfigError, InputDataError
 from stages.parse.params import LmsqNmeaInput, LmsqSbetInput
@@ -119,6 +118,9 @@ def _covered(tg: np.ndarray, ti: np.ndarray, max_gap_s: float) -> np.ndarray:
 def _positions_at(pos: dict[str, np.ndarray], ins: dict[str, np.ndarray], inside: np.ndarray) -> dict:
     """The INS epochs *inside*, with positions splined (cubic, in time) from the GNSS epochs."""
     t = ins["time"][inside]
+    # lazy: scipy.interpolate takes about 0.1 s to import, in every run; only raw flights' trajectories need it
+    from scipy.interpolate import CubicSpline
+
     spline = CubicSpline(pos["time"], np.column_stack((pos["lat"], pos["lon"], pos["h"])), axis=0)
     lla = spline(t)
     return {

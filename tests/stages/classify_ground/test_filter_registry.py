@@ -23,23 +23,28 @@ from stages.classify_ground.filters import GROUND_FILTERS
 from stages.classify_ground.params import ClassifyGroundParams
 from stages.classify_ground.stage import ClassifyGround
 from tests.commands.test_evaluate_ground import labelled_block
-from tests.stages.classify_ground import lowest_filter
 from tests.stages.parse.test_real_files import ROOT
 
 
 @pytest.fixture
 def registered():
-    """The filter registered for one test, and forgotten after it."""
+    """The filter's module, registered for one test and forgotten after it.
+
+    Imported here, not at the top: importing it registers the filter, which
+    must not outlive these tests (others render the configuration reference).
+    """
+    from tests.stages.classify_ground import lowest_filter
+
     lowest_filter.register()
     try:
-        yield lowest_filter.DECLARED
+        yield lowest_filter
     finally:
         GROUND_FILTERS.unregister("lowest")
 
 
 def test_the_schema_takes_the_filter_and_its_parameters(registered):
     params = ClassifyGroundParams.model_validate({"algorithm": {"name": "lowest", "tolerance": 0.25}})
-    assert isinstance(params.algorithm, lowest_filter.LowestParams) and params.algorithm.tolerance == 0.25
+    assert isinstance(params.algorithm, registered.LowestParams) and params.algorithm.tolerance == 0.25
     assert params.model_dump(mode="json")["algorithm"] == {"name": "lowest", "cell_size": 2.0, "tolerance": 0.25}
     with pytest.raises(ValidationError) as err:  # its parameters are checked by its own model
         ClassifyGroundParams.model_validate({"algorithm": {"name": "lowest", "tolerance": -1}})
@@ -94,5 +99,5 @@ def test_forgotten_it_is_unknown_again(registered):
     GROUND_FILTERS.unregister("lowest")
     with pytest.raises(ValidationError, match="known: csf, pmf, smrf"):
         ClassifyGroundParams.model_validate({"algorithm": {"name": "lowest"}})
-    lowest_filter.register()  # for the fixture's teardown
-    assert np.all(lowest_filter.lowest(np.zeros((3, 3)), cell_size=1.0, tolerance=0.0))
+    registered.register()  # for the fixture's teardown
+    assert np.all(registered.lowest(np.zeros((3, 3)), cell_size=1.0, tolerance=0.0))

@@ -7,10 +7,13 @@ import pytest
 
 from stages.classify_water.params import DetectParams
 from stages.classify_water.water import (
+    cell_moments,
     cells_of,
     could_be_level,
     inside_polygons,
+    level_and_mean,
     level_cells,
+    lowest,
     reach,
     water_bodies,
     water_from_points,
@@ -175,3 +178,25 @@ def test_window_planes_equal_a_least_squares_fit_of_each_window():
         np.testing.assert_allclose(planes["spread"][a, b], narrow, rtol=1e-9)
         checked += 1
     assert checked == 40
+
+
+@pytest.mark.parametrize("rows", [1, 7, 40])
+def test_level_cells_in_bands_equal_the_whole_grid(rows):
+    """The lake of _valley: level cells and mean heights fitted a band of *rows* rows at a time are, bit for bit,
+    those of the grid fitted whole (each band reads the window's reach of rows either side)."""
+    xyz, lake = _valley(seed=3)
+    p = DetectParams()
+    i, j, shape = cells_of(xyz[:, :2], p.cell_size)
+    k = i * shape[1] + j
+    low = lowest(k, xyz[:, 2], shape[0] * shape[1])
+    m = cell_moments(k, xyz[:, :2], xyz[:, 2], low, shape, p.cell_size)
+    args = {"cell": p.cell_size, "half": 3, "min_points": p.min_points, "max_slope": p.max_slope, "max_rms": p.max_rms}
+    whole = level_and_mean(m, low.reshape(shape), rows=shape[0], **args)
+    banded = level_and_mean(m, low.reshape(shape), rows=rows, **args)
+    assert whole[0].sum() > 0.5 * np.pi * RADIUS**2  # the lake is level (its windows off the shore)
+    np.testing.assert_array_equal(banded[0], whole[0])
+    np.testing.assert_array_equal(banded[1], whole[1])
+    planes = window_planes(i, j, shape, xyz[:, :2], xyz[:, 2], p.cell_size, 3)  # the planes of the points
+    np.testing.assert_array_equal(whole[1], planes["mean"])
+    level = level_cells(planes, cell=p.cell_size, min_points=p.min_points, max_slope=p.max_slope, max_rms=p.max_rms)
+    np.testing.assert_array_equal(whole[0], level)

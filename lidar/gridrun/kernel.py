@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, ClassVar
 
 import numpy as np
@@ -123,6 +124,10 @@ class Frame:
         return Frame(self.cell, self.axes, first, (rows.stop - rows.start, cols.stop - cols.start))
 
 
+#: The LAS columns a kernel may read besides x, y, z (:attr:`GridKernel.fields`), with their types.
+LAS_COLUMNS = {"classification": np.uint8, "return_number": np.uint8, "number_of_returns": np.uint8, "withheld": bool}
+
+
 class GridKernel:
     """What a grid stage computes (the contract of :func:`lidar.gridrun.service.run_grid_stage`).
 
@@ -144,6 +149,8 @@ class GridKernel:
     passes: ClassVar[int] = 1
     #: Whether the kernel computes on the survey's grid; without, on tiles of points only.
     grid_form: ClassVar[bool] = True
+    #: The LAS columns it reads besides x, y, z (:data:`LAS_COLUMNS`): what :meth:`columns` gives.
+    fields: ClassVar[tuple[str, ...]] = ("classification", "withheld")
 
     #: Cells beyond a tile's own that pass 2 reads for its points (the results kept of its window).
     margin: ClassVar[int] = 0
@@ -157,8 +164,8 @@ class GridKernel:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
     def columns(self, chunk: Any) -> dict[str, np.ndarray]:
-        """What the kernel reads of a chunk of LAS records besides x, y, z."""
-        raise NotImplementedError
+        """What the kernel reads of a chunk of LAS records besides x, y, z: its :attr:`fields`."""
+        return {name: np.asarray(getattr(chunk, name), dtype=LAS_COLUMNS[name]) for name in self.fields}
 
     def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
         """Which points get a value (:meth:`values`, :meth:`tile`)."""
@@ -218,3 +225,15 @@ class GridKernel:
         The counts of a kept input are its points and zeros.
         """
         return False
+
+
+class StageKernel(GridKernel):
+    """A kernel that carries its stage's parameters as their JSON dump (*params*, a field of the subclass) and
+    validates them once where it runs (:attr:`model`, by the class's :attr:`Params`)."""
+
+    Params: ClassVar[Any]
+    params: dict
+
+    @cached_property
+    def model(self) -> Any:
+        return self.Params.model_validate(self.params)

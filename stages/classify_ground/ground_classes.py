@@ -123,13 +123,3 @@ def classify(
     if candidates.any():
         ground[candidates] = ground_mask(points[candidates], params.algorithm)
     return new_classes(classification, keep, ground)
-
-
-def classify_columns(chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-    """The columns :func:`classify` needs besides x, y, z, of a chunk of points."""
-    return {
-        "classification": np.asarray(chunk.classification, dtype=np.uint8),
-        "return_number": np.asarray(chunk.return_number, dtype=np.uint8),
-        "number_of_returns": np.asarray(chunk.number_of_returns, dtype=np.uint8),
-        "withheld": np.asarray(chunk.withheld, dtype=bool),
-    }

@@ -15,20 +15,19 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import ClassVar
 
-import laspy
 import numpy as np
 from pydantic import BaseModel
 
 from lidar import glossary
-from lidar.gridrun.kernel import Axis, Frame, GridKernel
+from lidar.gridrun.kernel import Axis, Frame, StageKernel
 from stages.classify_ground.filters import GROUND_FILTERS, GroundFilter, grid_cell, ground_mask, reach
-from stages.classify_ground.ground_classes import candidates_of, classify_columns, new_classes
+from stages.classify_ground.ground_classes import candidates_of, new_classes
 from stages.classify_ground.params import ClassifyGroundParams
 from stages.classify_ground.surface import CellIndex
 
 
 @dataclass(frozen=True)
-class GroundKernel(GridKernel):
+class GroundKernel(StageKernel):
     """The stage's parameters (*params*: their JSON dump, with the filter's cell as the run uses it) as a kernel.
 
     *declared_in*: the module that declares the filter, imported where the
@@ -38,7 +37,9 @@ class GroundKernel(GridKernel):
     params: dict
     declared_in: str = "stages.classify_ground.filters"
 
+    Params: ClassVar = ClassifyGroundParams
     counts: ClassVar = ("points", "ground", "non_ground", "last_returns")
+    fields: ClassVar = ("classification", "return_number", "number_of_returns", "withheld")
     axes: ClassVar = (Axis(1), Axis(0))  # rows from south to north, as the filters' grids
     margin: ClassVar = 1  # the point test samples the surfaces bilinearly: a point reads its cell's neighbours
 
@@ -49,7 +50,7 @@ class GroundKernel(GridKernel):
     @cached_property
     def model(self) -> ClassifyGroundParams:
         __import__(self.declared_in)  # the filter's registration, in a worker process too
-        return ClassifyGroundParams.model_validate(self.params)
+        return self.Params.model_validate(self.params)
 
     @property
     def algorithm(self) -> BaseModel:
@@ -70,9 +71,6 @@ class GroundKernel(GridKernel):
     @property
     def reach(self) -> float:
         return reach(self.algorithm)
-
-    def columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-        return classify_columns(chunk)
 
     def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
         return candidates_of(**_point_columns(cols), params=self.model)[1]

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
@@ -23,7 +22,7 @@ import numpy as np
 
 from lidar import glossary
 from lidar.grid import Grid
-from lidar.gridrun.kernel import Axis, Frame, GridKernel
+from lidar.gridrun.kernel import Axis, Frame, StageKernel
 from stages.classify_objects.objects import (
     BRIDGE,
     BUILDING,
@@ -110,30 +109,21 @@ def class_counts(new: np.ndarray, was: np.ndarray) -> tuple[int, ...]:
 
 
 @dataclass(frozen=True)
-class ObjectsKernel(GridKernel):
+class ObjectsKernel(StageKernel):
     """The stage's parameters (*params*: their JSON dump), the survey's *cell* (m) and whether it has several returns."""
 
     params: dict
     cell: float
     multi_echo: bool
 
+    Params: ClassVar = ClassifyObjectsParams
     counts: ClassVar = COUNTS
     axes: ClassVar = (Axis(1, down=True), Axis(0))  # the rows of a north-up grid
-
-    @cached_property
-    def model(self) -> ClassifyObjectsParams:
-        return ClassifyObjectsParams.model_validate(self.params)
+    fields: ClassVar = ("classification", "number_of_returns", "withheld")
 
     @property
     def reach(self) -> float:
         return reach(self.model)
-
-    def columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-        return {
-            "classification": np.asarray(chunk.classification, dtype=np.uint8),
-            "number_of_returns": np.asarray(chunk.number_of_returns, dtype=np.uint8),
-            "withheld": np.asarray(chunk.withheld, dtype=bool),
-        }
 
     def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
         return glossary.usable(cols["classification"], cols["withheld"])

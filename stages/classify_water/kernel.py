@@ -16,15 +16,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cache, cached_property
+from functools import cache
 from typing import ClassVar
 
-import laspy
 import numpy as np
 
 from lidar import glossary
 from lidar.arrays import add_counts
-from lidar.gridrun.kernel import Axis, Frame, GridKernel
+from lidar.gridrun.kernel import Axis, Frame, StageKernel
 from lidar.vectors import read_polygons
 from stages.classify_water.params import ClassifyWaterParams
 from stages.classify_water.water import (
@@ -91,20 +90,17 @@ def polygons_in_metres(path: str, scale: float, digest: str) -> list:
 
 
 @dataclass(frozen=True)
-class WaterKernel(GridKernel):
+class WaterKernel(StageKernel):
     """The stage's parameters (*params*: their JSON dump) and its polygons' scale (m per unit) and digest."""
 
     params: dict
     polygon_scale: float = 1.0
     polygons_sha256: str = ""
 
+    Params: ClassVar = ClassifyWaterParams
     counts: ClassVar = ("points", "water", "from_points", "from_polygons", "ground_to_water")
     axes: ClassVar = (Axis(0), Axis(1))  # along x, then y, as cells_of makes the grids
     passes: ClassVar = 2  # the cells' lowest ground points, then the moments about them
-
-    @cached_property
-    def model(self) -> ClassifyWaterParams:
-        return ClassifyWaterParams.model_validate(self.params)
 
     @property
     def polygons(self) -> list | None:
@@ -134,12 +130,6 @@ class WaterKernel(GridKernel):
     @property
     def grid_form(self) -> bool:
         return self.model.detect.enabled or self.model.polygons is not None
-
-    def columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-        return {
-            "classification": np.asarray(chunk.classification, dtype=np.uint8),
-            "withheld": np.asarray(chunk.withheld, dtype=bool),
-        }
 
     def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
         return glossary.usable(cols["classification"], cols["withheld"]) & np.isin(cols["classification"], CANDIDATES)

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 from typing import ClassVar
 
-import laspy
 import numpy as np
 from scipy.spatial import cKDTree
 
 from lidar import glossary
-from lidar.gridrun.kernel import GridKernel
+from lidar.gridrun.kernel import StageKernel
 from lidar.neighbours import canonical_neighbours
 from stages.denoise.outliers import isolated_points, low_outliers, within_plan
 from stages.denoise.params import DenoiseParams
@@ -85,7 +83,7 @@ def above_neighbours(points: np.ndarray, iso: np.ndarray, *, neighbors: int, rad
 
 
 @dataclass(frozen=True)
-class DenoiseKernel(GridKernel):
+class DenoiseKernel(StageKernel):
     """The noise tests for the run service (*params*: the stage's dump): on tiles of points only.
 
     Values: each tested point's noise class (0: not noise).
@@ -93,12 +91,9 @@ class DenoiseKernel(GridKernel):
 
     params: dict
 
+    Params: ClassVar = DenoiseParams
     counts: ClassVar = ("points", "low", "high", "done")
     grid_form: ClassVar = False  # the tests need the points around each point
-
-    @cached_property
-    def model(self) -> DenoiseParams:
-        return DenoiseParams.model_validate(self.params)
 
     @property
     def cell(self) -> float:
@@ -107,12 +102,6 @@ class DenoiseKernel(GridKernel):
     @property
     def reach(self) -> float:
         return reach(self.model)
-
-    def columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
-        return {
-            "classification": np.asarray(chunk.classification, dtype=np.uint8),
-            "withheld": np.asarray(chunk.withheld, dtype=bool),
-        }
 
     def tested(self, cols: dict[str, np.ndarray]) -> np.ndarray:
         """Points already classified as noise or withheld are not tested again."""

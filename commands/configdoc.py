@@ -26,7 +26,7 @@ Generated from the code by `python -m commands.configdoc > docs/CONFIG.md`
 (a test fails when this file is stale).  Every relative path is resolved
 against the folder of the configuration file.  Linear quantities are in
 metres whatever the output CRS's unit (products are written in that unit:
-README, Conventions).  Any key can be
+docs/CONVENTIONS.md).  Any key can be
 overridden from the command line: `--set stages.rasterize.resolution=0.5`.
 
 | key | type | default | meaning |

@@ -34,7 +34,8 @@ class UncertaintyParams(StrictModel):
 
 class GeoreferenceParams(StageParams):
     frame: Literal["exact", "ltp"] = Field(
-        "exact", description="exact (PROJ to crs) or ltp (seed-0 local tangent plane)"
+        "exact",
+        description="exact (PROJ to crs) or ltp (one local tangent plane at the first fix, the LD-MRS system's formula)",
     )
     max_gap_s: float = Field(
         MAX_GAP_S, gt=0, description="pulses inside a gap of the trajectory longer than this get no position, seconds"
@@ -42,7 +43,9 @@ class GeoreferenceParams(StageParams):
     geoid: InputFile | None = Field(
         None, description="geoid grid (GeoTIFF/GTX, PROJ vgridshift) for orthometric heights"
     )
-    ltp_radius_m: float = Field(6_371_000.0, gt=0, description="ltp: the Earth radius R of the seed-0 formula, metres")
+    ltp_radius_m: float = Field(
+        6_371_000.0, gt=0, description="ltp: the Earth radius R of the local tangent plane's formula, metres"
+    )
     strips: StripParams = Field(default_factory=StripParams)
     batch_size: int = Field(BATCH_SIZE, ge=10_000, description="pulses georeferenced per batch (memory ~ 200 B each)")
     uncertainty: UncertaintyParams | None = Field(

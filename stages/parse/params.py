@@ -15,7 +15,10 @@ from lidar.crs import check_crs_setting
 from lidar.glossary import LEAP_SECONDS
 from pipeline.config import InputFile, StrictModel, input_files
 
-FORMAT_HELP = "input format: las | ldmrs_mtig | lmsq_nmea | lmsq_sbet (SPEC 3.A-3.D)"
+FORMAT_HELP = (
+    "input format: las (georeferenced LAS/LAZ) | ldmrs_mtig (SICK LD-MRS + Xsens MTi-G log) | lmsq_nmea "
+    "(RIEGL .lmsq + NMEA + INS CSV) | lmsq_sbet (RIEGL .lmsq + Applanix SBET)"
+)
 #: The file names a folder or a glob pattern in ``input.paths`` picks (``.copc.laz`` ends with ``.laz``).
 LAS_SUFFIXES = (".las", ".laz")
 
@@ -61,7 +64,8 @@ class LdmrsInput(StrictModel):
     format: Literal["ldmrs_mtig"] = Field(description=FORMAT_HELP)
     paths: Annotated[list[InputFile], Field(min_length=1, description="acquisition logs (.log or .log.gz), in order")]
     mounting: Literal["laboratorio", "pilatus", "cb5000"] | LeverArm = Field(
-        description="seed-0 Table 15 preset, or {lever_arm_m: [x, y, z]} (required: it is never guessed)"
+        description="a mounting of the LD-MRS system (docs/stages/parse.md: laboratorio, pilatus, cb5000), or "
+        "{lever_arm_m: [x, y, z]} (required: it is never guessed)"
     )
     leap_seconds: float = Field(
         LEAP_SECONDS, description="GPS - UTC, seconds (18 since 2017-01-01) to turn UTC into GPS time"

@@ -156,36 +156,46 @@ MODES = {
 }
 
 
-def test_every_run_mode_equals_untiled_with_lakes_astride_the_tile_edges(tmp_path):
-    """Lakes cut by the tile edges x, y = 100, 200 m.  The one centred at (150, 118), 20 m wide, reaches 2 m into
-    the tile below y = 100: its shore there is water because the lake's level cells beyond the edge make a body of
-    70 m2 or more.  A tile or window that sees 5 m across the edge sees under 70 m2 of them and leaves the shore
-    ground."""
-    lakes = [(100.0, 150.0, 30.0), (200.0, 200.0, 12.0), (150.0, 118.0, 20.0), (260.0, 60.0, 40.0)]
-    xyz, lake = _lakes(300.0, lakes)
-    las = write_las(tmp_path / "lakes.las", xyz)
-    config = _config(tmp_path, las)
-    untiled = run_until(config, "rasterize", tmp_path / "untiled", "tiling.enabled=false", *MODES["points"])
+@pytest.fixture(scope="module")
+def lakes(tmp_path_factory):
+    """Lakes cut by the tile edges x, y = 100, 200 m, and their classes untiled.  The one centred at (150, 118),
+    20 m wide, reaches 2 m into the tile below y = 100: its shore there is water because the lake's level cells
+    beyond the edge make a body of 70 m2 or more.  A tile or window that sees 5 m across the edge sees under
+    70 m2 of them and leaves the shore ground."""
+    tmp = tmp_path_factory.mktemp("lakes")
+    xyz, lake = _lakes(300.0, [(100.0, 150.0, 30.0), (200.0, 200.0, 12.0), (150.0, 118.0, 20.0), (260.0, 60.0, 40.0)])
+    config = _config(tmp, write_las(tmp / "lakes.las", xyz))
+    untiled = run_until(config, "rasterize", tmp / "untiled", "tiling.enabled=false", *MODES["points"])
     a = _classes(untiled["classify_water"])
     assert (a[lake] == 9).mean() > 0.99 and (a[~lake] == 9).mean() < 0.001
-    executors = {}
-    for mode, sets in MODES.items():
-        tiled = run_until(config, "rasterize", tmp_path / mode, "tiling.size=100", *sets)
-        executors[mode] = tiled["classify_water"]["metrics"]["tiling"]
-        np.testing.assert_array_equal(_classes(tiled["classify_water"]), a, err_msg=mode)
-        np.testing.assert_array_equal(
-            read_raster(tmp_path / mode / "dtm.tif")[0], read_raster(tmp_path / "untiled" / "dtm.tif")[0]
-        )
-    assert executors["points"]["tiles"] == 9 and "extent" in executors["points"]
-    assert executors["windows"]["tiles"] == 9 and executors["windows"]["executor"].startswith("one grid in windows")
-    assert executors["grid"]["tiles"] == 1 and executors["grid"]["executor"] == "one grid, this process"
     shore = lake & (xyz[:, 1] < 100)
     assert np.all(a[shore] == 9)
-    for mode in ("points", "windows"):  # a buffer short of the stage's reach shows
-        narrow = run_until(
-            config, "classify_water", tmp_path / f"narrow-{mode}", "tiling.size=100", "tiling.buffer=5", *MODES[mode]
-        )
+    return tmp, config, a, shore
+
+
+def _mode_equals_untiled(lakes, mode: str) -> dict:
+    """The mode's run in 100 m tiles: its classes and DTM those of the untiled run; a buffer of 5 m shows."""
+    tmp, config, a, shore = lakes
+    tiled = run_until(config, "rasterize", tmp / mode, "tiling.size=100", *MODES[mode])
+    np.testing.assert_array_equal(_classes(tiled["classify_water"]), a, err_msg=mode)
+    np.testing.assert_array_equal(read_raster(tmp / mode / "dtm.tif")[0], read_raster(tmp / "untiled" / "dtm.tif")[0])
+    if mode != "grid":  # a buffer short of the stage's reach shows where the work is cut
+        sets = ("tiling.size=100", "tiling.buffer=5", *MODES[mode])
+        narrow = run_until(config, "classify_water", tmp / f"narrow-{mode}", *sets)
         assert np.any(_classes(narrow["classify_water"])[shore] != 9), mode
+    return tiled["classify_water"]["metrics"]["tiling"]
+
+
+def test_the_grid_whole_and_in_windows_equals_untiled(lakes):
+    assert _mode_equals_untiled(lakes, "grid")["executor"] == "one grid, this process"
+    windows = _mode_equals_untiled(lakes, "windows")
+    assert windows["tiles"] == 9 and windows["executor"].startswith("one grid in windows")
+
+
+@pytest.mark.slow  # three more runs of the lakes (about 8 s)
+def test_tiles_of_points_equal_untiled(lakes):
+    tiling = _mode_equals_untiled(lakes, "points")
+    assert tiling["tiles"] == 9 and "extent" in tiling
 
 
 def _polygon_layer(path: Path, rings: list[np.ndarray], epsg: int) -> Path:

@@ -41,7 +41,10 @@ WALL_FOOT = 0.5
 
 #: A wall whose roof was not seen is a face at least this long (m) of cells that are each such a wall.
 FACE = 3.0
-#: ... looked for on cells of at most this (m): on a sparse survey's wider cells a 2 m span is any slope or tree.
+#: Walls are told from slopes on cells of at most this (m): on a sparse survey's wider cells a 2 m span is any
+#: slope or tree.  So only there are lone walls looked for, and only there do roofs and decks take points the
+#: ground filter called ground (a roof wider than its window): on wider cells a plateau, a terrace or an
+#: embankment has the same "walls", and the ground filter's judgement stands.
 FACE_CELL = 1.0
 
 #: How far (m) around a roof's planar cells its walls and eaves may lie: its planar cells stop a cell
@@ -345,8 +348,8 @@ def point_classes(
     height = z - np.ravel(cells.ground)[k]
     # a roof's own cells take ground points too (a roof the filter took for ground); the cells at its edge
     # (eaves, walls) take the single returns above a wall's foot, ground too (a tree beside a wall returns
-    # several times)
-    candidate = np.isin(cls, CANDIDATES)
+    # several times); on cells too wide to see a wall, the ground stays (FACE_CELL)
+    candidate = np.isin(cls, CANDIDATES if cells.grid.resolution <= FACE_CELL else (glossary.UNCLASSIFIED,))
     single = np.asarray(number_of_returns) <= 1
     may = np.where(roofs, candidate, edges & candidate & ~(height < WALL_FOOT) & single)
     building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides

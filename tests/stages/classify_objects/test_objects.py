@@ -51,6 +51,21 @@ def test_a_roof_taken_for_ground_leaves_class_2():
     assert np.all(new[~roof] == 2)  # the ground around keeps its class
 
 
+def test_on_cells_too_wide_to_see_walls_the_ground_stays_ground():
+    """The roof of test_a_roof_taken_for_ground_leaves_class_2, half its points left by the ground filter (1), on
+    the grid of a sparse survey (4 m cells, FACE_CELL = 1 m): those become 6, the ground stays 2 (a plateau or an
+    embankment has the same walls there); on 1 m cells both become 6."""
+    xyz, cls, nret = _cloud(lambda x, y: 100.0 + 6.0 * _block(x, y))
+    roof = _block(xyz[:, 0], xyz[:, 1])
+    left = roof & (np.arange(len(cls)) % 2 == 0)
+    cls[left] = 1
+    for cell, ground_kept in ((4.0, True), (1.0, False)):
+        new, _ = object_classes(xyz, cls, nret, np.ones(len(cls), bool), PARAMS, cell, False)
+        assert np.mean(new[left] == 6) > 0.9, cell
+        assert (np.mean(new[roof & ~left] == 2) > 0.9) == ground_kept, cell
+        assert np.mean(new[~roof & (cls == 2)] == 2) > 0.95
+
+
 def test_a_gabled_roof_left_by_the_filter_is_a_building():
     def z(x, y):
         ridge = 6.0 + 3.0 - 0.5 * np.abs(y - 40)  # 27-degree pitches from a 9 m ridge to 4.5 m eaves

@@ -42,10 +42,16 @@ WALL_FOOT = 0.5
 #: A wall whose roof was not seen is a face at least this long (m) of cells that are each such a wall.
 FACE = 3.0
 #: Walls are told from slopes on cells of at most this (m): on a sparse survey's wider cells a 2 m span is any
-#: slope or tree.  So only there are lone walls looked for, and only there do roofs and decks take points the
-#: ground filter called ground (a roof wider than its window): on wider cells a plateau, a terrace or an
-#: embankment has the same "walls", and the ground filter's judgement stands.
+#: slope or tree.  So only there are lone walls looked for, and only there do decks take points the ground
+#: filter called ground: on wider cells a plateau, a terrace or an embankment over an underpass has the same
+#: "walls", and the ground filter's judgement stands (:data:`TERRAIN_SHARE` for roofs).
 FACE_CELL = 1.0
+
+#: On cells wider than :data:`FACE_CELL`, a planar region more than this share of whose points the ground
+#: filter called ground is terrain it judged (a plateau, a terrace), not a roof: a building's roof stands
+#: above the filter's surface, so at most a minority of its points (a roof wider than the filter's window)
+#: are called ground.  On narrower cells its walls tell it, whatever the filter said.
+TERRAIN_SHARE = 0.5
 
 #: How far (m) around a roof's planar cells its walls and eaves may lie: its planar cells stop a cell
 #: short of its edge, and on cells of a metre or less its wall's points lie in the edge cell or the one beyond.
@@ -201,6 +207,8 @@ def building_cells(s: Surface, params) -> np.ndarray:
             extent[i] = max(box[0].stop - box[0].start, box[1].stop - box[1].start) * cell
     ok = (area >= params.min_area) & (extent <= params.max_size)
     ok &= singles >= params.single_returns * np.maximum(points, 1)
+    if cell > FACE_CELL:
+        ok &= np.bincount(labels.ravel(), weights=s.ground_count.ravel(), minlength=n) <= TERRAIN_SHARE * points
     ok[0] = False
     if ok.any():
         candidates = grown(np.where(ok[labels], labels, 0), s.top, s.bottom, step)
@@ -348,15 +356,17 @@ def point_classes(
     height = z - np.ravel(cells.ground)[k]
     # a roof's own cells take ground points too (a roof the filter took for ground); the cells at its edge
     # (eaves, walls) take the single returns above a wall's foot, ground too (a tree beside a wall returns
-    # several times); on cells too wide to see a wall, the ground stays (FACE_CELL)
-    candidate = np.isin(cls, CANDIDATES if cells.grid.resolution <= FACE_CELL else (glossary.UNCLASSIFIED,))
+    # several times)
+    candidate = np.isin(cls, CANDIDATES)
     single = np.asarray(number_of_returns) <= 1
     may = np.where(roofs, candidate, edges & candidate & ~(height < WALL_FOOT) & single)
     building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides
     new = cls.copy()
     new[building] = BUILDING
     if cells.decks.any():  # the deck's points, not what lies under it: near its top
-        on_deck = np.ravel(cells.decks)[k] & candidate
+        # on cells too wide to see a wall, the deck's ground stays (FACE_CELL)
+        wide = cells.grid.resolution > FACE_CELL
+        on_deck = np.ravel(cells.decks)[k] & (cls == glossary.UNCLASSIFIED if wide else candidate)
         on_deck &= z >= np.ravel(cells.deck_top)[k] - 0.5 * params.bridges.clearance
         new[on_deck] = BRIDGE
         building &= ~on_deck

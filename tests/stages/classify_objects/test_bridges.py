@@ -75,3 +75,21 @@ def test_a_roof_is_not_a_bridge():
     roof = (np.abs(xyz[:, 0] - C) < 11) & (np.abs(xyz[:, 1] - C) < 4)
     assert not np.any(new == 17)
     assert np.all(new[roof] == 6)
+
+
+def test_on_cells_too_wide_to_see_walls_a_decks_ground_stays():
+    """The deck of the first test, half its points left by the filter (1), on 2 m cells (wider than FACE_CELL):
+    those become 17 and the ground stays 2 (an embankment over an underpass has the same drops there); on 1 m
+    cells both become 17."""
+
+    def z(x, y):
+        return np.where(_channel(y) & ~_deck(x, y), 92.0, 100 + 0.02 * x)
+
+    xyz, c, nret = _cloud(z, lambda x, y: np.where(_channel(y) & ~_deck(x, y), 9, 2))
+    deck = _deck(xyz[:, 0], xyz[:, 1])
+    left = deck & (np.random.default_rng(11).uniform(size=len(c)) < 0.5)  # not _cloud's seed
+    c[left] = 1
+    for cell, ground_kept in ((2.0, True), (1.0, False)):
+        new = object_classes(xyz, c, nret, np.ones(len(c), bool), PARAMS, cell, True)[0]
+        assert np.mean(new[left] == 17) > 0.9, cell
+        assert np.all(new[deck & ~left] == 2) if ground_kept else np.mean(new[deck & ~left] == 17) > 0.9, cell

@@ -12,10 +12,12 @@ import pyproj
 from pipeline.cli import main
 
 
-def labelled_block(path: Path, building: int = 1) -> Path:
-    """A plane with a 16 m x 12 m flat-roofed block 6 m high, labelled: class 2 ground, *building* the block."""
+def labelled_block(path: Path, building: int = 1, n: int = 8000) -> Path:
+    """A plane with a 16 m x 12 m flat-roofed block 6 m high, labelled: class 2 ground, *building* the block.
+
+    *n* points over 60 m x 60 m: 8000 is 2.2 points/m², a spacing of 0.67 m.
+    """
     rng = np.random.default_rng(5)
-    n = 8000
     x, y = rng.uniform(0, 60, n), rng.uniform(0, 60, n)
     z = 100 + 0.05 * x + rng.normal(0, 0.03, n)
     box = (np.abs(x - 30) < 8) & (np.abs(y - 30) < 6)
@@ -51,7 +53,7 @@ def test_evaluate_prints_metrics_and_writes_the_cloud(tmp_path, capsys):
 
 
 def test_evaluate_json_and_params(tmp_path, capsys):
-    ref = labelled_block(tmp_path / "ref.laz")
+    ref = labelled_block(tmp_path / "ref.laz", n=16000)  # cells that see walls (classify_objects' FACE_CELL)
     args = ["evaluate", "ground", str(ref), "--algorithm", "pmf", "--param", "max_window_size=5", "--json"]
     assert main(args) == 0
     rows = json.loads(capsys.readouterr().out)

@@ -59,8 +59,10 @@ def test_the_tile_buffer_is_the_filters_reach(registered):
 
 
 def test_evaluate_ground_runs_it(registered, tmp_path, capsys):
-    """On a plane with a flat-roofed block: the lowest points of 2 m cells are the plane's, the roof's are not."""
-    ref = labelled_block(tmp_path / "ref.laz")
+    """On a plane with a flat-roofed block: the lowest points of 2 m cells take the roof as ground, and
+    the objects stage takes it back: the block is dense enough (0.47 m spacing) for cells that see its walls
+    (classify_objects' FACE_CELL; on wider cells the filter's ground would stand)."""
+    ref = labelled_block(tmp_path / "ref.laz", n=16000)
     config = tmp_path / "run.yaml"  # 30 m tiles on two worker processes, however light the work
     config.write_text(
         "input: {format: las, paths: [ref.laz]}\noutput: out\n"

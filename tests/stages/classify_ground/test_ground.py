@@ -78,7 +78,9 @@ def test_inpaint_is_harmonic():
     truth = 2.0 + 0.3 * xx - 0.1 * yy
     holes = truth.copy()
     holes[5:20, 8:30] = np.nan
-    np.testing.assert_allclose(inpaint(holes), truth, atol=1e-9)
+    np.testing.assert_allclose(
+        inpaint(holes), truth, atol=1e-6
+    )  # 1 µm: the iterative solve stops at a relative residual (INPAINT_TOL)
 
 
 def test_metrics_known_values():

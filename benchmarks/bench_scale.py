@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_scale.py --points 10e6 [--points 40e6] [--workdir /tmp/bench_scale]
     .venv/bin/python benchmarks/bench_scale.py --points 10e6 --pairs 5 [--job idw]   # paired job / floor
     .venv/bin/python benchmarks/bench_scale.py --points 10e6 --pairs 5 --job defaults --against 9bc4798
+    .venv/bin/python benchmarks/bench_scale.py --survey sparse --job defaults [--pairs 3 --against 9bc4798]
 
 The jobs (strip adjustment and the map products off):
 
@@ -12,7 +13,10 @@ The jobs (strip adjustment and the map products off):
 - ``defaults``: denoise + SMRF + TIN: the default job without map products.
 
 The survey is the synthetic scene of :mod:`tests.synthetic` at 8 pulses/m2
-(trees give second returns), written as LAZ.  Each job runs once in its own
+(trees give second returns), written as LAZ; ``--survey sparse`` is instead
+the scene of 2 km² at 0.25 pulses/m² with 500 trees (515 k points), a
+survey whose cost should follow its points, not its area (a grid of
+mostly empty cells).  Each job runs once in its own
 process on an empty cache; its stages' seconds come from its ``run.json``,
 its peak memory is sampled over the whole process tree (the run and its
 workers); its DTM's RMSE against the scene's true terrain
@@ -82,6 +86,14 @@ stages:
 #: Points of one scene made in memory; a larger survey is made of such blocks side by side (:func:`_make`).
 BLOCK_POINTS = 12.5e6
 DENSITY = 8.0
+#: The sparse survey (``--survey sparse``): 2 km² at 0.25 pulses/m², the scene's arguments.
+SPARSE = "sparse"
+SPARSE_SCENE = {"width": 1414, "height": 1414, "density": 0.25, "n_trees": 500}
+
+
+def _tag(points: float | str) -> str:
+    """The survey's name: its size (``10M``), or ``sparse``."""
+    return SPARSE if points == SPARSE else f"{points / 1e6:g}M"
 
 
 def _scene_size(points: float) -> tuple[float, float]:
@@ -90,9 +102,10 @@ def _scene_size(points: float) -> tuple[float, float]:
     return width, float(int(area / width))
 
 
-def _make(laz: Path, points: float) -> None:
+def _make(laz: Path, points: float | str) -> None:
     """The survey: one scene, or above 2 x :data:`BLOCK_POINTS` scenes of other seeds side by side in one LAZ.
 
+    *points* ``"sparse"``: the sparse survey of the module's docstring.
     The blocks' terrain starts again at each block's corner (steps at the
     seams, as between flights of different days; nothing the timing needs
     to avoid); ``blocks.json`` beside the survey tells :func:`_rmse`.
@@ -100,6 +113,11 @@ def _make(laz: Path, points: float) -> None:
     # lazy: the --one floor child imports only laspy (the I/O floor counts its imports)
     from tests.synthetic import make_scene, write_scene_las
 
+    if points == SPARSE:
+        scene = make_scene(**SPARSE_SCENE)
+        write_scene_las(scene, laz)
+        emit(points=len(scene.x))
+        return
     if points <= 2 * BLOCK_POINTS:
         width, height = _scene_size(points)
         scene = make_scene(width=width, height=height, density=DENSITY, n_trees=int(width * height / 4000))
@@ -240,8 +258,8 @@ def _load() -> str:
     return f"{os.getloadavg()[0]:.1f}"
 
 
-def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
-    tag = f"{points / 1e6:g}M"
+def bench(points: float | str, workdir: Path, jobs: list[str]) -> list[str]:
+    tag = _tag(points)
     work = workdir / tag
     laz = work / "survey.laz"
     if laz.exists():  # the survey of an earlier run (it depends on nothing but the point count)
@@ -280,7 +298,7 @@ def bench(points: float, workdir: Path, jobs: list[str]) -> list[str]:
     return rows
 
 
-def pairs(points: float, workdir: Path, jobs: list[str], n: int) -> list[str]:
+def pairs(points: float | str, workdir: Path, jobs: list[str], n: int) -> list[str]:
     """Each job and the floor in turn, *n* times (job, floor, job, floor ...): the median of the pair ratios.
 
     One run of a job moves by about 5 % from run to run; pairing keeps the
@@ -291,11 +309,11 @@ def pairs(points: float, workdir: Path, jobs: list[str], n: int) -> list[str]:
     sampled against 3.31 × not, minutes apart).  Needs the survey of an earlier
     run of this script at the same size.
     """
-    tag = f"{points / 1e6:g}M"
+    tag = _tag(points)
     work = workdir / tag
     laz = work / "survey.laz"
     if not laz.exists():
-        raise SystemExit(f"{laz}: no survey; run this script once with --points {points:g} first")
+        raise SystemExit(f"{laz}: no survey; run this script once for {tag} first")
     pipeline = str(Path(sys.executable).with_name("pipeline"))
     rows = []
     for job in jobs:
@@ -337,18 +355,18 @@ def _waited(cmd: list[str], cwd: Path, env: dict[str, str]) -> tuple[float, floa
     return time.perf_counter() - t0, usage.ru_maxrss / 1024
 
 
-def against(points: float, workdir: Path, jobs: list[str], n: int, commit: str) -> list[str]:
+def against(points: float | str, workdir: Path, jobs: list[str], n: int, commit: str) -> list[str]:
     """Each job run from this tree and from *commit*, in turn (this, that, this, that ...), *n* pairs after one
     warm-up pair: the medians of the pair ratios of wall time and of the largest process's peak memory.
 
     Both sides on an empty cache, the same survey and configuration, as
     whole processes.  Needs the survey of an earlier run at the same size.
     """
-    tag = f"{points / 1e6:g}M"
+    tag = _tag(points)
     work = workdir / tag
     laz = work / "survey.laz"
     if not laz.exists():
-        raise SystemExit(f"{laz}: no survey; run this script once with --points {points:g} first")
+        raise SystemExit(f"{laz}: no survey; run this script once for {tag} first")
     tree, env = _tree(commit, workdir)
     rows = []
     for job in jobs:
@@ -363,16 +381,19 @@ def against(points: float, workdir: Path, jobs: list[str], n: int, commit: str) 
                 shutil.rmtree(out, ignore_errors=True)
                 cmd = [sys.executable, "-m", "pipeline", "run", str(config), "-q"]
                 cmd += ["--set", f"output={out}", "--set", f"cache={out}-cache"]
-                measured = _waited(cmd, cwd, run_env)
+                wall, peak = _waited(cmd, cwd, run_env)
+                ran = {s["name"]: s.get("seconds") for s in json.loads((out / "run.json").read_text())["stages"]}
                 shutil.rmtree(f"{out}-cache", ignore_errors=True)
                 if k:  # the first pair warms the caches of the machine
-                    figures[name].append(measured)
+                    figures[name].append((wall, peak, ran["classify_ground"]))
         this, that = (np.array(figures[name]) for name in sides)
-        wall, memory = this[:, 0] / that[:, 0], this[:, 1] / that[:, 1]
+        wall, memory, ground = (this[:, i] / that[:, i] for i in range(3))
         rows.append(
             f"| {tag} | {job}, {n} pairs | {np.median(this[:, 0]):.1f} | {np.median(that[:, 0]):.1f} "
             f"| **{np.median(wall):.3f}** ({wall.min():.3f}–{wall.max():.3f}) "
-            f"| {np.median(this[:, 1]):.0f} | {np.median(that[:, 1]):.0f} | **{np.median(memory):.3f}** |"
+            f"| {np.median(this[:, 1]):.0f} | {np.median(that[:, 1]):.0f} | **{np.median(memory):.3f}** "
+            f"| {np.median(this[:, 2]):.1f} | {np.median(that[:, 2]):.1f} "
+            f"| **{np.median(ground):.3f}** ({ground.min():.3f}–{ground.max():.3f}) |"
         )
         print(rows[-1], flush=True)
     return rows
@@ -382,12 +403,15 @@ def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--one":
         what, *rest = sys.argv[2:]
         if what == "make":
-            _make(Path(rest[0]), float(rest[1]))
+            _make(Path(rest[0]), rest[1] if rest[1] == SPARSE else float(rest[1]))
         else:
             _floor(Path(rest[0]), Path(rest[1]))
         return
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--points", type=float, action="append", help="survey size (repeatable); default 10e6")
+    parser.add_argument(
+        "--survey", choices=["dense", SPARSE], default="dense", help="sparse: the 2 km² survey at 0.25 pulses/m²"
+    )
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/bench_scale"))
     parser.add_argument("--job", choices=list(JOBS), action="append", help="job to run (repeatable); default all")
     parser.add_argument(
@@ -395,20 +419,22 @@ def main() -> None:
     )
     parser.add_argument("--against", metavar="COMMIT", help="with --pairs: each job against the same at COMMIT")
     args = parser.parse_args()
+    surveys = [SPARSE] if args.survey == SPARSE else args.points or [10e6]
     print(machine())
     if args.pairs and args.against:
         print(
             f"| points | pair | this tree: wall s (median) | {args.against}: wall s | wall ratio: median (min–max) "
-            f"| this tree: largest process MB | {args.against}: MB | memory ratio |"
+            f"| this tree: largest process MB | {args.against}: MB | memory ratio "
+            f"| this tree: classify_ground s | {args.against}: s | classify_ground ratio: median (min–max) |"
         )
-        print("|---|---|---|---|---|---|---|---|")
-        for points in args.points or [10e6]:
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for points in surveys:
             against(points, args.workdir, args.job or ["defaults"], args.pairs, args.against)
         return
     if args.pairs:
         print("| points | pair | job s (median) | floor s (median) | job / floor: median (min–max) |")
         print("|---|---|---|---|---|")
-        for points in args.points or [10e6]:
+        for points in surveys:
             pairs(points, args.workdir, args.job or ["idw"], args.pairs)
         return
     stage_cells = " | ".join(f"{name} s" for name in STAGES)
@@ -416,7 +442,7 @@ def main() -> None:
         f"| points | job | {stage_cells} | whole job s | peak PSS MB (process tree) | / I/O floor | DTM RMSE m | load (1 min) |"
     )
     print("|" + "---|" * (len(STAGES) + 7))
-    for points in args.points or [10e6]:
+    for points in surveys:
         bench(points, args.workdir, args.job or list(JOBS))
 
 

@@ -11,7 +11,9 @@ south-west corner:
 - buildings: flat-roofed boxes and a gabled house, eaves 6-15 m above the
   highest ground under them, roofs level;
 - trees: crowns 3-7 m in radius, 8-18 m high; a pulse in a crown gives one
-  to three returns, the last of which reaches the ground 60 % of the time.
+  to three returns, the last of which reaches the ground 60 % of the time;
+- a coast (:func:`make_coast` only): the east third is sea, 20 m or more
+  below the cliff top, returning an echo to one pulse in five.
 """
 
 from __future__ import annotations
@@ -114,6 +116,50 @@ def make_scene(
     parts = [_open_returns(px, py, ground_z, roof, in_building, ~in_tree, strip)]
     parts += _tree_returns(rng, px, py, ground_z, crown_h, in_tree, strip)
     return _survey(rng, parts, noise)
+
+
+#: The coast of :func:`make_coast`: the sea's share of the survey (its east side), the cliff's least
+#: height above it (m), the share of pulses over the water that return an echo (water reflects most of
+#: the laser away from the scanner), and the waves' standard deviation (m).
+COAST = {"sea_share": 1 / 3, "cliff": 20.0, "echoes": 0.2, "waves": 0.05}
+
+
+def coast_line(width: float) -> float:
+    """The x (m) of :func:`make_coast`'s cliff: east of it is sea."""
+    return width * (1.0 - COAST["sea_share"])
+
+
+def sea_level(width: float, height: float) -> float:
+    """The sea's height (m) in :func:`make_coast`: ``COAST["cliff"]`` below the lowest ground on the cliff line."""
+    return float(terrain(np.full(400, coast_line(width)), np.linspace(0.0, height, 400)).min()) - COAST["cliff"]
+
+
+def make_coast(width: float = 512.0, height: float = 384.0, density: float = 1.5, seed: int = 20111, **kw) -> Scene:
+    """:func:`make_scene` with a coast: the east third of the survey is sea below a cliff (:data:`COAST`).
+
+    Over the sea, the scene's buildings and trees are gone; a pulse returns
+    one echo from the water, at :func:`sea_level` plus waves, with the
+    probability ``COAST["echoes"]``, and none otherwise.  Sea echoes are not
+    ground (``true_ground`` False).  The land is :func:`make_scene`'s.
+    """
+    scene = make_scene(width=width, height=height, density=density, seed=seed, **kw)
+    rng = np.random.default_rng(seed + 2)
+    sea = scene.x > coast_line(width)
+    last = scene.return_number == scene.number_of_returns  # one echo per pulse
+    keep = ~sea | (last & (rng.uniform(size=len(sea)) < COAST["echoes"]))
+    z = np.where(sea, sea_level(width, height) + rng.normal(0.0, COAST["waves"], len(sea)), scene.z)
+    one = np.ones(len(sea), dtype=np.uint8)
+    return Scene(
+        x=scene.x[keep],
+        y=scene.y[keep],
+        z=z[keep],
+        true_ground=(scene.true_ground & ~sea)[keep],
+        return_number=np.where(sea, one, scene.return_number)[keep],
+        number_of_returns=np.where(sea, one, scene.number_of_returns)[keep],
+        point_source_id=scene.point_source_id[keep],
+        gps_time=scene.gps_time[keep],
+        intensity=scene.intensity[keep],
+    )
 
 
 def _trees(

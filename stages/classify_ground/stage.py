@@ -27,7 +27,7 @@ from stages.classify_ground.kernel import GroundKernel
 from stages.classify_ground.params import ClassifyGroundParams
 
 
-class ClassifyGround(Stage, name="classify_ground", version="8", params=ClassifyGroundParams):
+class ClassifyGround(Stage, name="classify_ground", version="9", params=ClassifyGroundParams):
     """ground / non-ground classification."""
 
     inputs = ("points_denoised",)

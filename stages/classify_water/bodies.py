@@ -85,6 +85,8 @@ def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
 def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | None) -> tuple[int, int]:
     """Water points of *dst* in *refused* cells (and outside the *polygons*, metres) get their class in *src* back.
 
+    Points that were water in *src* (the input's own) are not given back.
+
     *src* and *dst* hold the same points in the same order; *dst* is
     rewritten (through a temporary file).  Returns the points given back
     and how many of them were ground.
@@ -93,7 +95,7 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
     counts = [0, 0]
 
     def change(cls, xy, was):
-        undo = (cls == glossary.WATER) & refused.holds(xy)
+        undo = (cls == glossary.WATER) & (was != glossary.WATER) & refused.holds(xy)  # the input's own water stays
         if polygons and undo.any():
             undo[undo] = ~inside_polygons(xy[undo], polygons)
         cls[undo] = was[undo]

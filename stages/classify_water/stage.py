@@ -34,7 +34,7 @@ from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
 
 
-class ClassifyWater(Stage, name="classify_water", version="4", params=ClassifyWaterParams):
+class ClassifyWater(Stage, name="classify_water", version="5", params=ClassifyWaterParams):
     """water (class 9) from the points and from polygons."""
 
     inputs = ("points_classified",)
@@ -64,7 +64,8 @@ class ClassifyWater(Stage, name="classify_water", version="4", params=ClassifyWa
         _survey_steps(ctx, src, counts)
         ctx.metrics.update(counts)
         ctx.log.info(
-            "%d of %d points are water (%d found in the points, %d from the polygons; %d were ground)",
+            "%d of %d points became water (%d found in the points, %d from the polygons; %d were ground); "
+            "the input's own water (class 9) stays and is not counted",
             counts["water"],
             counts["points"],
             counts["from_points"],

@@ -275,3 +275,25 @@ def test_a_level_car_park_is_given_its_ground_class_back(tmp_path):
         _config(tmp_path, las), "classify_water", tmp_path / "loose", "stages.classify_water.detect.min_bank=-100"
     )
     assert np.mean(_classes(loose["classify_water"])[park] == 9) > 0.95
+
+
+def test_the_inputs_own_water_is_kept_and_counted(tmp_path):
+    """The car park above, with a 10 m square of it labelled water (9) in the input: the square stays water
+    when the park is given back, and the counts are of the stage's own water (an input's own water counted
+    as given back made them negative)."""
+    rng = np.random.default_rng(4)
+    xyz, lake = _lakes(160.0, [(120.0, 80.0, 25.0)])
+    x, y = xyz[:, 0], xyz[:, 1]
+    d = np.maximum(np.abs(x - 40), np.abs(y - 80))
+    park = (d < 20) & ~lake
+    near = (d < 60) & (x < 90)
+    xyz[near, 2] = np.where(park[near], 103.0, 103.0 - 0.02 * (d[near] - 20)) + rng.normal(0, 0.02, near.sum())
+    own = d < 5
+    las = write_las(tmp_path / "park.las", xyz, cls=np.where(own, 9, 0).astype(np.uint8))
+    got = run_until(_config(tmp_path, las), "classify_water", tmp_path / "out")
+    cls = _classes(got["classify_water"])
+    assert np.all(cls[own] == 9) and np.mean(cls[park & ~own] == 2) > 0.99
+    m = got["classify_water"]["metrics"]
+    assert m["water"] == int((cls == 9).sum()) - own.sum() == lake.sum()  # the points the stage made water
+    assert m["given_back"] >= (park & ~own).sum() * 0.9
+    assert all(v >= 0 for v in m.values() if isinstance(v, int))

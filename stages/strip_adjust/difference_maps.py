@@ -40,8 +40,9 @@ def write_difference_maps(
     resolution: float,
     crs: pyproj.CRS,
     units: Units,
+    nodata: float = NODATA,
 ) -> None:
-    """Mean signed strip-to-strip distance per cell (nodata where no planar overlap), before and after.
+    """Mean signed strip-to-strip distance per cell (*nodata* where no planar overlap), before and after.
 
     *before* and *after* hold (patch centres, mean distances) per pair, in
     metres; *paths* maps the names of :data:`DIFFERENCE_MAPS` to files.  The
@@ -65,9 +66,10 @@ def write_difference_maps(
         values_crs = grid_values / units.vertical
         write_cog(
             paths[name],
-            np.where(np.isfinite(values_crs), values_crs, NODATA).astype(np.float32),
+            np.where(np.isfinite(values_crs), values_crs, nodata).astype(np.float32),
             transform=units.transform_from_metres(grid.transform),
             crs=crs,
+            nodata=nodata,
         )
         images.append(grid_values)
     paths["strip_difference_png"].write_bytes(_picture(images, grid.rows))

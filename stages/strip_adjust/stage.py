@@ -24,6 +24,7 @@ from pydantic import BaseModel
 from lidar.checkpoints import read_control
 from lidar.clouds import cloud_info
 from lidar.columns import read_columns
+from lidar.rasters import dem_nodata
 from pipeline.errors import ConfigError
 from pipeline.runner import UNPUBLISHED
 from pipeline.stage import Stage, StageContext, StageIO
@@ -33,7 +34,7 @@ from stages.strip_adjust.icp import lattice_step
 from stages.strip_adjust.params import StripAdjustParams
 
 
-class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustParams):
+class StripAdjust(Stage, name="strip_adjust", version="10", params=StripAdjustParams):
     """joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration."""
 
     inputs: ClassVar = ("points_georef",)
@@ -51,7 +52,8 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
         "strip_difference_png": "strip_difference.png",
     }
     passthrough: ClassVar = {"points_adjusted": "points_georef"}
-    config_keys = ("crs", "stages.georeference")  # model: mounting georeferences the pulses again
+    # model: mounting georeferences the pulses again; the difference maps take the elevation rasters' nodata
+    config_keys = ("crs", "stages.georeference", "stages.rasterize.nodata", "stages.report.specification")
 
     def spreads_changes(self, params: StripAdjustParams, previous: dict) -> str | None:
         """Strip adjustment fits whole strips: one changed file may move every point (unless no strip was adjusted)."""
@@ -106,7 +108,9 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
         with ctx.progress(info.count, "writing", unit="pt") as bar:
             rigid.apply_transforms(src, ctx.outputs["points_adjusted"], fit.transforms, info.units, bar.update)
         maps = {name: ctx.outputs[name] for name in DIFFERENCE_MAPS}
-        write_difference_maps(maps, info.extent, fit.before, fit.after, p.difference_resolution, info.crs, info.units)
+        write_difference_maps(
+            maps, info.extent, fit.before, fit.after, p.difference_resolution, info.crs, info.units, _nodata(ctx)
+        )
         summary = rigid.summary(fit, reference, control)
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
         outcome = rigid.outcome_metrics(summary, sample.strips, reference, fit.weak)
@@ -163,7 +167,9 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
         summary["largest_point_move_m"] = round(moved, 5)
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
         maps = {name: ctx.outputs[name] for name in DIFFERENCE_MAPS}
-        write_difference_maps(maps, info.extent, before, after, p.difference_resolution, info.crs, info.units)
+        write_difference_maps(
+            maps, info.extent, before, after, p.difference_resolution, info.crs, info.units, _nodata(ctx)
+        )
         outcome = calibration.outcome_metrics(summary, cal, strips, moved, sample, step)
         ctx.metrics.update(outcome)
         calibration.log_outcome(ctx.log, summary, outcome)
@@ -173,3 +179,9 @@ class StripAdjust(Stage, name="strip_adjust", version="9", params=StripAdjustPar
         """No overlap measured: the difference maps would be empty, so they are not published."""
         if not pairs:
             ctx.metrics[UNPUBLISHED] = list(DIFFERENCE_MAPS)
+
+
+def _nodata(ctx: StageContext) -> float:
+    """The difference maps' nodata: the elevation rasters' (``stages.rasterize.nodata``, else the specification's)."""
+    nodata = ctx.setting("stages.rasterize.nodata")
+    return float(nodata) if nodata is not None else dem_nodata(ctx.setting("stages.report.specification"))

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 
 from lidar.rasters import read_raster
 from pipeline.cli import main
@@ -95,6 +96,9 @@ def test_difference_map_shows_the_improvement(injected):
     before, *_ = read_raster(root / "out" / "strip_difference_before.tif")
     after, *_ = read_raster(root / "out" / "strip_difference_after.tif")
     assert np.nanpercentile(np.abs(before), 50) > 0.1 and np.nanpercentile(np.abs(after), 95) < 0.03
+    for name in ("strip_difference_before.tif", "strip_difference_after.tif"):  # the elevation rasters' nodata
+        with rasterio.open(root / "out" / name) as src:
+            assert src.nodata == -999999.0  # the default specification is a USGS LBS quality level
 
 
 def test_single_strip_passes_through(tmp_path):

@@ -10,7 +10,7 @@ from scipy import ndimage
 
 from lidar import glossary
 from lidar.shading import hillshade
-from stages.report.acceptance import block_sum
+from stages.report.acceptance import block_sum, pulse_density
 from stages.report.cloud import CloudSummary
 from stages.report.inputs import ReportInputs
 from stages.report.maps import RELIEF, STRIP_COLOURS, MapFrame, category_map, raster_map
@@ -128,12 +128,13 @@ def pulse_density_figure(cv: Canvas, first_returns: np.ndarray, density: np.ndar
         if limit
         else ""
     )
-    mean_pts = float(np.nansum(density)) / max(float(np.isfinite(density).sum()), 1.0) / cv.cell_m**2
+    _, covered_m2 = pulse_density(first_returns, cv.cell_m)  # the area the aggregate density is over
+    mean_pts = float(np.nansum(density)) / covered_m2 if covered_m2 else 0.0
     return figure(
         svg,
         "pulse density",
         f"First returns (noise and withheld excluded) per m², in squares of {k * cv.cell_m:.1f} m"
-        f"{limit_txt}. All points: {mean_pts:.2f} per m² on average over the DTM grid.",
+        f"{limit_txt}. All points: {mean_pts:.2f} per m² over the same covered area.",
     )
 
 
@@ -271,8 +272,8 @@ def voids_figure(cv: Canvas, void_mask: np.ndarray, side_m: float, count: int) -
         f"Voids: DTM nodata cells enclosed by the DTM (orange), and squares of "
         f"{side_m:.1f} m (4 × the measured pulse spacing) without a first "
         f"return inside the covered area (red): {count} of them. Water and other surfaces that "
-        "return no pulse count too: the specification exempts them only where breaklines "
-        "(not made here) delineate them.",
+        "return no pulse count too: the specification exempts water delineated by breaklines "
+        "(breaklines.gpkg), which this count does not yet leave out.",
     )
 
 

@@ -56,7 +56,9 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     cv = Canvas.of(data.dtm, data.frame, data.cloud.units, max_size)
     sections = [
         acceptance_section(verdict, measured),
-        summary_section(metrics, verdict, cv, data.cloud.strips, len(data.input_files), measured["anpd"]),
+        summary_section(
+            metrics, verdict, cv, data.cloud.strips, len(data.input_files), measured["anpd"], data.cloud.class_counts
+        ),
         inputs_section(data.input_files, data.input_info, data.cloud.header),
         maps_section(map_figures(cv, data, measured, voids, anpd_limit)),
         classes_section(data.cloud),
@@ -68,14 +70,15 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
 
 
 def page(name: str, lengths: str, sections: list[str]) -> str:
-    """The whole page: title, the line of version, date and units (*lengths*), the sections one a line."""
+    """The whole page: title, the line of version, date and units (*lengths*: :meth:`Units.describe`), the
+    sections one a line."""
     made = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     head = (
         "<!DOCTYPE html>\n"
         f'<html lang="en"><head><meta charset="utf-8"><title>QC report — {html.escape(name)}</title>\n'
         f"{STYLE}</head><body>\n"
         f"<h1>QC report: {html.escape(name)}</h1>\n"
-        f'<p class="sub">dtm-pipeline {__version__} · made {made} · lengths in {html.escape(lengths)} unless a '
-        "heading says m</p>\n"
+        f'<p class="sub">dtm-pipeline {__version__} · made {made} · {html.escape(lengths)}'
+        f"{'' if '(' not in lengths else '; accuracy figures and headings marked m in metres'}</p>\n"
     )
     return head + "".join(s + "\n" for s in sections) + "</body></html>\n"

@@ -69,9 +69,19 @@ def _acceptance_row(c: dict) -> str:
 
 
 def summary_section(
-    metrics: dict, verdict: dict, cv: Canvas, strips: np.ndarray, input_files: int, anpd: float | None
+    metrics: dict,
+    verdict: dict,
+    cv: Canvas,
+    strips: np.ndarray,
+    input_files: int,
+    anpd: float | None,
+    class_counts: np.ndarray,
 ) -> str:
-    """The survey in one table: its verdict, points, CRS, strips, noise, ground, DTM grid and pulse density."""
+    """The survey in one table: its verdict, points, CRS, strips, noise, ground, DTM grid and pulse density.
+
+    The ground is the delivered cloud's class 2 (*class_counts*: its points per class), as the class table
+    counts it; the ground filter's own count is larger where later stages took roofs, decks and water out.
+    """
     parse = metrics.get("parse", {})
     geo = metrics.get("georeference")
     noise = metrics.get("denoise", {})
@@ -88,8 +98,8 @@ def summary_section(
             "low noise (7) / high noise (18)",
             f"{noise.get('low_noise', 0):,} / {noise.get('high_noise', 0):,}" if noise else None,
         ),
-        ("ground points", ground.get("ground")),
-        ("ground fraction", ground.get("ground_fraction")),
+        ("ground points (class 2, delivered)", f"{int(class_counts[2]):,} ({_share(class_counts[2], class_counts)})"),
+        ("ground points by the ground filter", ground.get("ground")),
         ("ground algorithm", (ground.get("algorithm") or {}).get("name")),
         *_dtm_rows(raster, cv),
         ("aggregate pulse density (first returns)", f"{anpd:.2f} per m²" if anpd else None),
@@ -447,3 +457,9 @@ def _truth_by_cover(by_cover: dict, land_cover_file: object) -> str:
         for code, v in sorted(by_cover.items(), key=lambda kv: int(kv[0]))
     ]
     return f"<p>By what covers the ground ({html.escape(str(land_cover_file))}, nearest cell):</p>" + grid(header, rows)
+
+
+def _share(n: int, counts: np.ndarray) -> str:
+    """*n* as a share of all points in *counts*, per cent."""
+    total = int(counts.sum())
+    return f"{100.0 * n / total:.2f} %" if total else "—"

@@ -46,14 +46,14 @@ def _enabled(config, name: str) -> bool:
     return params is not None and bool(getattr(params, "enabled", True))
 
 
-class Report(Stage, name="report", version="15", params=ReportParams):
+class Report(Stage, name="report", version="16", params=ReportParams):
     """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
 
     inputs = ("dtm", "density", "points_objects")
     outputs: ClassVar = {"report": "report.html", "acceptance": "acceptance.json"}
     products: ClassVar = {"report": "report.html", "acceptance": "qc/acceptance.json"}
     reads_metrics = True
-    config_keys = ("name", "input", "stages.accuracy")
+    config_keys = ("name", "input", "stages.accuracy", "stages.export_las")  # export_las: the delivered file's name
 
     def declare(self, params, config) -> StageIO:
         inputs = list(self.inputs)
@@ -99,6 +99,8 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
         shape=dtm.shape,
         dtm=dtm,
     )
+    if cloud.header:  # the cloud read is the classified intermediate; the row names the delivered product
+        cloud.header["file"] = delivered_name(ctx.setting("stages.export_las"))
     hu = unit_symbol(cloud.units.horizontal_name)
     inp = ctx.setting("input")
     data = ReportInputs(
@@ -141,3 +143,12 @@ def input_files(inp) -> list[tuple[str, str]]:
     files = [("scanner / point file", str(p)) for p in inp.paths]
     files += [(k, str(getattr(inp, k))) for k in ("nmea", "ins", "sbet", "smrmsg") if getattr(inp, k, None)]
     return files
+
+
+def delivered_name(export) -> str:
+    """The delivered point cloud's name by ``stages.export_las`` (its settings; None when absent)."""
+    if export is None or not export.enabled:
+        return "not delivered (stages.export_las is off)"
+    if export.files == "per_input":
+        return "points/ (one file per input)"
+    return "points.laz" if export.compress else "points.las"

@@ -21,16 +21,18 @@ import pytest
 from affine import Affine
 
 from lidar.checkpoints import sample_dtm
+from lidar.units import Units
 from pipeline.cli import main
 from stages.accuracy.vertical import vertical_accuracy
 from stages.georeference.strips import write_flight_lines
 from stages.report.acceptance import SPECIFICATIONS, evaluate
 from stages.report.cloud import summarise_cloud
-from stages.report.figures import map_figures
+from stages.report.figures import Canvas, map_figures, pulse_density_figure
 from stages.report.inputs import ReportInputs, read_flight_lines
 from stages.report.maps import MapFrame
 from stages.report.measures import measure
 from stages.report.page import build_report
+from stages.report.sections import summary_section
 
 SIZE = 60.0  # survey side, CRS units
 
@@ -350,3 +352,27 @@ def test_lbs_vva_limit_is_30_cm_and_every_limit_names_where_it_was_checked():
     for _, limits in SPECIFICATIONS.values():
         for lim in limits:
             assert "http" in lim.source.checked or "doi:" in lim.source.checked, lim
+
+
+def test_the_summary_counts_the_delivered_ground_as_the_class_table_does():
+    """The ground filter kept 900 points; later stages took 150 of them (roofs, water): the summary's ground
+    is the delivered cloud's 750 (of 1,000 points), beside the filter's own count."""
+    dtm = np.full((4, 4), 100.0)
+    cv = Canvas.of(dtm, MapFrame(0.0, 4.0, 1.0, "m"), Units.of(pyproj.CRS.from_epsg(25830)), 256)
+    counts = np.zeros(256, dtype=np.int64)
+    counts[[1, 2, 6]] = [100, 750, 150]
+    verdict = {"title": "none", "status": "not judged"}
+    metrics = {"classify_ground": {"ground": 900, "ground_fraction": 0.9}}
+    html_ = summary_section(metrics, verdict, cv, np.array([1]), 1, None, counts)
+    assert "<th>ground points (class 2, delivered)</th><td>750 (75.00 %)</td>" in html_
+    assert "<th>ground points by the ground filter</th><td>900</td>" in html_
+
+
+def test_all_points_per_m2_are_over_the_first_returns_covered_area():
+    """Half the DTM grid has points (2 first returns and 3 points a m²), the other half none: all points are
+    3 per m² over the covered area, as the first returns are 2 (over the whole grid: 1.5, fewer than pulses)."""
+    dtm = np.full((20, 20), 100.0)
+    cv = Canvas.of(dtm, MapFrame(0.0, 20.0, 1.0, "m"), Units.of(pyproj.CRS.from_epsg(25830)), 256)
+    first, density = np.zeros((20, 20)), np.full((20, 20), np.nan)
+    first[:10], density[:10] = 2.0, 3.0
+    assert "All points: 3.00 per m² over the same covered area." in pulse_density_figure(cv, first, density, 2.0)

@@ -86,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
     from lidar.las_summary import summary  # lazy: NumPy and laspy, not for pipeline --help (start-up time)
 
     for path in args.files:
+        if path.is_dir():
+            raise ConfigError(f"{path}: a folder; give its LAS/LAZ files (pipeline info {path}/*.laz).")
         if not path.is_file():
             raise ConfigError(f"{path}: file not found.")
     found, failed = [], 0

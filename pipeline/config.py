@@ -303,6 +303,12 @@ def _read_config_text(path: Path) -> str:
             f"{path}: not a configuration file (more than {MAX_CONFIG_BYTES // 1024} KiB); "
             "a configuration is a short YAML text."
         )
+    if raw[:4] == b"LASF":
+        raise ConfigError(
+            f"{path}: a LAS/LAZ point cloud, not a configuration; to run the LAS job on it (without the "
+            f"sample's check points, into ./out): pipeline run configs/las.yaml --set 'input.paths=[{Path(path).resolve()}]' "
+            f"--set output={Path.cwd() / 'out'} --set stages.accuracy.enabled=false."
+        )
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -545,15 +551,11 @@ def _describe_one(
     key = ".".join(str(p) for p in loc + ((missing,) if missing else ()))
     # The most specific place: the override that set it, else the line of
     # the key, else the line of the nearest parent key.
-    where = None
-    for n in range(len(loc), -1, -1):
-        prefix = loc[:n]
-        if prefix in overrides:
-            where = overrides[prefix]
-            break
-        if prefix in lines:
-            where = f"{source}, line {lines[prefix]}"
-            break
+    # An override of the key or of a parent wins over the file's lines (it replaced what they said).
+    where = next((overrides[loc[:n]] for n in range(len(loc), -1, -1) if loc[:n] in overrides), None)
+    overridden = where is not None
+    if where is None:
+        where = next((f"{source}, line {lines[loc[:n]]}" for n in range(len(loc), -1, -1) if loc[:n] in lines), None)
     if where is None:
         where = f"{source}, line 1"
     etype = err["type"]
@@ -567,8 +569,12 @@ def _describe_one(
         msg = f"unknown key{hint}; allowed here: {', '.join(allowed)}"
     elif etype == "missing":
         msg = "required key is missing"
+    elif etype in ("model_type", "dict_type") and err.get("input") is None:
+        msg = "an empty block; give it keys (docs/CONFIG.md lists them) or remove the line"
     elif "input" in err and etype != "value_error" and not isinstance(err["input"], (dict, list)):
         msg = f"{msg} (got {err['input']!r})"
+    if overridden and msg.startswith("file not found"):
+        msg += f" (relative paths are read from the configuration's folder, {Path(source).parent.resolve()})"
     return f"{where}: {key or '<top level>'}: {msg}."
 
 

@@ -69,3 +69,10 @@ def test_info_warns_of_a_damaged_las_record_as_the_run_does(small, tmp_path, cap
     out, err = capsys.readouterr()
     assert "record.las: 1 points lie outside the header's bounds" in err
     assert "warning: 1 points lie outside" in out
+
+
+def test_info_on_a_folder_says_it_is_one(tmp_path, capsys):
+    assert main(["info", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{tmp_path}: a folder; give its LAS/LAZ files (pipeline info {tmp_path}/*.laz)." in err
+    assert "file not found" not in err

@@ -20,7 +20,15 @@ from typing import TYPE_CHECKING
 
 from pipeline import __version__, interrupt
 from pipeline.discovery import LazyPlugin, load_plugin
-from pipeline.errors import EXIT_ENVIRONMENT, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE, FULL, PipelineError
+from pipeline.errors import (
+    EXIT_CHECKS_FAILED,
+    EXIT_ENVIRONMENT,
+    EXIT_INTERNAL,
+    EXIT_OK,
+    EXIT_USAGE,
+    FULL,
+    PipelineError,
+)
 from pipeline.interrupt import Interrupted
 from pipeline.log import LOGGER_NAME, setup_logging
 
@@ -66,6 +74,11 @@ def build_parser(plugin: Plugin | LazyPlugin) -> argparse.ArgumentParser:
     p.add_argument("--until", metavar="STAGE", help="stop after this stage (runs only what it needs)")
     p.add_argument("--force", metavar="STAGE", action="append", default=[], help="re-run this stage (repeatable)")
     p.add_argument("--dry-run", action="store_true", help="print the plan and cache hits; run nothing")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 5 when the run finished but a check failed (the acceptance), for batch jobs",
+    )
     _add_log_args(p)
 
     p = sub.add_parser("validate", help="check a configuration, its input files and its stage graph")
@@ -155,7 +168,7 @@ def _cmd_validate(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
 def _cmd_run(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
     # lazy: pydantic and the stages load when the command runs, not by pipeline --help (start-up time)
     from pipeline.config import load_config
-    from pipeline.runner import run
+    from pipeline.runner import FAILED_CHECKS, run
     from pipeline.stage import config_model
 
     config = load_config(args.config, config_model(plugin), args.overrides)
@@ -169,6 +182,12 @@ def _cmd_run(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
             key = s.get("key", "")[:12]
             print(f"{s['name']:<{width}}  {s['status']:<14}  {key:<12}  {s.get('tiles', '')}".rstrip())
         return EXIT_OK
-    summary = ", ".join(f"{s['name']} {s['status']}" for s in manifest["stages"])
-    logging.getLogger(LOGGER_NAME).info("%s", summary)
+    log = logging.getLogger(LOGGER_NAME)
+    log.info("%s", ", ".join(f"{s['name']} {s['status']}" for s in manifest["stages"]))
+    failed = [(s["name"], c) for s in manifest["stages"] for c in (s.get("metrics") or {}).get(FAILED_CHECKS) or []]
+    for name, check in failed:
+        log.warning("[%s] check failed: %s", name, check)
+    if failed and args.strict:
+        log.warning("%d check(s) failed: exit %d (--strict)", len(failed), EXIT_CHECKS_FAILED)
+        return EXIT_CHECKS_FAILED
     return EXIT_OK

@@ -16,6 +16,8 @@ EXIT_INTERNAL = 1
 EXIT_USAGE = 2
 EXIT_INPUT = 3
 EXIT_ENVIRONMENT = 4
+#: The run finished and published its products, but a stage's checks failed (``pipeline run --strict``).
+EXIT_CHECKS_FAILED = 5
 
 #: errno values of a disk that is full (or a quota that is used up).
 FULL = frozenset({errno.ENOSPC, errno.EDQUOT})

@@ -67,6 +67,9 @@ PRODUCTS_LOCK = ".products.lock"
 #: (an empty map): they stay in the cache entry, are not copied to the output folder, and an older
 #: copy there is removed like any product no longer made (listed in ``run.json``'s ``removed_products``).
 UNPUBLISHED = "unpublished"
+#: Metrics key in which a stage lists the checks its outputs failed (an acceptance's failed rows), one
+#: sentence each: ``pipeline run`` logs them as warnings and, with ``--strict``, exits 5 (cached stages too).
+FAILED_CHECKS = "failed_checks"
 
 
 def _inside(folder: Path, name: str) -> Path:
@@ -592,7 +595,8 @@ def _record_failure(output: Path, manifest: dict[str, Any], log: logging.Logger)
     except OSError as exc:
         log.error("cannot write %s (%s); the previous one is kept", output / MANIFEST, exc.strerror or exc)
         return
-    log.info("run %s in %.2f s; manifest %s", manifest["status"], manifest["seconds"], output / MANIFEST)
+    level = logging.WARNING if manifest["status"] == "interrupted" else logging.ERROR
+    log.log(level, "run %s in %.2f s; manifest %s", manifest["status"], manifest["seconds"], output / MANIFEST)
 
 
 def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[str, Any], log: logging.Logger) -> None:

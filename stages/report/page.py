@@ -19,6 +19,7 @@ from stages.report.sections import (
     raw_section,
     strips_section,
     summary_section,
+    verdict_banner,
 )
 
 STYLE = """<style>
@@ -28,7 +29,9 @@ section{margin:1.5em 0} table{border-collapse:collapse;margin:.5em 0} th,td{padd
 th{font-weight:600;color:#444} .maps{display:flex;flex-wrap:wrap;gap:1.5em} figure{margin:0;max-width:620px}
 figure svg{max-width:100%;height:auto;border:1px solid #ccc} figcaption{color:#555;font-size:.9em}
 table.wide td{font-size:.85em} .pass{color:#17692d} .fail{color:#b00020} .incomplete,.not{color:#8a5a00}
-ul.warn li{color:#8a5a00} tr.pass td:nth-child(4){background:#e6f4ea} tr.fail td:nth-child(4){background:#fce8e6} tr.not td:nth-child(4){background:#fff4e0}
+ul.warn li{color:#8a5a00} .banner{border:2px solid;border-radius:4px;padding:.2em .8em;margin:.6em 0}
+.banner.fail{border-color:#b00020;background:#fce8e6} .banner.pass{border-color:#17692d;background:#e6f4ea}
+.banner.incomplete{border-color:#8a5a00;background:#fff4e0} tr.pass td:nth-child(4){background:#e6f4ea} tr.fail td:nth-child(4){background:#fce8e6} tr.not td:nth-child(4){background:#fff4e0}
 </style>"""
 
 
@@ -55,6 +58,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     anpd_limit = next((c["limit"] for c in verdict["checks"] if c["measure"] == "anpd"), None)
     cv = Canvas.of(data.dtm, data.frame, data.cloud.units, max_size)
     sections = [
+        verdict_banner(verdict),
         acceptance_section(verdict, measured),
         summary_section(
             metrics, verdict, cv, data.cloud.strips, len(data.input_files), measured["anpd"], data.cloud.class_counts

@@ -53,13 +53,43 @@ def _warnings(sentences: list[str]) -> str:
     return f'<p><b>Warnings</b> (they do not change the verdict):</p><ul class="warn">{items}</ul>'
 
 
-def _acceptance_row(c: dict) -> str:
-    """One check of :func:`~stages.report.acceptance.evaluate` as a table row, coloured by its status."""
-    src = c["source"]
+def _limit_and_measured(c: dict) -> tuple[str, str]:
+    """A check's limit and measured value as the page shows them (with their unit)."""
     number = (lambda v: f"{float(v):g}") if not c["unit"] else (lambda v: fmt(float(v)))  # a code: no separators
     limit = "reported only" if c["limit"] is None else f"{c['bound']} {number(c['limit'])} {c['unit']}".rstrip()
     value = c["measured"]
-    shown = "—" if value is None else f"{number(value)} {c['unit']}".rstrip()
+    return limit, "—" if value is None else f"{number(value)} {c['unit']}".rstrip()
+
+
+def failed_checks(verdict: dict) -> list[str]:
+    """One sentence per failed check of *verdict*: what is measured, the value, the limit."""
+    out = []
+    for c in verdict.get("checks", []):
+        if c["status"] == "FAIL":
+            limit, shown = _limit_and_measured(c)
+            out.append(f"{c['description']}: {shown}, limit {limit}")
+    return out
+
+
+def verdict_banner(verdict: dict) -> str:
+    """The verdict at the top of the page, in a box of its colour; a failure lists its failed checks."""
+    if not verdict["checks"]:
+        return ""
+    status, failed = verdict["status"], failed_checks(verdict)
+    count = f": {len(failed)} of {len(verdict['checks'])} checks failed" if failed else ""
+    items = "".join(f"<li>{html.escape(f)}</li>" for f in failed)
+    return (
+        f'<div class="banner {status.split()[0].lower()}"><p><b>{html.escape(status)}</b> against '
+        f"{html.escape(verdict['title'])}{count} (every check: Acceptance, below).</p>"
+        + (f"<ul>{items}</ul>" if items else "")
+        + "</div>"
+    )
+
+
+def _acceptance_row(c: dict) -> str:
+    """One check of :func:`~stages.report.acceptance.evaluate` as a table row, coloured by its status."""
+    src = c["source"]
+    limit, shown = _limit_and_measured(c)
     note = "<br><small>" + html.escape(c["note"]) + "</small>" if c["note"] else ""
     return (
         f'<tr class="{c["status"].split()[0].lower()}"><td>{html.escape(c["description"])}</td>'

@@ -22,6 +22,7 @@ from pydantic import Field
 
 from lidar.rasters import read_raster
 from lidar.water_bodies import read_water_bodies
+from pipeline.runner import FAILED_CHECKS
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
 from stages.report.acceptance import DEFAULT_SPECIFICATION, SPECIFICATIONS
 from stages.report.cloud import las_info, summarise_cloud
@@ -29,6 +30,7 @@ from stages.report.inputs import ReportInputs, checkpoint_rows, read_flight_line
 from stages.report.maps import MapFrame
 from stages.report.markup import unit_symbol
 from stages.report.page import build_report
+from stages.report.sections import failed_checks
 
 
 class ReportParams(StageParams):
@@ -84,7 +86,12 @@ class Report(Stage, name="report", version="16", params=ReportParams):
         ctx.outputs["report"].write_text(page, encoding="utf-8")
         ctx.outputs["acceptance"].write_text(json.dumps(verdict, indent=2, default=float) + "\n")
         ctx.metrics.update(bytes=len(page), images=page.count("<figure>"), acceptance=verdict["status"])
-        ctx.log.info("acceptance against %s: %s", verdict["title"], verdict["status"])
+        failed = failed_checks(verdict)
+        ctx.metrics[FAILED_CHECKS] = failed
+        if failed:
+            ctx.log.warning("acceptance against %s: FAIL, %d of its checks", verdict["title"], len(failed))
+        else:
+            ctx.log.info("acceptance against %s: %s", verdict["title"], verdict["status"])
 
 
 def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:

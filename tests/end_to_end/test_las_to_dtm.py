@@ -7,6 +7,7 @@ true terrain and the true ground label of every point are known.
 from __future__ import annotations
 
 import base64
+import html
 import json
 import re
 import sqlite3
@@ -244,6 +245,16 @@ def test_report_is_self_contained(run_dir):
     summary = re.search(r"<th>ground points \(class 2, delivered\)</th><td>([\d,]+) \(([\d.]+ %)\)</td>", page)
     table = re.search(r"<tr><td>2</td><td>ground</td><td>([\d,]+)</td><td>([\d.]+ %)</td></tr>", page)
     assert summary and table and summary.groups() == table.groups()
+    # the verdict at the top, each failed check listed (the sample's 1.5 pulses/m² fail QL2's 2)
+    verdict = json.loads((out / "out" / "qc" / "acceptance.json").read_text())
+    failed = [c["description"] for c in verdict["checks"] if c["status"] == "FAIL"]
+    assert verdict["status"] == "FAIL" and failed
+    banner = re.search(r'<div class="banner fail">(.*?)</div>', page, flags=re.S)
+    assert banner and page.index('<div class="banner') < page.index('<section id="acceptance">')
+    assert f"{len(failed)} of {len(verdict['checks'])} checks failed" in banner.group(1)
+    assert all(html.escape(d) in banner.group(1) for d in failed)
+    report = next(s for s in _manifest(out)["stages"] if s["name"] == "report")
+    assert len(report["metrics"]["failed_checks"]) == len(failed)
 
 
 def test_evaluate_dtm_against_truth_and_checkpoints(run_dir, capsys):

@@ -12,6 +12,7 @@ import errno
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -275,3 +276,22 @@ def test_products_and_run_json_are_published_under_one_lock(toy, monkeypatch):
     assert seen and set(seen) == {"publishing"}
     assert toy.manifest()["status"] == "ok"
     assert Cache(toy.root / "out" / ".cache").root.exists()
+
+
+def test_failed_checks_are_warnings_and_exit_5_only_with_strict(toy, capsys):
+    """The toy's histogram checks that no bin holds more than max_count values (4 values, 2 bins: a bin of 3
+    fails it).  The run publishes its products either way; each failed check is a WARNING line; exit 5 only
+    with --strict, also when the stage comes from the cache."""
+    assert toy.run("--set", "stages.histogram.max_count=2") == 0
+    err = capsys.readouterr().err
+    assert "WARNING [histogram] check failed: bin 0 holds 3 values, more than 2" in err
+    assert toy.manifest()["status"] == "ok" and toy.product("hist.json") == [3, 1]
+    assert toy.run("--set", "stages.histogram.max_count=2", "--strict") == 5
+    assert "1 check(s) failed: exit 5 (--strict)" in capsys.readouterr().err
+    assert toy.statuses()["histogram"] == "cached"
+    assert toy.run("--set", "stages.histogram.max_count=3", "--strict") == 0  # no bin holds more than 3
+
+
+def test_a_failed_run_is_an_error_line(toy, capsys):
+    assert toy.run("--set", "stages.scale.fail=true") == 1
+    assert re.search(r"ERROR +run failed in", capsys.readouterr().err)

@@ -16,6 +16,7 @@ from pydantic import Field
 
 from pipeline.config import InputFile, StrictModel
 from pipeline.errors import InputDataError
+from pipeline.runner import FAILED_CHECKS
 from pipeline.stage import Plugin, Stage, StageParams
 
 
@@ -85,6 +86,7 @@ class Total(Stage):
 
 class HistParams(StageParams):
     bins: int = Field(4, ge=1)
+    max_count: int | None = Field(None, ge=0)  # a check: a bin holding more values fails it
 
 
 class Histogram(Stage):
@@ -102,6 +104,12 @@ class Histogram(Stage):
         for v in values:
             counts[min(int((v - lo) / width), ctx.params.bins - 1)] += 1
         ctx.outputs["hist"].write_text(json.dumps(counts))
+        if ctx.params.max_count is not None:
+            ctx.metrics[FAILED_CHECKS] = [
+                f"bin {i} holds {n} values, more than {ctx.params.max_count}"
+                for i, n in enumerate(counts)
+                if n > ctx.params.max_count
+            ]
 
 
 class Summary(Stage):

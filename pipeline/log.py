@@ -100,3 +100,23 @@ class Progress:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class StageWarnings(logging.Handler):
+    """One stage's WARNING and ERROR log lines while it runs: ``with StageWarnings(name) as w: ...; w.lines``."""
+
+    def __init__(self, stage: str):
+        super().__init__(logging.WARNING)
+        self.stage = stage
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if getattr(record, "stage", None) == self.stage:
+            self.lines.append(record.getMessage())
+
+    def __enter__(self) -> StageWarnings:
+        logging.getLogger(LOGGER_NAME).addHandler(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        logging.getLogger(LOGGER_NAME).removeHandler(self)

@@ -57,7 +57,7 @@ from pipeline.errors import (
 )
 from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
-from pipeline.log import LOGGER_NAME, stage_logger
+from pipeline.log import LOGGER_NAME, StageWarnings, stage_logger
 from pipeline.replan import PlannedStage, tile_notes
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
 
@@ -70,6 +70,9 @@ UNPUBLISHED = "unpublished"
 #: Metrics key in which a stage lists the checks its outputs failed (an acceptance's failed rows), one
 #: sentence each: ``pipeline run`` logs them as warnings and, with ``--strict``, exits 5 (cached stages too).
 FAILED_CHECKS = "failed_checks"
+#: Metrics key in which the engine keeps a stage's WARNING and ERROR log lines of its run (cached with
+#: its metrics, so a report shows every warning of the run, the cached stages' too).
+LOG_WARNINGS = "log_warnings"
 
 
 def _inside(folder: Path, name: str) -> Path:
@@ -891,7 +894,10 @@ def _execute(
         )
         slog.info("running")
         t0 = time.perf_counter()
-        step.stage.run(ctx)
+        with StageWarnings(step.name) as warned:
+            step.stage.run(ctx)
+        if warned.lines:
+            ctx.metrics[LOG_WARNINGS] = warned.lines
         _check_unchanged(step.name, watched or {})
         seconds = round(time.perf_counter() - t0, 3)
         meta = {

@@ -17,6 +17,7 @@ from stages.report.sections import (
     inputs_section,
     maps_section,
     raw_section,
+    run_warnings_section,
     strips_section,
     summary_section,
     verdict_banner,
@@ -60,6 +61,7 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
     sections = [
         verdict_banner(verdict),
         acceptance_section(verdict, measured),
+        run_warnings_section(metrics),
         summary_section(
             metrics, verdict, cv, data.cloud.strips, len(data.input_files), measured["anpd"], data.cloud.class_counts
         ),

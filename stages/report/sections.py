@@ -12,6 +12,7 @@ import html
 import numpy as np
 
 from lidar import glossary
+from pipeline.runner import LOG_WARNINGS
 from stages.report.acceptance import MEASURES
 from stages.report.cloud import CloudSummary
 from stages.report.figures import Canvas
@@ -69,6 +70,20 @@ def failed_checks(verdict: dict) -> list[str]:
             limit, shown = _limit_and_measured(c)
             out.append(f"{c['description']}: {shown}, limit {limit}")
     return out
+
+
+def run_warnings_section(metrics: dict) -> str:
+    """Every WARNING and ERROR line the stages logged (*metrics*: stage name -> its metrics), stage by stage."""
+    lines = [(name, line) for name, m in metrics.items() for line in (m or {}).get(LOG_WARNINGS) or []]
+    if not lines:
+        return section("warnings", "Warnings of the run", "<p>None: no stage logged a warning.</p>")
+    items = "".join(f"<li><b>{html.escape(name)}</b>: {html.escape(line)}</li>" for name, line in lines)
+    return section(
+        "warnings",
+        "Warnings of the run",
+        f"<p>{len(lines)} warning(s) the stages logged, as in the log (cached stages' from their first run):</p>"
+        f'<ul class="warn">{items}</ul>',
+    )
 
 
 def verdict_banner(verdict: dict) -> str:

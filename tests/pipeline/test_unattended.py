@@ -295,3 +295,18 @@ def test_failed_checks_are_warnings_and_exit_5_only_with_strict(toy, capsys):
 def test_a_failed_run_is_an_error_line(toy, capsys):
     assert toy.run("--set", "stages.scale.fail=true") == 1
     assert re.search(r"ERROR +run failed in", capsys.readouterr().err)
+
+
+def test_a_stages_warnings_are_kept_with_its_metrics_cached_too(toy, capsys):
+    """The engine keeps each stage's WARNING lines in its metrics (run.json; a report shows them): a cached
+    stage's warnings are those of its run."""
+    assert toy.run("--set", "stages.histogram.bins=10") == 0
+    assert "WARNING [histogram] more bins (10) than values (4)" in capsys.readouterr().err
+
+    def warned() -> dict:
+        return {s["name"]: (s.get("metrics") or {}).get("log_warnings") for s in toy.manifest()["stages"]}
+
+    assert warned()["histogram"] == ["more bins (10) than values (4)"] and warned()["scale"] is None
+    assert toy.run("--set", "stages.histogram.bins=10") == 0
+    assert toy.statuses()["histogram"] == "cached"
+    assert warned()["histogram"] == ["more bins (10) than values (4)"]

@@ -98,6 +98,8 @@ class Histogram(Stage):
 
     def run(self, ctx):
         values = json.loads(ctx.inputs["scaled"].read_text())
+        if ctx.params.bins > len(values):
+            ctx.log.warning("more bins (%d) than values (%d)", ctx.params.bins, len(values))
         lo, hi = min(values), max(values)
         width = (hi - lo) / ctx.params.bins or 1.0
         counts = [0] * ctx.params.bins

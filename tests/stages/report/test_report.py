@@ -32,7 +32,7 @@ from stages.report.inputs import ReportInputs, read_flight_lines
 from stages.report.maps import MapFrame
 from stages.report.measures import measure
 from stages.report.page import build_report
-from stages.report.sections import summary_section
+from stages.report.sections import run_warnings_section, summary_section
 
 SIZE = 60.0  # survey side, CRS units
 
@@ -376,3 +376,16 @@ def test_all_points_per_m2_are_over_the_first_returns_covered_area():
     first, density = np.zeros((20, 20)), np.full((20, 20), np.nan)
     first[:10], density[:10] = 2.0, 3.0
     assert "All points: 3.00 per m² over the same covered area." in pulse_density_figure(cv, first, density, 2.0)
+
+
+def test_every_warning_of_the_run_is_on_the_page():
+    metrics = {
+        "parse": {"log_warnings": ["return number 0 on every point"]},
+        "classify_ground": {"ground": 5},
+        "classify_objects": {"log_warnings": ["sparse survey filtered on 17 m cells", "a <b> tag"]},
+    }
+    page = run_warnings_section(metrics)
+    assert "3 warning(s)" in page
+    assert "<li><b>parse</b>: return number 0 on every point</li>" in page
+    assert "<li><b>classify_objects</b>: a &lt;b&gt; tag</li>" in page  # escaped
+    assert "None: no stage logged a warning" in run_warnings_section({"parse": {}})

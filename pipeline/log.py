@@ -19,8 +19,8 @@ LOGGER_NAME = "pipeline"
 class TextFormatter(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
         stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
-        stage = getattr(record, "stage", None)
-        where = f" [{stage}]" if stage else ""
+        stage, step = getattr(record, "stage", None), getattr(record, "step", None)
+        where = f" [{stage}{f' {step}' if step else ''}]" if stage else ""
         return f"{stamp} {record.levelname:<7}{where} {record.getMessage()}"
 
 
@@ -31,7 +31,7 @@ class JsonFormatter(logging.Formatter):
             "level": record.levelname.lower(),
             "message": record.getMessage(),
         }
-        for key in ("stage", "event", "fields"):
+        for key in ("stage", "step", "event", "fields"):
             value = getattr(record, key, None)
             if value is not None:
                 if key == "fields":
@@ -54,8 +54,10 @@ def setup_logging(fmt: str = "text", verbosity: int = 0) -> logging.Logger:
     return logger
 
 
-def stage_logger(stage: str) -> logging.LoggerAdapter:
-    return logging.LoggerAdapter(logging.getLogger(LOGGER_NAME), {"stage": stage})
+def stage_logger(stage: str, step: str | None = None) -> logging.LoggerAdapter:
+    """The log of *stage*; *step*: where it is in the run (``"5/13"``), shown beside its name."""
+    extra = {"stage": stage} if step is None else {"stage": stage, "step": step}
+    return logging.LoggerAdapter(logging.getLogger(LOGGER_NAME), extra)
 
 
 class Progress:

@@ -598,8 +598,7 @@ def _record_failure(output: Path, manifest: dict[str, Any], log: logging.Logger)
     except OSError as exc:
         log.error("cannot write %s (%s); the previous one is kept", output / MANIFEST, exc.strerror or exc)
         return
-    level = logging.WARNING if manifest["status"] == "interrupted" else logging.ERROR
-    log.log(level, "run %s in %.2f s; manifest %s", manifest["status"], manifest["seconds"], output / MANIFEST)
+    log.info("run %s in %.2f s; manifest %s", manifest["status"], manifest["seconds"], output / MANIFEST)
 
 
 def publish(output: Path, products: dict[str, tuple[Path, str]], manifest: dict[str, Any], log: logging.Logger) -> None:
@@ -739,7 +738,7 @@ def _remove_path(path: Path) -> None:
 
 def _run_step(step: Step, state: _Run) -> dict[str, Any]:
     """Run one step, or take it from the cache; its record for the manifest."""
-    slog = stage_logger(step.name)
+    slog = stage_logger(step.name, f"{state.plan.steps.index(step) + 1}/{len(state.plan.steps)}")
     resolved = {name: state.plan.resolve(name) for name in step.io.inputs}
     record: dict[str, Any] = {"name": step.name, "version": step.stage.version}
     buffer = step.stage.tile_buffer(step.params)

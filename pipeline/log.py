@@ -19,8 +19,8 @@ LOGGER_NAME = "pipeline"
 class TextFormatter(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
         stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
-        stage, step = getattr(record, "stage", None), getattr(record, "step", None)
-        where = f" [{stage}{f' {step}' if step else ''}]" if stage else ""
+        stage = getattr(record, "stage", None)
+        where = f" [{stage}]" if stage else ""
         return f"{stamp} {record.levelname:<7}{where} {record.getMessage()}"
 
 
@@ -55,7 +55,7 @@ def setup_logging(fmt: str = "text", verbosity: int = 0) -> logging.Logger:
 
 
 def stage_logger(stage: str, step: str | None = None) -> logging.LoggerAdapter:
-    """The log of *stage*; *step*: where it is in the run (``"5/13"``), shown beside its name."""
+    """The log of *stage*; *step*: where it is in the run (``"5 of 13"``): a JSON line's ``step``."""
     extra = {"stage": stage} if step is None else {"stage": stage, "step": step}
     return logging.LoggerAdapter(logging.getLogger(LOGGER_NAME), extra)
 

@@ -738,7 +738,7 @@ def _remove_path(path: Path) -> None:
 
 def _run_step(step: Step, state: _Run) -> dict[str, Any]:
     """Run one step, or take it from the cache; its record for the manifest."""
-    slog = stage_logger(step.name, f"{state.plan.steps.index(step) + 1}/{len(state.plan.steps)}")
+    slog = stage_logger(step.name, f"{state.plan.steps.index(step) + 1} of {len(state.plan.steps)}")
     resolved = {name: state.plan.resolve(name) for name in step.io.inputs}
     record: dict[str, Any] = {"name": step.name, "version": step.stage.version}
     buffer = step.stage.tile_buffer(step.params)
@@ -769,7 +769,7 @@ def _run_step(step: Step, state: _Run) -> dict[str, Any]:
         entry = None if step.name in state.force else cache.lookup(step.name, key)
         if entry is not None:
             cache.sweep(step.name, key)
-            slog.info("cache hit (key %s)", key[:12])
+            slog.info("cache hit (key %s; stage %s)", key[:12], slog.extra["step"])
             record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
         else:
             inputs = {n: state.artifacts[r][0] for n, r in resolved.items()}
@@ -891,7 +891,7 @@ def _execute(
             config_keys=tuple(step.stage.config_keys),
             tile_cache=TileCache(cache.root, step.name, _stage_key(step, config, {}, {}, None), not replace, slog),
         )
-        slog.info("running")
+        slog.info("running (stage %s)", slog.extra.get("step", "?"))
         t0 = time.perf_counter()
         with StageWarnings(step.name) as warned:
             step.stage.run(ctx)

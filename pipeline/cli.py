@@ -27,6 +27,7 @@ from pipeline.errors import (
     EXIT_OK,
     EXIT_USAGE,
     FULL,
+    ConfigError,
     PipelineError,
 )
 from pipeline.interrupt import Interrupted
@@ -152,12 +153,21 @@ def _internal_error(exc: BaseException, verbose: bool) -> int:
     return EXIT_INTERNAL
 
 
+def _refuse_data_files(path: Path, plugin: Plugin | LazyPlugin) -> None:
+    """A data file of the plugin's domain given as the configuration: the plugin's sentence (exit 2)."""
+    explain = plugin.not_a_configuration
+    said = explain(path) if explain is not None else None
+    if said:
+        raise ConfigError(f"{path}: {said}")
+
+
 def _cmd_validate(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
     # lazy: pydantic and the stages load when the command runs, not by pipeline --help (start-up time)
     from pipeline.config import load_config
     from pipeline.runner import build_plan
     from pipeline.stage import config_model
 
+    _refuse_data_files(args.config, plugin)
     config = load_config(args.config, config_model(plugin), args.overrides)
     plan = build_plan(config, plugin)
     names = " -> ".join(s.name for s in plan.steps)
@@ -171,6 +181,7 @@ def _cmd_run(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
     from pipeline.runner import FAILED_CHECKS, run
     from pipeline.stage import config_model
 
+    _refuse_data_files(args.config, plugin)
     config = load_config(args.config, config_model(plugin), args.overrides)
     manifest = run(
         config, plugin, config_path=args.config.resolve(), until=args.until, force=args.force, dry_run=args.dry_run

@@ -303,12 +303,6 @@ def _read_config_text(path: Path) -> str:
             f"{path}: not a configuration file (more than {MAX_CONFIG_BYTES // 1024} KiB); "
             "a configuration is a short YAML text."
         )
-    if raw[:4] == b"LASF":
-        raise ConfigError(
-            f"{path}: a LAS/LAZ point cloud, not a configuration; to run the LAS job on it (without the "
-            f"sample's check points, into ./out): pipeline run configs/las.yaml --set 'input.paths=[{Path(path).resolve()}]' "
-            f"--set output={Path.cwd() / 'out'} --set stages.accuracy.enabled=false."
-        )
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -186,7 +186,10 @@ class Plugin:
     (a :class:`pipeline.replan.ChangedAreas`, or None when it cannot say) so
     that the dry run says how many tiles each tiled stage will run
     (*changed*: path -> "changed", "new" or "removed" against the last run's
-    ``run.json``, *previous*, in the folder *output*).
+    ``run.json``, *previous*, in the folder *output*); ``not_a_configuration``:
+    given the path ``run`` or ``validate`` was asked to read as a configuration,
+    one sentence saying what the file is and how to run it when it is one of
+    the domain's data files (None otherwise).
     """
 
     name: str
@@ -195,6 +198,7 @@ class Plugin:
     commands: list[Any] = field(default_factory=list)
     versions: Callable[[], dict[str, str]] = dict
     changed_areas: Callable[..., Any] | None = None
+    not_a_configuration: Callable[[Path], str | None] | None = None
 
     def stage(self, name: str) -> type[Stage]:
         for stage in self.stages:

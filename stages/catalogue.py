@@ -14,6 +14,7 @@ import rasterio
 from pydantic import AfterValidator, Field
 
 from lidar.crs import check_crs_setting
+from lidar.input_files import not_a_configuration
 from pipeline.stage import Plugin
 from stages.accuracy.stage import Accuracy
 from stages.classify_ground.stage import ClassifyGround
@@ -83,4 +84,5 @@ def stages_plugin(name: str, commands: list[Any]) -> Plugin:
         commands=commands,
         versions=versions,
         changed_areas=changed_areas,
+        not_a_configuration=not_a_configuration,
     )

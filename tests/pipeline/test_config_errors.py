@@ -216,16 +216,6 @@ def test_validate_lists_every_problem(toy, capsys):
     assert "more problem" not in err
 
 
-def test_a_las_file_given_as_the_configuration_says_how_to_run_it(toy, tmp_path, capsys):
-    las = tmp_path / "tile.laz"
-    las.write_bytes(b"LASF" + bytes(371))  # a LAS header's signature: binary, not YAML
-    assert main(["run", str(las)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert "tile.laz: a LAS/LAZ point cloud, not a configuration" in err
-    assert f"--set 'input.paths=[{las}]'" in err and "not UTF-8" not in err
-
-
 def test_an_empty_block_says_so(toy, capsys):
     toy.path.write_text(toy.path.read_text().replace("  histogram:\n    bins: 2\n", "  histogram:\n"))
     code, err = _validate(toy, capsys)

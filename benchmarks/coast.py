@@ -34,14 +34,21 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-import rasterio
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from real_classes import CONFIG, tree_of  # noqa: E402
 
-from tests.synthetic import SAMPLE_ORIGIN, coast_line, make_coast, sea_level, terrain, write_scene_las  # noqa: E402
+from tests.synthetic import (  # noqa: E402
+    SAMPLE_ORIGIN,
+    coast_line,
+    dtm_at_cell_centres,
+    make_coast,
+    sea_level,
+    terrain,
+    write_scene_las,
+)
 
 WIDTH, HEIGHT = 512.0, 384.0
 
@@ -73,13 +80,7 @@ def scores(out: Path) -> dict:
     cls = np.asarray(las.classification)
     sea = x > cliff
     classes, counts = np.unique(cls[sea], return_counts=True)
-    with rasterio.open(out / "dtm.tif") as src:
-        dtm = src.read(1).astype(np.float64)
-        t = src.transform
-        dtm[dtm == src.nodata] = np.nan
-    rows, cols = np.mgrid[0 : dtm.shape[0], 0 : dtm.shape[1]]
-    cx = t.c + (cols + 0.5) * t.a - SAMPLE_ORIGIN[0]
-    cy = t.f + (rows + 0.5) * t.e - SAMPLE_ORIGIN[1]
+    dtm, cx, cy = dtm_at_cell_centres(out / "dtm.tif")
     land = (cx < cliff - 2.0) & np.isfinite(dtm)
     e = dtm[land] - terrain(cx[land], cy[land])
     water = (cx > cliff + 2.0) & np.isfinite(dtm)

@@ -24,6 +24,7 @@ from datetime import date
 import laspy
 import numpy as np
 import pyproj
+import rasterio
 
 from lidar.grid import Grid
 from lidar.rasters import write_cog
@@ -334,3 +335,14 @@ def write_truth_raster(
     write_cog(
         path, terrain(gx - origin[0], gy - origin[1]), transform=grid.transform, crs=pyproj.CRS.from_user_input(crs)
     )
+
+
+def dtm_at_cell_centres(path, origin=SAMPLE_ORIGIN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A DTM GeoTIFF (north-up) read for comparison with the scene: its heights (NaN at nodata) and its cell
+    centres in the scene's local coordinates (m from *origin*)."""
+    with rasterio.open(path) as src:
+        dtm = src.read(1).astype(np.float64)
+        t = src.transform
+        dtm[dtm == src.nodata] = np.nan
+    rows, cols = np.mgrid[0 : dtm.shape[0], 0 : dtm.shape[1]]
+    return dtm, t.c + (cols + 0.5) * t.a - origin[0], t.f + (rows + 0.5) * t.e - origin[1]

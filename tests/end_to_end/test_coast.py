@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import rasterio
 
 from pipeline.cli import main
 from tests.synthetic import (
     COAST,
-    SAMPLE_ORIGIN,
     coast_line,
+    dtm_at_cell_centres,
     make_coast,
     make_scene,
     sea_level,
@@ -60,13 +59,7 @@ def test_the_land_above_a_cliff_keeps_its_dtm(tmp_path):
         "stages:\n  strip_adjust: {enabled: false}\n  report: {enabled: false}\n"
     )
     assert main(["run", str(config), "-q"]) == 0
-    with rasterio.open(out / "dtm.tif") as src:
-        dtm = src.read(1).astype(np.float64)
-        t = src.transform
-        dtm[dtm == src.nodata] = np.nan
-    rows, cols = np.mgrid[0 : dtm.shape[0], 0 : dtm.shape[1]]
-    cx = t.c + (cols + 0.5) * t.a - SAMPLE_ORIGIN[0]
-    cy = t.f + (rows + 0.5) * t.e - SAMPLE_ORIGIN[1]
+    dtm, cx, cy = dtm_at_cell_centres(out / "dtm.tif")
     line = coast_line(width)
     land = (cx < line - 2.0) & np.isfinite(dtm)
     e = dtm[land] - terrain(cx[land], cy[land])

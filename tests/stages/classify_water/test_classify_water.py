@@ -252,9 +252,9 @@ def test_polygons_in_another_crs_are_one_sentence_exit_3(tmp_path, capsys):
     assert json.loads((tmp_path / "out" / "run.json").read_text())["status"] == "failed"
 
 
-def test_a_level_car_park_is_given_its_ground_class_back(tmp_path):
-    """A level 40 m x 40 m paved square draining away at 2 % on every side: level enough to be found, but its
-    banks do not rise above it, so its points are ground again; the lake beside it stays water."""
+def _car_park() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A level 40 m x 40 m paved square draining away at 2 % on every side, beside a lake: the points, the
+    lake's and the square's, and each point's Chebyshev distance (m) from the square's centre."""
     rng = np.random.default_rng(4)
     xyz, lake = _lakes(160.0, [(120.0, 80.0, 25.0)])
     x, y = xyz[:, 0], xyz[:, 1]
@@ -262,6 +262,13 @@ def test_a_level_car_park_is_given_its_ground_class_back(tmp_path):
     park = (d < 20) & ~lake
     near = (d < 60) & (x < 90)
     xyz[near, 2] = np.where(park[near], 103.0, 103.0 - 0.02 * (d[near] - 20)) + rng.normal(0, 0.02, near.sum())
+    return xyz, lake, park, d
+
+
+def test_a_level_car_park_is_given_its_ground_class_back(tmp_path):
+    """A level 40 m x 40 m paved square draining away at 2 % on every side: level enough to be found, but its
+    banks do not rise above it, so its points are ground again; the lake beside it stays water."""
+    xyz, lake, park, _ = _car_park()
     las = write_las(tmp_path / "park.las", xyz)
     got = run_until(_config(tmp_path, las), "classify_water", tmp_path / "out")
     cls = _classes(got["classify_water"])
@@ -281,13 +288,7 @@ def test_the_inputs_own_water_is_kept_and_counted(tmp_path):
     """The car park above, with a 10 m square of it labelled water (9) in the input: the square stays water
     when the park is given back, and the counts are of the stage's own water (an input's own water counted
     as given back made them negative)."""
-    rng = np.random.default_rng(4)
-    xyz, lake = _lakes(160.0, [(120.0, 80.0, 25.0)])
-    x, y = xyz[:, 0], xyz[:, 1]
-    d = np.maximum(np.abs(x - 40), np.abs(y - 80))
-    park = (d < 20) & ~lake
-    near = (d < 60) & (x < 90)
-    xyz[near, 2] = np.where(park[near], 103.0, 103.0 - 0.02 * (d[near] - 20)) + rng.normal(0, 0.02, near.sum())
+    xyz, lake, park, d = _car_park()
     own = d < 5
     las = write_las(tmp_path / "park.las", xyz, cls=np.where(own, 9, 0).astype(np.uint8))
     got = run_until(_config(tmp_path, las), "classify_water", tmp_path / "out")

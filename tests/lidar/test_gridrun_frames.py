@@ -14,6 +14,7 @@ import pytest
 
 from lidar.grid import Grid, cell_of
 from lidar.gridrun.kernel import Axis, Frame
+from lidar.gridrun.service import _x_by_y
 from lidar.gridrun.windows import home_tiles, occupied_box, tile_cells
 from pipeline.tiling import Layout
 
@@ -94,3 +95,13 @@ def test_tiles_in_whole_cells_and_the_occupied_box():
     occupied = np.zeros((6, 8), bool)
     occupied[2, 3] = occupied[4, 6] = True
     assert occupied_box(occupied) == (slice(2, 5), slice(3, 7)) and occupied_box(occupied & False) is None
+
+
+def test_grids_are_said_x_by_y_whichever_axis_their_arrays_run_first():
+    """Ground's rows-first arrays and water's x-first ones of one 512 m x 384 m survey are both '512 x 384'
+    in the log."""
+    box = (0.0, 0.0, 511.5, 383.5)
+    rows_first = Frame.covering((Axis(1), Axis(0)), box, 1.0)
+    x_first = Frame.covering((Axis(0), Axis(1)), box, 1.0)
+    assert rows_first.shape == (384, 512) and x_first.shape == (512, 384)
+    assert _x_by_y(rows_first, list(rows_first.shape)) == _x_by_y(x_first, list(x_first.shape)) == (512, 384)

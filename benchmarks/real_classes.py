@@ -2,9 +2,9 @@
 
     python benchmarks/real_classes.py [--at COMMIT] [--only NAME ...] [--json OUT.json] [--workdir DIR]
 
-For each project (:data:`PROJECTS`: IGN, AHN and BC Timber Sales files in
-``../shared/data/real``, lidR's Topography, PDAL's sample_c and the five
-shared ISPRS samples):
+For each project (:data:`PROJECTS`: every labelled file of
+``../shared/data/real`` (IGN, AHN, BC Timber Sales, lidR's and PDAL's) and the
+five shared ISPRS samples):
 
 1. every point's class is set to 1 (the provider's labels erased) in a copy;
 2. the LAS job runs on the copies with every default but strip adjustment
@@ -86,6 +86,12 @@ PROJECTS: dict[str, Project] = {
     "lasR/bcts": Project(tuple(f"real/lasR/bcts_{i}.laz" for i in range(1, 5))),
     "lidR/Topography": Project(("real/lidR/Topography.laz",), kinds=("ground", "water")),
     "pdal/sample_c": Project(("real/pdal/sample_c.las",), crs="EPSG:2994", kinds=("ground", "vegetation", "building")),
+    # the other labelled files of ../shared/data/real: provider ground under forest, in feet, over 25 km²
+    "lidR/Megaplot": Project(("real/lidR/Megaplot.laz",)),
+    "lidR/MixedConifer": Project(("real/lidR/MixedConifer.laz",)),
+    "pdal/autzen_trim": Project(("real/pdal/autzen_trim.las",)),
+    "pdal/1.2-with-color": Project(("real/pdal/1.2-with-color.las",), crs="EPSG:2992"),
+    "pdal/mvk-thin": Project(("real/pdal/mvk-thin.las",), kinds=("ground", "vegetation", "water")),
     **{
         f"isprs/{s}": Project((f"isprs/{s}.laz",), ones_labelled=True)
         for s in ("samp11", "samp31", "samp51", "samp61", "samp71")

@@ -13,10 +13,12 @@ import resource
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 # The repository's root, for ``tests.synthetic`` (the scene the benchmarks make), whatever the working folder.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 
 def machine() -> str:
@@ -39,3 +41,17 @@ def run_child(script: str, *args: str, timeout: float | None = None) -> dict | N
     except subprocess.TimeoutExpired:
         return None
     return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def tree_at(commit: str | None, workdir: Path) -> tuple[Path, dict[str, str]]:
+    """The tree that runs a job (this one; or *commit* checked out in a worktree under *workdir*) and the
+    environment that runs its pipeline (its code first on the path, its plugin)."""
+    if commit is None:
+        tree = ROOT
+    else:
+        tree = workdir / f"tree-{commit}"
+        if not tree.exists():
+            subprocess.run(["git", "worktree", "add", "--detach", str(tree), commit], cwd=ROOT, check=True)
+    with open(tree / "pyproject.toml", "rb") as fh:
+        (spec,) = tomllib.load(fh)["project"]["entry-points"]["pipeline.plugins"].values()
+    return tree, dict(os.environ, PYTHONPATH=str(tree), PIPELINE_PLUGIN=spec)

@@ -43,7 +43,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from pathlib import Path
 
 import laspy
@@ -51,7 +50,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _isolated import emit, machine, run_child  # noqa: E402
+from _isolated import emit, machine, run_child, tree_at  # noqa: E402
 
 STAGES = [
     "parse",
@@ -333,16 +332,6 @@ def pairs(points: float | str, workdir: Path, jobs: list[str], n: int) -> list[s
     return rows
 
 
-def _tree(commit: str, workdir: Path) -> tuple[Path, dict[str, str]]:
-    """*commit* checked out in a worktree under *workdir*, and the environment that runs its pipeline."""
-    tree = workdir / f"tree-{commit}"
-    if not tree.exists():
-        subprocess.run(["git", "worktree", "add", "--detach", str(tree), commit], cwd=ROOT, check=True)
-    with open(tree / "pyproject.toml", "rb") as fh:
-        (spec,) = tomllib.load(fh)["project"]["entry-points"]["pipeline.plugins"].values()
-    return tree, dict(os.environ, PYTHONPATH=str(tree), PIPELINE_PLUGIN=spec)
-
-
 def _waited(cmd: list[str], cwd: Path, env: dict[str, str]) -> tuple[float, float]:
     """Wall seconds of a whole process, and the peak resident memory (MB) of the largest process it and its
     workers had (the kernel's accounting of the waited-for tree, ``wait4``'s ``ru_maxrss``)."""
@@ -367,7 +356,7 @@ def against(points: float | str, workdir: Path, jobs: list[str], n: int, commit:
     laz = work / "survey.laz"
     if not laz.exists():
         raise SystemExit(f"{laz}: no survey; run this script once for {tag} first")
-    tree, env = _tree(commit, workdir)
+    tree, env = tree_at(commit, workdir)
     rows = []
     for job in jobs:
         config = _job_config(work, laz, job)

@@ -38,7 +38,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from real_classes import CONFIG, tree_of  # noqa: E402
+from _isolated import tree_at  # noqa: E402
+from real_classes import CONFIG  # noqa: E402
 
 from tests.synthetic import (  # noqa: E402
     SAMPLE_ORIGIN,
@@ -104,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     work = args.workdir / f"{args.density:g}"
     work.mkdir(parents=True, exist_ok=True)
-    tree, env = tree_of(args.at, args.workdir)
+    tree, env = tree_at(args.at, args.workdir)
     s = scores(run(work, tree, env, args.density))
     print(f"at {args.at or 'this tree'}, {args.density:g} pulses/m²")
     print(

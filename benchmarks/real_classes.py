@@ -35,13 +35,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +50,9 @@ from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _isolated import tree_at  # noqa: E402
+
 SHARED = ROOT.parent / "shared" / "data"
 
 #: The provider classes scored, by kind; our classes that count as each kind.
@@ -109,19 +110,6 @@ stages:
   accuracy: {{enabled: false}}
   report: {{enabled: false}}
 """
-
-
-def tree_of(commit: str | None, workdir: Path) -> tuple[Path, dict[str, str]]:
-    """The tree that runs the job (this one, or a worktree of *commit*) and its environment."""
-    if commit is None:
-        tree = ROOT
-    else:
-        tree = workdir / f"tree-{commit}"
-        if not tree.exists():
-            subprocess.run(["git", "worktree", "add", "--detach", str(tree), commit], cwd=ROOT, check=True)
-    with open(tree / "pyproject.toml", "rb") as fh:
-        (spec,) = tomllib.load(fh)["project"]["entry-points"]["pipeline.plugins"].values()
-    return tree, dict(os.environ, PYTHONPATH=str(tree), PIPELINE_PLUGIN=spec)
 
 
 def erased(src: Path, dst: Path) -> None:
@@ -337,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workdir", type=Path, help="keep the runs here (default: a temporary folder)")
     args = ap.parse_args(argv)
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="real-classes-"))
-    tree, env = tree_of(args.at, workdir)
+    tree, env = tree_at(args.at, workdir)
     rows = []
     for name in args.only or list(PROJECTS):
         work = workdir / name.replace("/", "_")

@@ -28,12 +28,15 @@ NODATA = -9999.0
 LBS_NODATA = -999999.0
 
 
-def dem_nodata(specification: str | None) -> float:
-    """The nodata value of the elevation rasters for acceptance against *specification* (a report specification name).
+def dem_nodata(specification: str | None, configured: float | None = None) -> float:
+    """The nodata value of the elevation rasters: *configured* (``stages.rasterize.nodata``) when given, else
+    the one for acceptance against *specification* (a report specification name).
 
-    >>> dem_nodata("usgs-lbs-ql2"), dem_nodata("asprs-2023-10cm")
-    (-999999.0, -9999.0)
+    >>> dem_nodata("usgs-lbs-ql2"), dem_nodata("asprs-2023-10cm"), dem_nodata("usgs-lbs-ql2", -32767)
+    (-999999.0, -9999.0, -32767.0)
     """
+    if configured is not None:
+        return float(configured)
     return LBS_NODATA if (specification or "").startswith("usgs-lbs") else NODATA
 
 

@@ -141,7 +141,7 @@ def _note(ctx: StageContext, what: str, done: GridRun, tiles: tuple[int, int] | 
         ctx.log.info(
             "%s on one grid of %d x %d cells of %g m (x by y), in %d windows of %g m with a buffer of %g m",
             what,
-            *_x_by_y(done.grid, shape),
+            *_x_by_y(done.grid),
             cell,
             done.windows,
             size,
@@ -155,12 +155,12 @@ def _note(ctx: StageContext, what: str, done: GridRun, tiles: tuple[int, int] | 
         "executor": "one grid, this process",
         "grid": shape,
     }
-    ctx.log.info("%s on one grid of %d x %d cells of %g m (x by y)", what, *_x_by_y(done.grid, shape), cell)
+    ctx.log.info("%s on one grid of %d x %d cells of %g m (x by y)", what, *_x_by_y(done.grid), cell)
 
 
-def _x_by_y(grid, shape: list[int]) -> tuple[int, int]:
+def _x_by_y(grid: Frame | None) -> tuple[int, int]:
     """The cells along x and along y of a frame (its arrays may be rows first or x first), as the DTM's are said."""
     if grid is None:
         return 0, 0
-    along = {axis.coord: n for axis, n in zip(grid.axes, shape, strict=True)}
+    along = {axis.coord: n for axis, n in zip(grid.axes, grid.shape, strict=True)}
     return along[0], along[1]

@@ -186,7 +186,7 @@ class _Tiles:
         self.ctx, self.src, self.info, self.work = ctx, src, info, work
         self.names = [n for n in RASTERS if n in ctx.outputs]
         p = ctx.params
-        self.nodata = p.nodata if p.nodata is not None else dem_nodata(ctx.setting("stages.report.specification"))
+        self.nodata = dem_nodata(ctx.setting("stages.report.specification"), p.nodata)
         self.grid: Grid | None = None
         self.ground = 0
         self.transform = None

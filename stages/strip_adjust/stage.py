@@ -109,7 +109,14 @@ class StripAdjust(Stage, name="strip_adjust", version="10", params=StripAdjustPa
             rigid.apply_transforms(src, ctx.outputs["points_adjusted"], fit.transforms, info.units, bar.update)
         maps = {name: ctx.outputs[name] for name in DIFFERENCE_MAPS}
         write_difference_maps(
-            maps, info.extent, fit.before, fit.after, p.difference_resolution, info.crs, info.units, _nodata(ctx)
+            maps,
+            info.extent,
+            fit.before,
+            fit.after,
+            p.difference_resolution,
+            info.crs,
+            info.units,
+            _nodata(ctx),
         )
         summary = rigid.summary(fit, reference, control)
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
@@ -168,7 +175,14 @@ class StripAdjust(Stage, name="strip_adjust", version="10", params=StripAdjustPa
         ctx.outputs["strip_corrections"].write_text(json.dumps(summary, indent=2) + "\n")
         maps = {name: ctx.outputs[name] for name in DIFFERENCE_MAPS}
         write_difference_maps(
-            maps, info.extent, before, after, p.difference_resolution, info.crs, info.units, _nodata(ctx)
+            maps,
+            info.extent,
+            before,
+            after,
+            p.difference_resolution,
+            info.crs,
+            info.units,
+            _nodata(ctx),
         )
         outcome = calibration.outcome_metrics(summary, cal, strips, moved, sample, step)
         ctx.metrics.update(outcome)
@@ -182,6 +196,5 @@ class StripAdjust(Stage, name="strip_adjust", version="10", params=StripAdjustPa
 
 
 def _nodata(ctx: StageContext) -> float:
-    """The difference maps' nodata: the elevation rasters' (``stages.rasterize.nodata``, else the specification's)."""
-    nodata = ctx.setting("stages.rasterize.nodata")
-    return float(nodata) if nodata is not None else dem_nodata(ctx.setting("stages.report.specification"))
+    """The difference maps' nodata: the elevation rasters' (:func:`lidar.rasters.dem_nodata`)."""
+    return dem_nodata(ctx.setting("stages.report.specification"), ctx.setting("stages.rasterize.nodata"))

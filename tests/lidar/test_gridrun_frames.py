@@ -104,4 +104,4 @@ def test_grids_are_said_x_by_y_whichever_axis_their_arrays_run_first():
     rows_first = Frame.covering((Axis(1), Axis(0)), box, 1.0)
     x_first = Frame.covering((Axis(0), Axis(1)), box, 1.0)
     assert rows_first.shape == (384, 512) and x_first.shape == (512, 384)
-    assert _x_by_y(rows_first, list(rows_first.shape)) == _x_by_y(x_first, list(x_first.shape)) == (512, 384)
+    assert _x_by_y(rows_first) == _x_by_y(x_first) == (512, 384)

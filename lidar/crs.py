@@ -11,6 +11,8 @@ resolves the configured output CRS.  The rules and why:
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -315,3 +317,115 @@ def horizontal_crs_matches(layer_crs: str | None, points_crs: pyproj.CRS | None)
     if horizontal(layer).equals(horizontal(points_crs), ignore_axis_order=True):
         return None
     return f"its CRS is {layer.name}, the points' {horizontal(points_crs).name}; reproject the layer"
+
+
+#: Configuration keys :func:`heights_of_run` reads: a stage using it lists them in its ``config_keys``.
+HEIGHTS_KEYS = ("input.format", "stages.georeference.geoid", "stages.georeference.frame")
+
+#: The kinds of height a survey's products carry (:class:`Heights`).
+VERTICAL_CRS, ELLIPSOIDAL, GEOID_GRID, UNKNOWN = "vertical CRS", "ellipsoidal", "geoid grid", "unknown"
+
+
+@dataclass(frozen=True)
+class Heights:
+    """What the heights of a survey's products are measured from: its vertical datum, said in words.
+
+    ``kind`` is one of :data:`VERTICAL_CRS` (a named vertical CRS: the
+    output CRS is compound), :data:`ELLIPSOIDAL` (a raw flight georeferenced
+    without a geoid), :data:`GEOID_GRID` (with a geoid grid that names no
+    vertical CRS) and :data:`UNKNOWN` (LAS/LAZ whose CRS names no vertical
+    CRS: never assumed ellipsoidal).  ``datum`` is the phrase products carry
+    (the GeoTIFFs' ``VERTICAL_DATUM`` tag, ``run.json``, the report);
+    ``warning`` the sentence the log and the report give, or None.
+    """
+
+    kind: str
+    datum: str
+    warning: str | None = None
+
+
+def heights_of(crs: pyproj.CRS | None, *, georeferenced: bool, geoid: str | None = None) -> Heights:
+    """The vertical datum of heights in the output CRS *crs*.
+
+    Parameters
+    ----------
+    crs : pyproj.CRS or None
+        The products' CRS; a compound CRS names its vertical CRS.
+    georeferenced : bool
+        True for a raw flight georeferenced here (heights from the GNSS's
+        ellipsoid, or the geoid grid), False for LAS/LAZ input.
+    geoid : str, optional
+        The geoid grid ``stages.georeference.geoid`` applied, if any.
+
+    >>> heights_of(pyproj.CRS("EPSG:28992+5709"), georeferenced=False).datum
+    'NAP height (EPSG:5709)'
+    >>> heights_of(pyproj.CRS("EPSG:28992"), georeferenced=False).kind
+    'unknown'
+    >>> heights_of(pyproj.CRS("EPSG:32630"), georeferenced=True).datum
+    'ellipsoidal: heights above the WGS 84 ellipsoid, no geoid applied'
+    """
+    vertical = _vertical_part(crs)
+    if vertical is not None:
+        code = vertical.to_epsg()
+        return Heights(VERTICAL_CRS, f"{vertical.name}" + (f" (EPSG:{code})" if code else ""))
+    if georeferenced and geoid:
+        return Heights(
+            GEOID_GRID,
+            f"orthometric: ellipsoidal heights minus the geoid grid {Path(str(geoid)).name} (vertical CRS not named)",
+        )
+    if georeferenced:
+        ellipsoid = crs.ellipsoid.name if crs is not None and crs.ellipsoid is not None else "unknown"
+        above = "the GNSS's ellipsoid" if ellipsoid == "unknown" else f"the {ellipsoid} ellipsoid"
+        return Heights(
+            ELLIPSOIDAL,
+            f"ellipsoidal: heights above {above}, no geoid applied",
+            "the products' heights are ellipsoidal (no geoid applied), not heights above sea level; "
+            "set stages.georeference.geoid to a geoid grid (frame: exact) for orthometric heights.",
+        )
+    example = _compound_example(crs)
+    return Heights(
+        UNKNOWN,
+        "unknown: the input names no vertical CRS",
+        "the input's CRS names no vertical CRS, so the heights' vertical datum is unknown (kept as the files "
+        f"have it); state it with input.override_crs set to the compound CRS, for example {example}.",
+    )
+
+
+def heights_of_run(config, crs: pyproj.CRS | None) -> Heights:
+    """:func:`heights_of` for a run's configuration (the keys :data:`HEIGHTS_KEYS`) and its output CRS."""
+    fmt = getattr(getattr(config, "input", None), "format", "las")
+    geo = getattr(getattr(config, "stages", None), "georeference", None)
+    geoid = getattr(geo, "geoid", None) if getattr(geo, "frame", "exact") == "exact" else None  # ltp: none applied
+    return heights_of(crs, georeferenced=fmt != "las", geoid=str(geoid) if geoid else None)
+
+
+def _vertical_part(crs: pyproj.CRS | None) -> pyproj.CRS | None:
+    if crs is None:
+        return None
+    if crs.is_compound:  # before is_vertical, which a compound CRS with a vertical part also answers True
+        return next((c for c in crs.sub_crs_list if c.is_vertical), None)
+    return crs if crs.is_vertical else None
+
+
+def _compound_example(crs: pyproj.CRS | None) -> str:
+    """'EPSG:28992+<vertical EPSG code>' for *crs* with an EPSG code, else a known example."""
+    code = crs.to_epsg() if crs is not None else None
+    return (
+        f"EPSG:{code}+<the vertical CRS's EPSG code>"
+        if code
+        else "EPSG:25830+5782 (ETRS89 / UTM zone 30N + Alicante height)"
+    )
+
+
+def state_heights(ctx, heights: Heights, *, warn: bool = False) -> None:
+    """Say the products' vertical datum in a stage's metrics (``heights``, ``heights_kind``) and log (*ctx*: a
+    stage's context); with *warn*, its warning too, when it has one.
+
+    The stage that writes the first height product (the DTM) warns, once
+    it is written: a run that stops before has no heights to warn of, and
+    its error stays the one sentence on the screen.
+    """
+    ctx.metrics.update(heights=heights.datum, heights_kind=heights.kind)
+    ctx.log.info("vertical datum of the heights: %s", heights.datum)
+    if warn and heights.warning:
+        ctx.log.warning("%s", heights.warning)

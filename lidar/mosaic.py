@@ -15,7 +15,7 @@ import numpy as np
 import rasterio
 from rasterio.windows import Window
 
-from lidar.rasters import COG_BLOCKSIZE, HEIGHT, copy_to_cog, float_raster_profile, set_unit
+from lidar.rasters import COG_BLOCKSIZE, HEIGHT, copy_to_cog, describe_band, float_raster_profile
 
 if TYPE_CHECKING:
     import pyproj
@@ -60,7 +60,8 @@ class RasterMosaic:
     Windows go into a tiled, uncompressed GeoTIFF beside the destination;
     :meth:`finish` converts it with GDAL's COG driver (which streams) and
     removes it.  Windows nobody writes hold *fill*.  *unit* is the band's
-    unit type (:func:`lidar.rasters.write_cog`; None for counts).
+    unit type, *description* its description and *tags* the dataset's metadata
+    (:func:`lidar.rasters.write_cog`).
     """
 
     def __init__(
@@ -74,6 +75,8 @@ class RasterMosaic:
         nodata: float,
         fill: float,
         unit: str | None = HEIGHT,
+        description: str | None = None,
+        tags: dict[str, str] | None = None,
     ):
         self.path = Path(path)
         self.tmp = self.path.with_name(f".{self.path.name}.mosaic.tif")
@@ -88,7 +91,7 @@ class RasterMosaic:
             blockysize=COG_BLOCKSIZE,
             BIGTIFF="IF_SAFER",
         )
-        set_unit(self.ds, crs, unit)
+        describe_band(self.ds, crs, unit, description, tags)
         self.covered = 0
 
     def write(self, r0: int, c0: int, array: np.ndarray) -> None:

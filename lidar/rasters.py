@@ -66,13 +66,16 @@ def write_cog(
     nodata: float = NODATA,
     dtype: str = "float32",
     unit: str | None = HEIGHT,
+    description: str | None = None,
+    tags: dict[str, str] | None = None,
 ) -> None:
     """Write a single-band Cloud Optimized GeoTIFF (float32 unless *dtype* says ``uint8``).
 
     *array* (rows, cols) holds *nodata* (not NaN) in empty cells; *transform*
     is north-up; *crs* (pyproj or a string) is written as WKT.  *unit* is the
     band's unit type: :data:`HEIGHT` for the unit of the CRS's heights
-    (:func:`height_unit`), a name, or None for counts and shades.
+    (:func:`height_unit`), a name, or None.  *description* is the band's
+    description, *tags* the dataset's metadata (:func:`describe_band`).
     """
     data = np.asarray(array, dtype=dtype)
     rows, cols = data.shape
@@ -80,7 +83,7 @@ def write_cog(
     with MemoryFile() as mem:
         with mem.open(**profile) as ds:
             ds.write(data, 1)
-            set_unit(ds, crs, unit)
+            describe_band(ds, crs, unit, description, tags)
         with mem.open() as src:
             copy_to_cog(src, path)
 
@@ -90,11 +93,24 @@ def height_unit(crs) -> str:
     return raster_units(crs).vertical_name
 
 
-def set_unit(ds, crs, unit: str | None) -> None:
-    """Set band 1's unit type of the open, writable dataset *ds* (see :func:`write_cog`)."""
-    if unit is None:
-        return
-    ds.units = (height_unit(crs) if unit == HEIGHT else unit,)
+#: The metadata item of an elevation raster that names its heights' vertical datum (:class:`lidar.crs.Heights`).
+VERTICAL_DATUM = "VERTICAL_DATUM"
+
+
+def describe_band(
+    ds, crs, unit: str | None, description: str | None = None, tags: dict[str, str] | None = None
+) -> None:
+    """Set band 1's unit type and description, and the dataset's metadata *tags*, of the writable *ds*.
+
+    GDAL's COG driver copies all three; ``gdalinfo`` shows them and QGIS
+    labels the band with the description.  See :func:`write_cog`.
+    """
+    if unit is not None:
+        ds.units = (height_unit(crs) if unit == HEIGHT else unit,)
+    if description:
+        ds.set_band_description(1, description)
+    if tags:
+        ds.update_tags(**tags)
 
 
 def float_raster_profile(

@@ -120,7 +120,16 @@ def _write_tile(ds, corner: tuple[float, float], cells: int, prefix: Path, nodat
     block[r_lo - row0 : r_hi - row0, c_lo - col0 : c_hi - col0] = part
     fname = f"{prefix.name}_{corner_name(x0)}_{corner_name(y0)}.tif"
     transform = rasterio.Affine(cell, 0.0, x0, 0.0, -cell, y0 + side)
-    write_cog(prefix.parent / fname, block, transform=transform, crs=ds.crs.to_wkt(), nodata=nodata, unit=unit)
+    write_cog(
+        prefix.parent / fname,
+        block,
+        transform=transform,
+        crs=ds.crs.to_wkt(),
+        nodata=nodata,
+        unit=unit,
+        description=ds.descriptions[0],
+        tags={k: v for k, v in ds.tags().items() if k != "AREA_OR_POINT"},
+    )
     tile = {"file": fname, "lower_left": [x0, y0], "valid_cells": valid}
     return tile, (c_lo - col0, r_lo - row0, c_hi - c_lo, r_hi - r_lo), (c_lo, r_lo, c_hi - c_lo, r_hi - r_lo)
 
@@ -142,15 +151,24 @@ def _source(path: str, cells: int, src_rect: tuple[int, ...], dst_rect: tuple[in
 
 
 def _vrt(ds, nodata: float, unit: str | None, sources: list[str]) -> str:
-    """The VRT document: the untiled raster's size, GeoTransform, CRS, nodata and unit, and the tiles."""
+    """The VRT document: the untiled raster's size, GeoTransform, CRS, metadata, nodata, unit and description,
+    and the tiles."""
     t = ds.transform
     geotransform = ", ".join(repr(float(v)) for v in (t.c, t.a, t.b, t.f, t.d, t.e))
     unit_xml = f"    <UnitType>{escape(unit)}</UnitType>\n" if unit else ""
+    description = ds.descriptions[0]
+    described = f"    <Description>{escape(description)}</Description>\n" if description else ""
+    items = "".join(
+        f'    <MDI key="{escape(k)}">{escape(v)}</MDI>\n' for k, v in ds.tags().items() if k != "AREA_OR_POINT"
+    )
+    metadata = f"  <Metadata>\n{items}  </Metadata>\n" if items else ""
     return (
         f'<VRTDataset rasterXSize="{ds.width}" rasterYSize="{ds.height}">\n'
         f'  <SRS dataAxisToSRSAxisMapping="1,2">{escape(ds.crs.to_wkt())}</SRS>\n'
         f"  <GeoTransform>{geotransform}</GeoTransform>\n"
+        f"{metadata}"
         '  <VRTRasterBand dataType="Float32" band="1">\n'
+        f"{described}"
         f"    <NoDataValue>{float(nodata)!r}</NoDataValue>\n"
         f"{unit_xml}"
         f"{''.join(sources)}"

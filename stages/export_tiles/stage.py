@@ -29,7 +29,7 @@ class ExportTilesParams(StageParams):
     )
 
 
-class ExportTiles(Stage, name="export_tiles", version="1", params=ExportTilesParams):
+class ExportTiles(Stage, name="export_tiles", version="2", params=ExportTilesParams):
     """DTM (and DSM, nDSM) as GeoTIFF tiles plus a VRT mosaic, when tile_size is set."""
 
     inputs = ("dtm",)

@@ -34,7 +34,7 @@ def _vegetation(config) -> bool:
     return objects is not None and objects.enabled and objects.vegetation.enabled
 
 
-class Footprints(Stage, name="footprints", version="1", params=FootprintsParams):
+class Footprints(Stage, name="footprints", version="2", params=FootprintsParams):
     """building outlines (buildings.gpkg) and canopy height (canopy_height.tif)."""
 
     inputs = ("dtm", "points_objects")
@@ -62,7 +62,14 @@ class Footprints(Stage, name="footprints", version="1", params=FootprintsParams)
             chm = canopy_height(tally, dtm, in_place=True)
             ctx.metrics.update(canopy_cells=int(np.isfinite(chm).sum()))
             chm[np.isnan(chm)] = nodata
-            write_cog(ctx.outputs["canopy_height"], chm, transform=transform, crs=crs, nodata=nodata)
+            write_cog(
+                ctx.outputs["canopy_height"],
+                chm,
+                transform=transform,
+                crs=crs,
+                nodata=nodata,
+                description="vegetation height above the bare earth (canopy height model)",
+            )
         ctx.log.info("%d building outlines", count)
 
 

@@ -18,7 +18,7 @@ from pydantic import BaseModel
 from lidar import glossary
 from lidar.clouds import open_las_writer
 from lidar.columns import read_columns
-from lidar.crs import output_crs
+from lidar.crs import HEIGHTS_KEYS, heights_of_run, output_crs, state_heights
 from lidar.georeferencing import exact_output, ltp_output, prepare_exact, prepare_ltp, pulse_reach
 from lidar.units import Units
 from pipeline.errors import ConfigError, InputDataError
@@ -30,13 +30,13 @@ from stages.georeference.strips import pulse_strips, segment_strips, write_fligh
 from stages.georeference.uncertainty import point_uncertainty
 
 
-class Georeference(Stage, name="georeference", version="8", params=GeoreferenceParams):
+class Georeference(Stage, name="georeference", version="9", params=GeoreferenceParams):
     """pulses + trajectory -> points in the output CRS (raw formats only)."""
 
     inputs: ClassVar = ("trajectory", "pulses")
     outputs: ClassVar = {"points_georef": "points.las", "trajectory_lines": "trajectory.gpkg"}
     products: ClassVar = {"trajectory_lines": "qc/trajectory.gpkg"}
-    config_keys = ("crs",)
+    config_keys = ("crs", *HEIGHTS_KEYS)
 
     def is_enabled(self, params: GeoreferenceParams, config: BaseModel) -> bool:
         if config.input.format == "las":
@@ -86,6 +86,7 @@ class Georeference(Stage, name="georeference", version="8", params=GeoreferenceP
             units=Units.of(out.crs).describe(),
         )
         ctx.log.info("output CRS %s: %s", out.crs.name, ctx.metrics["units"])
+        state_heights(ctx, heights_of_run(ctx.config, out.crs))
         # the points, batch by batch
         tpu = point_uncertainty(p.uncertainty, traj, pmeta.get("format")) if p.uncertainty is not None else None
         header = las_header(out.crs, out.bounds(), uncertainty=tpu is not None)

@@ -31,7 +31,7 @@ class HillshadeParams(StageParams):
     z_factor: float = Field(Z_FACTOR, gt=0, description="vertical exaggeration")
 
 
-class Hillshade(Stage, name="hillshade", version="2", params=HillshadeParams):
+class Hillshade(Stage, name="hillshade", version="3", params=HillshadeParams):
     """shaded relief of the DTM (GeoTIFF and PNG)."""
 
     inputs = ("dtm",)
@@ -54,7 +54,8 @@ class Hillshade(Stage, name="hillshade", version="2", params=HillshadeParams):
             crs=crs,
             nodata=HILLSHADE_NODATA,
             dtype="uint8",
-            unit=None,
+            unit="grey level, 1 (shadow) to 255 (lit); 0 is nodata",
+            description=f"hillshade of the DTM, sun at azimuth {p.azimuth:g} degrees, altitude {p.altitude:g} degrees",
         )
         ctx.outputs["hillshade_png"].write_bytes(png_bytes(image))
         ctx.metrics.update(azimuth=p.azimuth, altitude=p.altitude)

@@ -42,7 +42,8 @@ class LasInput(StrictModel):
     )
     override_crs: str | None = Field(
         None,
-        description="CRS of every input file, replacing whatever its header says (PDAL's override_srs); e.g. EPSG:26912",
+        description="CRS of every input file, replacing whatever its header says (PDAL's override_srs); e.g. "
+        "EPSG:26912; a compound CRS states the heights' vertical datum too, e.g. EPSG:28992+5709 (RD New + NAP)",
     )
     chunk_size: int = Field(1_000_000, ge=1000, description="points read at a time")
 

@@ -24,6 +24,7 @@ import numpy as np
 import pyproj
 
 from lidar.columns import NpyColumns
+from lidar.crs import heights_of, state_heights
 from lidar.grid import Grid, check_grid_size
 from lidar.units import Units
 from pipeline.errors import InputDataError
@@ -53,7 +54,7 @@ if TYPE_CHECKING:
     from stages.parse.las_report import LasReadReport
 
 
-class Parse(Stage, name="parse", version="11", params=InputConfig):
+class Parse(Stage, name="parse", version="12", params=InputConfig):
     """read the input files (format from input.format)."""
 
     config_path = "input"
@@ -195,6 +196,7 @@ class Parse(Stage, name="parse", version="11", params=InputConfig):
             fields_dropped=report.dropped,
         )
         ctx.log.info("%d points in %s: %s", ctx.metrics["points_read"], crs.name, ctx.metrics["units"])
+        state_heights(ctx, heights_of(crs, georeferenced=False))
 
 
 def distinct_files(paths: list[Path], log: logging.LoggerAdapter) -> list[Path]:

@@ -24,8 +24,9 @@ import numpy as np
 
 from lidar import glossary
 from lidar.clouds import cloud_info
+from lidar.crs import HEIGHTS_KEYS, heights_of_run, state_heights
 from lidar.grid import Grid, check_grid_size
-from lidar.rasters import dem_nodata, read_raster
+from lidar.rasters import VERTICAL_DATUM, dem_nodata, read_raster
 from lidar.tile_points import cleanup, split_cloud, task_folder
 from lidar.water_bodies import read_breaklines, read_water_bodies
 from pipeline.errors import InputDataError
@@ -58,7 +59,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="11", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="12", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_objects",)
@@ -73,7 +74,7 @@ class Rasterize(Stage, name="rasterize", version="11", params=RasterizeParams):
             outputs["dtm_uncertainty"] = products["dtm_uncertainty"] = "dtm_uncertainty.tif"
         return StageIO(inputs, outputs, products)
 
-    config_keys = ("tiling.buffer", "stages.report.specification")
+    config_keys = ("tiling.buffer", "stages.report.specification", *HEIGHTS_KEYS)
 
     def tile_buffer(self, params: RasterizeParams) -> float:
         return reach(params)
@@ -122,6 +123,7 @@ class Rasterize(Stage, name="rasterize", version="11", params=RasterizeParams):
         ctx.log.info(
             "DTM %d x %d cells at %g m, %d nodata", grid.cols, grid.rows, p.resolution, figures["nodata_cells"]
         )
+        state_heights(ctx, heights_of_run(ctx.config, info.crs), warn=True)
 
 
 def _flattens(params: RasterizeParams, config: BaseModel) -> bool:
@@ -238,7 +240,8 @@ class _Tiles:
         self.transform = self.info.units.transform_from_metres(self.grid.transform)
         paths = {n: ctx.outputs[n] for n in self.names}
         cache_mb = 64 // (ctx.executor.workers if len(layout) > 1 else 1)
-        jobs = mosaic_jobs(paths, self.grid, self.transform, self.info.crs, layout, tasks, cache_mb, self.nodata)
+        datum = {VERTICAL_DATUM: heights_of_run(self.ctx.config, self.info.crs).datum}
+        jobs = mosaic_jobs(paths, self.grid, self.transform, self.info.crs, layout, tasks, cache_mb, self.nodata, datum)
         if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
             ctx.executor.map(mosaic_raster, jobs, what="rasters")
         else:

@@ -43,6 +43,16 @@ if TYPE_CHECKING:
 
 #: The rasters a run can make, in the order they are made and written.
 RASTERS = ("dtm", "dsm", "ndsm", "density", "dtm_uncertainty")
+#: Each raster's band description and unit (None: the unit of the CRS's heights).
+BANDS = {
+    "dtm": ("bare-earth elevation (DTM)", None),
+    "dsm": ("highest-surface elevation (DSM)", None),
+    "ndsm": ("height above the bare earth (nDSM)", None),
+    "density": ("points per cell, all classes but noise and withheld", "points per cell"),
+    "dtm_uncertainty": ("vertical uncertainty of the DTM, 1 sigma", None),
+}
+#: The rasters whose values are heights above a vertical datum (they carry its VERTICAL_DATUM tag).
+ELEVATIONS = ("dtm", "dsm")
 
 
 def reach(params: RasterizeParams, decks: bool = True) -> float:
@@ -356,7 +366,7 @@ def read_tile_cloud(folder: Path, wide: Grid, *, sigma: bool) -> TileCloud:
 class MosaicJob:
     """One raster of the survey to assemble from its tiles' windows (runs in a worker: :func:`mosaic_raster`).
 
-    *path*, *rows*, *cols*, *transform*, *crs*, *nodata*, *fill*, *unit*: those of
+    *path*, *rows*, *cols*, *transform*, *crs*, *nodata*, *fill*, *unit*, *description*, *tags*: those of
     :class:`lidar.mosaic.RasterMosaic`; *windows*: ``((r0, r1, c0,
     c1), npy file)`` of each tile; *empty*: the windows no tile wrote;
     *cache_mb*: GDAL's block cache.
@@ -370,6 +380,8 @@ class MosaicJob:
     nodata: float
     fill: float
     unit: str | None
+    description: str
+    tags: dict[str, str]
     windows: tuple[tuple[tuple[int, int, int, int], str], ...]
     empty: tuple[tuple[int, int, int, int], ...]
     cache_mb: int
@@ -384,8 +396,12 @@ def mosaic_jobs(
     tasks: list[RasterTask],
     cache_mb: int,
     nodata: float,
+    tags: dict[str, str],
 ) -> list[MosaicJob]:
-    """One job per raster of *paths* (name -> file): the windows of *tasks*, and fill for the tiles without one."""
+    """One job per raster of *paths* (name -> file): the windows of *tasks*, and fill for the tiles without one.
+
+    The elevation rasters (:data:`ELEVATIONS`) carry the metadata *tags* (their vertical datum).
+    """
     done = {t.tile for t in tasks}
     empty = tuple(core_window(grid, tile, layout) for tile in layout.tiles if tile.index not in done)
     return [
@@ -397,7 +413,9 @@ def mosaic_jobs(
             crs=crs,
             nodata=nodata,
             fill=0.0 if name == "density" else nodata,
-            unit=None if name == "density" else HEIGHT,
+            unit=BANDS[name][1] or HEIGHT,
+            description=BANDS[name][0],
+            tags=tags if name in ELEVATIONS else {},
             windows=tuple((t.window, str(Path(t.result) / f"{name}.npy")) for t in tasks),
             empty=empty,
             cache_mb=cache_mb,
@@ -420,6 +438,8 @@ def mosaic_raster(job: MosaicJob) -> None:
             nodata=job.nodata,
             fill=job.fill,
             unit=job.unit,
+            description=job.description,
+            tags=job.tags,
         )
         try:
             for (r0, _, c0, _), values in job.windows:

@@ -72,12 +72,21 @@ def build_report(*, name: str, metrics: dict, data: ReportInputs, max_size: int)
         strips_section(data.corrections, data.cloud.strips, metrics.get("strip_adjust") or {}),
         accuracy_section(metrics.get("accuracy"), data.checkpoints),
     ]
-    return page(name, data.cloud.units.describe(), sections), verdict
+    return page(name, data.cloud.units.describe(), sections, heights_datum(metrics)), verdict
 
 
-def page(name: str, lengths: str, sections: list[str]) -> str:
-    """The whole page: title, the line of version, date and units (*lengths*: :meth:`Units.describe`), the
-    sections one a line."""
+def heights_datum(metrics: dict) -> str:
+    """What the products' heights are measured from, as the parse (LAS) or georeference (raw) stage said it."""
+    return (
+        (metrics.get("georeference") or {}).get("heights")
+        or (metrics.get("parse") or {}).get("heights")
+        or ("unknown: not stated by this run")
+    )
+
+
+def page(name: str, lengths: str, sections: list[str], heights: str = "") -> str:
+    """The whole page: title, the line of version, date, units (*lengths*: :meth:`Units.describe`) and the
+    heights' vertical datum (*heights*), the sections one a line."""
     made = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     head = (
         "<!DOCTYPE html>\n"
@@ -85,6 +94,7 @@ def page(name: str, lengths: str, sections: list[str]) -> str:
         f"{STYLE}</head><body>\n"
         f"<h1>QC report: {html.escape(name)}</h1>\n"
         f'<p class="sub">dtm-pipeline {__version__} · made {made} · {html.escape(lengths)}'
-        f"{'' if '(' not in lengths else '; accuracy figures and headings marked m in metres'}</p>\n"
+        f"{'' if '(' not in lengths else '; accuracy figures and headings marked m in metres'}"
+        f"{f' · vertical datum: {html.escape(heights)}' if heights else ''}</p>\n"
     )
     return head + "".join(s + "\n" for s in sections) + "</body></html>\n"

@@ -138,6 +138,7 @@ def summary_section(
         ("input files", input_files or len(parse.get("points_per_file", {})) or None),
         ("CRS", parse.get("crs") or (geo or {}).get("crs")),
         ("units of the products", raster.get("units") or cv.units.describe()),
+        ("vertical datum of the heights", (geo or {}).get("heights") or parse.get("heights")),
         ("flight strips", strip_label(strips)),
         (
             "low noise (7) / high noise (18)",

@@ -70,6 +70,7 @@ def write_difference_maps(
             transform=units.transform_from_metres(grid.transform),
             crs=crs,
             nodata=nodata,
+            description=f"mean height difference of overlapping strips, {name.rsplit('_', 1)[1]} adjustment",
         )
         images.append(grid_values)
     paths["strip_difference_png"].write_bytes(_picture(images, grid.rows))

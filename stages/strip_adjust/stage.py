@@ -34,7 +34,7 @@ from stages.strip_adjust.icp import lattice_step
 from stages.strip_adjust.params import StripAdjustParams
 
 
-class StripAdjust(Stage, name="strip_adjust", version="10", params=StripAdjustParams):
+class StripAdjust(Stage, name="strip_adjust", version="11", params=StripAdjustParams):
     """joint point-to-plane ICP: one rigid correction per strip, or (raw flights) the mounting calibration."""
 
     inputs: ClassVar = ("points_georef",)

@@ -160,6 +160,14 @@ def test_disabled_denoise_passes_points_on(tmp_path):
 
 
 RASTERS = ["dtm.tif", "dsm.tif", "ndsm.tif", "density.tif", "hillshade.tif"]
+#: The band description QGIS and gdalinfo show for each raster.
+DESCRIPTIONS = {
+    "dtm.tif": "bare-earth elevation (DTM)",
+    "dsm.tif": "highest-surface elevation (DSM)",
+    "ndsm.tif": "height above the bare earth (nDSM)",
+    "density.tif": "points per cell, all classes but noise and withheld",
+    "hillshade.tif": "hillshade of the DTM, sun at azimuth 315 degrees, altitude 45 degrees",
+}
 
 
 @pytest.mark.parametrize("name", RASTERS)
@@ -168,12 +176,18 @@ def test_every_raster_product_is_a_cog_with_crs_and_nodata(run_dir, name):
     with rasterio.open(out / "out" / name) as ds:
         assert ds.crs.to_epsg() == 25830
         if name == "hillshade.tif":  # an image, as gdaldem writes it: Byte, shades 1-255, nodata 0
-            assert ds.dtypes[0] == "uint8" and ds.nodata == 0 and ds.units == (None,)
+            assert ds.dtypes[0] == "uint8" and ds.nodata == 0
+            assert ds.units == ("grey level, 1 (shadow) to 255 (lit); 0 is nodata",)
             assert ds.read(1).max() > 1  # lit cells
         else:
             assert ds.dtypes[0] == "float32" and ds.nodata == -999999.0
-            # heights name their unit (EPSG:25830: metres); a point count has none
-            assert ds.units == ((None,) if name == "density.tif" else ("metre",))
+            # heights name their unit (EPSG:25830: metres); the density counts points per cell
+            assert ds.units == (("points per cell",) if name == "density.tif" else ("metre",))
+        assert ds.descriptions[0] == DESCRIPTIONS[name]
+        # the sample's EPSG:25830 names no vertical CRS: its heights' datum is said to be unknown, and only
+        # the elevation rasters say it
+        datum = ds.tags().get("VERTICAL_DATUM")
+        assert datum == ("unknown: the input names no vertical CRS" if name in ("dtm.tif", "dsm.tif") else None)
         assert ds.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
         assert ds.block_shapes[0] == (256, 256) and ds.overviews(1)
         assert ds.transform.c % 1.0 == 0 and ds.transform.f % 1.0 == 0

@@ -323,6 +323,9 @@ EXPECTED = {
     "lasR/bcts_4.laz": (0, []),
 }
 
+#: The vertical CRS a file's header names (the others name none).
+VERTICAL = {"lasR/bcts_1.laz": "CGVD28 height (EPSG:5713)"}
+
 #: Files that are tiles of one project: run once, together, in the slow test (the first file names the run).
 PROJECTS = {"lasR/bcts_1.laz": ["lasR/bcts_1.laz", "lasR/bcts_2.laz", "lasR/bcts_3.laz", "lasR/bcts_4.laz"]}
 _IN_A_PROJECT = {name for files in PROJECTS.values() for name in files[1:]}
@@ -360,6 +363,11 @@ def test_every_real_file_runs_or_says_why(tmp_path, capsys, name):
         b = dtm.bounds
         cell = dtm.res[0]
         assert dtm.read(1, masked=True).count() > 0
+        datum = dtm.tags()["VERTICAL_DATUM"]
+    # the vertical CRS the file's GeoKeys name (bcts: CGVD28 in VerticalCSTypeGeoKey), else unknown, with
+    # a warning naming the key that states it
+    assert datum == VERTICAL.get(name, "unknown: the input names no vertical CRS")
+    assert ("names no vertical CRS" in err) == (name not in VERTICAL)
     x, y = np.asarray(las.x)[usable], np.asarray(las.y)[usable]
     # the grid covers the usable points and no more than a cell beyond them
     assert b.left <= x.min() and x.max() <= b.right and b.bottom <= y.min() and y.max() <= b.top

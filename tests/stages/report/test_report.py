@@ -158,8 +158,9 @@ def test_strip_table_says_which_strips_were_adjusted(tmp_path):
     assert "strips_adjusted" not in text
 
 
-def test_nva_is_labelled_with_the_open_ground_rmse_it_comes_from(tmp_path):
-    """The issue's figures: RMSEz 0.134 on all points, NVA 0.099 = 1.96 x 0.0505 (open ground)."""
+def test_nva_and_vva_are_labelled_with_the_edition_that_states_them(tmp_path):
+    """The issue's figures: RMSEz 0.134 on all points, NVA 0.099 = 1.96 x 0.0505 (open ground).  ASPRS Edition 2
+    (and the LBS from 2024 rev. A) state NVA and VVA as RMSEz; the 95 % figures are labelled as Edition 1's."""
     acc = {
         "n": 29,
         "rmse_z": 0.134,
@@ -168,14 +169,17 @@ def test_nva_is_labelled_with_the_open_ground_rmse_it_comes_from(tmp_path):
         "nva_95": 0.099,
         "n_vegetated": 10,
         "vva_95": 0.4,
+        "vva_rmse_z": 0.25,
         "outside": 1,
     }
     page, *_ = _report(tmp_path, _survey(tmp_path), _dtm(), metrics={"accuracy": acc})
     text = _text(page)
     assert "RMSEz, all 29 check points on the DTM (m) 0.134" in text
-    assert "RMSEz, non-vegetated (19 check points) (m) 0.051" in text
-    assert "NVA at 95 % = 1.96 × RMSEz non-vegetated (19 check points) (m) 0.099" in text
-    assert "VVA = 95th percentile of |error|, vegetated (10 check points) (m) 0.4" in text
+    assert "NVA = RMSEz, non-vegetated (19 check points) (m) 0.051" in text
+    assert "VVA = RMSEz, vegetated (10 check points) (m) 0.25" in text
+    before = "ASPRS Edition 1 and the USGS LBS to 2023 rev. A"
+    assert f"NVA at 95 % as in {before}: 1.96 × RMSEz, non-vegetated (m) 0.099" in text
+    assert f"VVA as in {before}: 95th percentile of |error|, vegetated (m) 0.4" in text
 
 
 def test_pulse_density_is_the_lattice_density_and_a_thinned_survey_fails_it(tmp_path, plain):

@@ -104,7 +104,7 @@ def _onto(path: Path, shape: tuple[int, int], transform, crs, resampling):
 
 
 #: |DTM - truth| thresholds (metres) of :func:`truth_accuracy`: 1 m is far beyond a
-#: lidar DTM's error on open ground (ASPRS 2023's 10-cm class allows NVA = 19.6 cm),
+#: lidar DTM's error on open ground (ASPRS 2023's 10-cm class: RMSEz 10 cm, 19.6 cm at 95 % in Edition 1),
 #: so a misclassification, not noise; 5 m, a building or a bridge deck left in the DTM.
 TRUTH_OFF_M = (1.0, 5.0)
 

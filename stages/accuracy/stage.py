@@ -49,7 +49,7 @@ class AccuracyParams(StageParams):
         return self
 
 
-class Accuracy(Stage, name="accuracy", version="3", params=AccuracyParams):
+class Accuracy(Stage, name="accuracy", version="4", params=AccuracyParams):
     """DTM vertical accuracy at check points and against a truth raster (runs when either is set)."""
 
     inputs = ("dtm",)

@@ -4,11 +4,13 @@ Each specification is a tuple of :class:`Limit`, each with the document,
 edition and table it comes from, so a reviewer can trace every PASS / FAIL to
 its source.  Chosen with ``stages.report.specification``; the report shows the
 verdicts and writes them to ``qc/acceptance.json``.  Sources: the USGS Lidar
-Base Specification 2023 rev. A (Tables 1, 2 and 4, "Data Voids") and the ASPRS
-Positional Accuracy Standards for Digital Geospatial Data, Edition 2 (2023;
-doi:10.14358/PERS.89.10.581; Edition 1: doi:10.14358/PERS.81.3.A1-A26).  What
-each table says, and how each figure was checked (the ``checked`` field of a
-:class:`Source`): ``docs/stages/report.md``.
+Base Specification, 2024 rev. A for absolute vertical accuracy (Table 4: NVA
+and VVA as RMSEz, after ASPRS Edition 2) and 2023 rev. A for the rows whose
+2024 text was not read (Tables 1, 2, "Data Voids", the deliverables), and the
+ASPRS Positional Accuracy Standards for Digital Geospatial Data, Edition 2
+(2023; doi:10.14358/PERS.89.10.581; Edition 1: doi:10.14358/PERS.81.3.A1-A26).
+What each table says, and how each figure was checked (the ``checked`` field
+of a :class:`Source`): ``docs/stages/report.md``.
 """
 
 from __future__ import annotations
@@ -24,7 +26,11 @@ from lidar.glossary import BRIDGE_DECK
 from lidar.water_bodies import binned_medians, burn_levels, is_river, river_axis
 
 LBS = "USGS Lidar Base Specification"
-LBS_EDITION = "2023 rev. A"
+#: The current edition (usgs.gov, 'Lidar Base Specification Online': released 2024-01-25), which the rows it changes
+#: follow: absolute vertical accuracy after ASPRS Edition 2.
+LBS_CURRENT = "2024 rev. A"
+#: The edition the other LBS rows follow: their 2024 text was not read (``checked`` says what was).
+LBS_PREVIOUS = "2023 rev. A"
 ASPRS = "ASPRS Positional Accuracy Standards for Digital Geospatial Data"
 ASPRS_EDITION = "Edition 2, Version 1.0 (2023)"
 
@@ -53,9 +59,10 @@ class Limit:
 #: What each measured value is, as the report and acceptance.json say it.
 MEASURES = {
     "anpd": "aggregate nominal pulse density: first returns per m² over the covered area",
-    "nva_95": "NVA: 1.96 × RMSEz of the DTM at non-vegetated check points (95 % confidence)",
-    "rmse_z_nv": "RMSEz of the DTM at non-vegetated check points",
-    "vva_95": "VVA: 95th percentile of |DTM − check point| at vegetated check points",
+    "nva_95": "NVA at 95 % confidence (ASPRS Edition 1): 1.96 × RMSEz of the DTM at non-vegetated check points",
+    "rmse_z_nv": "NVA: RMSEz of the DTM at non-vegetated check points",
+    "vva_95": "VVA at the 95th percentile (ASPRS Edition 1): of |DTM − check point| at vegetated check points",
+    "vva_rmse_z": "VVA: RMSEz of the DTM at vegetated check points",
     "smooth_surface_repeatability": "smooth surface repeatability (intraswath): median height range of one "
     "strip's ground single returns about the DTM, per DTM cell, on level cells",
     "swath_overlap_rmsdz": "swath overlap difference RMSDz: strip-to-strip distance at planar overlap patches, "
@@ -75,7 +82,8 @@ MEASURES = {
 
 _T1 = "Table 1 (aggregate nominal pulse spacing and density)"
 _T2 = "Table 2 (relative vertical accuracy for lidar swath data)"
-_T4 = "Table 4 (absolute vertical accuracy for lidar data and DEMs)"
+_T4_NVA = "Table 4 (absolute vertical accuracy for lidar data and DEMs): NVA as RMSEz"
+_T4_VVA = "Table 4 (absolute vertical accuracy for lidar data and DEMs): VVA as RMSEz, reported without pass/fail"
 _VOIDS = "Collection: Data Voids ((4 × ANPS)², first returns)"
 _A72 = "Table 7.2 (vertical accuracy classes for digital elevation data), 10-cm class"
 _CLASSES = "Point Classification (Table 5, minimum classification scheme)"
@@ -83,57 +91,90 @@ _DEM = "Deliverables: Bare-Earth Surface (Raster DEM)"
 _HYDRO = "Digital Elevation Model Surface Treatments: Hydro-Flattening"
 _BRIDGES = "Bridge and Saddle Requirements (bridges removed from the bare-earth surface)"
 # How each figure was checked for this code (the standards themselves are not in the repository; the search
-# tool's stored copies of public pages were searched on 2026-12-01, and neither the LBS tables nor the ASPRS
-# Edition 2 tables were among them).
+# tool's stored copies of public pages were searched on 2026-12-01 and 2026-12-07, and neither the LBS tables, of
+# any edition, nor the ASPRS Edition 2 tables were among them).
+_CURRENT = (
+    "2024 rev. A is the current edition, released 2024-01-25: usgs.gov 'Lidar Base Specification Online' "
+    "(https://www.usgs.gov/ngp-standards-and-specifications/lidar-base-specification-online); its References cite "
+    "the ASPRS Positional Accuracy Standards, Edition 2, version 1 (2023): usgs.gov 'Lidar Base Specification: "
+    "References' (2024 rev. A, https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification-references)"
+)
+# Why a row follows 2023 rev. A: the 2023 rev. A revisions (usgs.gov news 'Lidar Base Specification 2023 rev. A is
+# now available', 2023-09-26) change none of these rows, and the requirement's own 2024 rev. A text was not found.
+_PREVIOUS = (
+    "follows 2023 rev. A, not 2024 rev. A: the requirement's own text in 2024 rev. A was not in the stored pages, "
+    "and no source read reports that 2024 rev. A changed it (the ASPRS Edition 2 changes it adopts, as gpsworld.com "
+    "lists them, concern absolute accuracy and check points); "
+)
 _TOC = (
     "table numbering and titles: usgs.gov 'Lidar Base Specification v. 2.1 Table of Contents' "
     "(https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification-v-21-table-contents)"
 )
 _SEEN_T1 = (
-    f"{_TOC}; QL2 at least 2 points/m2: USGS Open-File Report 2025-1017 (doi:10.3133/ofr20251017, "
+    f"{_PREVIOUS}{_TOC}; QL2 at least 2 points/m2: USGS Open-File Report 2025-1017 (doi:10.3133/ofr20251017, "
     "https://pubs.usgs.gov/publication/ofr20251017/full); QL1 = QL0 density: usgs.gov 'Topographic Data Quality "
     "Levels (QLs)' (https://www.usgs.gov/3d-elevation-program/topographic-data-quality-levels-qls); 8 points/m2 "
     "for QL1: secondary sources only"
 )
 _SEEN_T2 = (
-    f"{_TOC}; 6 cm (repeatability) and 8 cm (overlap RMSDz) for QL1/QL2: secondary source found by search; 8/16 cm: "
-    "the LBS swath separation image legend (usgs.gov); not confirmed in the table itself"
+    f"{_PREVIOUS}{_TOC}; 6 cm (repeatability) and 8 cm (overlap RMSDz) for QL1/QL2: secondary source found by "
+    "search; 8/16 cm: the LBS swath separation image legend (usgs.gov); not confirmed in the table itself"
 )
-_SEEN_T4 = (
-    f"{_TOC}; QL2 RMSEz 10 cm (so NVA 1.96 x 10 = 19.6 cm): USGS Open-File Report 2025-1017 "
-    "(doi:10.3133/ofr20251017); VVA 30 cm for QL1 and QL2 (not 29.4 cm, the ASPRS 2014 10-cm class figure "
-    "earlier code used): secondary sources citing the LBS, e.g. pythonlidar.com 'Reporting NVA and VVA Accuracy' "
-    "(2026-09-18, https://www.pythonlidar.com/point-cloud-data-standards-fundamentals/vertical-accuracy-assessment/"
-    "reporting-nva-and-vva-accuracy/: QL1, QL2 RMSEz <= 10.0 cm, NVA <= 19.6 cm, VVA <= 30.0 cm); the table "
-    "itself not read"
+_UNTIL_2023 = (
+    "the figures until 2023 rev. A (QL1, QL2: NVA 19.6 cm = 1.96 x 10 cm, VVA 30 cm at the 95th percentile): "
+    "secondary sources citing the LBS, e.g. pythonlidar.com 'Reporting NVA and VVA Accuracy' (2026-09-18, "
+    "https://www.pythonlidar.com/point-cloud-data-standards-fundamentals/vertical-accuracy-assessment/"
+    "reporting-nva-and-vva-accuracy/)"
+)
+_SEEN_T4_NVA = (
+    f"{_CURRENT}; Edition 2 eliminates the 95 % confidence level as an accuracy measure (so the NVA is the RMSEz "
+    "itself, no longer 1.96 x RMSEz as until 2023 rev. A): gpsworld.com 'ASPRS approves edition 2 of the ASPRS "
+    "Positional Accuracy Standards for Digital Geospatial Data' "
+    "(2023-12-06, https://www.gpsworld.com/asprs-approves-edition-2-of-the-asprs-positional-accuracy-standards-for-"
+    "digital-geospatial-data/); QL2 RMSEz 10 cm: USGS Open-File Report 2025-1017 (doi:10.3133/ofr20251017, "
+    "https://pubs.usgs.gov/publication/ofr20251017/full); QL1 and QL2 RMSEz <= 10 cm in LBS 2024 rev. A, NVA as "
+    "RMSEz: a secondary source only (a textbook chapter on elevation specifications in the search tool's code "
+    "index); Table 4 of 2024 rev. A itself not read; "
+    f"{_UNTIL_2023}"
+)
+_SEEN_T4_VVA = (
+    f"{_CURRENT}; Edition 2 removes the VVA pass/fail (30 cm, the 95th percentile, until 2023 rev. A): gpsworld.com "
+    "'ASPRS approves edition 2 of the ASPRS Positional Accuracy Standards for Digital Geospatial Data' (2023-12-06, "
+    "https://www.gpsworld.com/asprs-approves-edition-2-of-the-asprs-positional-accuracy-standards-for-digital-"
+    "geospatial-data/); VVA as RMSEz, and reported without pass/fail in LBS 2024 rev. A: a secondary source only (a "
+    "textbook chapter on elevation specifications in the search tool's code index); Table 4 of 2024 rev. A itself "
+    f"not read; {_UNTIL_2023}"
 )
 _SEEN_VOIDS = (
-    f"{_TOC} (section Collection: Data Voids); voids are grounds for rejection: usgs.gov 'Lidar Base "
+    f"{_PREVIOUS}{_TOC} (section Collection: Data Voids); voids are grounds for rejection: usgs.gov 'Lidar Base "
     "Specification: Figures' (LBS 2024 rev. A online, Figures 1-3); the (4 x ANPS)^2 first-return rule: as "
     "commonly quoted, not found by search"
 )
 _SEEN_CLASSES = (
-    "'No points in the classified LAS deliverable may remain assigned to Class 0': the LBS v. 2.1 revision history "
-    "(a copy of the online text, https://ru.scribd.com/document/453206938/Lidar-Base-Specification-version-2-1); "
+    f"{_PREVIOUS}'No points in the classified LAS deliverable may remain assigned to Class 0': the LBS v. 2.1 "
+    "revision history (a copy of the online text, "
+    "https://ru.scribd.com/document/453206938/Lidar-Base-Specification-version-2-1); "
     "withheld points may carry any class, class 0 included: usgs.gov 'Lidar Base Specification Appendix 1: Maximum "
     "Surface Height Rasters' (2024 rev. A, https://www.usgs.gov/core-science-systems/ngp/ss/"
     "lidar-base-specification-appendix-1-maximum-surface-height-rasters); Table 5 itself not read"
 )
 _SEEN_DEM = (
-    "'32-bit floating-point GeoTIFF raster format' and 'The NODATA value of -999999 shall be defined in GDAL_NODATA "
-    "tag #42113': the LBS v. 2.1 revision history (a copy of the online text, "
+    f"{_PREVIOUS}'32-bit floating-point GeoTIFF raster format' and 'The NODATA value of -999999 shall be defined in "
+    "GDAL_NODATA tag #42113': the LBS v. 2.1 revision history (a copy of the online text, "
     "https://ru.scribd.com/document/453206938/Lidar-Base-Specification-version-2-1); later editions not read"
 )
 _SEEN_HYDRO = (
-    "hydro-flattened water bodies flat at one level: the LBS table of contents, sections 'Hydro-Flattening' and "
-    "'Appendix 2: Hydro-Flattening Reference' (usgs.gov, https://www.usgs.gov/ngp-standards-and-specifications/"
+    f"{_PREVIOUS}hydro-flattened water bodies flat at one level: the LBS table of contents, sections "
+    "'Hydro-Flattening' and 'Appendix 2: Hydro-Flattening Reference' (usgs.gov, "
+    "https://www.usgs.gov/ngp-standards-and-specifications/"
     "lidar-base-specification-online-table-contents); the section's text not read; rivers 'monotonically continuous' "
     "where decks are removed: usgs.gov 'Lidar Base Specification' (its Bridge and Saddle Requirements note, "
     "https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification); the 1 m stations and 1 cm are ours"
 )
 _SEEN_BRIDGES = (
-    "'The bare-earth surface below the bridge shall be a continuous, logical interpolation of the apparent terrain "
-    "lateral to the bridge deck', 'Where abutments are clearly visible, the bare-earth interpolation shall begin at "
+    f"{_PREVIOUS}'The bare-earth surface below the bridge shall be a continuous, logical interpolation of the "
+    "apparent terrain lateral to the bridge deck', 'Where abutments are clearly visible, the bare-earth "
+    "interpolation shall begin at "
     "the junction of the bridge deck and approach structure': usgs.gov 'Lidar Base Specification' (NGP Standards "
     "and Specifications page, its note on the Bridge and Saddle Requirements update, "
     "https://www.usgs.gov/core-science-systems/ngp/ss/lidar-base-specification); the 1 m and half-the-cells test "
@@ -143,22 +184,26 @@ _SEEN_ASPRS = (
     "Edition 2 drops the 95 % figures and the VVA pass/fail: gpsworld.com 'ASPRS approves edition 2 of the ASPRS "
     "Positional Accuracy Standards for Digital Geospatial Data' (2023-12-06, https://www.gpsworld.com/"
     "asprs-approves-edition-2-of-the-asprs-positional-accuracy-standards-for-digital-geospatial-data/); the "
-    "0.6 / 0.8 / 1.6 x class limits of Table 7.2: from the standard's formulas, the table itself not found by search"
+    "0.6 / 0.8 / 1.6 x class limits of Table 7.2: from the standard's formulas, the table itself not found by search; "
+    "VVA as RMSEz: a secondary source only (a textbook chapter on elevation specifications in the search tool's code "
+    "index); Edition 2, Version 2 (2024-06-24, lidarmag.com 'Overview of the ASPRS Positional Accuracy Standards for "
+    "Digital Geospatial Data', 2025-06-30) not read"
 )
 
 
 def _lbs(table: str) -> Source:
-    checked = {
-        _T1: _SEEN_T1,
-        _T2: _SEEN_T2,
-        _T4: _SEEN_T4,
-        _VOIDS: _SEEN_VOIDS,
-        _CLASSES: _SEEN_CLASSES,
-        _DEM: _SEEN_DEM,
-        _HYDRO: _SEEN_HYDRO,
-        _BRIDGES: _SEEN_BRIDGES,
+    edition, checked = {
+        _T1: (LBS_PREVIOUS, _SEEN_T1),
+        _T2: (LBS_PREVIOUS, _SEEN_T2),
+        _T4_NVA: (LBS_CURRENT, _SEEN_T4_NVA),
+        _T4_VVA: (LBS_CURRENT, _SEEN_T4_VVA),
+        _VOIDS: (LBS_PREVIOUS, _SEEN_VOIDS),
+        _CLASSES: (LBS_PREVIOUS, _SEEN_CLASSES),
+        _DEM: (LBS_PREVIOUS, _SEEN_DEM),
+        _HYDRO: (LBS_PREVIOUS, _SEEN_HYDRO),
+        _BRIDGES: (LBS_PREVIOUS, _SEEN_BRIDGES),
     }[table]
-    return Source(LBS, LBS_EDITION, table, checked)
+    return Source(LBS, edition, table, checked)
 
 
 def _asprs(table: str) -> Source:
@@ -168,8 +213,8 @@ def _asprs(table: str) -> Source:
 def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
     return (
         Limit("anpd", "min", anpd, "pts/m²", _lbs(_T1)),
-        Limit("nva_95", "max", 0.196, "m", _lbs(_T4)),
-        Limit("vva_95", "max", 0.30, "m", _lbs(_T4)),
+        Limit("rmse_z_nv", "max", 0.10, "m", _lbs(_T4_NVA)),
+        Limit("vva_rmse_z", "max", None, "m", _lbs(_T4_VVA)),
         Limit("smooth_surface_repeatability", "max", 0.06, "m", _lbs(_T2)),
         Limit("swath_overlap_rmsdz", "max", 0.08, "m", _lbs(_T2)),
         Limit("swath_overlap_max", "max", 0.16, "m", _lbs(_T2)),
@@ -183,15 +228,16 @@ def _lbs_quality_level(anpd: float) -> tuple[Limit, ...]:
     )
 
 
+_EDITIONS = f"{LBS_CURRENT} for absolute vertical accuracy, {LBS_PREVIOUS} for the other rows"
 #: name -> (title, limits).  ``none``: measured values only, no verdict.
 SPECIFICATIONS: dict[str, tuple[str, tuple[Limit, ...]]] = {
-    "usgs-lbs-ql2": (f"{LBS} {LBS_EDITION}, quality level 2", _lbs_quality_level(2.0)),
-    "usgs-lbs-ql1": (f"{LBS} {LBS_EDITION}, quality level 1", _lbs_quality_level(8.0)),
+    "usgs-lbs-ql2": (f"{LBS}, quality level 2 ({_EDITIONS})", _lbs_quality_level(2.0)),
+    "usgs-lbs-ql1": (f"{LBS}, quality level 1 ({_EDITIONS})", _lbs_quality_level(8.0)),
     "asprs-2023-10cm": (
         f"{ASPRS}, {ASPRS_EDITION}, 10-cm vertical accuracy class",
         (
             Limit("rmse_z_nv", "max", 0.10, "m", _asprs(_A72)),
-            Limit("vva_95", "max", None, "m", _asprs("section 7.9: VVA is reported, without pass/fail")),
+            Limit("vva_rmse_z", "max", None, "m", _asprs("section 7.9: VVA as RMSEz, reported without pass/fail")),
             Limit("smooth_surface_repeatability", "max", 0.06, "m", _asprs(_A72)),
             Limit("swath_overlap_rmsdz", "max", 0.08, "m", _asprs(_A72)),
             Limit("swath_overlap_max", "max", 0.16, "m", _asprs(_A72)),
@@ -329,26 +375,33 @@ def hull_area(x: np.ndarray, y: np.ndarray) -> float:
         return 0.0
 
 
+#: The NVA rows a verdict may have, and the factor from an RMSE to each one's measure (ASPRS Edition 2: the RMSEz
+#: itself; Edition 1: 1.96 × RMSEz).
+NVA_MEASURES = {"rmse_z_nv": 1.0, "nva_95": 1.96}
+
+
 def truth_disagreement(verdict: dict, truth: dict | None) -> str | None:
     """One sentence when the check points' NVA verdict and the DTM against the true terrain disagree, else None.
 
     *truth*: ``accuracy``'s ``truth`` metrics; its open-ground cells (land
-    cover named ``ground``) are judged as the NVA is: 1.96 × their RMSE
-    against the NVA limit.
+    cover named ``ground``) are judged as the NVA row is: their RMSE, times
+    1.96 for an Edition 1 row (:data:`NVA_MEASURES`), against its limit.
     """
-    nva = next((c for c in verdict["checks"] if c["measure"] == "nva_95"), None)
+    nva = next((c for c in verdict["checks"] if c["measure"] in NVA_MEASURES), None)
     ground = next((v for v in ((truth or {}).get("by_land_cover") or {}).values() if v.get("name") == "ground"), None)
     if nva is None or nva["status"] not in ("PASS", "FAIL") or not ground or not ground.get("n"):
         return None
-    from_truth = 1.96 * float(ground["rmse"])
+    factor = NVA_MEASURES[nva["measure"]]
+    from_truth = factor * float(ground["rmse"])
     truth_status = "PASS" if from_truth <= nva["limit"] else "FAIL"
     if truth_status == nva["status"]:
         return None
     return (
         f"The check points {'pass' if nva['status'] == 'PASS' else 'fail'} the NVA ({nva['measured']:.3f} m against "
         f"{nva['limit']:g} m), but the DTM against the true terrain ({truth.get('file', 'truth_dtm')}) gives "
-        f"1.96 × RMSE = {from_truth:.3f} m on its {int(ground['n']):,} open-ground cells, which "
-        f"{'passes' if truth_status == 'PASS' else 'fails'}: the check points do not sample the survey's errors."
+        f"{'RMSE' if factor == 1.0 else f'{factor:g} × RMSE'} = {from_truth:.3f} m on its {int(ground['n']):,} "
+        f"open-ground cells, which {'passes' if truth_status == 'PASS' else 'fails'}: the check points do not sample "
+        "the survey's errors."
     )
 
 

@@ -91,17 +91,29 @@ def sampling_warnings(data: ReportInputs, covered_m2: float) -> list[str]:
 
 
 def checkpoint_measures(accuracy: dict | None) -> tuple[dict, dict]:
-    """NVA, RMSEz and VVA at the check points (metrics of ``accuracy``: ``nva_95``, ``vva_95``), and why any is missing."""
+    """NVA and VVA at the check points, as both ASPRS editions state them, and why any is missing.
+
+    From the metrics of ``accuracy``: ``nva_95`` and ``vva_95`` (Edition 1),
+    ``rmse_z_nv`` (``nva_95`` / 1.96) and ``vva_rmse_z`` (Edition 2).
+    """
+    keys = ("nva_95", "rmse_z_nv", "vva_95", "vva_rmse_z")
     acc = {k: v for k, v in (accuracy or {}).items() if k != "truth"}  # check points only
     if not acc:
-        return {}, dict.fromkeys(("nva_95", "rmse_z_nv", "vva_95"), "no check points (stages.accuracy.checkpoints)")
-    nva, vva = acc.get("nva_95"), acc.get("vva_95")
-    values = {"nva_95": nva, "rmse_z_nv": nva / 1.96 if nva is not None else None, "vva_95": vva}
+        return {}, dict.fromkeys(keys, "no check points (stages.accuracy.checkpoints)")
+    nva = acc.get("nva_95")
+    values = {
+        "nva_95": nva,
+        "rmse_z_nv": nva / 1.96 if nva is not None else None,
+        "vva_95": acc.get("vva_95"),
+        "vva_rmse_z": acc.get("vva_rmse_z"),
+    }
     why = {}
     if nva is None:
         why["nva_95"] = why["rmse_z_nv"] = "no non-vegetated check point on the DTM"
-    if vva is None:
-        why["vva_95"] = "no vegetated check point (land cover column and stages.accuracy.vegetated)"
+    if values["vva_95"] is None:
+        why["vva_95"] = why["vva_rmse_z"] = "no vegetated check point (land cover column and stages.accuracy.vegetated)"
+    elif values["vva_rmse_z"] is None:
+        why["vva_rmse_z"] = "accuracy.json has no vva_rmse_z (written by accuracy before version 4)"
     return values, why
 
 

@@ -398,6 +398,9 @@ def mounting_table(corrections: dict) -> str:
 def accuracy_section(accuracy: dict | None, cp: dict | None) -> str:
     """Vertical accuracy: the check-point figures (metrics of ``accuracy``), the truth raster's, every check point.
 
+    NVA and VVA as ASPRS Edition 2 (and the USGS LBS from 2024 rev. A) state
+    them, RMSEz, then the 95 % figures of Edition 1 (and the LBS to 2023 rev. A).
+
     *cp*: the check points one by one (:func:`~stages.report.inputs.checkpoint_rows`), or None.
     """
     truth = truth_html((accuracy or {}).get("truth"))
@@ -409,12 +412,14 @@ def accuracy_section(accuracy: dict | None, cp: dict | None) -> str:
         return section("accuracy", "Vertical accuracy", body)
     nva = accuracy.get("nva_95")
     n_nv, n_v = accuracy.get("n_non_vegetated"), accuracy.get("n_vegetated")
+    before = "ASPRS Edition 1 and the USGS LBS to 2023 rev. A"
     rows = [
         (f"RMSEz, all {accuracy.get('n')} check points on the DTM (m)", accuracy.get("rmse_z")),
         ("mean error, all (m)", accuracy.get("mean_error")),
-        (f"RMSEz, non-vegetated ({n_nv} check points) (m)", nva / 1.96 if nva is not None else None),
-        (f"NVA at 95 % = 1.96 × RMSEz non-vegetated ({n_nv} check points) (m)", nva),
-        (f"VVA = 95th percentile of |error|, vegetated ({n_v} check points) (m)", accuracy.get("vva_95")),
+        (f"NVA = RMSEz, non-vegetated ({n_nv} check points) (m)", nva / 1.96 if nva is not None else None),
+        (f"VVA = RMSEz, vegetated ({n_v} check points) (m)", accuracy.get("vva_rmse_z")),
+        (f"NVA at 95 % as in {before}: 1.96 × RMSEz, non-vegetated (m)", nva),
+        (f"VVA as in {before}: 95th percentile of |error|, vegetated (m)", accuracy.get("vva_95")),
         ("outside the DTM or on nodata", accuracy.get("outside")),
     ]
     body = table(rows) + truth + (checkpoints_html(cp) if cp is not None else "")

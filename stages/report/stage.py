@@ -48,7 +48,7 @@ def _enabled(config, name: str) -> bool:
     return params is not None and bool(getattr(params, "enabled", True))
 
 
-class Report(Stage, name="report", version="16", params=ReportParams):
+class Report(Stage, name="report", version="17", params=ReportParams):
     """self-contained QC page (report.html) and acceptance (qc/acceptance.json)."""
 
     inputs = ("dtm", "density", "points_objects")

@@ -81,6 +81,16 @@ def test_vertical_accuracy_asprs_figures():
     assert r["rmse_z"] == pytest.approx(np.sqrt((4 * 0.01 + 0.25) / 5))
 
 
+def test_vva_as_rmse_z_of_the_vegetated_points_alone():
+    """ASPRS Edition 2's VVA, by hand: vegetated errors +0.3 and -0.4 m give sqrt((0.09 + 0.16) / 2) = 0.35355 m,
+    where Edition 1's 95th percentile of |error| is 0.3 + 0.95 x 0.1 = 0.395 m; the open point is left out."""
+    e = np.array([0.3, -0.4, 2.0])
+    r = vertical_accuracy(e, np.array(["vegetated", "vegetated", "open"], dtype=object))
+    assert r["vva_rmse_z"] == pytest.approx(0.3535534, abs=1e-7)
+    assert r["vva_95"] == pytest.approx(0.395)
+    assert vertical_accuracy(e)["vva_rmse_z"] is None  # no land cover: no vegetated point
+
+
 def test_checkpoint_errors_name_line_and_column(tmp_path):
     bad = tmp_path / "cp.csv"
     bad.write_text("id,x,y,height\nA,1,2,3\nB,1,two,3\n")

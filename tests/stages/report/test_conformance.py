@@ -97,14 +97,25 @@ def test_check_points_in_one_corner_are_named():
     assert "convex hull covers 20 %" in warning
 
 
-def _nva_verdict(nva: float) -> dict:
-    return evaluate("usgs-lbs-ql2", {"nva_95": nva})
+def _nva_verdict(rmse_z_nv: float) -> dict:
+    return evaluate("usgs-lbs-ql2", {"rmse_z_nv": rmse_z_nv})
 
 
 def test_truth_that_fails_where_check_points_pass_is_said():
+    """LBS 2024 rev. A's NVA is the RMSEz (limit 0.10 m): the truth's open ground is judged by its RMSE alone."""
     truth = {"file": "terrain.tif", "by_land_cover": {"2": {"name": "ground", "n": 1000, "rmse": 0.7}}}
     sentence = truth_disagreement(_nva_verdict(0.055), truth)
-    assert "pass the NVA (0.055 m" in sentence and "1.372 m" in sentence and "1,000 open-ground cells" in sentence
+    assert "pass the NVA (0.055 m against 0.1 m)" in sentence
+    assert "gives RMSE = 0.700 m on its 1,000 open-ground cells, which fails" in sentence
+
+
+def test_truth_against_an_edition_1_nva_row_is_scaled_by_1_96():
+    """A verdict with an Edition 1 row (nva_95, 1.96 x RMSEz against 0.196 m): the truth's RMSE is scaled alike."""
+    verdict = {"checks": [{"measure": "nva_95", "status": "PASS", "measured": 0.055, "limit": 0.196}]}
+    truth = {"by_land_cover": {"2": {"name": "ground", "n": 1000, "rmse": 0.7}}}
+    assert "gives 1.96 × RMSE = 1.372 m" in truth_disagreement(verdict, truth)
+    truth["by_land_cover"]["2"]["rmse"] = 0.09  # 1.96 x 0.09 = 0.176 m <= 0.196 m: both pass
+    assert truth_disagreement(verdict, truth) is None
 
 
 def test_truth_that_agrees_says_nothing():

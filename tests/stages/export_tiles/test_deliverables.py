@@ -30,6 +30,14 @@ def test_copc_tiles_and_vrt_published_with_the_run(tmp_path):
     for raster in ("dtm", "ndsm"):
         with rasterio.open(out / f"{raster}.tif") as a, rasterio.open(out / f"{raster}.vrt") as b:
             assert np.array_equal(a.read(1), b.read(1)) and a.transform == b.transform and a.crs == b.crs
+            # what the raster says of its band and heights, the VRT and every tile say too
+            tile = next((out / "tiles" / raster).glob("*.tif"))
+            with rasterio.open(tile) as t:
+                for ds in (b, t):
+                    assert ds.descriptions == a.descriptions and ds.units == a.units
+                    assert ds.tags().get("VERTICAL_DATUM") == a.tags().get("VERTICAL_DATUM")
+    with rasterio.open(out / "dtm.vrt") as b:
+        assert b.tags()["VERTICAL_DATUM"].startswith("unknown") and b.descriptions[0].startswith("bare-earth")
     delivered, copc = laspy.read(str(out / "points.laz")), laspy.read(str(out / "points.copc.laz"))
 
     def records(las):

@@ -172,6 +172,8 @@ def _cmd_validate(args: argparse.Namespace, plugin: Plugin | LazyPlugin) -> int:
     plan = build_plan(config, plugin)
     names = " -> ".join(s.name for s in plan.steps)
     print(f"{args.config}: valid; stages: {names}")
+    for warning in plugin.configuration_warnings(config) if plugin.configuration_warnings else []:
+        print(f"pipeline: warning: {warning}", file=sys.stderr)
     return EXIT_OK
 
 

@@ -189,7 +189,9 @@ class Plugin:
     ``run.json``, *previous*, in the folder *output*); ``not_a_configuration``:
     given the path ``run`` or ``validate`` was asked to read as a configuration,
     one sentence saying what the file is and how to run it when it is one of
-    the domain's data files (None otherwise).
+    the domain's data files (None otherwise); ``configuration_warnings``: given
+    a valid configuration, the sentences ``validate`` prints as warnings (what
+    will run but likely not as meant).
     """
 
     name: str
@@ -199,6 +201,7 @@ class Plugin:
     versions: Callable[[], dict[str, str]] = dict
     changed_areas: Callable[..., Any] | None = None
     not_a_configuration: Callable[[Path], str | None] | None = None
+    configuration_warnings: Callable[[Any], list[str]] | None = None
 
     def stage(self, name: str) -> type[Stage]:
         for stage in self.stages:

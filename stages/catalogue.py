@@ -28,6 +28,7 @@ from stages.footprints.stage import Footprints
 from stages.georeference.stage import Georeference
 from stages.hillshade.stage import Hillshade
 from stages.parse.changes import changed_areas
+from stages.parse.checks import configuration_warnings
 from stages.parse.stage import Parse
 from stages.rasterize.stage import Rasterize
 from stages.report.stage import Report
@@ -85,4 +86,5 @@ def stages_plugin(name: str, commands: list[Any]) -> Plugin:
         versions=versions,
         changed_areas=changed_areas,
         not_a_configuration=not_a_configuration,
+        configuration_warnings=configuration_warnings,
     )

@@ -28,6 +28,12 @@ NAME = "dtm-pipeline"
 #: imported when they run.
 COMMANDS = [
     LazyCommand(
+        "init",
+        "write a configuration for a folder of LAS/LAZ files (products next to it)",
+        arguments="commands.init:add_arguments",
+        run_with="commands.init:run",
+    ),
+    LazyCommand(
         "evaluate",
         "measure accuracy against reference data",
         arguments="commands.evaluate.arguments:add_arguments",

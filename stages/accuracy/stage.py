@@ -49,7 +49,7 @@ class AccuracyParams(StageParams):
         return self
 
 
-class Accuracy(Stage, name="accuracy", version="4", params=AccuracyParams):
+class Accuracy(Stage, name="accuracy", version="5", params=AccuracyParams):
     """DTM vertical accuracy at check points and against a truth raster (runs when either is set)."""
 
     inputs = ("dtm",)
@@ -75,6 +75,16 @@ class Accuracy(Stage, name="accuracy", version="4", params=AccuracyParams):
                 result["n"],
                 result["outside"],
             )
+            if result["outside"]:
+                ctx.log.warning(
+                    "%d of %d check points of %s fall outside the DTM's valid cells and measure nothing%s",
+                    result["outside"],
+                    result["outside"] + result["n"],
+                    p.checkpoints,
+                    ": none is this survey's; give its own check points or set stages.accuracy.enabled=false"
+                    if result["n"] == 0
+                    else "",
+                )
         if p.truth_dtm is not None:
             result["truth"] = truth = _truth_block(ctx.inputs["dtm"], p.truth_dtm, p.truth_land_cover)
             ctx.log.info(

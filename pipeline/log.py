@@ -17,8 +17,15 @@ LOGGER_NAME = "pipeline"
 
 
 class TextFormatter(logging.Formatter):
+    """``HH:MM:SS LEVEL [stage] message``; *dated*: with the date and the UTC offset (a log file's lines)."""
+
+    def __init__(self, dated: bool = False):
+        super().__init__()
+        self.dated = dated
+
     def format(self, record: logging.LogRecord) -> str:
-        stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
+        when = "%Y-%m-%d %H:%M:%S%z" if self.dated else "%H:%M:%S"
+        stamp = time.strftime(when, time.localtime(record.created))
         stage = getattr(record, "stage", None)
         where = f" [{stage}]" if stage else ""
         return f"{stamp} {record.levelname:<7}{where} {record.getMessage()}"
@@ -72,10 +79,12 @@ class Progress:
         self._next_report = 0.1
         self._bar = None
         logger = logging.getLogger(LOGGER_NAME)
+        console = [h.level for h in logger.handlers if type(h) is logging.StreamHandler]
         interactive = (
             sys.stderr.isatty()
             and getattr(logger, "pipeline_format", "text") == "text"
             and logger.isEnabledFor(logging.INFO)
+            and min(console, default=logging.INFO) <= logging.INFO  # -q: no bar, though a run's log takes INFO
         )
         if interactive:
             from tqdm import tqdm  # lazy: ~70 ms to import; pipeline --help imports this module (start-up time)
@@ -122,3 +131,45 @@ class StageWarnings(logging.Handler):
 
     def __exit__(self, *exc: object) -> None:
         logging.getLogger(LOGGER_NAME).removeHandler(self)
+
+
+class RunLog(logging.Handler):
+    """Every line of INFO and above of one run, whatever ``-q`` keeps off the console: ``run.log``'s text.
+
+    ``with RunLog() as log: ...; log.text()``.  While it is open the logger
+    passes INFO on, and each handler it had is held to the level the logger
+    had, so the console shows what it showed.  Lines are kept in memory (a
+    run logs a bounded number: progress every tenth of a step) and written
+    once, atomically, by the runner.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.setFormatter(TextFormatter(dated=True))
+        self.lines: list[str] = []
+        self._saved: list[tuple[logging.Handler, int]] = []
+        self._level = logging.NOTSET
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(self.format(record))
+
+    def text(self) -> str:
+        return "".join(line + "\n" for line in self.lines)
+
+    def __enter__(self) -> RunLog:
+        logger = logging.getLogger(LOGGER_NAME)
+        self._level = logger.level
+        self._saved = [(h, h.level) for h in logger.handlers]
+        for handler, level in self._saved:
+            handler.setLevel(max(level, self._level))
+        if logger.getEffectiveLevel() > logging.INFO:
+            logger.setLevel(logging.INFO)
+        logger.addHandler(self)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        logger = logging.getLogger(LOGGER_NAME)
+        logger.removeHandler(self)
+        logger.setLevel(self._level)
+        for handler, level in self._saved:
+            handler.setLevel(level)

@@ -57,11 +57,13 @@ from pipeline.errors import (
 )
 from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
-from pipeline.log import LOGGER_NAME, StageWarnings, stage_logger
+from pipeline.log import LOGGER_NAME, RunLog, StageWarnings, stage_logger
 from pipeline.replan import PlannedStage, tile_notes
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
 
 MANIFEST = "run.json"
+#: The run's log, beside its products (every line of INFO and above, whatever the console showed).
+RUN_LOG = "run.log"
 PRODUCTS_LOCK = ".products.lock"
 #: Metrics key in which a stage lists the artifacts it made but that hold nothing worth publishing
 #: (an empty map): they stay in the cache entry, are not copied to the output folder, and an older
@@ -363,8 +365,37 @@ def run(
     cache = Cache(cache_root(config), log)
     output = Path(config.output)
     _check_before_running(plan, config, output, cache, config_path, dry_run)
+    if dry_run:
+        return _run(plan, plugin, config, cache, output, config_path, set(force), dry_run, log)
+    with RunLog() as lines:
+        try:
+            return _run(plan, plugin, config, cache, output, config_path, set(force), dry_run, log)
+        finally:
+            _write_run_log(output, lines.text(), log)
+
+
+def _write_run_log(output: Path, text: str, log: logging.Logger) -> None:
+    """``run.log`` beside the products: the run's log at INFO and above, written at once (atomically)."""
+    try:
+        atomic_write_text(output / RUN_LOG, text)
+    except OSError as exc:  # a full disk: the products and run.json are what matter
+        log.error("cannot write %s (%s)", output / RUN_LOG, exc.strerror or exc)
+
+
+def _run(
+    plan: Plan,
+    plugin: Plugin,
+    config: BaseModel,
+    cache: Cache,
+    output: Path,
+    config_path: Path | None,
+    force: set[str],
+    dry_run: bool,
+    log: logging.Logger,
+) -> dict[str, Any]:
+    """:func:`run` once planned and checked (*force*: the stages to re-run)."""
     started = time.time()
-    state = _Run(plan, config, cache, set(force), dry_run, _new_manifest(config, plugin, config_path, started))
+    state = _Run(plan, config, cache, force, dry_run, _new_manifest(config, plugin, config_path, started))
     manifest, records = state.manifest, state.records
     executor = state.executor = make_executor(config)
     published = False
@@ -770,6 +801,8 @@ def _run_step(step: Step, state: _Run) -> dict[str, Any]:
         if entry is not None:
             cache.sweep(step.name, key)
             slog.info("cache hit (key %s; stage %s)", key[:12], slog.extra["step"])
+            for line in (entry.meta.get("metrics") or {}).get(LOG_WARNINGS) or []:
+                slog.warning("%s (cached result)", line)  # what the result warned of when it was made still holds
             record.update(status="cached", seconds=0.0, ran_seconds=entry.meta.get("seconds"))
         else:
             inputs = {n: state.artifacts[r][0] for n, r in resolved.items()}

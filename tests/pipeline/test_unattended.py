@@ -304,6 +304,27 @@ def test_a_stages_warnings_are_kept_with_its_metrics_cached_too(toy, capsys):
     assert toy.run("--set", "stages.histogram.bins=10") == 0
     assert toy.statuses()["histogram"] == "cached"
     assert warned()["histogram"] == ["more bins (10) than values (4)"]
+    # and the console says them again: what a cached result warned of when it was made still holds
+    assert "WARNING [histogram] more bins (10) than values (4) (cached result)" in capsys.readouterr().err
+
+
+def test_run_log_keeps_every_info_line_beside_the_products_under_q(toy, capsys):
+    """``run.log``: the run's lines of INFO and above, dated, whatever -q keeps off the console; a failed run
+    leaves its own, and a run without a log line of INFO does not exist."""
+    assert toy.run("--set", "stages.histogram.bins=10") == 0
+    err = capsys.readouterr().err
+    assert "INFO" not in err  # -q
+    log = (toy.root / "out" / "run.log").read_text().splitlines()
+    assert any(" INFO    [scale] running (stage " in line for line in log)
+    assert any(line.endswith("WARNING [histogram] more bins (10) than values (4)") for line in log)
+    assert log[-1].split(" INFO    ")[1].startswith("run ok in ")
+    stamp = log[0].split(" INFO")[0]
+    assert len(stamp) == len("2026-12-07 18:29:05+0000") and stamp[4] == "-" and stamp[10] == " "
+    assert "run.log" not in toy.manifest()["products"]  # not a product: never removed as a stale one
+    (toy.root / "numbers.txt").write_text("1\nx\n")
+    assert toy.run() != 0
+    log = (toy.root / "out" / "run.log").read_text()
+    assert "run failed" in log and "more bins" not in log  # the failed run's own log, whole
 
 
 def test_each_stage_line_says_where_the_run_is(toy, capsys, monkeypatch):

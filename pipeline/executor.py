@@ -26,7 +26,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from importlib import import_module
@@ -126,7 +126,8 @@ class LocalExecutor:
                 if self._pool is None:
                     self._pool = _pool(min(self.workers, len(tasks)))
                 futures = [self._pool.submit(_then_trim, fn, t) for t in tasks]
-            return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
+            completed = concurrent.futures.as_completed(futures)
+            return _collect(futures, completed, log, what, lambda: [f.cancel() for f in futures])
         except BrokenProcessPool:
             if interrupt.received() is not None:  # the run is stopping: its signal, not the worker, says why
                 raise interrupt.Interrupted(interrupt.received()) from None
@@ -305,7 +306,8 @@ class DaskExecutor:
         client = self._connect()
         futures = client.map(fn, list(tasks), pure=False)
         try:
-            return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+            completed = distributed.as_completed(futures, loop=client.loop)
+            return _collect(futures, completed, log, what, lambda: client.cancel(futures))
         except (FileNotFoundError, NotADirectoryError) as exc:
             path = exc.filename
             if not isinstance(path, str) or not os.path.exists(path):
@@ -488,12 +490,13 @@ def _done(log: Any, k: int, n: int, what: str) -> None:
         log.info("%s: %d of %d done", what, k, n)
 
 
-def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any], as_completed: Callable) -> list[Any]:
+def _collect(futures: list, completed: Iterable, log: Any, what: str, cancel: Callable[[], Any]) -> list[Any]:
     """Wait for every future (logging progress); the first failure cancels the rest and is raised.
 
-    *as_completed* is the futures' own (``concurrent.futures`` or ``distributed``).
+    *completed* yields the *futures* as they complete (``concurrent.futures.as_completed``, or
+    ``distributed``'s).
     """
-    for k, future in enumerate(as_completed(futures), 1):
+    for k, future in enumerate(completed, 1):
         exc = future.exception()
         if exc is not None:
             cancel()

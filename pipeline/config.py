@@ -157,6 +157,14 @@ class ExecutorConfig(StrictModel):
         description="seconds to wait for the Dask scheduler at `address` to answer; then the run stops "
         "(exit 4) instead of waiting for ever; default 10",
     )
+    no_workers_timeout_s: float = Field(
+        300.0,
+        gt=0,
+        le=86_400,
+        allow_inf_nan=False,
+        description="seconds a Dask cluster may have no worker while tasks wait; then the run cancels them and "
+        "stops (exit 4) instead of waiting for ever; a worker lost meanwhile is logged; default 300",
+    )
     in_process_below: int = Field(
         100_000,
         ge=0,

@@ -6,7 +6,9 @@ local, workers: N}``; one task, or one worker, runs in this process).
 of ``workers`` processes (workers need this package and the cache folder at
 the same path: a cluster's workers are checked on connecting, and a task
 that cannot find a folder this run sees stops the run with one sentence,
-:meth:`DaskExecutor.unseen`).  Tasks are module-level functions called with a small task
+:meth:`DaskExecutor.unseen`; a worker lost is logged, and a cluster left
+without a worker for ``executor.no_workers_timeout_s`` stops the run,
+:class:`_WorkerWatch`).  Tasks are module-level functions called with a small task
 (paths and parameters, never large arrays) that return something small, in
 task order; the transport is the executors' own, and nothing it serialises
 is stored.  :func:`thread_map` runs a function on threads of this process
@@ -15,6 +17,7 @@ is stored.  :func:`thread_map` runs a function on threads of this process
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import contextlib
 import ctypes
@@ -26,7 +29,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from importlib import import_module
@@ -126,7 +129,8 @@ class LocalExecutor:
                 if self._pool is None:
                     self._pool = _pool(min(self.workers, len(tasks)))
                 futures = [self._pool.submit(_then_trim, fn, t) for t in tasks]
-            return _collect(futures, log, what, lambda: [f.cancel() for f in futures], concurrent.futures.as_completed)
+            completed = concurrent.futures.as_completed(futures)
+            return _collect(futures, completed, log, what, lambda: [f.cancel() for f in futures])
         except BrokenProcessPool:
             if interrupt.received() is not None:  # the run is stopping: its signal, not the worker, says why
                 raise interrupt.Interrupted(interrupt.received()) from None
@@ -172,6 +176,7 @@ class DaskExecutor:
         workers: int = 1,
         connect_timeout: float = 10.0,
         shared: Sequence[str | os.PathLike] = (),
+        no_workers_timeout: float = 300.0,
     ):
         self.address = address
         self.workers = max(1, int(workers))
@@ -179,8 +184,11 @@ class DaskExecutor:
         self.connect_timeout = float(connect_timeout)
         #: Folders every worker of the cluster at ``address`` must see as this run does (the cache).
         self.shared = [str(f) for f in shared]
+        #: Seconds the cluster may have no worker while tasks wait (:class:`_WorkerWatch`).
+        self.no_workers_timeout = float(no_workers_timeout)
         self._client = None
         self._cluster = None
+        self._watch: _WorkerWatch | None = None
 
     def describe(self) -> str:
         return f"dask {self.address}" if self.address else f"dask local cluster, {self.workers} workers"
@@ -219,7 +227,16 @@ class DaskExecutor:
                 silence_logs=logging.ERROR,
             )
             self._client = Client(self._cluster)
-        return self._client
+        client = self._client
+        where = (
+            f"executor.address {self.address}"
+            if self.address
+            else f"the local Dask cluster at {client.scheduler.address}"
+        )
+        self._watch = _WorkerWatch(lambda: _workers_now(client), self.no_workers_timeout, where, self.address)
+        # the scheduler's cluster-wide events (workers added and removed, ...) go to the topic "all"
+        client.subscribe_topic("all", self._watch.removed)
+        return client
 
     def _reach(self, connect: Callable[[], Any]) -> Any:
         """``connect()``, given :attr:`connect_timeout` seconds to succeed, else ``EnvironmentFailure``.
@@ -293,9 +310,11 @@ class DaskExecutor:
         A task that raises ``FileNotFoundError`` for a path that exists here
         ran on a worker that does not share this run's filesystem:
         :meth:`unseen` names the folder.  Tasks the scheduler cancels (it
-        stopped, or the connection to it was lost) and a task that killed
-        every worker that tried it are ``EnvironmentFailure`` (exit 4).
-        Other errors are the task's own.
+        stopped, or the connection to it was lost), a task that killed
+        every worker that tried it, and a cluster left without a worker for
+        :attr:`no_workers_timeout` seconds (the tasks are cancelled) are
+        ``EnvironmentFailure`` (exit 4); a worker lost is logged
+        (:class:`_WorkerWatch`).  Other errors are the task's own.
         """
         if not tasks:
             return []
@@ -305,7 +324,13 @@ class DaskExecutor:
         client = self._connect()
         futures = client.map(fn, list(tasks), pure=False)
         try:
-            return _collect(futures, log, what, lambda: client.cancel(futures), distributed.as_completed)
+            completed = self._watch.completed(
+                distributed.as_completed(futures, loop=client.loop), [f.key for f in futures], log
+            )
+            return _collect(futures, completed, log, what, lambda: client.cancel(futures))
+        except WorkerLost:  # the cluster had no worker for too long: the scheduler forgets the tasks
+            client.cancel(futures)
+            raise
         except (FileNotFoundError, NotADirectoryError) as exc:
             path = exc.filename
             if not isinstance(path, str) or not os.path.exists(path):
@@ -329,6 +354,136 @@ class DaskExecutor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+class _WorkerWatch:
+    """A Dask cluster's workers while the run waits for its tasks: each one lost is logged, none for long fails.
+
+    Parameters
+    ----------
+    count : callable
+        The number of workers the scheduler has now, None when it cannot
+        be asked (:func:`_workers_now`).
+    timeout : float
+        Seconds the cluster may have no worker while tasks wait
+        (``executor.no_workers_timeout_s``).
+    where : str
+        The scheduler, as the failure's sentence names it.
+    address : str or None
+        The scheduler's address, for the advice to start workers; None for a
+        local cluster, which starts its own.
+    clock, sleep : callable
+        ``time.monotonic`` and ``time.sleep``, replaced in tests.
+
+    Notes
+    -----
+    The scheduler publishes a ``remove-worker`` event to its topic ``"all"``
+    naming the worker, the keys it was running or had queued, and those
+    whose results it held (which it computes again).  The client is
+    subscribed to it (:meth:`removed`, on the client's event-loop thread);
+    :meth:`completed` says each one in a WARNING line, from the run's
+    thread.  The events carry exactly what is re-run, as the scheduler saw
+    it; polling the workers' tasks instead would guess it between two
+    polls.  The events do not say when the last worker is gone for good:
+    while no task completes, the number of workers is asked once a second.
+    """
+
+    def __init__(
+        self,
+        count: Callable[[], int | None],
+        timeout: float,
+        where: str,
+        address: str | None,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], Any] = time.sleep,
+    ):
+        self.count = count
+        self.timeout = float(timeout)
+        self.where = where
+        self.address = address
+        self.clock = clock
+        self.sleep = sleep
+        #: Seconds between two questions of the number of workers, while no task completes.
+        self.every = min(1.0, self.timeout / 5)
+        self._removed: collections.deque[dict] = collections.deque()  # appended on the client's thread
+
+    def removed(self, event: tuple[float, Any]) -> None:
+        """Keep a ``remove-worker`` event of the scheduler (``(time, message)``), for :meth:`completed` to say."""
+        message = event[1] if isinstance(event, tuple | list) and len(event) == 2 else event
+        if isinstance(message, dict) and message.get("action") == "remove-worker":
+            self._removed.append(message)
+
+    def completed(self, pending: Any, keys: Sequence[Any], log: Any = None) -> Iterator[Any]:
+        """The futures of *pending* (a ``distributed.as_completed`` of the tasks *keys*) as they complete.
+
+        Each worker lost meanwhile is one WARNING line on *log*.  Raises
+        :class:`WorkerLost` when the cluster has had no worker for
+        :attr:`timeout` seconds while tasks wait; the caller cancels them.
+        """
+        keys = set(keys)
+        log = log if log is not None else logging.getLogger(LOGGER_NAME)
+        asked = -float("inf")
+        empty_since: float | None = None  # when the cluster was first seen without a worker
+        while not pending.is_empty():
+            self._say_removed(keys, log)
+            ready = pending.next_batch(block=False)
+            if ready:
+                yield from ready
+                continue
+            now = self.clock()
+            if now - asked >= self.every:
+                asked = now
+                workers = self.count()  # None: not known now, the clock runs on as it was
+                if workers:
+                    empty_since = None
+                elif workers == 0 and empty_since is None:
+                    empty_since = now
+            if empty_since is not None and now - empty_since >= self.timeout:
+                self._say_removed(keys, log)
+                raise WorkerLost(self._none_for(pending.count(), len(keys)))
+            self.sleep(min(0.1, self.every))
+
+    def _say_removed(self, keys: set, log: Any) -> None:
+        if not self._removed:
+            return
+        left = self.count()
+        while self._removed:
+            log.warning("%s", self._lost(self._removed.popleft(), keys, left))
+
+    def _lost(self, message: dict, keys: set, left: int | None) -> str:
+        """The line for the ``remove-worker`` *message*: the worker, and what of *keys* it had."""
+        had = set(message.get("processing-tasks") or ()) | set(message.get("lost-computed-tasks") or ())
+        held = len(had & keys)
+        how = "was retired" if message.get("expected") else "was lost"
+        line = f"Dask worker {message.get('worker', '?')} {how}; it had {held or 'none'} of the {len(keys)} tasks"
+        if held:
+            line += " (running, queued or done), " + ("to re-run" if left == 0 else "re-run on the other workers")
+        if left == 0:
+            line += f"; no worker is left: the run waits {self.timeout:g} s for one (executor.no_workers_timeout_s)"
+        return line
+
+    def _none_for(self, pending: int, total: int) -> str:
+        start = f"start workers (`dask worker {self.address}`), then " if self.address else ""
+        return (
+            f"{self.where}: no Dask worker for {self.timeout:g} s (executor.no_workers_timeout_s) with {pending} of "
+            f"the {total} tasks still to run; {start}{_RESUME}"
+        )
+
+
+def _workers_now(client: Any) -> int | None:
+    """The number of workers of *client*'s scheduler; None while it cannot be asked.
+
+    A scheduler just lost would be asked until the client's connect timeout
+    ends; the client says it is lost first (its status), and the tasks are
+    then cancelled (:meth:`DaskExecutor.map` says so).
+    """
+    if client.status != "running":
+        return None
+    try:
+        return len(client.nthreads())
+    except OSError:  # the connection was lost while asking
+        return None
 
 
 def _read_probe(path: str) -> str | None:
@@ -488,12 +643,13 @@ def _done(log: Any, k: int, n: int, what: str) -> None:
         log.info("%s: %d of %d done", what, k, n)
 
 
-def _collect(futures: list, log: Any, what: str, cancel: Callable[[], Any], as_completed: Callable) -> list[Any]:
+def _collect(futures: list, completed: Iterable, log: Any, what: str, cancel: Callable[[], Any]) -> list[Any]:
     """Wait for every future (logging progress); the first failure cancels the rest and is raised.
 
-    *as_completed* is the futures' own (``concurrent.futures`` or ``distributed``).
+    *completed* yields the *futures* as they complete (``concurrent.futures.as_completed``, or
+    :meth:`_WorkerWatch.completed` over ``distributed``'s).
     """
-    for k, future in enumerate(as_completed(futures), 1):
+    for k, future in enumerate(completed, 1):
         exc = future.exception()
         if exc is not None:
             cancel()
@@ -516,5 +672,11 @@ def make_executor(config: Any) -> LocalExecutor | DaskExecutor:
     if ex.kind == "dask":
         workers = ex.workers if ex.address else capped_workers(ex.workers, log)
         shared = [cache_root(config)] if ex.address and hasattr(config, "output") else []
-        return DaskExecutor(ex.address, workers, getattr(ex, "connect_timeout_s", 10.0), shared)
+        return DaskExecutor(
+            ex.address,
+            workers,
+            getattr(ex, "connect_timeout_s", 10.0),
+            shared,
+            no_workers_timeout=getattr(ex, "no_workers_timeout_s", 300.0),
+        )
     return LocalExecutor(capped_workers(ex.workers, log))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import json
 import logging
+import math
 import os
 import random
 import signal
@@ -18,6 +19,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -214,3 +216,136 @@ def test_the_lowered_number_is_said_once(monkeypatch, caplog):
         Config.executor.workers = 2
         make_executor(Config)
     assert len(caplog.records) == 1  # nothing to say when the number fits
+
+
+# --------------------------------------------------------------------------
+# Dask workers lost (issue 53): the watch, on a fake clock and a fake cluster
+
+
+class Clock:
+    """``time.monotonic`` and ``time.sleep`` of a test: sleeping moves the time on, at once."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+class Pending:
+    """A ``distributed.as_completed`` of futures named by their keys, each done at its time on *clock*."""
+
+    def __init__(self, clock: Clock, done_at: dict[str, float]):
+        self.clock, self.done_at = clock, dict(done_at)
+
+    def is_empty(self) -> bool:
+        return not self.done_at
+
+    def count(self) -> int:
+        return len(self.done_at)
+
+    def next_batch(self, block: bool = True) -> list[str]:
+        assert not block  # the watch must never wait inside distributed: it would not see the time pass
+        assert self.clock() < 3600, "waited for an hour of the test's clock: for ever"
+        ready = sorted(k for k, t in self.done_at.items() if t <= self.clock())
+        for k in ready:
+            del self.done_at[k]
+        return ready
+
+
+def _watch(clock: Clock, workers: Callable[[float], int], timeout: float = 5.0) -> executor_module._WorkerWatch:
+    return executor_module._WorkerWatch(
+        lambda: workers(clock()),
+        timeout,
+        "executor.address tcp://10.0.0.1:8786",
+        "tcp://10.0.0.1:8786",
+        clock=clock,
+        sleep=clock.sleep,
+    )
+
+
+def _removed(worker: str, processing=(), computed=(), expected=False) -> tuple[float, dict]:
+    message = {"action": "remove-worker", "processing-tasks": set(processing), "lost-computed-tasks": set(computed)}
+    return 0.0, {**message, "expected": expected, "worker": worker}
+
+
+def test_a_cluster_without_workers_for_the_timeout_stops_the_wait():
+    clock = Clock()
+    watch = _watch(clock, lambda t: 0)  # no worker at all, from the start
+    pending = Pending(clock, dict.fromkeys("abc", math.inf))
+    done = []
+    with pytest.raises(EnvironmentFailure) as caught:
+        done.extend(watch.completed(pending, ["a", "b", "c"]))
+    assert done == []  # no worker: nothing completes
+    assert 5.0 <= clock.now <= 5.0 + watch.every + 0.2
+    assert caught.value.exit_code == 4
+    assert str(caught.value) == (
+        "executor.address tcp://10.0.0.1:8786: no Dask worker for 5 s (executor.no_workers_timeout_s) with 3 of "
+        "the 3 tasks still to run; start workers (`dask worker tcp://10.0.0.1:8786`), then run again to resume: "
+        "complete stages are reused."
+    )
+
+
+def test_workers_back_within_the_timeout_start_the_clock_again():
+    clock = Clock()
+    # none in 2-6 s and 8-12 s: never 5 s in a row; not known in 14-18 s (the scheduler being lost); none from 20 s
+    watch = _watch(clock, lambda t: 0 if 2 <= t < 6 or 8 <= t < 12 or t >= 20 else None if 14 <= t < 18 else 1)
+    pending = Pending(clock, {"a": 1.0, "b": 7.0, "c": 13.0, "d": math.inf})
+    done = []
+    with pytest.raises(EnvironmentFailure, match="with 1 of the 4 tasks still to run"):
+        done.extend(watch.completed(pending, ["a", "b", "c", "d"]))
+    assert done == ["a", "b", "c"]
+    assert 25.0 <= clock.now <= 25.0 + watch.every + 0.2
+
+
+def test_each_worker_lost_is_one_warning_line(caplog):
+    clock = Clock()
+    workers = {"n": 2}
+    watch = _watch(clock, lambda t: workers["n"], timeout=300)
+    keys = ["t0", "t1", "t2", "t3"]
+    pending = Pending(clock, {"t0": 1.0, "t1": 2.0, "t2": 3.0, "t3": 4.0})
+    log = logging.getLogger("pipeline.test")
+
+    def lose(event, left):
+        watch.removed(event)
+        workers["n"] = left
+
+    with caplog.at_level(logging.INFO, logger="pipeline.test"):
+        for key in watch.completed(pending, keys, log):
+            if key == "t0":  # running t2, holding t0's result, and another run's task
+                lose(_removed("tcp://10.0.0.2:40123", ["t2", "other-run"], ["t0"]), 1)
+            if key == "t1":
+                lose(_removed("tcp://10.0.0.3:40124", [], [], expected=True), 1)
+            if key == "t2":
+                lose(_removed("tcp://10.0.0.4:40125", ["t3"]), 0)
+        watch.removed((0.0, {"action": "add-worker", "worker": "tcp://10.0.0.5:1"}))  # not a loss: not said
+        assert list(watch.completed(Pending(clock, {}), keys, log)) == []
+    assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
+        (
+            "WARNING",
+            "Dask worker tcp://10.0.0.2:40123 was lost; it had 2 of the 4 tasks (running, queued or done), "
+            "re-run on the other workers",
+        ),
+        ("WARNING", "Dask worker tcp://10.0.0.3:40124 was retired; it had none of the 4 tasks"),
+        (
+            "WARNING",
+            "Dask worker tcp://10.0.0.4:40125 was lost; it had 1 of the 4 tasks (running, queued or done), to re-run; "
+            "no worker is left: the run waits 300 s for one (executor.no_workers_timeout_s)",
+        ),
+    ]
+
+
+def test_the_no_workers_timeout_is_a_config_key(toy, capsys):
+    for wrong in ("0", "-1", "inf"):
+        code = main(["validate", str(toy.path), "--set", f"executor.no_workers_timeout_s={wrong}"])
+        assert code == 2 and "executor.no_workers_timeout_s" in capsys.readouterr().err
+    assert main(["validate", str(toy.path), "--set", "executor.no_workers_timeout_s=5"]) == 0
+
+    class Config:
+        class executor:  # noqa: N801 - stands for the configuration's block
+            kind, workers, address, no_workers_timeout_s = "dask", 1, "tcp://10.0.0.1:8786", 7.5
+
+    assert make_executor(Config).no_workers_timeout == 7.5

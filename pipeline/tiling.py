@@ -84,8 +84,9 @@ class Layout:
         if copies > MAX_COPIES:
             least = 2 * buffer / (math.sqrt(MAX_COPIES) - 1)
             raise ConfigError(
-                f"tiling.size: tiles of {size:g} with a buffer of {buffer:g} put every point in {copies:.0f} tiles, "
-                f"more than {MAX_COPIES:g}; use tiles of at least {math.ceil(least):g} (or a smaller tiling.buffer)."
+                f"tiling.size: tiles of {size:g} m with a buffer of {buffer:g} m put every point in {copies:.0f} "
+                f"tiles, more than {MAX_COPIES:g}; use tiles of at least {math.ceil(least):g} m (or a smaller "
+                "tiling.buffer)."
             )
         c0, r0, cols, rows = _grid(xmin, ymin, xmax, ymax, size)
         if cols * rows > MAX_TILES:
@@ -93,8 +94,8 @@ class Layout:
             while math.prod(_grid(xmin, ymin, xmax, ymax, least)[2:]) > MAX_TILES:
                 least *= 1.002
             raise ConfigError(
-                f"tiling.size: tiles of {size:g} cut the extent of {xmax - xmin:.0f} x {ymax - ymin:.0f} into "
-                f"{cols * rows:,} tiles, more than {MAX_TILES:,}; use tiles of at least {math.ceil(least):g}."
+                f"tiling.size: tiles of {size:g} m cut the extent of {xmax - xmin:.0f} m x {ymax - ymin:.0f} m "
+                f"into {cols * rows:,} tiles, more than {MAX_TILES:,}; use tiles of at least {math.ceil(least):g} m."
             )
         return cls((xmin, ymin, xmax, ymax), float(size), float(buffer), c0, r0, cols, rows)
 
@@ -260,7 +261,7 @@ def run_tiled(
         ctx.metrics["tiling"]["tasks"] = len(tasks)
         if len(layout) > 1:
             ctx.log.info(
-                "%d tiles of %g with a buffer of %g (%d hold data) on %s",
+                "%d tiles of %g m with a buffer of %g m (%d hold data) on %s",
                 len(layout),
                 layout.size,
                 layout.buffer,

@@ -3,7 +3,8 @@
 LAS 1.4, point format 6, ASPRS classes, ``point_source_id`` = flight strip,
 GPS time, the CRS as WKT.  Copied in chunks, so memory does not grow with the
 survey.  With ``files: per_input``, one file per input LAS/LAZ file
-instead, ``points/<its name>`` with its points (:func:`output_name`).
+instead, ``points/<its name>`` with its points (:func:`output_name`), and
+``points.vpc``, a virtual point cloud over them (:mod:`stages.export_las.vpc`).
 With ``copc: true`` also ``points.copc.laz``
 (:mod:`stages.export_las.copc`; docs/stages/export_las.md).
 """
@@ -22,6 +23,7 @@ from lidar.input_files import read_input_files_csv
 from pipeline.errors import ConfigError, InputDataError, PipelineError
 from pipeline.stage import Stage, StageContext, StageIO, StageParams
 from stages.export_las.copc import write_copc
+from stages.export_las.vpc import write_vpc
 
 
 class ExportLasParams(StageParams):
@@ -40,7 +42,7 @@ class ExportLasParams(StageParams):
     )
 
 
-class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
+class ExportLas(Stage, name="export_las", version="3", params=ExportLasParams):
     """classified points to points.laz."""
 
     inputs = ("points_objects",)
@@ -52,7 +54,7 @@ class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
         if params.files == "per_input":
             if params.enabled:
                 check_per_input(config)
-            outputs = {"points_per_input": "points"}
+            outputs = {"points_per_input": "points", "points_vpc": "points.vpc"}
             inputs += ("input_files",)
         else:
             outputs = {"points_export": "points.laz" if params.compress else "points.las"}
@@ -63,7 +65,9 @@ class ExportLas(Stage, name="export_las", version="2", params=ExportLasParams):
     def run(self, ctx: StageContext[ExportLasParams]) -> None:
         src_path = ctx.inputs["points_objects"]
         if "points_per_input" in ctx.outputs:
-            write_per_input(ctx, src_path, ctx.outputs["points_per_input"])
+            folder = ctx.outputs["points_per_input"]
+            write_per_input(ctx, src_path, folder)
+            write_vpc(ctx.outputs["points_vpc"], sorted(folder.iterdir()))
             if "points_copc" in ctx.outputs:
                 write_copc_product(ctx, src_path, ctx.outputs["points_copc"])
             return

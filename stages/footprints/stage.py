@@ -8,6 +8,8 @@ of its cells' highest points), ``highest_z``, ``height`` (roof − ground),
 ``points`` and ``area`` (CRS units); an empty layer when there is none.
 ``canopy_height.tif`` (when ``classify_objects`` classifies vegetation): the
 highest vegetation point above the DTM per cell, a COG like the DTM.
+``survey.gpkg``: the survey's boundary and its input files' tile index
+(:mod:`stages.footprints.survey_index`).
 docs/stages/footprints.md.
 """
 
@@ -23,6 +25,7 @@ from lidar.rasters import read_raster, write_cog
 from lidar.vectors import write_gpkg
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
 from stages.footprints.outlines import CellTally, building_labels, building_rows, canopy_height, flat_cells
+from stages.footprints.survey_index import write_survey_index
 
 
 class FootprintsParams(StageParams):
@@ -34,18 +37,19 @@ def _vegetation(config) -> bool:
     return objects is not None and objects.enabled and objects.vegetation.enabled
 
 
-class Footprints(Stage, name="footprints", version="2", params=FootprintsParams):
-    """building outlines (buildings.gpkg) and canopy height (canopy_height.tif)."""
+class Footprints(Stage, name="footprints", version="3", params=FootprintsParams):
+    """building outlines (buildings.gpkg), canopy height (canopy_height.tif), boundary and tile index (survey.gpkg)."""
 
     inputs = ("dtm", "points_objects")
-    outputs: ClassVar = {"buildings": "buildings.gpkg"}
-    products: ClassVar = {"buildings": "buildings.gpkg"}
+    outputs: ClassVar = {"buildings": "buildings.gpkg", "survey_index": "survey.gpkg"}
+    products: ClassVar = {"buildings": "buildings.gpkg", "survey_index": "survey.gpkg"}
 
     def declare(self, params, config) -> StageIO:
         outputs, products = dict(self.outputs), dict(self.products)
         if _vegetation(config):
             outputs["canopy_height"] = products["canopy_height"] = "canopy_height.tif"
-        return StageIO(tuple(self.inputs), outputs, products)
+        inputs = tuple(self.inputs) + (("input_files",) if config.input.format == "las" else ())
+        return StageIO(inputs, outputs, products)
 
     def run(self, ctx: StageContext[FootprintsParams]) -> None:
         dtm, transform, crs, _ = read_raster(ctx.inputs["dtm"])
@@ -56,6 +60,17 @@ class Footprints(Stage, name="footprints", version="2", params=FootprintsParams)
             for chunk in reader.chunk_iterator(1_000_000):
                 cell = flat_cells(np.asarray(chunk.x), np.asarray(chunk.y), transform, dtm.shape)
                 tally.add(cell, np.asarray(chunk.z), np.asarray(chunk.classification))
+        area, skipped = write_survey_index(
+            ctx.outputs["survey_index"], dtm, transform, crs, ctx.inputs.get("input_files")
+        )
+        ctx.metrics.update(boundary_area=area)
+        if skipped:
+            ctx.log.warning(
+                "survey.gpkg: %d input files left out of the tile index, their CRS's name cannot be read back "
+                "(%s); qc/input_files.csv lists their bounds",
+                len(skipped),
+                ", ".join(skipped[:3]),
+            )
         count = _buildings(ctx, tally, dtm, transform, crs)
         tally.roof_count = tally.roof_top = None  # the buildings' grids: not held while the canopy is written
         if "canopy_height" in ctx.outputs:

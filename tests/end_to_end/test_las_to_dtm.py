@@ -254,7 +254,8 @@ def test_report_is_self_contained(run_dir):
     assert "RMSEz" in page
     # the delivered cloud by its product's name, not the intermediate's; the units said once, plainly
     assert "<td>delivered (classified)</td><td>points.laz</td>" in page
-    assert "x, y in metre, heights in metre</p>" in page and "unless a heading" not in page
+    assert "x, y in metre, heights in metre · vertical datum: unknown: the input names no vertical CRS</p>" in page
+    assert "unless a heading" not in page
     # the summary's ground is the class table's
     summary = re.search(r"<th>ground points \(class 2, delivered\)</th><td>([\d,]+) \(([\d.]+ %)\)</td>", page)
     table = re.search(r"<tr><td>2</td><td>ground</td><td>([\d,]+)</td><td>([\d.]+ %)</td></tr>", page)

@@ -253,8 +253,8 @@ def test_a_layout_of_too_many_tiles_is_refused_before_cutting():
     with pytest.raises(ConfigError) as exc:
         Layout.of((0.0, 0.0, 50_000.0, 50_000.0), 100.0, 10.0)
     assert str(exc.value) == (
-        f"tiling.size: tiles of 100 cut the extent of 50000 x 50000 into 251,001 tiles, more than {MAX_TILES:,}; "
-        "use tiles of at least 159."
+        f"tiling.size: tiles of 100 m cut the extent of 50000 m x 50000 m into 251,001 tiles, more than "
+        f"{MAX_TILES:,}; use tiles of at least 159 m."
     )
     assert len(Layout.of((0.0, 0.0, 50_000.0, 50_000.0), 159.0, 10.0)) <= MAX_TILES
     with pytest.raises(ConfigError, match="put every point in 225 tiles, more than 100; use tiles of at least 16"):

@@ -7,10 +7,12 @@ the same run: each per-input file holds that tile's rows of it, in order.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import laspy
 import numpy as np
+import pyproj
 
 from pipeline.cli import main
 from tests.conftest import run_until
@@ -59,6 +61,37 @@ def test_one_file_per_input_with_its_rows_of_the_merged_cloud(tmp_path, need_dat
         assert not any(v.user_id == "copc" for v in out.header.vlrs)
         at += expected
     assert at == len(merged.points)
+    _check_vpc(tmp_path / "split" / "points.vpc", [folder / n for n in names])
+
+
+def _check_vpc(vpc: Path, files: list[Path]) -> None:
+    """The virtual point cloud, against PDAL wrench's vpc-spec.md: a STAC API ItemCollection (a GeoJSON
+    FeatureCollection of STAC 1.0.0 Items) with the pointcloud and projection extensions, one Item per file;
+    bounds in WGS 84 and in the file's CRS (3-D), the file as the data asset, relative to the .vpc."""
+    doc = json.loads(vpc.read_text())
+    assert doc["type"] == "FeatureCollection" and len(doc["features"]) == len(files)
+    for feature, path in zip(doc["features"], files, strict=True):
+        las = laspy.read(path)
+        assert feature["type"] == "Feature" and feature["stac_version"] == "1.0.0" and feature["links"] == []
+        assert any("stac-extensions.github.io/pointcloud/" in e for e in feature["stac_extensions"])
+        assert any("stac-extensions.github.io/projection/" in e for e in feature["stac_extensions"])
+        asset = feature["assets"]["data"]
+        assert asset["roles"] == ["data"] and (vpc.parent / asset["href"]).resolve() == path.resolve()
+        props = feature["properties"]
+        assert "datetime" in props and props["pc:count"] == len(las.points) and props["pc:type"] == "lidar"
+        assert props["pc:encoding"] == ("application/vnd.laszip" if path.suffix == ".laz" else "application/vnd.las")
+        assert {s["name"] for s in props["pc:schemas"]} >= {"X", "Y", "Z", "classification", "gps_time"}
+        crs = pyproj.CRS.from_wkt(props["proj:wkt2"])
+        assert crs == las.header.parse_crs()
+        np.testing.assert_allclose(props["proj:bbox"], [*las.header.mins, *las.header.maxs])
+        # every point inside the WGS 84 box and polygon (lon, lat; GeoJSON's axis order)
+        lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(las.x, las.y)
+        w, s, z0, e, n, z1 = feature["bbox"]
+        assert w <= lon.min() and lon.max() <= e and s <= lat.min() and lat.max() <= n
+        assert z0 <= float(np.min(las.z)) and float(np.max(las.z)) <= z1
+        ring = feature["geometry"]["coordinates"][0]
+        assert feature["geometry"]["type"] == "Polygon" and ring[0] == ring[-1] and len(ring) == 5
+        assert -180 <= w < e <= 180 and -90 <= s < n <= 90
 
 
 def test_two_inputs_of_one_name_are_refused_exit_2(tmp_path, capsys, need_data):

@@ -95,23 +95,27 @@ class Qgis(Stage, name="qgis", version="1", params=QgisParams):
 
     def run(self, ctx: StageContext[QgisParams]) -> None:
         crs_wkt, extent, metres_per_unit = _frame(ctx.inputs["dtm"])
-        paths = product_paths(ctx.setting("stages.export_las.compress"))
-        layers, unpublished = [], []
-        for artifact, path in paths.items():
-            if artifact not in ctx.inputs:
-                continue
-            found = _layers(ctx, artifact, path, metres_per_unit)
-            if f"{artifact}_style" in ctx.outputs:
-                ctx.outputs[f"{artifact}_style"].write_bytes(qml(found[0].style if found else []))
-                if not found:
-                    unpublished.append(f"{artifact}_style")
-            layers += found
+        layers = []
+        for artifact, path in product_paths(ctx.setting("stages.export_las.compress")).items():
+            if artifact in ctx.inputs:
+                found = _layers(ctx, artifact, path, metres_per_unit)
+                _write_style(ctx, artifact, found)
+                layers += found
         title = ctx.setting("name") or "survey"
         ctx.outputs["project"].write_bytes(qgz(project_document(layers, title=title, crs_wkt=crs_wkt, extent=extent)))
-        if unpublished:
-            ctx.metrics[UNPUBLISHED] = unpublished
-        ctx.metrics.update(layers=[layer.name for layer in layers], styles=len(ctx.outputs) - 1 - len(unpublished))
-        ctx.log.info("project.qgz: %d layers; %d styles beside the products", len(layers), ctx.metrics["styles"])
+        styles = len(ctx.outputs) - 1 - len(ctx.metrics.get(UNPUBLISHED, []))
+        ctx.metrics.update(layers=[layer.name for layer in layers], styles=styles)
+        ctx.log.info("project.qgz: %d layers; %d styles beside the products", len(layers), styles)
+
+
+def _write_style(ctx: StageContext[QgisParams], artifact: str, layers: list[Layer]) -> None:
+    """The product's ``.qml``: its first layer's style; not published when the product has no layer to draw."""
+    name = f"{artifact}_style"
+    if name not in ctx.outputs:
+        return  # the per-input points: styled in the project only
+    ctx.outputs[name].write_bytes(qml(layers[0].style if layers else []))
+    if not layers:
+        ctx.metrics.setdefault(UNPUBLISHED, []).append(name)
 
 
 def _frame(dtm: Path) -> tuple[str, tuple[float, float, float, float], float]:

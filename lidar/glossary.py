@@ -57,6 +57,21 @@ CLASS_NAMES = {
 }
 
 
+#: Colours of the ASPRS classes (RGB 0-255), as common viewers show them: the report's class map (others
+#: black) and the points' QGIS style.
+CLASS_COLOURS = {
+    1: (170, 170, 170),
+    2: (166, 124, 82),
+    3: (186, 228, 179),
+    4: (116, 196, 118),
+    5: (35, 139, 69),
+    6: (227, 26, 28),
+    9: (49, 130, 189),
+    17: (255, 170, 0),
+    20: (204, 204, 102),
+}
+
+
 def class_name(code: int) -> str:
     """The ASPRS name of a classification code ("reserved" 23-63, "user defined" 64-255)."""
     return CLASS_NAMES.get(code, "user defined" if code >= 64 else "reserved")

@@ -3,7 +3,8 @@
 #   - the system libraries its Python dependencies load (open3d needs libusb-1.0-0,
 #     libGL, libEGL, libX11; the venv needs python3-venv on Debian);
 #   - a virtual environment in .venv with the package installed (editable) and,
-#     with --test, the test tools.
+#     with --test, the test tools and QGIS's Python bindings (python3-qgis, for
+#     the system python3: the test of the QGIS project opens it with QGIS).
 # As root, missing system packages are installed with apt-get; otherwise the
 # script stops with the apt-get command to run.  Re-running is cheap: pip is
 # skipped when pyproject.toml has not changed since the last install.
@@ -38,6 +39,11 @@ for lib in "${!NEEDS[@]}"; do
 done
 if ! "$PYTHON" -c 'import ensurepip, venv' >/dev/null 2>&1; then
   missing+=("python3-venv")
+fi
+# The tests open the QGIS project of a run with QGIS itself: the system Python's bindings
+# (Debian's python3-qgis, GPL, used by the tests only; about 35 s to install).
+if [ -n "$extras" ] && ! /usr/bin/python3 -c 'import qgis.core' >/dev/null 2>&1; then
+  missing+=("python3-qgis")
 fi
 if [ ${#missing[@]} -gt 0 ]; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then

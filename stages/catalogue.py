@@ -30,6 +30,7 @@ from stages.hillshade.stage import Hillshade
 from stages.parse.changes import changed_areas
 from stages.parse.checks import configuration_warnings
 from stages.parse.stage import Parse
+from stages.qgis.stage import Qgis
 from stages.rasterize.stage import Rasterize
 from stages.report.stage import Report
 from stages.strip_adjust.stage import StripAdjust
@@ -50,6 +51,7 @@ STAGES = [
     Accuracy,
     ExportLas,
     ExportTiles,
+    Qgis,
     Report,
 ]
 

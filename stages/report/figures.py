@@ -193,26 +193,12 @@ def strips_figure(cv: Canvas, cloud: CloudSummary) -> str:
     return figure(svg, "flight strip coverage", "Flight strips: the strip of the last point read in each DTM cell.")
 
 
-#: Colours of the ASPRS classes on the class map (RGB 0-255), as common viewers show them; others black.
-CLASS_COLOURS = {
-    1: (170, 170, 170),
-    2: (166, 124, 82),
-    3: (186, 228, 179),
-    4: (116, 196, 118),
-    5: (35, 139, 69),
-    6: (227, 26, 28),
-    9: (49, 130, 189),
-    17: (255, 170, 0),
-    20: (204, 204, 102),
-}
-
-
 def classes_figure(cv: Canvas, class_grid: np.ndarray) -> str:
     """The class of the highest point (noise and withheld left out) in each DTM cell, over the hillshade."""
     present = [int(k) for k in np.unique(class_grid) if k >= 0]
     if not present:
         return ""
-    names = [(k, f"{k} {glossary.class_name(k)}", CLASS_COLOURS.get(k, (0, 0, 0))) for k in present]
+    names = [(k, f"{k} {glossary.class_name(k)}", glossary.CLASS_COLOURS.get(k, (0, 0, 0))) for k in present]
     svg = category_map(
         class_grid, cv.frame, names, title="classes (highest point)", max_size=cv.max_size, shade=cv.shade
     )

@@ -10,7 +10,7 @@ zoom.
 Drawn by hand, not with matplotlib (which drew them up to report version 8):
 importing matplotlib and drawing five maps took 0.8 s of a 1,000-point
 file's 2.2 s run (issue 36), the same five maps now take milliseconds.
-The colour maps are matplotlib's, as tables (:mod:`.colormaps`).
+The colour maps are matplotlib's, as tables (:mod:`lidar.colormaps`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 from affine import Affine
 from PIL import Image
 
-from stages.report.colormaps import table
+from lidar.colormaps import table
 
 #: A map's plot area: width and largest height, SVG pixels (a tall raster's is narrower).
 MAP_WIDTH, MAP_MAX_HEIGHT = 440.0, 700.0
@@ -38,7 +38,7 @@ MARGIN_LEFT, MARGIN_BOTTOM, MARGIN_TOP, MARGIN_RIGHT_BAR, MARGIN_RIGHT = 80.0, 6
 FONT, FONT_SMALL, FONT_TITLE = 10.0, 9.0, 11.5
 _FONTS = 'font-family="DejaVu Sans, Helvetica, Arial, sans-serif"'
 
-RELIEF = "relief"  # matplotlib's terrain without its blue (sea) end (colormaps.py)
+RELIEF = "relief"  # matplotlib's terrain without its blue (sea) end (lidar/colormaps.py)
 
 #: One colour a flight strip (matplotlib's tab10), RGB 0-255.
 STRIP_COLOURS = np.array(

@@ -129,6 +129,7 @@ def test_changing_resolution_reruns_only_rasterize_and_its_dependants(run_dir):
             "accuracy": "ran",
             "export_las": "cached",
             "export_tiles": "not applicable",
+            "qgis": "ran",
             "report": "ran",
         }
         with rasterio.open(out / "out" / "dtm.tif") as ds:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from stages.report import colormaps
+from lidar import colormaps
 from stages.report.maps import MapFrame, category_map, histogram_svg, raster_map, ticks
 
 SVG = ""  # inline in HTML: no namespace declared (the HTML parser gives it)

@@ -1,4 +1,4 @@
-"""The report's colour maps as tables of 256 RGB colours, so that drawing a map does not import matplotlib.
+"""Colour maps as tables of 256 RGB colours (the report's maps, the QGIS styles), without matplotlib.
 
 ``relief`` is matplotlib's ``terrain`` without its blue (sea) end (``terrain``
 sampled at 256 points from 0.25 to 1), ``viridis`` and ``RdBu_r`` are

@@ -1,0 +1,1 @@
+"""Stage ``qgis``: QGIS styles beside the products (.qml) and a project of the delivery (project.qgz)."""

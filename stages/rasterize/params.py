@@ -45,6 +45,18 @@ class GridParams(StageParams):
         description="widest bridge deck (m): the terrain either side is looked for this far; widens the tiles' buffer "
         "when the points hold class 17",
     )
+    floor_tolerance: float | None = Field(
+        0.15,
+        ge=0,
+        description="under vegetation (a return more than 2 m above), ground points more than this (m) above the "
+        "floor's lower envelope are left out of the DTM (understory echoes the ground filter admits; their class "
+        "stays ground); none: every ground point (docs/stages/rasterize.md)",
+    )
+    floor_cell: float = Field(
+        2.0,
+        gt=0,
+        description="cell (m) of the floor's lower envelope: the TIN of the lowest ground point of each",
+    )
     hydro_flatten: bool = Field(
         True,
         description="DTM cells whose centre lies in a flat water body of classify_water's water.gpkg take the "

@@ -15,6 +15,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from lidar.grid import Grid, cell_mean, fill_nearest
 from stages.rasterize.decks import across_decks, deck_footprint
+from stages.rasterize.floor import understory
 from stages.rasterize.interpolate import in_hull
 from stages.rasterize.interpolators import INTERPOLATORS
 from stages.rasterize.params import RasterizeParams
@@ -61,7 +62,8 @@ def tile_rasters(
 ) -> dict[str, np.ndarray]:
     """The rasters of a tile's *core* cells (*crop* of its *wide* grid), in metres; NaN = nodata.
 
-    ``dtm`` (:func:`interpolate_dtm`), ``dsm`` (the highest return, gaps
+    ``dtm`` (:func:`interpolate_dtm`, of the ground points but the
+    understory's, :mod:`stages.rasterize.floor`), ``dsm`` (the highest return, gaps
     filled from the nearest cell within ``nodata_distance``, else the DTM),
     ``ndsm`` (DSM - DTM, at least 0), ``density`` (points per cell) and,
     with sigmas, ``dtm_uncertainty`` (their mean per cell, gaps filled as
@@ -80,6 +82,10 @@ def tile_rasters(
     max_cells = params.nodata_distance / params.resolution
     dsm = fill_nearest(cloud.highest, max_cells=max_cells)[crop]
     ground = cloud.ground
+    if params.floor_tolerance is not None and len(ground) >= 3:  # the DTM's ground: without the understory
+        above = understory(ground, cloud.highest, wide, cell=params.floor_cell, tolerance=params.floor_tolerance)
+        if above.any():  # else no copy: a dense open survey's ground is left as it is
+            ground = ground[~above]
     if breaklines is not None and len(breaklines) and len(ground) >= 3:
         ground = np.vstack((ground, breaklines[inside_hull(ground, breaklines)]))
     decks = cloud.decks is not None and params.bridge_decks and bool(cloud.decks.any())

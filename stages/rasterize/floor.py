@@ -1,0 +1,89 @@
+"""The forest floor: ground points under vegetation that lie above the ground's lower envelope are left out of the DTM.
+
+A ground filter's tolerance (SMRF's 0.45 m and more on slopes) admits the
+understory's echoes under trees: ferns, shrubs, dead wood and litter, up to
+half a metre above the floor, and never below it.  A TIN through every
+ground point follows them: on the ``lasR/bcts`` forest, the DTM sat +0.28 m
+(median) above the provider's ground.  Under cover, so, the floor is the
+lower envelope: the TIN of the lowest ground point of each cell of
+``floor_cell`` (cells on whole multiples of it), densified :data:`PASSES`
+times with the points within ``floor_tolerance`` of it; a ground point
+farther above it is left out of the DTM (its class stays ground).  In the open the point is kept whatever its height: there the
+errors are the scanner's, on both sides of the surface, and the lowest point
+of a cell would bias a dense survey's DTM low.
+
+A point is under cover when the highest return of its DTM cell is more than
+:data:`COVER` above it.  The envelope is Axelsson's idea of a TIN densified
+from the lowest points (Axelsson, P. 2000, DEM generation from laser scanner
+data using adaptive TIN models, IAPRS 33(B4), 110-117), used here to
+select, not to classify.  Measured on every labelled project of
+``benchmarks/real_classes.py``: docs/stages/rasterize.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import QhullError
+
+from lidar.grid import Grid, cell_of
+
+#: Passes of the envelope's densification (Axelsson's iterations): the TIN of the lowest points, then of the
+#: points within the tolerance of the previous one.  One pass cuts through a convex bank or a ridge under a
+#: hedge (their tops lie above the lowest points' TIN); three bring them back, and the understory, higher, stays
+#: out (measured: docs/stages/rasterize.md).
+PASSES = 3
+
+#: A return this far (m) above a ground point covers it: the lower break of medium vegetation (ASPRS class 4,
+#: stages.classify_objects.vegetation.breaks), a shrub's or a tree's crown rather than the floor's litter.
+COVER = 2.0
+
+
+def lowest_per_cell(xyz: np.ndarray, cell: float) -> np.ndarray:
+    """The index of the lowest point of each cell of side *cell* (anchored at whole multiples) holding one."""
+    ix = np.floor(xyz[:, 0] / cell).astype(np.int64)
+    iy = np.floor(xyz[:, 1] / cell).astype(np.int64)
+    key = (ix - ix.min()) * (int(iy.max() - iy.min()) + 1) + (iy - iy.min())
+    order = np.lexsort((xyz[:, 2], key))
+    ranked = key[order]
+    return order[np.r_[True, ranked[1:] != ranked[:-1]]]
+
+
+def understory(ground: np.ndarray, highest: np.ndarray, grid: Grid, *, cell: float, tolerance: float) -> np.ndarray:
+    """Which *ground* points ((n, 3), metres) are understory: under cover and above the floor by *tolerance*.
+
+    *highest*: the highest return per cell of *grid* (NaN: none), the grid
+    the points lie on; *cell*: the envelope's cell (m).  The envelope is
+    worked out around the covered points only (their cells and the cells
+    next to them), so an open survey pays nothing.
+    """
+    out = np.zeros(len(ground), dtype=bool)
+    if len(ground) < 3:
+        return out
+    row, col = cell_of(ground, grid)
+    top = np.full(len(ground), np.nan)
+    on = row >= 0
+    top[on] = highest[row[on], col[on]]
+    covered = top - ground[:, 2] > COVER
+    if not covered.any():
+        return out
+    ix = np.floor(ground[:, 0] / cell).astype(np.int64)
+    iy = np.floor(ground[:, 1] / cell).astype(np.int64)
+    span = int(iy.max() - iy.min()) + 3
+    key = (ix - ix.min() + 1) * span + (iy - iy.min() + 1)
+    near = np.unique((key[covered][:, None] + (np.arange(-1, 2)[:, None] * span + np.arange(-1, 2)).ravel()).ravel())
+    idx = np.flatnonzero(np.isin(key, near))
+    sub = ground[idx]
+    accepted = lowest_per_cell(sub, cell)
+    within = np.ones(len(sub), dtype=bool)
+    for _ in range(PASSES):
+        if len(accepted) < 3:
+            return out
+        try:
+            floor = LinearNDInterpolator(sub[accepted, :2], sub[accepted, 2])(sub[:, :2])
+        except QhullError:  # collinear: no envelope to compare with
+            return out
+        within = ~(sub[:, 2] > floor + tolerance)  # NaN (outside the envelope's hull): within
+        accepted = np.flatnonzero(within)
+    out[idx] = ~within & covered[idx]
+    return out

@@ -6,9 +6,16 @@ half a metre above the floor, and never below it.  A TIN through every
 ground point follows them: on the ``lasR/bcts`` forest, the DTM sat +0.28 m
 (median) above the provider's ground.  Under cover, so, the floor is the
 lower envelope: the TIN of the lowest ground point of each cell of
-``floor_cell`` (cells on whole multiples of it), densified :data:`PASSES`
-times with the points within ``floor_tolerance`` of it; a ground point
-farther above it is left out of the DTM (its class stays ground).  In the open the point is kept whatever its height: there the
+``floor_cell`` (cells on whole multiples of it), densified once (an
+iteration of Axelsson's densification) with, in each half cell, the highest
+point above it within ``floor_tolerance``: the lowest points' TIN cuts the
+top off a convex floor (a bank, a ridge under a hedge: it spans the crest
+between the lowest points of its flanks), the densified one keeps what
+curves gently, and the understory, farther up, stays out.  A ground point
+farther than ``floor_tolerance`` above the densified TIN is left out of the
+DTM (its class stays ground).  Only the points above the first TIN by more
+than the tolerance are tested against the second: no point of the floor
+pays for it.  In the open the point is kept whatever its height: there the
 errors are the scanner's, on both sides of the surface, and the lowest point
 of a cell would bias a dense survey's DTM low.
 
@@ -28,15 +35,16 @@ from scipy.spatial import QhullError
 
 from lidar.grid import Grid, cell_of
 
-#: Passes of the envelope's densification (Axelsson's iterations): the TIN of the lowest points, then of the
-#: points within the tolerance of the previous one.  One pass cuts through a convex bank or a ridge under a
-#: hedge (their tops lie above the lowest points' TIN); three bring them back, and the understory, higher, stays
-#: out (measured: docs/stages/rasterize.md).
-PASSES = 3
-
 #: A return this far (m) above a ground point covers it: the lower break of medium vegetation (ASPRS class 4,
 #: stages.classify_objects.vegetation.breaks), a shrub's or a tree's crown rather than the floor's litter.
 COVER = 2.0
+
+
+def highest_per_cell(xyz: np.ndarray, cell: float, among: np.ndarray) -> np.ndarray:
+    """The index of the highest of the points *among* (a mask) in each cell of side *cell* holding one."""
+    chosen = np.flatnonzero(among)
+    flipped = np.column_stack((xyz[chosen, :2], -xyz[chosen, 2]))
+    return chosen[lowest_per_cell(flipped, cell)] if len(chosen) else chosen
 
 
 def lowest_per_cell(xyz: np.ndarray, cell: float) -> np.ndarray:
@@ -74,16 +82,17 @@ def understory(ground: np.ndarray, highest: np.ndarray, grid: Grid, *, cell: flo
     near = np.unique((key[covered][:, None] + (np.arange(-1, 2)[:, None] * span + np.arange(-1, 2)).ravel()).ravel())
     idx = np.flatnonzero(np.isin(key, near))
     sub = ground[idx]
-    accepted = lowest_per_cell(sub, cell)
-    within = np.ones(len(sub), dtype=bool)
-    for _ in range(PASSES):
-        if len(accepted) < 3:
+    low = lowest_per_cell(sub, cell)
+    try:
+        above = sub[:, 2] - LinearNDInterpolator(sub[low, :2], sub[low, 2])(sub[:, :2])  # NaN: outside the hull
+        # densified by the highest point within the tolerance of each half cell: what lifts the TIN onto a crest
+        lift = highest_per_cell(sub, cell / 2, ~(above > tolerance) & (above > 0))
+        test = np.flatnonzero(covered[idx] & (above > tolerance))
+        if not len(test):
             return out
-        try:
-            floor = LinearNDInterpolator(sub[accepted, :2], sub[accepted, 2])(sub[:, :2])
-        except QhullError:  # collinear: no envelope to compare with
-            return out
-        within = ~(sub[:, 2] > floor + tolerance)  # NaN (outside the envelope's hull): within
-        accepted = np.flatnonzero(within)
-    out[idx] = ~within & covered[idx]
+        vertices = np.union1d(low, lift)
+        above = sub[test, 2] - LinearNDInterpolator(sub[vertices, :2], sub[vertices, 2])(sub[test, :2])
+    except QhullError:  # the lowest points are collinear: no envelope to compare with
+        return out
+    out[idx[test]] = above > tolerance  # NaN (outside the hull): kept
     return out

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import math
 
+import laspy
 import numpy as np
+import pyproj
 import pytest
 import rasterio
 from rasterio.transform import from_origin
@@ -77,15 +79,13 @@ def test_a_cell_in_full_shadow_is_a_shade_not_nodata(tmp_path):
 
 
 def _steep_survey(tmp_path):
-    import laspy
-
     rng = np.random.default_rng(7)
     x = rng.uniform(0, 60, 20000) + 440000
     y = rng.uniform(0, 60, 20000) + 4474000
     z = 700.0 + (y - 4474000)  # rises 1 m a metre to the north: faces south
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.offsets, header.scales = np.array([440000.0, 4474000.0, 0.0]), np.array([0.001] * 3)
-    header.add_crs(__import__("pyproj").CRS.from_epsg(25830))
+    header.add_crs(pyproj.CRS.from_epsg(25830))
     las = laspy.LasData(header)
     las.x, las.y, las.z = x, y, z
     las.classification = np.full(len(x), 2, np.uint8)

@@ -12,6 +12,7 @@ provider tiled the survey.
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,8 @@ import shapely
 from lidar.input_files import read_input_files_csv
 from lidar.vectors import write_gpkg
 
-#: Points along each side of a file's box when it is transformed into the output CRS.
+#: Segments of each side of a file's box when it is transformed into the output CRS (densified, as
+#: pyproj's transform_bounds does).
 DENSIFY = 21
 
 
@@ -55,14 +57,13 @@ def file_boxes(csv: Path, crs: pyproj.CRS) -> dict:
         rows.append(row)
     geometry = []
     for row in rows:
-        x0, y0, x1, y1 = (float(row[k]) for k in ("xmin", "ymin", "xmax", "ymax"))
-        t = np.linspace(0.0, 1.0, DENSIFY)[:-1]
-        xs = np.concatenate([x0 + (x1 - x0) * t, np.full_like(t, x1), x1 - (x1 - x0) * t, np.full_like(t, x0)])
-        ys = np.concatenate([np.full_like(t, y0), y0 + (y1 - y0) * t, np.full_like(t, y1), y1 - (y1 - y0) * t])
+        box = shapely.box(*(float(row[k]) for k in ("xmin", "ymin", "xmax", "ymax")))
         source = row["_crs"]
         if source is not crs and not source.equals(crs):
-            xs, ys = pyproj.Transformer.from_crs(source, crs, always_xy=True).transform(xs, ys)
-        geometry.append(shapely.to_wkb(shapely.Polygon(np.column_stack((xs, ys))), byte_order=1))
+            side = max(box.bounds[2] - box.bounds[0], box.bounds[3] - box.bounds[1])
+            to_crs = pyproj.Transformer.from_crs(source, crs, always_xy=True)
+            box = shapely.transform(shapely.segmentize(box, side / DENSIFY), partial(_through, to_crs))
+        geometry.append(shapely.to_wkb(box, byte_order=1))
     return {
         "skipped": skipped,
         "geometry": geometry,
@@ -72,6 +73,10 @@ def file_boxes(csv: Path, crs: pyproj.CRS) -> dict:
             "points_kept": np.array([int(r["points_kept"]) for r in rows], dtype=np.int64),
         },
     }
+
+
+def _through(transformer: pyproj.Transformer, xy: np.ndarray) -> np.ndarray:
+    return np.column_stack(transformer.transform(xy[:, 0], xy[:, 1]))
 
 
 def write_survey_index(path: Path, dtm: np.ndarray, transform, crs, input_files: Path | None) -> tuple[float, list]:

@@ -17,7 +17,7 @@ import pyproj
 from lidar.checkpoints import read_checkpoints
 from pipeline.errors import InputDataError
 from stages.parse.las_index import read_headers
-from stages.parse.read_las import _output_crs_of, header_bounds
+from stages.parse.read_las import header_bounds, output_crs_of
 
 
 def configuration_warnings(config) -> list[str]:
@@ -36,7 +36,7 @@ def configuration_warnings(config) -> list[str]:
         assign = pyproj.CRS.from_user_input(inp.crs) if inp.crs else None
         override = pyproj.CRS.from_user_input(inp.override_crs) if inp.override_crs else None
         first = inp.paths[0]
-        target = _output_crs_of(config.crs, index.file_crs(first, assign, override)[0], index.header(first))
+        target = output_crs_of(config.crs, index.file_crs(first, assign, override)[0], index.header(first))
         lo, hi = header_bounds(list(inp.paths), target, assign, override, index)
     except InputDataError:
         return []

@@ -88,12 +88,12 @@ def las_chunks(
             report.crs_source[str(path)] = source
             _read_all_records(path, header, report)
             if target is None:
-                target = _output_crs_of(crs_setting, src_crs, header)
+                target = output_crs_of(crs_setting, src_crs, header)
             for cols in _file_chunks(path, reader, src_crs, target, layout, chunk_size, report, progress):
                 yield target, cols
 
 
-def _output_crs_of(crs_setting: str, src_crs, header):
+def output_crs_of(crs_setting: str, src_crs, header):
     """The output CRS for a first file in *src_crs* (the centre of its bounds picks a UTM zone)."""
     centre = None
     if not src_crs.is_projected:
@@ -273,7 +273,7 @@ def read_las_files(
     if target is None:  # no point at all: still resolve the CRS from the first header
         with open_las(paths[0]) as reader:
             src_crs, _ = file_crs(paths[0], reader.header, assign_crs, override_crs)
-            target = _output_crs_of(crs_setting, src_crs, reader.header)
+            target = output_crs_of(crs_setting, src_crs, reader.header)
     names = ("x", "y", "z", "scan_angle", "gps_time", *copied_dimensions(layout), *(e.name for e in layout.extra))
     merged = {k: (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0)) for k in names}
     return _build(merged, target, layout), report

@@ -123,7 +123,7 @@ class Rasterize(Stage, name="rasterize", version="13", params=RasterizeParams):
         ctx.log.info(
             "DTM %d x %d cells at %g m, %d nodata", grid.cols, grid.rows, p.resolution, figures["nodata_cells"]
         )
-        state_heights(ctx, heights_of_run(ctx.config, info.crs), warn=True)
+        state_heights(ctx, tiles.heights, warn=True)
 
 
 def _flattens(params: RasterizeParams, config: BaseModel) -> bool:
@@ -189,6 +189,7 @@ class _Tiles:
         self.names = [n for n in RASTERS if n in ctx.outputs]
         p = ctx.params
         self.nodata = dem_nodata(ctx.setting("stages.report.specification"), p.nodata)
+        self.heights = heights_of_run(ctx.config, info.crs)  # the elevation rasters' vertical datum
         self.grid: Grid | None = None
         self.ground = 0
         self.transform = None
@@ -240,7 +241,7 @@ class _Tiles:
         self.transform = self.info.units.transform_from_metres(self.grid.transform)
         paths = {n: ctx.outputs[n] for n in self.names}
         cache_mb = 64 // (ctx.executor.workers if len(layout) > 1 else 1)
-        datum = {VERTICAL_DATUM: heights_of_run(self.ctx.config, self.info.crs).datum}
+        datum = {VERTICAL_DATUM: self.heights.datum}
         jobs = mosaic_jobs(paths, self.grid, self.transform, self.info.crs, layout, tasks, cache_mb, self.nodata, datum)
         if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
             ctx.executor.map(mosaic_raster, jobs, what="rasters")

@@ -9,6 +9,7 @@ hydro-flattening".
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -62,6 +63,11 @@ STEP = 1.0
 #: A body is no water when more than this share of the cells around it hold ground or water lower than it (by
 #: min_bank plus max_spread): it would drain there (a level bank above a river).  A pond's outlet is a few cells.
 DRAINS = 0.25
+#: A body whose points are sparser than this share of the ground on its banks is water seen through dropouts
+#: (the laser's echoes from water are few: the sea of a coast returns about one pulse in five, a river in IGN's
+#: crop_2 about half the ground's density).  Level ground beside it is the same water, unseen.  Land detected as
+#: level returns as many echoes as the land around it.
+DROPOUT_SHARE = 0.5
 
 
 def binned_medians(station: np.ndarray, values: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,6 +161,23 @@ class CellMask:
         return out
 
 
+@dataclass(frozen=True)
+class CellLevels:
+    """A level (m) per cell of *cell* metres on a grid whose upper-left corner is *corner* (x0, y1); NaN: none."""
+
+    corner: tuple[float, float]
+    cell: float
+    level: np.ndarray
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """The level of each point's cell (metres); NaN where it has none."""
+        row, col = _cells(xy, self.cell, np.asarray(self.corner))
+        inside = (row >= 0) & (row < self.level.shape[0]) & (col >= 0) & (col < self.level.shape[1])
+        out = np.full(len(xy), np.nan)
+        out[inside] = self.level[row[inside], col[inside]]
+        return out
+
+
 def water_bodies(
     water: np.ndarray,
     ground: np.ndarray,
@@ -164,8 +187,13 @@ def water_bodies(
     close: int,
     max_spread: float,
     min_bank: float,
-) -> tuple[list[WaterBody], CellMask]:
+    tolerance: float = 0.0,
+    others: np.ndarray | None = None,
+) -> tuple[list[WaterBody], CellMask, CellLevels]:
     """The water bodies of the water points *water* ((n, 3), metres), with the ground points *ground* around them.
+
+    *others*: the other points around them ((m, 2) or more columns,
+    metres), which tell the survey's edge from a roof or a tree's shadow.
 
     Cells of *cell* (anchored at whole multiples) holding a water point,
     closed by *close* cells (the dropouts between echoes), make bodies
@@ -181,11 +209,17 @@ def water_bodies(
     others, those of *min_area* or more are returned, their level lowered to
     the 5th percentile of the banks when that is lower (the water at or
     below its banks); flat when the spread of their water heights (5th to
-    95th percentile) is at most *max_spread*.  Also returns the cells of the
-    bodies taken for no water.
+    95th percentile) is at most *max_spread*.  A body seen through
+    dropouts (its points sparser than :data:`DROPOUT_SHARE` of the ground in
+    the cells around it that stand above its level) first grows through the
+    cells next to it whose lowest ground lies within *tolerance* (m) of its
+    level: the same water, unseen (0: no growth).  Also returns the cells of
+    the bodies taken for no water, and the level of each cell a body grew
+    into (the ground there within *tolerance* of it is water).
     """
     if len(water) == 0:
-        return [], CellMask((0.0, 0.0), cell, np.zeros((0, 0), dtype=bool))
+        empty = np.zeros((0, 0), dtype=bool)
+        return [], CellMask((0.0, 0.0), cell, empty), CellLevels((0.0, 0.0), cell, np.zeros((0, 0)))
     pad = close + 3
     first = np.floor(water[:, :2].min(axis=0) / cell).astype(np.int64)
     last = np.floor(water[:, :2].max(axis=0) / cell).astype(np.int64)
@@ -197,18 +231,45 @@ def water_bodies(
     gr, gc = _cells(ground[:, :2], cell, lo)
     inside = (gr >= 0) & (gr < shape[0]) & (gc >= 0) & (gc < shape[1])
     np.minimum.at(lowest, (gr[inside], gc[inside]), ground[inside, 2])
+    grounds = np.bincount(gr[inside] * shape[1] + gc[inside], minlength=shape[0] * shape[1]).reshape(shape)
     below = np.fmin(lowest, least)  # the lowest ground or water of each cell
-    beyond = _beyond_the_survey(mask | np.isfinite(lowest))
+    # the echoes of each cell at its lowest (within twice the tolerance): at a shore, the water's, not the bank's
+    low = np.where(np.isnan(below), np.inf, below) + 2.0 * tolerance
+    echoes = np.zeros(shape, dtype=np.int64)
+    near = inside & (ground[:, 2] <= low[gr.clip(0, shape[0] - 1), gc.clip(0, shape[1] - 1)])
+    np.add.at(echoes, (gr[near], gc[near]), 1)
+    np.add.at(echoes, (row, col), 1)
+    echoed = (grounds > 0) | (echoes > 0)  # cells with an echo of any class
+    if others is not None and len(others):
+        orow, ocol = _cells(others[:, :2], cell, lo)
+        inside = (orow >= 0) & (orow < shape[0]) & (ocol >= 0) & (ocol < shape[1])
+        echoed[orow[inside], ocol[inside]] = True
+    beyond = _beyond_the_survey(mask | echoed)
     of_point = label[row, col]
     eight = np.ones((3, 3), bool)
-    bodies, rejected = [], np.zeros(shape, dtype=bool)
+    bodies, rejected, grown = [], np.zeros(shape, dtype=bool), np.full(shape, np.nan)
     drop = max(min_bank, 0.0) + max_spread  # how much lower the ring must lie for the water to drain there
     for k, (rows, cols) in enumerate(ndimage.find_objects(label), start=1):
-        rows = slice(max(rows.start - 2, 0), rows.stop + 2)  # room for the ring of banks
-        cols = slice(max(cols.start - 2, 0), cols.stop + 2)
+        rows = slice(max(rows.start - pad, 0), rows.stop + pad)  # room for the ring of banks, and to grow
+        cols = slice(max(cols.start - pad, 0), cols.stop + pad)
         body = label[rows, cols] == k
         heights = water[of_point == k, 2]
         level = float(np.median(heights))
+        sparse = (
+            _dropout_rate(body, lowest[rows, cols], echoes[rows, cols], grounds[rows, cols], level, tolerance)
+            if tolerance > 0
+            else None
+        )
+        if sparse is not None:  # seen through dropouts: grown over the whole grid, then looked at around that
+            whole = np.zeros(shape, dtype=bool)
+            whole[rows, cols] = body
+            whole = _grown(whole, lowest, echoes, beyond, ~echoed, level, tolerance, close, sparse)
+            grown[whole] = level
+            r, c = np.nonzero(whole)
+            rows = slice(max(int(r.min()) - 2, 0), int(r.max()) + 3)
+            cols = slice(max(int(c.min()) - 2, 0), int(c.max()) + 3)
+            body = whole[rows, cols]
+        seen_through = sparse is not None
         ring = ndimage.binary_dilation(body, structure=eight, iterations=2) & ~body
         banks = lowest[rows, cols][ring]
         banks = banks[np.isfinite(banks)]
@@ -219,8 +280,8 @@ def water_bodies(
             continue
         if float(body.sum()) * cell * cell < min_area:
             continue
-        if len(banks):
-            level = min(level, float(np.percentile(banks, 5)))
+        if len(banks) and not seen_through:  # a body seen through dropouts has its own level, and no echo of it
+            level = min(level, float(np.percentile(banks, 5)))  # is left in its ring
         spread = float(np.percentile(heights, 95) - np.percentile(heights, 5))
         corner = (lo[0] + cols.start * cell, lo[1] - rows.start * cell)
         if close > 0:  # a body cut by the survey's edge reaches it: it runs on beyond (the dropouts at the edge)
@@ -228,7 +289,85 @@ def water_bodies(
         shore = ~beyond[rows, cols]  # beside the body and within the survey: its shore
         parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread, shore)
         bodies += [p if p.flat else _as_river(p, water[of_point == k], max_spread) for p in parts]
-    return bodies, CellMask((float(lo[0]), float(lo[1])), cell, rejected)
+    grown[rejected] = np.nan
+    corner = (float(lo[0]), float(lo[1]))
+    return bodies, CellMask(corner, cell, rejected), CellLevels(corner, cell, grown)
+
+
+def poisson_rate(mean: float) -> float:
+    """The rate of a Poisson count whose mean over the non-zero counts is *mean* (0 when *mean* <= 1).
+
+    Solves ``mean = rate / (1 - exp(-rate))`` by Newton steps from ``mean``.
+
+    >>> round(poisson_rate(1.0 / (1.0 - math.exp(-1.0))), 9), poisson_rate(1.0)
+    (1.0, 0.0)
+    """
+    if mean <= 1.0:
+        return 0.0
+    rate = mean
+    for _ in range(50):
+        e = math.exp(-rate)
+        f = rate / (1.0 - e) - mean
+        if abs(f) < 1e-12 * mean:
+            break
+        rate -= f / ((1.0 - e - rate * e) / (1.0 - e) ** 2)
+    return rate
+
+
+def _dropout_rate(
+    body: np.ndarray, lowest: np.ndarray, echoes: np.ndarray, grounds: np.ndarray, level: float, tolerance: float
+) -> float | None:
+    """The rate (echoes a cell) below which a body's surroundings are as sparse as water seen through dropouts;
+    None when the body is not seen through dropouts.
+
+    *body*: its cells; *lowest*: the lowest ground per cell (inf: none);
+    *echoes*: water and ground points per cell at its lowest echo (within
+    twice the tolerance), *grounds*: ground points per cell.  A body is
+    seen through dropouts when its cells hold fewer echoes a cell than
+    :data:`DROPOUT_SHARE` of the ground on its banks: the cells around it
+    (two deep) whose ground stands more than *tolerance* above its *level*.
+    A bank cell without ground may be a roof or a tree's, so the banks'
+    rate is :func:`poisson_rate` of their mean over cells with ground.
+    """
+    above = np.isfinite(lowest) & (lowest > level + tolerance)
+    land = ndimage.binary_dilation(body, structure=np.ones((3, 3), bool), iterations=2) & ~body & above
+    if not land.any():
+        return None
+    sparse = DROPOUT_SHARE * poisson_rate(grounds[land].sum() / land.sum())
+    return sparse if echoes[body].sum() / body.sum() < sparse else None
+
+
+def _grown(
+    body: np.ndarray,
+    lowest: np.ndarray,
+    echoes: np.ndarray,
+    beyond: np.ndarray,
+    void: np.ndarray,
+    level: float,
+    tolerance: float,
+    close: int,
+    sparse: float,
+) -> np.ndarray:
+    """A body seen through dropouts grown through its unseen water: its cells and those joined to it (8 neighbours).
+
+    It grows through the ground within *tolerance* of its *level* that is
+    as sparse as it (*sparse*: echoes a cell, over the square of ``2 close
+    + 1`` cells counting that ground and voids, not the body's), and across the
+    dropouts between its echoes: *void* cells (no echo of any class: not a
+    tree's shadow) within *close* cells of water or of that ground, also
+    where they join the unseen beyond a sparse survey's edge; never into
+    *beyond*, the cells beyond the survey.  *lowest* and *echoes* as for
+    :func:`_dropout_rate`.
+    """
+    eight = np.ones((3, 3), bool)
+    at_level = (np.abs(lowest - level) <= tolerance) & ~body
+    side = 2 * close + 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = ndimage.uniform_filter(np.where(at_level, echoes, 0).astype(np.float64), side, mode="constant")
+        rate /= ndimage.uniform_filter((at_level | void).astype(np.float64), side, mode="constant")
+    seen = body | (at_level & (rate < sparse))
+    unseen = void & ndimage.binary_dilation(seen, eight, iterations=close)
+    return ndimage.binary_propagation(body, structure=eight, mask=seen | unseen) & ~beyond | body
 
 
 def _levels(

@@ -12,7 +12,7 @@ import shapely
 
 from lidar import glossary
 from lidar.clouds import chunk_xyz_metres, open_las_writer
-from lidar.water_bodies import CellMask, WaterBody, water_bodies
+from lidar.water_bodies import CellLevels, CellMask, WaterBody, water_bodies
 from stages.classify_water.params import ClassifyWaterParams
 from stages.classify_water.water import inside_polygons
 
@@ -33,8 +33,9 @@ def _points(path: Path, units, keep) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[WaterBody], CellMask]:
-    """The water bodies of the classified LAS *path* and the cells of those that are no water.
+def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[WaterBody], CellMask, CellLevels]:
+    """The water bodies of the classified LAS *path*, the cells of those that are no water, and the levels of the
+    cells bodies seen through dropouts grew into.
 
     :func:`lidar.water_bodies.water_bodies` on two passes: the water
     points, then the ground points within the water's box plus a margin.
@@ -50,6 +51,12 @@ def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[Wate
         return (cls == glossary.GROUND) & np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
 
     ground = _points(path, units, near) if len(water) else np.zeros((0, 3))
+
+    def other(cls, xyz):
+        inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
+        return inside & (cls != glossary.GROUND) & (cls != glossary.WATER)
+
+    others = _points(path, units, other)[:, :2] if len(water) else np.zeros((0, 2))
     return water_bodies(
         water,
         ground,
@@ -58,14 +65,16 @@ def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[Wate
         close=b.close,
         max_spread=b.max_spread,
         min_bank=params.detect.min_bank if params.detect.enabled else -np.inf,
+        tolerance=params.detect.tolerance if params.detect.enabled else 0.0,
+        others=others,
     )
 
 
 def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
-    """*dst* rewritten (through a temporary file) with each chunk's classes as ``change(classes, xy, was)`` gives them.
+    """*dst* rewritten (through a temporary file) with each chunk's classes as ``change(classes, xyz, was)`` gives them.
 
     *classes*: the chunk's classes (a copy, for ``change`` to alter);
-    *xy*: its coordinates in metres; *was*: the same points' classes in
+    *xyz*: its coordinates in metres; *was*: the same points' classes in
     *src* (None without one).
     """
 
@@ -77,7 +86,7 @@ def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
         for chunk in after.chunk_iterator(CHUNK):
             was = np.asarray(next(olds).classification) if olds is not None else None
             cls = np.asarray(chunk.classification).copy()
-            chunk.classification = change(cls, chunk_xyz_metres(chunk, units)[:, :2], was)
+            chunk.classification = change(cls, chunk_xyz_metres(chunk, units), was)
             out.write_points(chunk)
     tmp.replace(dst)
 
@@ -94,7 +103,8 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
 
     counts = [0, 0]
 
-    def change(cls, xy, was):
+    def change(cls, xyz, was):
+        xy = xyz[:, :2]
         undo = (cls == glossary.WATER) & (was != glossary.WATER) & refused.holds(xy)  # the input's own water stays
         if polygons and undo.any():
             undo[undo] = ~inside_polygons(xy[undo], polygons)
@@ -105,6 +115,28 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
 
     _rewrite_classes(dst, units, change, src)
     return counts[0], counts[1]
+
+
+def take_unseen(dst: Path, grown: CellLevels, tolerance: float, units) -> int:
+    """Ground points of *dst* in the cells of a body seen through dropouts, up to *tolerance* (m) above its level
+    there, become water: ground cannot lie under water (a laser's echo from below a water surface is noise).
+
+    *dst* is rewritten (through a temporary file); returns the points changed.
+    """
+    if not np.isfinite(grown.level).any():
+        return 0
+    changed = [0]
+
+    def change(cls, xyz, _):
+        ground = np.flatnonzero(cls == glossary.GROUND)
+        level = grown.at(xyz[ground, :2])
+        take = ground[xyz[ground, 2] - level <= tolerance]  # NaN (no body) compares False
+        cls[take] = glossary.WATER
+        changed[0] += len(take)
+        return cls
+
+    _rewrite_classes(dst, units, change)
+    return changed[0]
 
 
 def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units) -> int:
@@ -124,7 +156,8 @@ def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, unit
     x0, y0, x1, y1 = zone.bounds
     changed = [0]
 
-    def change(cls, xy, _):
+    def change(cls, xyz, _):
+        xy = xyz[:, :2]
         near = (cls == glossary.GROUND) & (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
         if near.any():
             near[near] = shapely.contains_xy(zone, xy[near, 0], xy[near, 1])

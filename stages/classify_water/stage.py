@@ -29,12 +29,12 @@ from lidar.vectors import read_polygons
 from lidar.water_bodies import write_breaklines, write_water_bodies
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
-from stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores
+from stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores, take_unseen
 from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
 
 
-class ClassifyWater(Stage, name="classify_water", version="5", params=ClassifyWaterParams):
+class ClassifyWater(Stage, name="classify_water", version="6", params=ClassifyWaterParams):
     """water (class 9) from the points and from polygons."""
 
     inputs = ("points_classified",)
@@ -79,16 +79,24 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
 
     dst = ctx.outputs["points_water"]
     info = cloud_info(dst)
-    bodies, refused = bodies_of(dst, info.units, ctx.params)
+    bodies, refused, grown = bodies_of(dst, info.units, ctx.params)
     back = ground = 0
     if refused.mask.any():
         back, ground = give_back(src, dst, refused, info.units, _polygons_in_metres(ctx.params, info.units))
         ctx.log.info("%d water points given their class back: their body's banks do not rise above it", back)
+    unseen = take_unseen(dst, grown, ctx.params.detect.tolerance, info.units)
+    if unseen:
+        ctx.log.info(
+            "%d ground points became water: at the level of a body seen through dropouts, within %g m, beside it",
+            unseen,
+            ctx.params.detect.tolerance,
+        )
     counts.update(
-        water=counts["water"] - back,
-        from_points=counts["from_points"] - back,
-        ground_to_water=counts["ground_to_water"] - ground,
+        water=counts["water"] - back + unseen,
+        from_points=counts["from_points"] - back + unseen,
+        ground_to_water=counts["ground_to_water"] - ground + unseen,
         given_back=back,
+        unseen_water=unseen,
     )
     if "water_bodies" in ctx.outputs:
         write_water_bodies(ctx.outputs["water_bodies"], bodies, crs=info.crs, units=info.units)

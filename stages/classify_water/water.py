@@ -12,8 +12,8 @@ and the region growing of Höfle et al. (2009, doi:10.1002/esp.1853):
 2. a cell is *level* when its window holds ``min_points``, spreads in both
    directions, and its plane is flatter than ``max_slope`` with an RMS under
    ``max_rms`` (:func:`level_cells`);
-3. level cells that touch (8 neighbours) with mean heights within ``step``
-   form a body; bodies of ``min_area`` or more are water (:func:`water_bodies`);
+3. level cells that touch (8 neighbours) with heights (their planes' at the
+   cell's centre) within ``step`` form a body; bodies of ``min_area`` or more are water (:func:`water_bodies`);
 4. points within ``tolerance`` of the level of a water cell, in it or within
    ``grow`` of it, become water (:func:`water_points`).
 
@@ -117,7 +117,7 @@ def planes_of(m: dict[str, np.ndarray], low: np.ndarray, cell: float, half: int)
     """The planes of each cell's window from the cells' moments *m* (:func:`cell_moments`) and lowest points *low*.
 
     Returns per cell ``count`` (points in the cell), ``window`` (in its
-    window), ``mean`` (mean height in the cell, NaN when empty), ``slope``
+    window), ``mean`` (the window plane's height at the cell's centre), ``slope``
     (rise over run of the plane), ``rms`` (m, of the points about it) and
     ``spread`` (m, the standard deviation of the window's points along their
     narrowest direction); NaN where the window has fewer than 3 points.
@@ -150,11 +150,11 @@ def planes_of(m: dict[str, np.ndarray], low: np.ndarray, cell: float, half: int)
         var = czz - sa * cxz - sb * cyz
         tr = cxx + cyy
         narrow = 0.5 * (tr - np.sqrt(np.maximum(tr * tr - 4.0 * det, 0.0)))
-        mean = np.where(m["n"] > 0, base + m["z"] / np.where(m["n"] > 0, m["n"], 1), np.nan)
+        centre = win_top + mz - sa * mx - sb * my
     return {
         "count": m["n"],
         "window": w["n"],
-        "mean": mean,
+        "mean": centre,
         "slope": np.hypot(sa, sb),
         "rms": np.sqrt(np.maximum(var, 0.0)),
         "spread": np.sqrt(np.maximum(narrow, 0.0)),
@@ -235,7 +235,8 @@ def level_and_mean(
     max_rms: float,
     rows: int = BAND_ROWS,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The level cells (:func:`level_cells`) and each cell's mean height, from the cells' moments *m* and lowest *low*.
+    """The level cells (:func:`level_cells`) and each cell's height (its plane's), from the cells' moments *m* and
+    lowest *low*.
 
     :func:`planes_of` *rows* rows at a time, each band read with *half*
     rows on either side: the same values (a cell's planes depend on its
@@ -263,7 +264,7 @@ def level_and_mean(
 def could_be_level(
     i: np.ndarray, j: np.ndarray, shape: tuple[int, int], half: int, min_points: int, min_cells: float
 ) -> bool:
-    """Whether *min_cells* cells or more hold a ground point (at cells *i*, *j*) with *min_points* or more in their
+    """Whether *min_cells* cells or more have *min_points* ground points (at cells *i*, *j*) or more in their
     window of ``(2 half + 1)**2`` cells: the most :func:`level_cells` could find (:func:`could_hold_level`)."""
     count = np.bincount(i * shape[1] + j, minlength=shape[0] * shape[1]).reshape(shape)
     return could_hold_level(count, half, min_points, min_cells)
@@ -271,14 +272,14 @@ def could_be_level(
 
 def could_hold_level(count: np.ndarray, half: int, min_points: int, min_cells: float) -> bool:
     """Whether *min_cells* cells or more of the grid of ground points per cell *count* have *min_points* or more in
-    their window of ``(2 half + 1)**2`` cells.  When not, no body can reach its area and the planes are not fitted
+    their window (a cell need not hold one: water returns few echoes) of ``(2 half + 1)**2`` cells.  When not, no body can reach its area and the planes are not fitted
     (a sparse survey: milliseconds, not seconds).
     """
 
     count = count.astype(np.float64)
     side = 2 * half + 1
     window = ndimage.uniform_filter(count, side, mode="constant") * side * side
-    return int(np.count_nonzero((count > 0) & (window >= min_points - 0.5))) >= min_cells
+    return int(np.count_nonzero(window >= min_points - 0.5)) >= min_cells
 
 
 def level_cells(
@@ -287,12 +288,13 @@ def level_cells(
     """Cells whose window's plane is level and tight: candidates for water (:func:`window_planes`'s figures).
 
     The window's points must spread at least half a cell across their
-    narrowest direction (a single scan line fits any plane).
+    narrowest direction (a single scan line fits any plane).  The cell
+    itself need not hold a point: water returns few echoes, so a level
+    window over a dropout is level water.
     """
     with np.errstate(invalid="ignore"):
         return (
-            (planes["count"] > 0)
-            & (planes["window"] >= min_points)
+            (planes["window"] >= min_points)
             & (planes["spread"] >= 0.5 * cell)
             & (planes["slope"] <= max_slope)
             & (planes["rms"] <= max_rms)
@@ -300,7 +302,7 @@ def level_cells(
 
 
 def water_bodies(level: np.ndarray, mean: np.ndarray, *, step: float, min_cells: float) -> np.ndarray:
-    """Level cells joined into bodies (8 neighbours, mean heights within *step*); those of *min_cells* or more.
+    """Level cells joined into bodies (8 neighbours, heights *mean* within *step*); those of *min_cells* or more.
 
     Returns a boolean grid: the cells of the bodies kept.
     """
@@ -313,7 +315,7 @@ def water_bodies(level: np.ndarray, mean: np.ndarray, *, step: float, min_cells:
 def near_level(
     i: np.ndarray, j: np.ndarray, z: np.ndarray, cells: np.ndarray, mean: np.ndarray, reach_cells: int, tolerance: float
 ) -> np.ndarray:
-    """Points within *tolerance* of the mean height of a cell of *cells* within *reach_cells* (Chebyshev) of theirs."""
+    """Points within *tolerance* of the height *mean* of a cell of *cells* within *reach_cells* (Chebyshev) of theirs."""
     out = np.zeros(len(z), dtype=bool)
     if not cells.any():
         return out

@@ -3,20 +3,21 @@
 The scene is :func:`tests.synthetic.make_coast` (the sample scene with its
 east third turned to sea, one pulse in five returning from the water).  On
 a kept-back coastal project the sea was taken as the ground and the land
-above the cliff as objects: the DTM lay 19 m below the land.  The sea's own
-points are not yet kept out of the ground (issue 51; ``benchmarks/coast.py``
-measures it), so this checks the land, and the DTM over the sea at the
-sea's level.
+above the cliff as objects: the DTM lay 19 m below the land.  This checks
+the land, the sea's echoes out of the ground (water seen through dropouts,
+docs/stages/classify_water.md), and the DTM over the sea at the sea's level.
 """
 
 from __future__ import annotations
 
+import laspy
 import numpy as np
 import pytest
 
 from pipeline.cli import main
 from tests.synthetic import (
     COAST,
+    SAMPLE_ORIGIN,
     coast_line,
     dtm_at_cell_centres,
     make_coast,
@@ -59,6 +60,11 @@ def test_the_land_above_a_cliff_keeps_its_dtm(tmp_path):
         "stages:\n  strip_adjust: {enabled: false}\n  report: {enabled: false}\n"
     )
     assert main(["run", str(config), "-q"]) == 0
+    las = laspy.read(str(out / "points.laz"))
+    offshore = np.asarray(las.x) - SAMPLE_ORIGIN[0] > coast_line(width)
+    classes = np.asarray(las.classification)[offshore]
+    assert np.mean(classes == 9) > 0.99, "the sea is not water"
+    assert np.mean(np.isin(classes, (2, 20))) < 0.005, "the sea is in the ground"
     dtm, cx, cy = dtm_at_cell_centres(out / "dtm.tif")
     line = coast_line(width)
     land = (cx < line - 2.0) & np.isfinite(dtm)

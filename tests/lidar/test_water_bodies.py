@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from affine import Affine
 
-from lidar.water_bodies import burn_levels, water_bodies
+from lidar.water_bodies import DROPOUT_SHARE, burn_levels, poisson_rate, water_bodies
 
 LEVEL = 100.0
 
@@ -28,7 +28,7 @@ def _params(**changes):
 
 
 def _bodies(water, ground, **changes):
-    bodies, refused = water_bodies(water, ground, **_params(**changes))
+    bodies, refused, _ = water_bodies(water, ground, **_params(**changes))
     return bodies, refused
 
 
@@ -90,3 +90,68 @@ def test_burn_levels_takes_the_cells_whose_centre_is_inside():
     inside = np.isfinite(grid)
     assert inside.sum() == 16 - 1 and np.all(grid[inside] == 7.5)
     assert np.isnan(grid[8 - 4, 3])  # the hole's cell: centre (3.5, 3.5)
+
+
+def _sea(water_density, seed=1, bank_density=2.0, missed=0.1):
+    """A round lake whose water returns *water_density* echoes per m² (the banks *bank_density*), a share
+    *missed* of its echoes in 3 m patches left as ground (the windows that found none), and the lake's outer
+    ring of 2 m left as ground too: undetected water at its level in the ring of banks."""
+    rng = np.random.default_rng(seed)
+    water, _ = _lake(seed=seed, density=water_density)
+    _, ground = _lake(seed=seed + 1, density=bank_density)
+    d = np.hypot(water[:, 0] - 50, water[:, 1] - 50)
+    centres = rng.uniform(35, 65, (int(missed * 400 / 9) + 1, 2))
+    patch = np.min(np.hypot(*(water[:, None, :2] - centres[None]).transpose(2, 0, 1)), axis=1) < 1.5
+    unseen = patch | (d > 18.0)
+    return water[~unseen], np.vstack((ground, water[unseen])), water[unseen]
+
+
+def test_water_seen_through_dropouts_grows_through_its_unseen_level_ground():
+    """A lake returning 0.3 echoes per m² beside banks of 2: its undetected echoes (its outer 2 m and patches
+    inside) lie level with it in its ring, which alone would refuse it (its banks would not rise).  Grown through
+    them (tolerance 0.15 m), it is one body, bank to bank, and its unseen ground is water."""
+    water, ground, unseen = _sea(0.3)  # 0.15 of the banks' density
+    assert _bodies(water, ground)[0] == []  # without growth: refused by its own unseen water
+    bodies, refused, grown = water_bodies(water, ground, **_params(), tolerance=0.15)
+    (body,) = bodies
+    assert not refused.mask.any()
+    level = grown.at(unseen[:, :2])
+    taken = np.isfinite(level)
+    assert np.all(np.abs(unseen[taken, 2] - level[taken]) <= 0.15)
+    # all but a few at the shore, reached only across voids beside the banks (which the growth does not cross)
+    assert taken.mean() > 0.85 and np.all(np.hypot(*(unseen[~taken, :2] - 50).T) > 17.5)
+    banks = ground[np.hypot(ground[:, 0] - 50, ground[:, 1] - 50) > 21.5]
+    assert not np.isfinite(grown.at(banks[:, :2])).any()  # the banks stay land
+    assert np.pi * 18**2 < body.area < np.pi * 20**2  # more than its detected core, not more than the lake
+
+
+def test_water_as_dense_as_its_banks_does_not_grow():
+    """DROPOUT_SHARE: a lake at 0.7 of its banks' density is level land for all the rule knows (a field next to
+    more field); at 0.15 it is water seen through dropouts.  Its rate is compared with the banks' Poisson rate."""
+    assert DROPOUT_SHARE == 0.5
+    for share, grows in ((0.15, True), (0.7, False)):
+        water, ground, unseen = _sea(share * 2.0)
+        _, _, grown = water_bodies(water, ground, **_params(), tolerance=0.15)
+        assert np.isfinite(grown.at(unseen[:, :2])).mean() > 0.85 if grows else not np.isfinite(grown.level).any()
+
+
+def test_a_tree_shadow_is_not_a_dropout():
+    """The lake's middle band undetected (its echoes left as ground), with a belt 4 m wide in it where neither
+    water nor ground returned: voids, which the growth crosses; under a canopy (echoes of another class there),
+    a shadow, which it does not cross."""
+    water, ground, _ = _sea(0.3, missed=0.0)
+    x = water[:, 0]
+    band, belt = np.abs(x - 50.0) < 6.0, np.abs(x - 50.0) < 2.0
+    ground = np.vstack((ground, water[band & ~belt]))
+    water = water[~band]
+    probes = np.column_stack((np.full(21, 50.5), np.arange(40.5, 61, 1.0)))  # cells of the belt, in the lake
+    canopy = np.column_stack((np.arange(48.25, 52, 0.5).repeat(80), np.tile(np.arange(30.25, 70, 0.5), 8)))
+    for others, crosses in ((None, True), (canopy, False)):
+        _, _, grown = water_bodies(water, ground, **_params(), tolerance=0.15, others=others)
+        taken = np.isfinite(grown.at(probes)).mean()
+        assert taken > 0.9 if crosses else taken == 0.0, (crosses, taken)
+
+
+def test_poisson_rate_inverts_the_zero_truncated_mean():
+    for rate in (0.05, 0.3, 1.2, 8.0):
+        assert abs(poisson_rate(rate / (1.0 - np.exp(-rate))) - rate) < 1e-9

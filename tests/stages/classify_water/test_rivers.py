@@ -119,7 +119,7 @@ def test_a_level_bank_above_the_river_is_no_water_of_it():
     t = (ground[:, :2] - CENTRE) @ ACROSS
     floor = np.abs(t) < 20  # the bank floors, beside the river (its points 1.5 m above the water)
     water = np.vstack((water, ground[floor]))
-    bodies, refused = water_bodies(
+    bodies, refused, _ = water_bodies(
         water, ground[~floor], cell=1.0, min_area=200.0, close=2, max_spread=0.3, min_bank=-np.inf
     )
     (body,) = bodies

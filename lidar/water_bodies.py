@@ -231,7 +231,10 @@ def water_bodies(
     gr, gc = _cells(ground[:, :2], cell, lo)
     inside = (gr >= 0) & (gr < shape[0]) & (gc >= 0) & (gc < shape[1])
     np.minimum.at(lowest, (gr[inside], gc[inside]), ground[inside, 2])
-    grounds = np.bincount(gr[inside] * shape[1] + gc[inside], minlength=shape[0] * shape[1]).reshape(shape)
+    flat = gr[inside] * shape[1] + gc[inside]
+    grounds = np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape)
+    with np.errstate(invalid="ignore", divide="ignore"):  # each cell's mean ground height (NaN: none)
+        middle = np.bincount(flat, weights=ground[inside, 2], minlength=shape[0] * shape[1]).reshape(shape) / grounds
     below = np.fmin(lowest, least)  # the lowest ground or water of each cell
     # the echoes of each cell at its lowest (within twice the tolerance): at a shore, the water's, not the bank's
     low = np.where(np.isnan(below), np.inf, below) + 2.0 * tolerance
@@ -256,14 +259,16 @@ def water_bodies(
         heights = water[of_point == k, 2]
         level = float(np.median(heights))
         sparse = (
-            _dropout_rate(body, lowest[rows, cols], echoes[rows, cols], grounds[rows, cols], level, tolerance)
+            _dropout_rate(
+                body, lowest[rows, cols], echoes[rows, cols], grounds[rows, cols], mask[rows, cols], level, tolerance
+            )
             if tolerance > 0
             else None
         )
         if sparse is not None:  # seen through dropouts: grown over the whole grid, then looked at around that
             whole = np.zeros(shape, dtype=bool)
             whole[rows, cols] = body
-            whole = _grown(whole, lowest, echoes, beyond, ~echoed, level, tolerance, close, sparse)
+            whole = _grown(whole, middle, echoes, beyond, ~echoed, level, tolerance, close, sparse)
             grown[whole] = level
             r, c = np.nonzero(whole)
             rows = slice(max(int(r.min()) - 2, 0), int(r.max()) + 3)
@@ -273,6 +278,8 @@ def water_bodies(
         ring = ndimage.binary_dilation(body, structure=eight, iterations=2) & ~body
         banks = lowest[rows, cols][ring]
         banks = banks[np.isfinite(banks)]
+        if seen_through and len(banks):  # its ring's ground below it is water or an outlet (the drains rule's)
+            banks = banks[banks >= level - tolerance] if (banks >= level - tolerance).any() else banks
         if (len(banks) and float(np.median(banks)) - level < min_bank) or _drains(
             body, ring, least[rows, cols], below[rows, cols], drop
         ):
@@ -315,22 +322,30 @@ def poisson_rate(mean: float) -> float:
 
 
 def _dropout_rate(
-    body: np.ndarray, lowest: np.ndarray, echoes: np.ndarray, grounds: np.ndarray, level: float, tolerance: float
+    body: np.ndarray,
+    lowest: np.ndarray,
+    echoes: np.ndarray,
+    grounds: np.ndarray,
+    water: np.ndarray,
+    level: float,
+    tolerance: float,
 ) -> float | None:
     """The rate (echoes a cell) below which a body's surroundings are as sparse as water seen through dropouts;
     None when the body is not seen through dropouts.
 
     *body*: its cells; *lowest*: the lowest ground per cell (inf: none);
     *echoes*: water and ground points per cell at its lowest echo (within
-    twice the tolerance), *grounds*: ground points per cell.  A body is
-    seen through dropouts when its cells hold fewer echoes a cell than
-    :data:`DROPOUT_SHARE` of the ground on its banks: the cells around it
-    (two deep) whose ground stands more than *tolerance* above its *level*.
+    twice the tolerance), *grounds*: ground points per cell; *water*: the
+    cells of every body found.  A body is seen through dropouts when its
+    cells hold fewer echoes a cell than :data:`DROPOUT_SHARE` of the ground
+    on its banks: the cells around it (two deep) whose ground stands more
+    than *tolerance* above its *level*, outside other water (a canal beside
+    a higher lake: the lake is no bank).
     A bank cell without ground may be a roof or a tree's, so the banks'
     rate is :func:`poisson_rate` of their mean over cells with ground.
     """
     above = np.isfinite(lowest) & (lowest > level + tolerance)
-    land = ndimage.binary_dilation(body, structure=np.ones((3, 3), bool), iterations=2) & ~body & above
+    land = ndimage.binary_dilation(body, structure=np.ones((3, 3), bool), iterations=2) & ~water & above
     if not land.any():
         return None
     sparse = DROPOUT_SHARE * poisson_rate(grounds[land].sum() / land.sum())
@@ -339,7 +354,7 @@ def _dropout_rate(
 
 def _grown(
     body: np.ndarray,
-    lowest: np.ndarray,
+    middle: np.ndarray,
     echoes: np.ndarray,
     beyond: np.ndarray,
     void: np.ndarray,
@@ -356,11 +371,12 @@ def _grown(
     dropouts between its echoes: *void* cells (no echo of any class: not a
     tree's shadow) within *close* cells of water or of that ground, also
     where they join the unseen beyond a sparse survey's edge; never into
-    *beyond*, the cells beyond the survey.  *lowest* and *echoes* as for
-    :func:`_dropout_rate`.
+    *beyond*, the cells beyond the survey.  *middle*: the mean ground height
+    per cell (NaN: none; the lowest of a water surface's many echoes lies
+    below it by their noise); *echoes* as for :func:`_dropout_rate`.
     """
     eight = np.ones((3, 3), bool)
-    at_level = (np.abs(lowest - level) <= tolerance) & ~body
+    at_level = (np.abs(middle - level) <= tolerance) & ~body
     side = 2 * close + 1
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = ndimage.uniform_filter(np.where(at_level, echoes, 0).astype(np.float64), side, mode="constant")

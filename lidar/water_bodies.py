@@ -260,7 +260,14 @@ def water_bodies(
         level = float(np.median(heights))
         sparse = (
             _dropout_rate(
-                body, lowest[rows, cols], echoes[rows, cols], grounds[rows, cols], mask[rows, cols], level, tolerance
+                body,
+                lowest[rows, cols],
+                echoes[rows, cols],
+                grounds[rows, cols],
+                mask[rows, cols],
+                level,
+                tolerance,
+                pad,  # as far as the ground around the water is read: past a band of its unseen water
             )
             if tolerance > 0
             else None
@@ -329,6 +336,7 @@ def _dropout_rate(
     water: np.ndarray,
     level: float,
     tolerance: float,
+    depth: int,
 ) -> float | None:
     """The rate (echoes a cell) below which a body's surroundings are as sparse as water seen through dropouts;
     None when the body is not seen through dropouts.
@@ -338,14 +346,14 @@ def _dropout_rate(
     twice the tolerance), *grounds*: ground points per cell; *water*: the
     cells of every body found.  A body is seen through dropouts when its
     cells hold fewer echoes a cell than :data:`DROPOUT_SHARE` of the ground
-    on its banks: the cells around it (two deep) whose ground stands more
-    than *tolerance* above its *level*, outside other water (a canal beside
-    a higher lake: the lake is no bank).
+    on its banks: the cells around it (*depth* deep) whose ground stands
+    more than *tolerance* above its *level*, outside other water (a canal
+    beside a higher lake: the lake is no bank).
     A bank cell without ground may be a roof or a tree's, so the banks'
     rate is :func:`poisson_rate` of their mean over cells with ground.
     """
     above = np.isfinite(lowest) & (lowest > level + tolerance)
-    land = ndimage.binary_dilation(body, structure=np.ones((3, 3), bool), iterations=2) & ~water & above
+    land = ndimage.binary_dilation(body, structure=np.ones((3, 3), bool), iterations=depth) & ~water & above
     if not land.any():
         return None
     sparse = DROPOUT_SHARE * poisson_rate(grounds[land].sum() / land.sum())

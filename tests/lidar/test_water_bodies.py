@@ -155,3 +155,25 @@ def test_a_tree_shadow_is_not_a_dropout():
 def test_poisson_rate_inverts_the_zero_truncated_mean():
     for rate in (0.05, 0.3, 1.2, 8.0):
         assert abs(poisson_rate(rate / (1.0 - np.exp(-rate))) - rate) < 1e-9
+
+
+def test_a_noisy_lake_grows_by_its_cells_mean_heights():
+    """A lake of 6 echoes per m² with 8 cm of noise (the lowest of a cell's echoes lies 0.1-0.2 m below its
+    level) beside banks of 20, its outer 3 m undetected: grown through the cells whose mean lies at its level,
+    and judged on the banks at or above it, it is water.  Its own unseen ring alone would refuse it."""
+    rng = np.random.default_rng(7)
+    n = 100 * 100 * 20
+    x, y = rng.uniform(0, 100, n), rng.uniform(0, 100, n)
+    d = np.hypot(x - 50, y - 50)
+    lake = (d < 20.0) & (rng.uniform(size=n) < 0.3)  # 6 of 20 echoes return from the water
+    bank = d >= 20.0
+    z = np.where(d < 20.0, LEVEL + rng.normal(0, 0.08, n), LEVEL + 0.4 + 0.05 * (d - 20.0) + rng.normal(0, 0.02, n))
+    xyz = np.column_stack((x, y, z))
+    unseen = lake & (d > 17.0)
+    water, ground = xyz[lake & ~unseen], np.vstack((xyz[bank], xyz[unseen]))
+    assert _bodies(water, ground)[0] == []
+    bodies, refused, grown = water_bodies(water, ground, **_params(), tolerance=0.15)
+    assert len(bodies) == 1 and not refused.mask.any()
+    assert abs(bodies[0].level - LEVEL) < 0.02
+    taken = np.isfinite(grown.at(xyz[unseen, :2]))
+    assert taken.mean() > 0.85  # all but cells at the shore, whose mean holds the bank's echoes too

@@ -10,6 +10,7 @@ Rasters: :mod:`lidar.rasters`; vectors: :mod:`lidar.vectors`.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -125,6 +126,65 @@ def grow_header(header, points) -> None:
     counts = np.bincount(np.asarray(points.return_number, dtype=np.intp), minlength=1)[1 : len(slots) + 1]
     slots[: len(counts)] += counts.astype(slots.dtype)
     header.point_count += len(points)
+
+
+#: A pass over a file's points reads it in at least this many chunks, so that its progress moves at least every
+#: tenth of the pass (:func:`progress_chunk`).
+PROGRESS_CHUNKS = 20
+#: ... but never in chunks of fewer points than this (laspy's overhead per read).
+MIN_PROGRESS_CHUNK = 10_000
+
+
+def progress_chunk(points: int, chunk_size: int = 1_000_000) -> int:
+    """Points to read at a time in a pass over *points* points: *chunk_size*, or fewer in a small file.
+
+    A file of fewer than :data:`PROGRESS_CHUNKS` chunks is read in about
+    that many (at least :data:`MIN_PROGRESS_CHUNK` points each), so the
+    pass's progress figure moves.  Only for passes whose result does not
+    depend on where the chunks end (else :func:`read_chunks_counted`).
+
+    >>> progress_chunk(185_821), progress_chunk(3_000_000), progress_chunk(50_000_000), progress_chunk(5_000)
+    (10000, 150000, 1000000, 10000)
+    """
+    chunk = max(-(-int(points) // PROGRESS_CHUNKS), MIN_PROGRESS_CHUNK)
+    return max(min(int(chunk_size), chunk), 1)
+
+
+def read_chunks_counted(reader, chunk_size: int, advance: Callable[[int], object] | None = None) -> Iterator:
+    """The records of an open laspy *reader*, *chunk_size* at a time (``reader.chunk_iterator``'s chunks).
+
+    For a pass whose result depends on where the chunks end (sums in
+    floating point, figures updated chunk by chunk): each chunk is read in
+    pieces of :func:`progress_chunk` and joined, and *advance* is told the
+    points of each piece as it is read, so a small file's progress moves
+    too; the chunks are the same as without it.
+    """
+    piece = progress_chunk(reader.header.point_count, chunk_size)
+    if advance is None or piece >= chunk_size:
+        for chunk in reader.chunk_iterator(chunk_size):
+            if advance is not None:
+                advance(len(chunk))
+            yield chunk
+        return
+    while True:
+        parts, held = [], 0
+        while held < chunk_size:
+            part = reader.read_points(min(piece, chunk_size - held))
+            if not len(part):
+                break
+            parts.append(part)
+            held += len(part)
+            advance(len(part))
+        if not parts:
+            return
+        first = parts[0]
+        if len(parts) == 1:
+            yield first
+        else:
+            array = np.concatenate([part.array for part in parts])
+            yield laspy.ScaleAwarePointRecord(array, first.point_format, first.scales, first.offsets)
+        if held < chunk_size:
+            return
 
 
 def chunk_xyz_metres(chunk, units) -> np.ndarray:

@@ -173,6 +173,7 @@ def georeference(
     max_gap_s: float = MAX_GAP_S,
     chunk: int = 32_768,
     workers: int = 1,
+    advance: Callable[[int], object] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Map coordinates (n, 3) of pulses (NaN where ``ok`` is False) and the mask ``ok`` of those with a trajectory.
 
@@ -188,6 +189,8 @@ def georeference(
         Pulses inside a trajectory interval longer than this get no position.
     chunk, workers : int
         Pulses per block (small enough for the CPU cache), and threads (NumPy and PROJ release the GIL).
+    advance : callable, optional
+        Told how many pulses are done, about every tenth of them (the blocks run a tenth at a time).
     """
     n = len(t)
     out = np.full((n, 3), np.nan)
@@ -209,7 +212,13 @@ def georeference(
             view[ok, 0], view[ok, 1], view[ok, 2] = x, y, z
         ok_all[sl] = ok
 
-    thread_map(block, range(0, n, chunk), workers)
+    starts = range(0, n, chunk)
+    step = max(-(-len(starts) // 10), workers) if advance is not None else max(len(starts), 1)
+    for g in range(0, len(starts), step):
+        group = starts[g : g + step]
+        thread_map(block, group, workers)
+        if advance is not None:
+            advance(min(group[-1] + chunk, n) - group[0])
     return out, ok_all
 
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import laspy
 import numpy as np
 
-from lidar.clouds import chunk_xyz_metres, cloud_crs
+from lidar.clouds import chunk_xyz_metres, cloud_crs, progress_chunk
 from lidar.columns import NpyColumns, npy_header
 from lidar.units import Units
 from pipeline.tiling import Layout
@@ -37,6 +37,9 @@ if TYPE_CHECKING:
 
     from pipeline.executor import DaskExecutor, LocalExecutor
     from pipeline.log import Progress
+
+#: A split on the workers cuts a large file into at least this many ranges (its progress moves by a range).
+PROGRESS_RANGES = 10
 
 #: Bytes of tile columns held in memory before they are appended to disk.
 SPILL_BYTES = 64 * 2**20
@@ -141,9 +144,12 @@ def split_cloud(
     workers = int(getattr(executor, "workers", 1)) if executor is not None else 1
     with _open_las(path) as reader:
         total = int(reader.header.point_count)
-        pieces = min(2 * workers, total // chunk_size) if workers > 1 else 1  # ranges of a chunk at least
-        if pieces < 2:
-            whole = SplitTask(str(path), 0, total, layout, str(folder), columns, count, index, chunk_size)
+        pieces = min(2 * workers, total // chunk_size) if workers > 1 else 1  # the workers split two chunks or more
+        if pieces >= 2:  # then in ten ranges at least (the progress moves by a range), of a tenth of a chunk or more
+            pieces = max(pieces, min(PROGRESS_RANGES, total // max(chunk_size // PROGRESS_RANGES, 1)))
+        if pieces < 2:  # read here in chunks the progress figure moves by, in a small file too
+            read = progress_chunk(total, chunk_size)
+            whole = SplitTask(str(path), 0, total, layout, str(folder), columns, count, index, read)
             return _split_records(reader, whole, progress)
     bounds = [total * k // pieces for k in range(pieces + 1)]
     tasks = [
@@ -164,14 +170,13 @@ def split_cloud(
     ]
     rows: dict[int, tuple[int, int]] = {}
     counted = None
-    for k, (part_rows, part_counted) in enumerate(executor.map(split_range, tasks, what="tiling")):
+    advance = (lambda t: progress.update(t.stop - t.start)) if progress is not None else None
+    for part_rows, part_counted in executor.map(split_range, tasks, what="tiling", done=advance):
         for t, (n, core) in part_rows.items():
             had = rows.get(t, (0, 0))
             rows[t] = (had[0] + n, had[1] + core)
         if part_counted is not None:
             counted = part_counted if counted is None else counted + part_counted
-        if progress is not None:
-            progress.update(bounds[k + 1] - bounds[k])
     return dict(sorted(rows.items())), counted
 
 

@@ -40,7 +40,7 @@ from pipeline import interrupt
 from pipeline.cache import cache_root
 from pipeline.errors import ConfigError, EnvironmentFailure
 from pipeline.interrupt import sigint_held
-from pipeline.log import LOGGER_NAME
+from pipeline.log import LOGGER_NAME, hosting
 
 
 class WorkerLost(EnvironmentFailure):
@@ -115,13 +115,29 @@ class LocalExecutor:
             except BrokenProcessPool:
                 pass  # a worker died already: map() says so
 
-    def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
-        """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task."""
+    def map(
+        self,
+        fn: Callable[[Any], Any],
+        tasks: Sequence[Any],
+        *,
+        log: Any = None,
+        what: str = "tiles",
+        done: Callable[[Any], object] | None = None,
+    ) -> list[Any]:
+        """``[fn(t) for t in tasks]``, in parallel processes when there is more than one task.
+
+        *done*, if given, is called here with each task as it finishes (a progress figure's update).
+        """
         if self.workers == 1 or len(tasks) <= 1:
             results = []
-            for i, t in enumerate(tasks):
-                results.append(fn(t))
-                _done(log, i + 1, len(tasks), what)
+            with contextlib.ExitStack() as quiet:
+                if len(tasks) > 1:  # the tasks' own progress says nothing: the tasks done are the figure
+                    quiet.enter_context(hosting(None))
+                for i, t in enumerate(tasks):
+                    results.append(fn(t))
+                    _done(log, i + 1, len(tasks), what)
+                    if done is not None:
+                        done(t)
             return results
         try:
             _start_resource_tracker()
@@ -130,7 +146,7 @@ class LocalExecutor:
                     self._pool = _pool(min(self.workers, len(tasks)))
                 futures = [self._pool.submit(_then_trim, fn, t) for t in tasks]
             completed = concurrent.futures.as_completed(futures)
-            return _collect(futures, completed, log, what, lambda: [f.cancel() for f in futures])
+            return _collect(futures, completed, log, what, lambda: [f.cancel() for f in futures], tasks, done)
         except BrokenProcessPool:
             if interrupt.received() is not None:  # the run is stopping: its signal, not the worker, says why
                 raise interrupt.Interrupted(interrupt.received()) from None
@@ -304,8 +320,16 @@ class DaskExecutor:
             "must be on a filesystem every worker mounts at the same path."
         )
 
-    def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], *, log: Any = None, what: str = "tiles") -> list[Any]:
-        """``[fn(t) for t in tasks]`` on the cluster's workers.
+    def map(
+        self,
+        fn: Callable[[Any], Any],
+        tasks: Sequence[Any],
+        *,
+        log: Any = None,
+        what: str = "tiles",
+        done: Callable[[Any], object] | None = None,
+    ) -> list[Any]:
+        """``[fn(t) for t in tasks]`` on the cluster's workers; *done* as :meth:`LocalExecutor.map`'s.
 
         A task that raises ``FileNotFoundError`` for a path that exists here
         ran on a worker that does not share this run's filesystem:
@@ -327,7 +351,7 @@ class DaskExecutor:
             completed = self._watch.completed(
                 distributed.as_completed(futures, loop=client.loop), [f.key for f in futures], log
             )
-            return _collect(futures, completed, log, what, lambda: client.cancel(futures))
+            return _collect(futures, completed, log, what, lambda: client.cancel(futures), tasks, done)
         except WorkerLost:  # the cluster had no worker for too long: the scheduler forgets the tasks
             client.cancel(futures)
             raise
@@ -643,18 +667,32 @@ def _done(log: Any, k: int, n: int, what: str) -> None:
         log.info("%s: %d of %d done", what, k, n)
 
 
-def _collect(futures: list, completed: Iterable, log: Any, what: str, cancel: Callable[[], Any]) -> list[Any]:
+def _collect(
+    futures: list,
+    completed: Iterable,
+    log: Any,
+    what: str,
+    cancel: Callable[[], Any],
+    tasks: Sequence[Any] = (),
+    done: Callable[[Any], object] | None = None,
+) -> list[Any]:
     """Wait for every future (logging progress); the first failure cancels the rest and is raised.
 
     *completed* yields the *futures* as they complete (``concurrent.futures.as_completed``, or
-    :meth:`_WorkerWatch.completed` over ``distributed``'s).
+    :meth:`_WorkerWatch.completed` over ``distributed``'s); *done* is called with the task of each
+    (*tasks*, in the futures' order).
     """
+    position = {id(f): i for i, f in enumerate(futures)}
+    keyed = {getattr(f, "key", None): i for i, f in enumerate(futures)}  # distributed's futures, by their key
     for k, future in enumerate(completed, 1):
         exc = future.exception()
         if exc is not None:
             cancel()
             raise exc
         _done(log, k, len(futures), what)
+        if done is not None:
+            i = position.get(id(future))
+            done(tasks[i if i is not None else keyed[future.key]])
     return [f.result() for f in futures]
 
 

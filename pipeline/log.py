@@ -2,7 +2,10 @@
 
 On a terminal, long work shows a progress bar per stage (tqdm, on stderr).
 Otherwise (batch jobs, CI, ``--log-format json``) progress becomes a log line
-at about every tenth of the work, so logs stay readable and bounded.
+at about every tenth of the work, so logs stay readable and bounded:
+``desc: 40% (1200 of 3000 pt)``.  Code without the stage's context (an executor's
+task) reports through :func:`stage_progress`, heard when it runs in its
+stage's own process.
 """
 
 from __future__ import annotations
@@ -11,6 +14,9 @@ import json
 import logging
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Any
 
 LOGGER_NAME = "pipeline"
@@ -68,16 +74,19 @@ def stage_logger(stage: str, step: str | None = None) -> logging.LoggerAdapter:
 
 
 class Progress:
-    """Progress of one piece of work: a bar on a terminal, else log lines."""
+    """Progress of one piece of work: a bar on a terminal, else log lines; *quiet*: neither (work nobody hears)."""
 
-    def __init__(self, total: float, desc: str, stage: str, unit: str = "it"):
+    def __init__(self, total: float, desc: str, stage: str | None, unit: str = "it", *, quiet: bool = False):
         self.total = max(float(total), 0.0)
         self.done = 0.0
         self.desc = desc
         self.unit = unit
-        self.log = stage_logger(stage)
-        self._next_report = 0.1
+        self.log = stage_logger(stage) if stage is not None else None
+        self._next_tenth = 1  # the next tenth of the total a line is logged at (whole numbers: no drift)
         self._bar = None
+        if quiet or self.log is None:
+            self.log = None
+            return
         logger = logging.getLogger(LOGGER_NAME)
         console = [h.level for h in logger.handlers if type(h) is logging.StreamHandler]
         interactive = (
@@ -96,10 +105,17 @@ class Progress:
         self.done += n
         if self._bar is not None:
             self._bar.update(n)
-        elif self.total and self.done / self.total >= self._next_report and self.done < self.total:
-            self.log.info("%s: %d%%", self.desc, int(100 * self.done / self.total))
-            while self._next_report <= self.done / self.total:
-                self._next_report += 0.1
+        elif self.log is not None and self._next_tenth * self.total <= 10 * self.done < 10 * self.total:
+            self.log.info(
+                "%s: %d%% (%.0f of %.0f %s)",
+                self.desc,
+                int(100 * self.done / self.total),
+                self.done,
+                self.total,
+                self.unit,
+            )
+            while self._next_tenth * self.total <= 10 * self.done:
+                self._next_tenth += 1
 
     def close(self) -> None:
         if self._bar is not None:
@@ -111,6 +127,40 @@ class Progress:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+#: The stage whose ``run`` this process is in, for :func:`stage_progress`.
+_HOST: ContextVar[str | None] = ContextVar("pipeline_progress_host", default=None)
+
+
+@contextmanager
+def hosting(stage: str | None) -> Iterator[None]:
+    """Within it, :func:`stage_progress` reports as *stage* (None: says nothing).
+
+    The runner hosts each stage's ``run``; an executor running several
+    tasks one after the other in this process hosts none (it counts the
+    tasks as they finish).  Threads and worker processes start without a
+    host.
+    """
+    token = _HOST.set(stage)
+    try:
+        yield
+    finally:
+        _HOST.reset(token)
+
+
+def stage_progress(total: float, desc: str, unit: str = "it") -> Progress:
+    """A progress reporter of the stage running in this process, for code without its :class:`~pipeline.stage.StageContext`.
+
+    An executor's task, or a library function under a stage's ``run``: it
+    reports as the stage hosting it (:func:`hosting`), so a task run alone
+    in its stage's own process (one tile, or work too light for the
+    workers) moves the stage's figure; in a worker process (whose log
+    lines reach no run log) or among several tasks (counted as they
+    finish) it is quiet.
+    """
+    stage = _HOST.get()
+    return Progress(total, desc, stage, unit, quiet=stage is None)
 
 
 class StageWarnings(logging.Handler):

@@ -57,7 +57,7 @@ from pipeline.errors import (
 )
 from pipeline.executor import LocalExecutor, WorkerLost, capped_workers, make_executor, release_freed_memory
 from pipeline.interrupt import Interrupted
-from pipeline.log import LOGGER_NAME, RunLog, StageWarnings, stage_logger
+from pipeline.log import LOGGER_NAME, RunLog, StageWarnings, hosting, stage_logger
 from pipeline.replan import PlannedStage, tile_notes
 from pipeline.stage import Plugin, Stage, StageContext, StageIO, get_dotted
 
@@ -926,7 +926,7 @@ def _execute(
         )
         slog.info("running (stage %s)", slog.extra.get("step", "?"))
         t0 = time.perf_counter()
-        with StageWarnings(step.name) as warned:
+        with StageWarnings(step.name) as warned, hosting(step.name):
             step.stage.run(ctx)
         if warned.lines:
             ctx.metrics[LOG_WARNINGS] = warned.lines

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import laspy
 import numpy as np
 
-from lidar.clouds import chunk_xyz_metres, cloud_crs, open_las_writer
+from lidar.clouds import chunk_xyz_metres, cloud_crs, open_las_writer, progress_chunk
 from lidar.gridrun.kernel import Frame, GridKernel
 from lidar.tile_points import record_chunks
 from lidar.units import Units
@@ -118,7 +118,10 @@ def survey_statistics(
     frame = Frame.covering(kernel.axes, extent, kernel.cell)
     if frame.size > cap and frame.size <= STRAYS_BEYOND * cap:
         return None  # a survey larger than one grid: tiled
-    stats = _gathered(src, kernel, frame, chunk_size, progress) if frame.size <= cap else None
+    with laspy.open(str(src)) as reader:  # read in chunks the progress figure moves by, in a small file too
+        chunk_size = progress_chunk(reader.header.point_count, chunk_size)
+    tried = frame.size <= cap
+    stats = _gathered(src, kernel, frame, chunk_size, progress) if tried else None
     if stats is None:  # the header's grid is far too big (stray points) or misses points: the gathered points' own
         box = selected_box(src, kernel, chunk_size)
         if box is None:
@@ -126,7 +129,7 @@ def survey_statistics(
         frame = Frame.covering(kernel.axes, box, kernel.cell)
         if frame.size > cap:
             return None
-        stats = _gathered(src, kernel, frame, chunk_size, None)
+        stats = _gathered(src, kernel, frame, chunk_size, None if tried else progress)  # pass 1 counted once
     return stats, frame
 
 
@@ -185,7 +188,7 @@ def classes_here(
     """*src* copied to *dst* a chunk at a time with the classes of :func:`chunk_classes`; the numbers summed."""
     totals = [0] * (len(kernel.counts) + 1)
     with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
-        for chunk, xyz in las_chunks(src, chunk_size):
+        for chunk, xyz in las_chunks(src, progress_chunk(reader.header.point_count, chunk_size)):
             chunk.classification, numbers = chunk_classes(kernel, lookup, chunk, xyz)
             writer.write_points(chunk)
             totals = _summed(totals, numbers)
@@ -242,6 +245,10 @@ def workers_layout(
     return Records(layout, executor, Path(folder))
 
 
+#: Pass 2 on the workers cuts the records into at least this many ranges (its progress moves by a range).
+PIECES = 10
+
+
 @dataclass(frozen=True)
 class RecordRange:
     """Records ``start:stop`` of the LAS *src*, written with their new classes at byte *offset* of *dst*.
@@ -269,18 +276,21 @@ def classes_on_workers(
     *,
     chunk_size: int,
     what: str,
+    progress: Progress | None = None,
 ) -> list[int]:
     """*dst*: *src* with the classes the workers give it, a range of records each; their numbers summed.
 
     This process writes *src*'s header and VLRs to *dst* and sizes it for
     the records; *lookup* is what the workers read the results by (small:
-    paths and frames, its ``lookup()`` opens them).
+    paths and frames, its ``lookup()`` opens them).  *progress* advances by
+    each range's records as it is written: in at least :data:`PIECES`
+    ranges, so that it moves every tenth of the records.
     """
     offset, size, count = records.layout
     with open(src, "rb") as head, open(dst, "wb") as out:
         out.write(head.read(offset))  # header and VLRs
         out.truncate(offset + count * size)
-    pieces = 2 * records.executor.workers
+    pieces = max(2 * records.executor.workers, PIECES)
     bounds = [count * k // pieces for k in range(pieces + 1)]
     ranges = [
         RecordRange(
@@ -295,7 +305,8 @@ def classes_on_workers(
         )
         for k in range(pieces)
     ]
-    results = records.executor.map(rewrite_range, ranges, what=what)
+    advance = (lambda r: progress.update(r.stop - r.start)) if progress is not None else None
+    results = records.executor.map(rewrite_range, ranges, what=what, done=advance)
     return [sum(r[k] for r in results) for k in range(len(results[0]))]
 
 
@@ -333,12 +344,12 @@ def write_classes(
     shutil.rmtree(records.folder, ignore_errors=True)
     records.folder.mkdir(parents=True)
     try:
-        numbers = classes_on_workers(src, dst, records, kernel, saved(records.folder), chunk_size=chunk_size, what=what)
+        lookup = saved(records.folder)
+        return classes_on_workers(
+            src, dst, records, kernel, lookup, chunk_size=chunk_size, what=what, progress=progress
+        )
     finally:
         shutil.rmtree(records.folder, ignore_errors=True)
-    if progress is not None:
-        progress.update(records.layout[2])
-    return numbers
 
 
 class _NoResults:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import laspy
 import numpy as np
 
-from lidar.clouds import cloud_info, open_las_writer
+from lidar.clouds import cloud_info, open_las_writer, progress_chunk
 from lidar.gridrun.kernel import GridKernel
 from lidar.gridrun.passes import subset
 from lidar.tile_points import (
@@ -213,7 +213,7 @@ def merge_classes(
     try:
         with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
             start = 0
-            for chunk in reader.chunk_iterator(chunk_size):
+            for chunk in reader.chunk_iterator(progress_chunk(reader.header.point_count, chunk_size)):
                 n = len(chunk)
                 cls = np.asarray(chunk.classification).copy()
                 filled = np.zeros(n, dtype=bool)

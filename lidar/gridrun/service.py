@@ -72,7 +72,8 @@ def run_grid_stage(
     if kernel.grid_form and one_grid_cells > 0:
         tiles = run_tile_cells(ctx.config, kernel.reach, kernel.cell)
         workers = Workers(ctx.executor, Path(ctx.workdir), ctx.workers)
-        with ctx.progress((kernel.passes + 1) * cloud_info(src).count, what, unit="pt") as bar:
+        passes = f"{kernel.passes + 1} passes over the points"  # pass 1 (the grid's statistics), then the writing
+        with ctx.progress((kernel.passes + 1) * cloud_info(src).count, f"{what}, {passes}", unit="pt") as bar:
             done = on_one_grid(src, dst, kernel, one_grid_cells, tiles, workers, bar)
         if done is not None:
             _note(ctx, what, done, tiles)

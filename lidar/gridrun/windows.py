@@ -26,6 +26,7 @@ import numpy as np
 
 from lidar.gridrun.kernel import Frame, GridKernel
 from lidar.gridrun.passes import Lookup
+from pipeline.log import stage_progress
 
 
 def tile_cells(size: float | None, buffer: float, cell: float) -> tuple[int, int] | None:
@@ -161,9 +162,14 @@ def run_window(task: WindowTask) -> tuple[tuple[int, int], Frame] | None:
 def largest_first(fn, tasks: list, executor) -> list:
     """``fn`` of every window task, the largest (``weight``) first, on the workers when there are any."""
     order = sorted(tasks, key=lambda t: -t.weight)
-    if executor is None or executor.workers <= 1:
-        return [fn(t) for t in order]
-    return executor.map(fn, order, what="windows")
+    with stage_progress(sum(t.weight for t in order), "grid in windows", unit="cells") as bar:
+        if executor is None or executor.workers <= 1:
+            out = []
+            for t in order:
+                out.append(fn(t))
+                bar.update(t.weight)
+            return out
+        return executor.map(fn, order, what="windows", done=lambda t: bar.update(t.weight))
 
 
 @dataclass(frozen=True)

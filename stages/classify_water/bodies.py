@@ -3,6 +3,7 @@ taken for no water given back their class: the survey-wide steps after the tiles
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -11,38 +12,49 @@ import numpy as np
 import shapely
 
 from lidar import glossary
-from lidar.clouds import chunk_xyz_metres, open_las_writer
+from lidar.clouds import chunk_xyz_metres, open_las_writer, progress_chunk
 from lidar.water_bodies import CellLevels, CellMask, WaterBody, water_bodies
 from stages.classify_water.params import ClassifyWaterParams
 from stages.classify_water.water import inside_polygons
 
-#: Points read at a time.
+#: Points read at a time (fewer in a small file: :func:`~lidar.clouds.progress_chunk`).
 CHUNK = 1_000_000
+#: The most passes :func:`bodies_of` reads the file in: the water, the ground near it, the other points near it.
+BODY_PASSES = 3
+
+#: Told the points read or written (a progress figure's update), or None.
+Advance = Callable[[int], object] | None
 
 
-def _points(path: Path, units, keep) -> np.ndarray:
-    """The points of the LAS *path* (metres) for which ``keep(classes, xyz)`` holds, read in chunks."""
+def _points(path: Path, units, keep, advance: Advance = None) -> np.ndarray:
+    """The points of the LAS *path* (metres) for which ``keep(classes, xyz)`` holds, read in chunks (*advance* told
+    the points read)."""
 
     parts = [np.zeros((0, 3))]
     with laspy.open(str(path)) as reader:
-        for chunk in reader.chunk_iterator(CHUNK):
+        for chunk in reader.chunk_iterator(progress_chunk(reader.header.point_count, CHUNK)):
             xyz = chunk_xyz_metres(chunk, units)
             cls = np.asarray(chunk.classification)
             usable = glossary.usable(cls, chunk.withheld)
             parts.append(np.ascontiguousarray(xyz[usable & keep(cls, xyz)]))
+            if advance is not None:
+                advance(len(chunk))
     return np.concatenate(parts)
 
 
-def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[WaterBody], CellMask, CellLevels]:
+def bodies_of(
+    path: Path, units, params: ClassifyWaterParams, advance: Advance = None
+) -> tuple[list[WaterBody], CellMask, CellLevels]:
     """The water bodies of the classified LAS *path*, the cells of those that are no water, and the levels of the
     cells bodies seen through dropouts grew into.
 
     :func:`lidar.water_bodies.water_bodies` on two passes: the water
     points, then the ground points within the water's box plus a margin.
     Without detection (polygons only) no body is refused for its banks.
+    *advance* is told the points read, in up to :data:`BODY_PASSES` passes.
     """
     b = params.bodies
-    water = _points(path, units, lambda cls, xyz: cls == glossary.WATER)
+    water = _points(path, units, lambda cls, xyz: cls == glossary.WATER, advance)
     margin = (b.close + 4) * b.cell_size
     lo = water[:, :2].min(axis=0) - margin if len(water) else np.zeros(2)
     hi = water[:, :2].max(axis=0) + margin if len(water) else np.zeros(2)
@@ -50,13 +62,13 @@ def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[Wate
     def near(cls, xyz):
         return (cls == glossary.GROUND) & np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
 
-    ground = _points(path, units, near) if len(water) else np.zeros((0, 3))
+    ground = _points(path, units, near, advance) if len(water) else np.zeros((0, 3))
 
     def other(cls, xyz):
         inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
         return inside & (cls != glossary.GROUND) & (cls != glossary.WATER)
 
-    others = _points(path, units, other)[:, :2] if len(water) else np.zeros((0, 2))
+    others = _points(path, units, other, advance)[:, :2] if len(water) else np.zeros((0, 2))
     return water_bodies(
         water,
         ground,
@@ -70,28 +82,33 @@ def bodies_of(path: Path, units, params: ClassifyWaterParams) -> tuple[list[Wate
     )
 
 
-def _rewrite_classes(dst: Path, units, change, src: Path | None = None) -> None:
+def _rewrite_classes(dst: Path, units, change, src: Path | None = None, advance: Advance = None) -> None:
     """*dst* rewritten (through a temporary file) with each chunk's classes as ``change(classes, xyz, was)`` gives them.
 
     *classes*: the chunk's classes (a copy, for ``change`` to alter);
     *xyz*: its coordinates in metres; *was*: the same points' classes in
-    *src* (None without one).
+    *src* (None without one).  *advance* is told the points written.
     """
 
     tmp = dst.with_name(f".{dst.name}.tmp")
     with ExitStack() as files:
         after = files.enter_context(laspy.open(str(dst)))
+        chunk_size = progress_chunk(after.header.point_count, CHUNK)
         out = files.enter_context(open_las_writer(tmp, after.header))
-        olds = files.enter_context(laspy.open(str(src))).chunk_iterator(CHUNK) if src is not None else None
-        for chunk in after.chunk_iterator(CHUNK):
+        olds = files.enter_context(laspy.open(str(src))).chunk_iterator(chunk_size) if src is not None else None
+        for chunk in after.chunk_iterator(chunk_size):
             was = np.asarray(next(olds).classification) if olds is not None else None
             cls = np.asarray(chunk.classification).copy()
             chunk.classification = change(cls, chunk_xyz_metres(chunk, units), was)
             out.write_points(chunk)
+            if advance is not None:
+                advance(len(chunk))
     tmp.replace(dst)
 
 
-def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | None) -> tuple[int, int]:
+def give_back(
+    src: Path, dst: Path, refused: CellMask, units, polygons: list | None, advance: Advance = None
+) -> tuple[int, int]:
     """Water points of *dst* in *refused* cells (and outside the *polygons*, metres) get their class in *src* back.
 
     Points that were water in *src* (the input's own) are not given back.
@@ -113,11 +130,11 @@ def give_back(src: Path, dst: Path, refused: CellMask, units, polygons: list | N
         counts[1] += int((undo & (was == glossary.GROUND)).sum())
         return cls
 
-    _rewrite_classes(dst, units, change, src)
+    _rewrite_classes(dst, units, change, src, advance)
     return counts[0], counts[1]
 
 
-def take_unseen(dst: Path, grown: CellLevels, tolerance: float, units) -> int:
+def take_unseen(dst: Path, grown: CellLevels, tolerance: float, units, advance: Advance = None) -> int:
     """Ground points of *dst* in the cells of a body seen through dropouts, up to *tolerance* (m) above its level
     there, become water: ground cannot lie under water (a laser's echo from below a water surface is noise).
 
@@ -135,11 +152,11 @@ def take_unseen(dst: Path, grown: CellLevels, tolerance: float, units) -> int:
         changed[0] += len(take)
         return cls
 
-    _rewrite_classes(dst, units, change)
+    _rewrite_classes(dst, units, change, advance=advance)
     return changed[0]
 
 
-def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units) -> int:
+def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units, advance: Advance = None) -> int:
     """Ground points of *dst* within *distance* (m) of a flattened body's outline become ignored ground (20).
 
     The outlines are the hydro breaklines the DTM is flattened to: the
@@ -165,5 +182,5 @@ def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, unit
             changed[0] += int(near.sum())
         return cls
 
-    _rewrite_classes(dst, units, change)
+    _rewrite_classes(dst, units, change, advance=advance)
     return changed[0]

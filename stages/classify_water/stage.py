@@ -20,6 +20,7 @@ import hashlib
 from pathlib import Path
 from typing import ClassVar
 
+import numpy as np
 from pydantic import BaseModel
 
 from lidar.clouds import cloud_info
@@ -29,7 +30,7 @@ from lidar.vectors import read_polygons
 from lidar.water_bodies import write_breaklines, write_water_bodies
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
-from stages.classify_water.bodies import bodies_of, give_back, ignore_near_shores, take_unseen
+from stages.classify_water.bodies import BODY_PASSES, bodies_of, give_back, ignore_near_shores, take_unseen
 from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
 
@@ -79,12 +80,18 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
 
     dst = ctx.outputs["points_water"]
     info = cloud_info(dst)
-    bodies, refused, grown = bodies_of(dst, info.units, ctx.params)
+    with ctx.progress(
+        BODY_PASSES * info.count, f"water bodies, up to {BODY_PASSES} passes over the points", "pt"
+    ) as bar:
+        bodies, refused, grown = bodies_of(dst, info.units, ctx.params, bar.update)
     back = ground = 0
     if refused.mask.any():
-        back, ground = give_back(src, dst, refused, info.units, _polygons_in_metres(ctx.params, info.units))
+        polygons = _polygons_in_metres(ctx.params, info.units)
+        with ctx.progress(info.count, "giving refused water its class back", unit="pt") as bar:
+            back, ground = give_back(src, dst, refused, info.units, polygons, bar.update)
         ctx.log.info("%d water points given their class back: their body's banks do not rise above it", back)
-    unseen = take_unseen(dst, grown, ctx.params.detect.tolerance, info.units)
+    with ctx.progress(info.count if np.isfinite(grown.level).any() else 0, "water seen through dropouts", "pt") as bar:
+        unseen = take_unseen(dst, grown, ctx.params.detect.tolerance, info.units, bar.update)
     if unseen:
         ctx.log.info(
             "%d ground points became water: at the level of a body seen through dropouts, within %g m, beside it",
@@ -103,7 +110,10 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
     if "breaklines" in ctx.outputs:
         write_breaklines(ctx.outputs["breaklines"], bodies, crs=info.crs, units=info.units)
         flat = [b for b in bodies if b.flat]
-        counts["ignored_ground"] = ignore_near_shores(dst, flat, ctx.params.bodies.ignored_ground, info.units)
+        with ctx.progress(info.count, "ignored ground near the shores", unit="pt") as bar:
+            counts["ignored_ground"] = ignore_near_shores(
+                dst, flat, ctx.params.bodies.ignored_ground, info.units, bar.update
+            )
         ctx.metrics["bodies"] = {
             "polygons": len(bodies),
             "flattened": len(flat),

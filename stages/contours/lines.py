@@ -8,6 +8,8 @@ import contourpy
 import numpy as np
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from affine import Affine
 
 
@@ -19,7 +21,12 @@ def levels_between(lo: float, hi: float, interval: float) -> int:
 
 
 def contour_lines(
-    dem: np.ndarray, transform: Affine, *, interval: float, nodata_mask: np.ndarray | None = None
+    dem: np.ndarray,
+    transform: Affine,
+    *,
+    interval: float,
+    nodata_mask: np.ndarray | None = None,
+    advance: Callable[[int], object] | None = None,
 ) -> list[tuple[float, np.ndarray]]:
     """Contour lines of a north-up DEM every *interval* metres.
 
@@ -27,7 +34,8 @@ def contour_lines(
     -------
     list of (elevation, (m, 2) array of map x, y)
         One entry per line; lines stop at nodata cells.  A DEM less than
-        two cells wide or high has no contour lines.
+        two cells wide or high has no contour lines.  *advance* is told
+        each level drawn.
 
     Notes
     -----
@@ -51,4 +59,6 @@ def contour_lines(
         for line in gen.lines(float(level)):
             if len(line) >= 2:
                 lines.append((float(level), np.asarray(line)))
+        if advance is not None:
+            advance(1)
     return lines

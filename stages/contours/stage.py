@@ -47,8 +47,11 @@ class Contours(Stage, name="contours", version="2", params=ContoursParams):
         dem, transform, crs, _ = read_raster(ctx.inputs["dtm"])
         units = raster_units(crs)  # levels every interval metres; written in the CRS's units
         dem = dem * units.vertical
-        _check_levels(dem, ctx.params.interval)
-        lines = contour_lines(dem, units.transform_to_metres(transform), interval=ctx.params.interval)
+        levels = _check_levels(dem, ctx.params.interval)
+        with ctx.progress(levels, "contour levels drawn", unit="levels") as bar:
+            lines = contour_lines(
+                dem, units.transform_to_metres(transform), interval=ctx.params.interval, advance=bar.update
+            )
         if not units.is_metre:
             lines = [(level / units.vertical, xy / units.horizontal) for level, xy in lines]
         write_lines_gpkg(ctx.outputs["contours"], lines, crs=crs)
@@ -63,15 +66,15 @@ class Contours(Stage, name="contours", version="2", params=ContoursParams):
         ctx.log.info("%d contour lines on %d levels", len(lines), len(levels))
 
 
-def _check_levels(dem: np.ndarray, interval: float) -> None:
-    """Refuse, before drawing, an interval that makes more than :data:`MAX_LEVELS` levels over *dem* (metres)."""
+def _check_levels(dem: np.ndarray, interval: float) -> int:
+    """The levels over *dem* (metres); refused, before drawing, when more than :data:`MAX_LEVELS`."""
     finite = dem[np.isfinite(dem)]
     if not len(finite):
-        return
+        return 0
     lo, hi = float(finite.min()), float(finite.max())
     levels = levels_between(lo, hi, interval)
     if levels <= MAX_LEVELS:
-        return
+        return levels
     least = (hi - lo) / (MAX_LEVELS - 1)
     raise ConfigError(
         f"stages.contours.interval: {interval:g} m between lines over the DTM's heights of {lo:.3f} to {hi:.3f} m "

@@ -18,7 +18,7 @@ from typing import ClassVar, Literal
 import laspy
 from pydantic import Field
 
-from lidar.clouds import open_las_writer
+from lidar.clouds import open_las_writer, progress_chunk
 from lidar.input_files import read_input_files_csv
 from pipeline.errors import ConfigError, InputDataError, PipelineError
 from pipeline.stage import Stage, StageContext, StageIO, StageParams
@@ -80,7 +80,8 @@ class ExportLas(Stage, name="export_las", version="3", params=ExportLasParams):
                 open_las_writer(dst_path, header, do_compress=ctx.params.compress, laz_backend=backend) as writer,
                 ctx.progress(header.point_count, "writing", unit="pt") as bar,
             ):
-                for chunk in reader.chunk_iterator(ctx.params.chunk_size):
+                # smaller chunks in a small file, for the progress: the same file (the LAZ writer makes its own)
+                for chunk in reader.chunk_iterator(progress_chunk(header.point_count, ctx.params.chunk_size)):
                     writer.write_points(chunk)
                     bar.update(len(chunk))
             ctx.metrics.update(points=int(header.point_count), compressed=ctx.params.compress)
@@ -163,7 +164,7 @@ def write_per_input(ctx: StageContext[ExportLasParams], src_path: Path, folder: 
                 with open_las_writer(folder / name, header, do_compress=laz, laz_backend=backend) as writer:
                     left = n
                     while left:
-                        chunk = reader.read_points(min(ctx.params.chunk_size, left))
+                        chunk = reader.read_points(min(progress_chunk(header.point_count, ctx.params.chunk_size), left))
                         if not len(chunk):
                             raise PipelineError(f"{src_path} ended {left} points before parse's count for {name}.")
                         writer.write_points(chunk)

@@ -20,6 +20,8 @@ from lidar.rasters import NODATA, write_cog
 from pipeline.errors import ConfigError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from affine import Affine
 
 
@@ -65,11 +67,26 @@ def tile_corners(transform: Affine, width: int, height: int, side: float) -> lis
     return [(i * side, j * side) for j in range(j1 - 1, j0 - 1, -1) for i in range(i0, i1)]
 
 
-def write_tiles(src: Path, folder: Path, vrt: Path, name: str, cells: int, folder_in_vrt: str) -> list[dict]:
+def tile_count(src: Path, cells: int) -> int:
+    """How many tiles of *cells* × *cells* touch the GeoTIFF *src* (:func:`write_tiles` tries each)."""
+    with rasterio.open(src) as ds:
+        return len(tile_corners(ds.transform, ds.width, ds.height, cells * ds.transform.a))
+
+
+def write_tiles(
+    src: Path,
+    folder: Path,
+    vrt: Path,
+    name: str,
+    cells: int,
+    folder_in_vrt: str,
+    advance: Callable[[int], object] | None = None,
+) -> list[dict]:
     """Cut the north-up single-band GeoTIFF *src* into tiles of *cells* × *cells*, and write the VRT *vrt*.
 
     The tiles go to *folder* (created), named ``<name>_<E>_<N>.tif``; the VRT
     names that folder *folder_in_vrt* (relative to the VRT's folder).
+    *advance* is told each tile done (written, or left out: no valid cell).
 
     Returns
     -------
@@ -87,6 +104,8 @@ def write_tiles(src: Path, folder: Path, vrt: Path, name: str, cells: int, folde
         unit = ds.units[0] if ds.units and ds.units[0] else None
         for corner in tile_corners(t, ds.width, ds.height, cells * t.a):
             written = _write_tile(ds, corner, cells, folder / name, nodata, unit)
+            if advance is not None:
+                advance(1)
             if written is None:
                 continue
             tile, src_rect, dst_rect = written

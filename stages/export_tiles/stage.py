@@ -14,7 +14,7 @@ from typing import ClassVar, Literal
 from pydantic import Field
 
 from pipeline.stage import Stage, StageContext, StageIO, StageParams
-from stages.export_tiles.cog_tiles import tile_cells, write_tiles
+from stages.export_tiles.cog_tiles import tile_cells, tile_count, write_tiles
 
 
 class ExportTilesParams(StageParams):
@@ -53,10 +53,18 @@ class ExportTiles(Stage, name="export_tiles", version="2", params=ExportTilesPar
         root = ctx.outputs["tiles"]
         root.mkdir(parents=True, exist_ok=True)
         counts = {}
-        for raster in dict.fromkeys(p.rasters):
-            tiles = write_tiles(
-                ctx.inputs[raster], root / raster, ctx.outputs[f"{raster}_vrt"], raster, cells, f"tiles/{raster}"
-            )
-            counts[raster] = len(tiles)
-            ctx.log.info("%s: %d tiles of %d x %d cells, %s.vrt", raster, len(tiles), cells, cells, raster)
+        rasters = list(dict.fromkeys(p.rasters))
+        with ctx.progress(sum(tile_count(ctx.inputs[r], cells) for r in rasters), "tiles cut", unit="tiles") as bar:
+            for raster in rasters:
+                tiles = write_tiles(
+                    ctx.inputs[raster],
+                    root / raster,
+                    ctx.outputs[f"{raster}_vrt"],
+                    raster,
+                    cells,
+                    f"tiles/{raster}",
+                    advance=bar.update,
+                )
+                counts[raster] = len(tiles)
+                ctx.log.info("%s: %d tiles of %d x %d cells, %s.vrt", raster, len(tiles), cells, cells, raster)
         ctx.metrics.update(tile_cells=cells, tiles=counts)

@@ -21,6 +21,7 @@ import laspy
 import numpy as np
 import rasterio
 
+from lidar.clouds import progress_chunk
 from lidar.rasters import read_raster, write_cog
 from lidar.vectors import write_gpkg
 from pipeline.stage import Stage, StageContext, StageIO, StageParams, get_dotted
@@ -56,10 +57,14 @@ class Footprints(Stage, name="footprints", version="3", params=FootprintsParams)
         with rasterio.open(ctx.inputs["dtm"]) as ds:
             nodata = ds.nodata
         tally = CellTally.empty(dtm.shape)
-        with laspy.open(str(ctx.inputs["points_objects"])) as reader:
-            for chunk in reader.chunk_iterator(1_000_000):
+        with (
+            laspy.open(str(ctx.inputs["points_objects"])) as reader,
+            ctx.progress(reader.header.point_count, "points tallied on the DTM's cells", unit="pt") as bar,
+        ):
+            for chunk in reader.chunk_iterator(progress_chunk(reader.header.point_count)):  # any chunks: max, counts
                 cell = flat_cells(np.asarray(chunk.x), np.asarray(chunk.y), transform, dtm.shape)
                 tally.add(cell, np.asarray(chunk.z), np.asarray(chunk.classification))
+                bar.update(len(chunk))
         area, skipped = write_survey_index(
             ctx.outputs["survey_index"], dtm, transform, crs, ctx.inputs.get("input_files")
         )

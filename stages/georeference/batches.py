@@ -92,11 +92,15 @@ def georeference_batch(
     mounting: Mounting,
     max_gap_s: float,
     workers: int,
+    advance: Callable[[int], object] | None = None,
 ) -> Batch:
-    """The pulses *sl* in the output frame, with their strips (from :func:`~.strips.pulse_strips`)."""
+    """The pulses *sl* in the output frame, with their strips (from :func:`~.strips.pulse_strips`); *advance* is told
+    the pulses georeferenced, a tenth of them at a time."""
     t = np.asarray(pulses["time"][sl])
     cols = tuple(np.ascontiguousarray(pulses[k][sl], dtype=np.float64) for k in ("x", "y", "z"))
-    xyz, ok = georeference(out.trajectory, t, cols, mounting, out.columns, max_gap_s=max_gap_s, workers=workers)
+    xyz, ok = georeference(
+        out.trajectory, t, cols, mounting, out.columns, max_gap_s=max_gap_s, workers=workers, advance=advance
+    )
     channel = np.asarray(pulses["channel"][sl])
     angle = np.asarray(pulses["angle"][sl])
     return Batch(sl, t, cols, xyz, ok, pulse_strip[sl], channel, angle)
@@ -185,26 +189,58 @@ def write_batches(
     """Georeference every pulse, batch by batch, and write the points kept (a trajectory, a strip) to *writer*.
 
     Points flown in turns (strip 0) are kept only with ``strips.keep_turns``;
-    *advance* is told how many pulses each batch held.
+    *advance* is told the pulses done in two passes over each batch: its
+    georeferencing, then its records (with their sigmas) written, each a
+    tenth at a time (:data:`PASSES` per pulse in all).
     """
     tally = Tally()
     keep_turns = p.strips.keep_turns
     for sl in pulse_batches(pulses["time"], p.batch_size):
-        b = georeference_batch(pulses, sl, pulse_strip, out, mounting, p.max_gap_s, workers)
+        n = sl.stop - sl.start
+        b = georeference_batch(pulses, sl, pulse_strip, out, mounting, p.max_gap_s, workers, advance)
         keep = b.ok & ((b.strip > 0) | keep_turns)
         tally.no_trajectory += int((~b.ok).sum())
         if not keep_turns:
             tally.in_turns += int((b.ok & (b.strip == 0)).sum())
         k = int(keep.sum())
+        written = 0
         if k:
             rec = point_record(header, pulses, b, keep)
             if tpu is not None:
-                sh, sv = tpu.sigmas(out.trajectory, b.t[keep], [c[keep] for c in b.v_s], mounting)
+                sh, sv = _sigmas(tpu, out.trajectory, b.t[keep], [c[keep] for c in b.v_s], mounting, n, advance)
+                written = n
                 rec.sigma_horizontal = sh.astype(np.float32)
                 rec.sigma_vertical = sv.astype(np.float32)
                 tally.sigma_vertical_sum += float(np.sum(sv))
             writer.write_points(rec)
             tally.add_strips(b.strip[keep])
         tally.points += k
-        advance(sl.stop - sl.start)
+        advance(n - written)
     return tally
+
+
+#: Passes :func:`write_batches` makes over each pulse (its progress total is this times the pulses).
+PASSES = 2
+
+
+def _sigmas(
+    tpu: PointUncertainty, traj, t: np.ndarray, v_s: list[np.ndarray], mounting: Mounting, pulses: int, advance
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`PointUncertainty.sigmas` of a batch's kept points, a tenth at a time (each point's its own: the same
+    values), *advance* told the batch's *pulses* in step with them."""
+    n = len(t)
+    step = -(-max(-(-n // 10), 1) // SIGMA_PIECE) * SIGMA_PIECE
+    parts, told = [], 0
+    for a in range(0, n, step):
+        sl = slice(a, min(a + step, n))
+        parts.append(tpu.sigmas(traj, t[sl], [c[sl] for c in v_s], mounting))
+        now = pulses * sl.stop // n
+        advance(now - told)
+        told = now
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate([h for h, _ in parts]), np.concatenate([v for _, v in parts])
+
+
+#: The points whose sigmas are propagated at a time are a whole multiple of this (and of any SIMD width).
+SIGMA_PIECE = 32_768

@@ -23,7 +23,7 @@ from lidar.georeferencing import exact_output, ltp_output, prepare_exact, prepar
 from lidar.units import Units
 from pipeline.errors import ConfigError, InputDataError
 from pipeline.stage import Stage, StageContext
-from stages.georeference.batches import las_header, write_batches
+from stages.georeference.batches import PASSES, las_header, write_batches
 from stages.georeference.ltp_check import ltp_metrics
 from stages.georeference.params import GeoreferenceParams
 from stages.georeference.strips import pulse_strips, segment_strips, write_flight_lines
@@ -92,7 +92,7 @@ class Georeference(Stage, name="georeference", version="9", params=GeoreferenceP
         header = las_header(out.crs, out.bounds(), uncertainty=tpu is not None)
         with (
             open_las_writer(ctx.outputs["points_georef"], header) as writer,
-            ctx.progress(n_pulses, "georeferencing", unit="pulse") as bar,
+            ctx.progress(PASSES * n_pulses, f"georeferencing, {PASSES} passes over the pulses", unit="pulses") as bar,
         ):
             workers = max(1, int(ctx.workers or 1))
             tally = write_batches(

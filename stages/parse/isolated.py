@@ -14,6 +14,9 @@ import laspy
 import numpy as np
 from scipy import ndimage
 
+from lidar.clouds import progress_chunk
+from pipeline.log import stage_progress
+
 #: Cells per side of the occupancy grid that finds points far from the survey.
 ISOLATION_GRID = 256
 #: A group of points is isolated when it holds at most this share of the survey (and at most
@@ -140,10 +143,13 @@ class _Records:
 def _count_points(records: _Records, block: int) -> IsolationGrid:
     """The file's points counted on the isolation grid over its header bounds."""
     grid = IsolationGrid(records.mins, records.maxs)
-    for a in range(0, records.count, block):
-        rec = records.map(a, min(a + block, records.count))
-        grid.add(*records.coordinates(rec))
-        del rec
+    block = progress_chunk(records.count, block)
+    with stage_progress(records.count, "isolated points: counting", unit="pt") as bar:
+        for a in range(0, records.count, block):
+            rec = records.map(a, min(a + block, records.count))
+            grid.add(*records.coordinates(rec))
+            del rec
+            bar.update(min(block, records.count - a))
     return grid
 
 
@@ -180,18 +186,21 @@ def _flag(records: _Records, grid: IsolationGrid, flagged_cells: np.ndarray, blo
     """Flag withheld the points in *flagged_cells*, in place; the box of the points still usable."""
     withheld = 0
     box = None
-    for a in range(0, records.count, block):
-        rec = records.map(a, min(a + block, records.count), "r+")
-        x, y = records.coordinates(rec)
-        hit = flagged_cells[grid.index(x, y)]
-        if hit.any():
-            rec[:, 15][hit] |= 0x04  # classification flags, bit 2: withheld (LAS 1.4, formats 6-10)
-            withheld += int(hit.sum())
-            rec.flush()
-        keep = ~hit & (rec[:, 15] & 0x04 == 0)
-        del rec
-        if keep.any():
-            lo = np.array([x[keep].min(), y[keep].min()])
-            hi = np.array([x[keep].max(), y[keep].max()])
-            box = [*lo, *hi] if box is None else [*np.minimum(box[:2], lo), *np.maximum(box[2:], hi)]
+    block = progress_chunk(records.count, block)
+    with stage_progress(records.count, "isolated points: flagging", unit="pt") as bar:
+        for a in range(0, records.count, block):
+            rec = records.map(a, min(a + block, records.count), "r+")
+            x, y = records.coordinates(rec)
+            hit = flagged_cells[grid.index(x, y)]
+            if hit.any():
+                rec[:, 15][hit] |= 0x04  # classification flags, bit 2: withheld (LAS 1.4, formats 6-10)
+                withheld += int(hit.sum())
+                rec.flush()
+            keep = ~hit & (rec[:, 15] & 0x04 == 0)
+            del rec
+            if keep.any():
+                lo = np.array([x[keep].min(), y[keep].min()])
+                hi = np.array([x[keep].max(), y[keep].max()])
+                box = [*lo, *hi] if box is None else [*np.minimum(box[:2], lo), *np.maximum(box[2:], hi)]
+            bar.update(min(block, records.count - a))
     return Withheld(withheld, None if box is None else [float(v) for v in box])

@@ -19,7 +19,7 @@ import laspy
 import numpy as np
 import pyproj
 
-from lidar.clouds import PointLayout, open_las_writer, point_header
+from lidar.clouds import PointLayout, open_las_writer, point_header, progress_chunk
 from lidar.crs import output_crs
 from lidar.las_guard import check_strays, header_box, header_mins_maxs, open_las, read_chunks
 from lidar.units import Units
@@ -355,7 +355,8 @@ def convert_las_files(
     strips: set[int] = set()
     same = _copyable(paths, crs_setting, assign_crs, layout, override_crs, index)
     if same is not None:
-        target, grid = copy_records(paths[0], dst, same, report, strips, chunk_size, progress, layout)
+        read = progress_chunk(index.total_points(), chunk_size)  # chunks the progress moves by
+        target, grid = copy_records(paths[0], dst, same, report, strips, read, progress, layout)
         _record_withheld(report, withhold_isolated(dst, counted=grid))
         return target, report, strips
     writer = None
@@ -365,7 +366,7 @@ def convert_las_files(
             paths,
             crs_setting=crs_setting,
             assign_crs=assign_crs,
-            chunk_size=chunk_size,
+            chunk_size=_read_chunk(paths, crs_setting, assign_crs, override_crs, index, chunk_size),
             report=report,
             progress=progress,
             layout=layout,
@@ -391,6 +392,18 @@ def convert_las_files(
             writer.close()
     _record_withheld(report, withhold_isolated(dst))
     return target, report, strips
+
+
+def _read_chunk(
+    paths: list[Path], crs_setting: str, assign_crs, override_crs, index: HeaderIndex, chunk_size: int
+) -> int:
+    """Points converted at a time: chunks the progress moves by (:func:`~lidar.clouds.progress_chunk`), unless the
+    output's header comes from the first chunk (no input header has usable bounds: :func:`_output_header`)."""
+    crs, _ = index.file_crs(paths[0], assign_crs, override_crs)
+    lo, _ = header_bounds(
+        paths, output_crs_of(crs_setting, crs, index.header(paths[0])), assign_crs, override_crs, index
+    )
+    return progress_chunk(index.total_points(), chunk_size) if np.isfinite(lo).all() else chunk_size
 
 
 def _output_header(

@@ -17,7 +17,7 @@ import hashlib
 import math
 import zlib
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -112,7 +112,13 @@ def _floats(parts: list[str], n: int, key: str, where: str) -> tuple[float, ...]
     return values
 
 
-def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = LEAP_SECONDS) -> Iterator[Scan]:
+def read_ldmrs_mtig(
+    path: Path,
+    counters: Counters,
+    *,
+    leap_seconds: float = LEAP_SECONDS,
+    advance: Callable[[int], object] | None = None,
+) -> Iterator[Scan]:
     """Yield the accepted scans of one log, updating *counters*.
 
     Parameters
@@ -123,10 +129,14 @@ def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = LEA
         Updated in place (shared across the files of a survey).
     leap_seconds : float
         GPS - UTC in seconds (18 since 2017-01-01).
+    advance : callable, optional
+        Told at the end of each scan how many more bytes of the file (as stored, compressed or not) were read.
     """
     previous: int | None = None
     scan: dict | None = None
     with open_text(path) as fh:
+        stored = getattr(fh.buffer, "fileobj", fh.buffer)  # a .gz file's compressed stream, else the file
+        read = 0
         for lineno, raw in enumerate(fh, 1):
             line = raw.strip()
             if not line or line.startswith("#"):
@@ -150,6 +160,9 @@ def read_ldmrs_mtig(path: Path, counters: Counters, *, leap_seconds: float = LEA
             elif key == "END":
                 accepted = _finish(scan, counters, leap_seconds, where)
                 scan = None
+                if advance is not None and stored.tell() > read:
+                    advance(stored.tell() - read)
+                    read = stored.tell()
                 if accepted is not None:
                     yield accepted
             else:
@@ -230,8 +243,9 @@ def read_survey(
 ) -> Iterator[Scan]:
     """Yield the accepted scans of a survey's logs in time order (:class:`TimeOrder`, across the files).
 
-    *progress* (optional) advances by one a file.  A damaged compressed
-    stream ends its file with a note (``malformed_scans``), not a traceback.
+    *progress* (optional) advances by the bytes of the files read (as
+    stored, compressed or not).  A damaged compressed stream ends its file
+    with a note (``malformed_scans``), not a traceback.
 
     Raises
     ------
@@ -241,10 +255,18 @@ def read_survey(
     order = TimeOrder(counters)
     try:
         for path in paths:
-            for scan in _guard_stream(read_ldmrs_mtig(path, counters, leap_seconds=leap_seconds), path, counters):
+            read = [0]
+
+            def advance(n: int, read: list[int] = read) -> None:
+                read[0] += n
+                if progress is not None:
+                    progress.update(n)
+
+            scans = read_ldmrs_mtig(path, counters, leap_seconds=leap_seconds, advance=advance)
+            for scan in _guard_stream(scans, path, counters):
                 yield from order.feed(scan)
-            if progress is not None:
-                progress.update(1)
+            if progress is not None:  # the rest of the file: its last lines, or past a damaged stream
+                progress.update(max(Path(path).stat().st_size - read[0], 0))
         yield from order.flush()
     except TimeOrderError as exc:
         raise InputDataError(f"{exc}.") from None

@@ -101,7 +101,7 @@ class Parse(Stage, name="parse", version="12", params=InputConfig):
             NpyColumns(ctx.outputs["trajectory"], LDMRS_TRAJECTORY_SCHEMA, trajectory_meta) as trajectory,
             NpyColumns(ctx.outputs["pulses"], PULSES_SCHEMA, pulses_meta) as pulses,
             ScanQc(qc) as scan_qc,
-            ctx.progress(len(p.paths), "reading acquisition logs", unit="file") as bar,
+            ctx.progress(sum(path.stat().st_size for path in p.paths), "reading acquisition logs", unit="B") as bar,
         ):
             for scan in read_survey(p.paths, counters, leap_seconds=p.leap_seconds, progress=bar):
                 trajectory.append(**scan_pose(scan))

@@ -33,7 +33,9 @@ import numpy as np
 from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import QhullError
 
+from lidar.clouds import progress_chunk
 from lidar.grid import Grid, cell_of
+from pipeline.log import stage_progress
 
 #: A return this far (m) above a ground point covers it: the lower break of medium vegetation (ASPRS class 4,
 #: stages.classify_objects.vegetation.breaks), a shrub's or a tree's crown rather than the floor's litter.
@@ -83,16 +85,38 @@ def understory(ground: np.ndarray, highest: np.ndarray, grid: Grid, *, cell: flo
     idx = np.flatnonzero(np.isin(key, near))
     sub = ground[idx]
     low = lowest_per_cell(sub, cell)
-    try:
-        above = sub[:, 2] - LinearNDInterpolator(sub[low, :2], sub[low, 2])(sub[:, :2])  # NaN: outside the hull
-        # densified by the highest point within the tolerance of each half cell: what lifts the TIN onto a crest
-        lift = highest_per_cell(sub, cell / 2, ~(above > tolerance) & (above > 0))
-        test = np.flatnonzero(covered[idx] & (above > tolerance))
-        if not len(test):
+    with stage_progress(2 * len(sub), "understory, 2 passes over the ground points near cover", unit="pt") as bar:
+        try:
+            envelope = LinearNDInterpolator(sub[low, :2], sub[low, 2])
+            above = sub[:, 2] - _at(envelope, sub[:, :2], bar.update)  # NaN: outside the hull
+            # densified by the highest point within the tolerance of each half cell: what lifts the TIN onto a crest
+            lift = highest_per_cell(sub, cell / 2, ~(above > tolerance) & (above > 0))
+            test = np.flatnonzero(covered[idx] & (above > tolerance))
+            if not len(test):
+                return out
+            vertices = np.union1d(low, lift)
+            densified = LinearNDInterpolator(sub[vertices, :2], sub[vertices, 2])
+            above = sub[test, 2] - _at(densified, sub[test, :2], lambda n: bar.update(n * len(sub) / len(test)))
+        except QhullError:  # the lowest points are collinear: no envelope to compare with
             return out
-        vertices = np.union1d(low, lift)
-        above = sub[test, 2] - LinearNDInterpolator(sub[vertices, :2], sub[vertices, 2])(sub[test, :2])
-    except QhullError:  # the lowest points are collinear: no envelope to compare with
-        return out
     out[idx[test]] = above > tolerance  # NaN (outside the hull): kept
+    return out
+
+
+#: Points an envelope is evaluated at, at most, at a time (:func:`_at`).
+AT_ONCE = 1_000_000
+
+
+def _at(interpolator: LinearNDInterpolator, xy: np.ndarray, advance) -> np.ndarray:
+    """*interpolator* at the points *xy*, in blocks the progress moves by (each point's value is its own: the
+    same values); *advance* told the points done."""
+    step = progress_chunk(len(xy), AT_ONCE)
+    if len(xy) <= step:
+        values = interpolator(xy)
+        advance(len(xy))
+        return values
+    out = np.empty(len(xy))
+    for a in range(0, len(xy), step):
+        out[a : a + step] = interpolator(xy[a : a + step])
+        advance(min(step, len(xy) - a))
     return out

@@ -167,12 +167,10 @@ def tin(
                 rest.append(chosen(np.flatnonzero(~inner)))
             return rest[0]
 
-        out, drawn = _tin_draw(xy, z, keep, grid, batch_cells, None, max_hull_edge)
+        out, drawn = _tin_draw(xy, z, keep, grid, batch_cells, progress, max_hull_edge)
         if not _same_as_all(xy, keep, outer, drawn, grid, margin, np.isnan(out).reshape(far.shape) & ~far):
             keep = sorted_union(keep, outer())  # ascending: the input order, as if all were triangulated at once
-            out, _ = _tin_draw(xy, z, keep, grid, batch_cells, progress, max_hull_edge)
-        elif progress is not None:
-            progress.update(grid.rows)
+            out, _ = _tin_draw(xy, z, keep, grid, batch_cells, None, max_hull_edge)  # the rows counted once
     out = out.reshape(grid.rows, grid.cols)
     out[far] = np.nan
     out[np.isnan(out)] = nodata
@@ -340,6 +338,11 @@ def triangle_cover(xy: np.ndarray, simplices: np.ndarray, grid: Grid) -> np.ndar
     return np.isfinite(out).reshape(grid.rows, grid.cols)
 
 
+#: With a progress, the triangles are drawn in at least this many batches, of at least MIN_BATCH_CELLS candidates.
+PROGRESS_BATCHES = 20
+MIN_BATCH_CELLS = 10_000
+
+
 def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: int, progress) -> np.ndarray:
     """Fill *out* (flat, rows * cols) with each triangle's plane at the cell centres inside it.
 
@@ -382,6 +385,8 @@ def _draw_triangles(xy, z, simplices, grid: Grid, out: np.ndarray, batch_cells: 
     z0, z1, z2 = z[s[:, 0]], z[s[:, 1]], z[s[:, 2]]
     eps = 1e-9
     used = np.zeros(len(ends), dtype=bool)
+    if progress is not None:  # batches small enough for the progress to move (drawn in the same order: same cells)
+        batch_cells = min(batch_cells, max(-(-total // PROGRESS_BATCHES), MIN_BATCH_CELLS))
     first = 0
     while first < len(ends):
         # triangles [first, last): at most batch_cells candidate cells (at least one triangle)

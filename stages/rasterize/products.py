@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from lidar.grid import Grid, cell_mean, fill_nearest
+from pipeline.log import stage_progress
 from stages.rasterize.decks import across_decks, deck_footprint
 from stages.rasterize.floor import understory
 from stages.rasterize.interpolate import in_hull
@@ -95,7 +96,8 @@ def tile_rasters(
     if core.rows and core.cols and len(ground) >= method.min_points:
         if method.hands_over and cloud.sigma is None:
             ground, cloud.ground = [ground], None  # handed over: the TIN frees the points once it has what it needs
-        dtm = interpolate_dtm(ground, grid, params)  # collinear or coincident ground points: all nodata
+        with stage_progress(grid.rows, f"{params.method} DTM", unit="rows") as bar:  # heard when the tile runs here
+            dtm = interpolate_dtm(ground, grid, params, bar)  # collinear or coincident ground points: all nodata
     levels = flat(grid) if flat is not None else None
     if levels is not None:
         dtm = np.where(np.isfinite(levels), levels, dtm)

@@ -243,9 +243,11 @@ class _Tiles:
         cache_mb = 64 // (ctx.executor.workers if len(layout) > 1 else 1)
         datum = {VERTICAL_DATUM: self.heights.datum}
         jobs = mosaic_jobs(paths, self.grid, self.transform, self.info.crs, layout, tasks, cache_mb, self.nodata, datum)
-        if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
-            ctx.executor.map(mosaic_raster, jobs, what="rasters")
-        else:
-            for job in jobs:
-                mosaic_raster(job)
+        with ctx.progress(len(jobs), "rasters assembled and written", unit="rasters") as bar:
+            if len(layout) > 1:  # the rasters assembled and compressed on the workers, side by side
+                ctx.executor.map(mosaic_raster, jobs, what="rasters", done=lambda _: bar.update(1))
+            else:
+                for job in jobs:
+                    mosaic_raster(job)
+                    bar.update(1)
         return results

@@ -8,6 +8,7 @@ the DTM's shape, or a few grids per strip on a lattice of cells
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,7 +18,7 @@ from affine import Affine
 
 from lidar import glossary
 from lidar.checkpoints import sample_dtm
-from lidar.clouds import cloud_crs
+from lidar.clouds import cloud_crs, read_chunks_counted
 from lidar.las_summary import summary
 from lidar.units import Units
 
@@ -214,6 +215,7 @@ def summarise_cloud(
     resolution: float,
     shape: tuple[int, int],
     dtm: np.ndarray | None = None,
+    advance: Callable[[int], object] | None = None,
 ) -> CloudSummary:
     """Strip coverage, class counts, first returns per cell and the intraswath figure, read in chunks.
 
@@ -225,6 +227,8 @@ def summarise_cloud(
         The DTM's upper-left corner and cell size (CRS units), rows x cols.
     dtm : ndarray, optional
         The DTM, for the repeatability (None: not measured).
+    advance : callable, optional
+        Told the points read.
     """
     rows, cols = shape
     x0, y1 = origin
@@ -234,7 +238,7 @@ def summarise_cloud(
         units = Units.of(cloud_crs(reader))
         if dtm is not None:
             spans = StripSpans(dtm, Affine(resolution, 0, x0, 0, -resolution, y1), shape, units)
-        for chunk in reader.chunk_iterator(1_000_000):
+        for chunk in read_chunks_counted(reader, 1_000_000, advance):  # the strips' lattice grows chunk by chunk
             x, y, z = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             c = np.clip(((x - x0) / resolution).astype(int), 0, cols - 1)
             r = np.clip(((y1 - y) / resolution).astype(int), 0, rows - 1)

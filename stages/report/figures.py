@@ -10,6 +10,7 @@ from scipy import ndimage
 
 from lidar import glossary
 from lidar.shading import hillshade
+from pipeline.log import stage_progress
 from stages.report.acceptance import block_sum, pulse_density
 from stages.report.cloud import CloudSummary
 from stages.report.inputs import ReportInputs
@@ -63,24 +64,32 @@ class Canvas:
 
 
 def map_figures(cv: Canvas, data: ReportInputs, measured: dict, voids: dict, anpd_limit: float | None) -> list[str]:
-    """Every map of the section, in the page's order; *voids*: ``void_mask`` and ``void_side_m`` when counted."""
-    figures = [relief_figure(cv)]
+    """Every map of the section, in the page's order; *voids*: ``void_mask`` and ``void_side_m`` when counted.
+
+    The stage's progress moves by the maps drawn (:func:`~pipeline.log.stage_progress`).
+    """
+    draw = [lambda: relief_figure(cv)]
     if data.cloud.first_returns is not None:
-        figures.append(pulse_density_figure(cv, data.cloud.first_returns, data.density, anpd_limit))
-    figures.append(point_density_figure(cv, data.density))
-    figures.append(strips_figure(cv, data.cloud))
+        draw.append(lambda: pulse_density_figure(cv, data.cloud.first_returns, data.density, anpd_limit))
+    draw.append(lambda: point_density_figure(cv, data.density))
+    draw.append(lambda: strips_figure(cv, data.cloud))
     if data.cloud.class_grid is not None:
-        figures.append(classes_figure(cv, data.cloud.class_grid))
+        draw.append(lambda: classes_figure(cv, data.cloud.class_grid))
     if data.differences is not None:
-        figures.append(difference_figures(cv, *data.differences))
+        draw.append(lambda: difference_figures(cv, *data.differences))
     if "void_mask" in voids:
-        figures.append(voids_figure(cv, voids["void_mask"], voids["void_side_m"], measured["voids"]))
+        draw.append(lambda: voids_figure(cv, voids["void_mask"], voids["void_side_m"], measured["voids"]))
     if data.checkpoints is not None:
-        figures.append(checkpoints_figure(cv, data.checkpoints))
+        draw.append(lambda: checkpoints_figure(cv, data.checkpoints))
     if data.uncertainty is not None:
-        figures.append(uncertainty_figure(cv, data.uncertainty))
+        draw.append(lambda: uncertainty_figure(cv, data.uncertainty))
     if data.trajectory:
-        figures.append(flight_lines_figure(cv, data.trajectory))
+        draw.append(lambda: flight_lines_figure(cv, data.trajectory))
+    figures = []
+    with stage_progress(len(draw), "maps drawn", unit="maps") as bar:
+        for one in draw:
+            figures.append(one())
+            bar.update(1)
     return figures
 
 

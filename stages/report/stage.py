@@ -20,6 +20,7 @@ import numpy as np
 import rasterio
 from pydantic import Field
 
+from lidar.clouds import cloud_info
 from lidar.rasters import read_raster
 from lidar.water_bodies import read_water_bodies
 from pipeline.runner import FAILED_CHECKS
@@ -99,13 +100,15 @@ def read_inputs(ctx: StageContext[ReportParams]) -> ReportInputs:
     survey has (strip adjustment, DTM uncertainty, flight lines, check points)."""
     dtm, transform, _, resolution = read_raster(ctx.inputs["dtm"])
     density, _, _, _ = read_raster(ctx.inputs["density"])
-    cloud = summarise_cloud(
-        ctx.inputs["points_objects"],
-        origin=(transform.c, transform.f),
-        resolution=resolution,
-        shape=dtm.shape,
-        dtm=dtm,
-    )
+    with ctx.progress(cloud_info(ctx.inputs["points_objects"]).count, "points summarised", unit="pt") as bar:
+        cloud = summarise_cloud(
+            ctx.inputs["points_objects"],
+            origin=(transform.c, transform.f),
+            resolution=resolution,
+            shape=dtm.shape,
+            dtm=dtm,
+            advance=bar.update,
+        )
     if cloud.header:  # the cloud read is the classified intermediate; the row names the delivered product
         cloud.header["file"] = delivered_name(ctx.setting("stages.export_las"))
     hu = unit_symbol(cloud.units.horizontal_name)

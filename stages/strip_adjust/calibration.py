@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from lidar.checkpoints import read_control
-from lidar.clouds import open_las_writer
+from lidar.clouds import open_las_writer, read_chunks_counted
 from lidar.crs import output_crs
 from lidar.georeferencing import (
     LAS_GPS_OFFSET,  # how the georeference stage writes gps_time
@@ -139,11 +139,14 @@ def pulse_index(pulse_time: np.ndarray, las_time: np.ndarray) -> np.ndarray:
     return idx
 
 
-def read_points(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """gps_time, strip and whether it is a single return, of every point (11 bytes a point)."""
+def read_points(
+    path: Path, advance: Callable[[int], object] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """gps_time, strip and whether it is a single return, of every point (11 bytes a point); *advance* told the points
+    read."""
     parts = {k: [] for k in ("t", "sid", "single")}
     with laspy.open(str(path)) as reader:
-        for chunk in reader.chunk_iterator(1_000_000):
+        for chunk in read_chunks_counted(reader, 1_000_000, advance):
             parts["t"].append(np.asarray(chunk.gps_time, dtype=np.float64))
             parts["sid"].append(np.asarray(chunk.point_source_id).astype(np.uint16))
             parts["single"].append(np.asarray(chunk.number_of_returns) <= 1)
@@ -564,7 +567,7 @@ def rewrite_points(
     largest = 0.0
     start = 0
     with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
-        for chunk in reader.chunk_iterator(1_000_000):
+        for chunk in read_chunks_counted(reader, 1_000_000, advance):  # advanced as read, a small file's in pieces
             n = len(chunk)
             if n:
                 ids = idx[start : start + n]
@@ -580,7 +583,6 @@ def rewrite_points(
                 largest = max(largest, float(np.max(np.linalg.norm(moved, axis=1))))
                 chunk.x, chunk.y, chunk.z = x, y, z
             writer.write_points(chunk)
-            advance(n)
             start += n
     return largest
 

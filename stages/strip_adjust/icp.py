@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from pipeline.log import stage_progress
 from stages.strip_adjust.params import StripAdjustParams
 
 #: The stage's parameters at their defaults: the function's defaults are the configuration's.
@@ -329,7 +330,10 @@ def adjust(
     n_corr = 0
     it = 0
     cov = np.zeros((0, 0))
+    bar = stage_progress(max_iterations, f"joint ICP, at most {max_iterations} iterations", unit="iterations")
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
+        if it > 1:
+            bar.update(1)
         rows, pairs = _pair_observations(patches, tf, points, col, 6 * len(free), max_distance)
         if control is not None and len(control):
             rows += _control_observations(patches, tf, control, col, 6 * len(free))
@@ -347,6 +351,7 @@ def adjust(
         moves = dx.reshape(-1, 6)
         if np.max(np.abs(moves[:, :3])) < tolerance and np.max(np.abs(moves[:, 3:])) < tolerance / 1000:
             break
+    bar.close()
     std = {}
     if free and n_corr:
         sd = np.sqrt(np.clip(np.diag(cov), 0, None))

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import laspy
 import numpy as np
 
-from lidar.clouds import open_las_writer
+from lidar.clouds import open_las_writer, read_chunks_counted
 from pipeline.errors import ConfigError
 from stages.strip_adjust.difference_maps import combined_rms
 from stages.strip_adjust.icp import (
@@ -38,19 +38,20 @@ if TYPE_CHECKING:
 
 
 def gather(
-    path: Path, units: Units, cell: float, step: int
+    path: Path, units: Units, cell: float, step: int, advance: Callable[[int], object] | None = None
 ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """Read a LAS file in chunks: the estimation sample, and each strip's point count and coordinate sums.
 
     The sample is the single returns of strips (point_source_id > 0) in the
     cells whose indices are multiples of *step* (every cell for 1), as
-    (points, strip ids); everything in metres.
+    (points, strip ids); everything in metres.  *advance* is told the
+    points read.
     """
     count = np.zeros(65536, dtype=np.int64)
     sums = np.zeros((65536, 3))
     keep_pts, keep_sid = [], []
     with laspy.open(str(path)) as reader:
-        for chunk in reader.chunk_iterator(1_000_000):
+        for chunk in read_chunks_counted(reader, 1_000_000, advance):  # the sums' chunks, read in pieces
             xyz = units.to_metres(np.column_stack((np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))))
             sid = np.asarray(chunk.point_source_id).astype(np.int64)
             count += np.bincount(sid, minlength=65536)
@@ -78,9 +79,12 @@ class StripSample:
     limit: float | None  # the patches' RMS limit (None without any patch)
 
 
-def strip_sample(path: Path, units: Units, p: StripAdjustParams, step: int) -> StripSample:
-    """Read the estimation sample (:func:`gather`) and find each strip's patches (:func:`.icp.strip_patches`)."""
-    (pts, sid), count, sums = gather(path, units, p.cell, step)
+def strip_sample(
+    path: Path, units: Units, p: StripAdjustParams, step: int, advance: Callable[[int], object] | None = None
+) -> StripSample:
+    """Read the estimation sample (:func:`gather`, *advance* told the points read) and find each strip's patches
+    (:func:`.icp.strip_patches`)."""
+    (pts, sid), count, sums = gather(path, units, p.cell, step, advance)
     strips = [int(s) for s in np.flatnonzero(count) if s > 0 and count[s] >= p.min_points]
     centres = {s: sums[s] / count[s] for s in strips}
     patches, limit = strip_patches(pts, sid, strips, cell=p.cell, min_points=p.min_points, max_rms=p.max_plane_rms)
@@ -274,9 +278,10 @@ def summary(fit: RigidFit, reference: int | None, control: np.ndarray | None) ->
 def apply_transforms(
     src: Path, dst: Path, transforms: dict[int, Transform], units: Units, advance: Callable[[int], object]
 ) -> None:
-    """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform."""
+    """Copy the LAS *src* to *dst* in chunks, each strip's points moved by its transform; *advance* told the points
+    read (a small file's in pieces of the chunks)."""
     with laspy.open(str(src)) as reader, open_las_writer(dst, reader.header) as writer:
-        for chunk in reader.chunk_iterator(1_000_000):
+        for chunk in read_chunks_counted(reader, 1_000_000, advance):
             if transforms:
                 sid = np.asarray(chunk.point_source_id).astype(np.int64)
                 x, y, z = np.array(chunk.x), np.array(chunk.y), np.array(chunk.z)
@@ -287,7 +292,6 @@ def apply_transforms(
                         x[m], y[m], z[m] = moved[:, 0], moved[:, 1], moved[:, 2]
                 chunk.x, chunk.y, chunk.z = x, y, z
             writer.write_points(chunk)
-            advance(len(chunk))
 
 
 def outcome_metrics(summary: dict, strips: list[int], reference: int | None, weak: dict) -> dict:

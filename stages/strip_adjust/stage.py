@@ -90,7 +90,8 @@ class StripAdjust(Stage, name="strip_adjust", version="11", params=StripAdjustPa
         # the estimation sample (everything in metres, like the parameters): each strip's point count and
         # centroid, and its single returns on every cell or, above max_points, on a regular lattice of cells
         step = lattice_step(info.count, p.max_points)
-        sample = rigid.strip_sample(src, info.units, p, step)
+        with ctx.progress(info.count, "reading the estimation sample", unit="pt") as bar:
+            sample = rigid.strip_sample(src, info.units, p, step, bar.update)
         ctx.metrics.update(estimation_points=int(len(sample.pts)), lattice_step=step)
         if sample.limit is not None:
             ctx.metrics.update(plane_rms_limit_m=sample.limit)
@@ -143,7 +144,8 @@ class StripAdjust(Stage, name="strip_adjust", version="11", params=StripAdjustPa
         )
         info = cloud_info(src)
         # the points and their pulses; the estimation sample: single returns of strips, a lattice above max_points
-        t_las, sid, is_single = calibration.read_points(src)
+        with ctx.progress(info.count, "reading the points' pulses", unit="pt") as bar:
+            t_las, sid, is_single = calibration.read_points(src, bar.update)
         idx = calibration.pulse_index(pulses["time"], t_las)
         del t_las
         sample, step = calibration.estimation_sample(geo, pulses, idx, sid, is_single, p.cell, p.max_points)

@@ -144,6 +144,16 @@ def _cells(xy: np.ndarray, cell: float, lo: np.ndarray) -> tuple[np.ndarray, np.
     return row, col
 
 
+def _per_cell(values: np.ndarray, corner: tuple[float, float], cell: float, xy: np.ndarray, fill) -> np.ndarray:
+    """The value of each point's cell (*xy* metres) in the grid *values* of *cell* m whose upper-left corner is
+    *corner*; *fill* for points beyond it."""
+    row, col = _cells(xy, cell, np.asarray(corner))
+    inside = (row >= 0) & (row < values.shape[0]) & (col >= 0) & (col < values.shape[1])
+    out = np.full(len(xy), fill, dtype=values.dtype)
+    out[inside] = values[row[inside], col[inside]]
+    return out
+
+
 @dataclass(frozen=True)
 class CellMask:
     """Cells of *cell* metres on a grid whose upper-left corner is *corner* (x0, y1): :meth:`holds` tells points in."""
@@ -154,11 +164,7 @@ class CellMask:
 
     def holds(self, xy: np.ndarray) -> np.ndarray:
         """Which points (metres) lie in a masked cell."""
-        row, col = _cells(xy, self.cell, np.asarray(self.corner))
-        inside = (row >= 0) & (row < self.mask.shape[0]) & (col >= 0) & (col < self.mask.shape[1])
-        out = np.zeros(len(xy), dtype=bool)
-        out[inside] = self.mask[row[inside], col[inside]]
-        return out
+        return _per_cell(self.mask, self.corner, self.cell, xy, False)
 
 
 @dataclass(frozen=True)
@@ -171,11 +177,65 @@ class CellLevels:
 
     def at(self, xy: np.ndarray) -> np.ndarray:
         """The level of each point's cell (metres); NaN where it has none."""
-        row, col = _cells(xy, self.cell, np.asarray(self.corner))
-        inside = (row >= 0) & (row < self.level.shape[0]) & (col >= 0) & (col < self.level.shape[1])
-        out = np.full(len(xy), np.nan)
-        out[inside] = self.level[row[inside], col[inside]]
-        return out
+        return _per_cell(self.level, self.corner, self.cell, xy, np.nan)
+
+
+@dataclass
+class _Grids:
+    """The grids :func:`water_bodies` works on (rows north down, from the upper-left corner *lo*)."""
+
+    lo: np.ndarray
+    row: np.ndarray  # each water point's cell
+    col: np.ndarray
+    least: np.ndarray  # lowest water point per cell (NaN: none)
+    label: np.ndarray  # the bodies
+    mask: np.ndarray  # their cells, closed over dropouts
+    lowest: np.ndarray  # lowest ground point per cell (inf: none)
+    middle: np.ndarray  # mean ground height per cell (NaN: none)
+    grounds: np.ndarray  # ground points per cell
+    echoes: np.ndarray  # water and ground points per cell at its lowest echo (within twice the tolerance)
+    echoed: np.ndarray  # cells with an echo of any class
+    beyond: np.ndarray  # cells beyond the survey
+
+
+def _in_grid(xy: np.ndarray, cell: float, lo: np.ndarray, shape: tuple[int, int]):
+    """Each point's cell ``(row, col)`` and whether it lies on the grid of *shape* (indices clipped onto it)."""
+    row, col = _cells(xy, cell, lo)
+    inside = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+    return row.clip(0, shape[0] - 1), col.clip(0, shape[1] - 1), inside
+
+
+def _grids(water, ground, others, *, cell: float, close: int, tolerance: float) -> _Grids:
+    """:class:`_Grids` of the water, ground and other points ((n, 3), (m, 3), (k, 2+); metres): the water's box
+    and ``close + 3`` cells around it, anchored at whole multiples of *cell*."""
+    pad = close + 3
+    first = np.floor(water[:, :2].min(axis=0) / cell).astype(np.int64)
+    last = np.floor(water[:, :2].max(axis=0) / cell).astype(np.int64)
+    lo = np.array([first[0] - pad, last[1] + 1 + pad], dtype=np.float64) * cell  # upper-left corner
+    shape = (int(last[1] - first[1]) + 1 + 2 * pad, int(last[0] - first[0]) + 1 + 2 * pad)
+    row, col = _cells(water[:, :2], cell, lo)
+    least, label, mask = _levels(water[:, 2], row, col, shape, close)
+    gr, gc, inside = _in_grid(ground[:, :2], cell, lo, shape)
+    z = ground[:, 2]
+    lowest = np.full(shape, np.inf)
+    np.minimum.at(lowest, (gr[inside], gc[inside]), z[inside])
+    flat, size = gr[inside] * shape[1] + gc[inside], shape[0] * shape[1]
+    grounds = np.bincount(flat, minlength=size).reshape(shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        middle = np.bincount(flat, weights=z[inside], minlength=size).reshape(shape) / grounds
+    below = np.fmin(lowest, least)  # the lowest ground or water of each cell
+    # the echoes of each cell at its lowest (within twice the tolerance): at a shore, the water's, not the bank's
+    low = np.where(np.isnan(below), np.inf, below) + 2.0 * tolerance
+    echoes = np.zeros(shape, dtype=np.int64)
+    near = inside & (z <= low[gr, gc])
+    np.add.at(echoes, (gr[near], gc[near]), 1)
+    np.add.at(echoes, (row, col), 1)
+    echoed = (grounds > 0) | (echoes > 0)
+    if others is not None and len(others):
+        orow, ocol, on = _in_grid(others[:, :2], cell, lo, shape)
+        echoed[orow[on], ocol[on]] = True
+    beyond = _beyond_the_survey(mask | echoed)
+    return _Grids(lo, row, col, least, label, mask, lowest, middle, grounds, echoes, echoed, beyond)
 
 
 def water_bodies(
@@ -220,75 +280,27 @@ def water_bodies(
     if len(water) == 0:
         empty = np.zeros((0, 0), dtype=bool)
         return [], CellMask((0.0, 0.0), cell, empty), CellLevels((0.0, 0.0), cell, np.zeros((0, 0)))
-    pad = close + 3
-    first = np.floor(water[:, :2].min(axis=0) / cell).astype(np.int64)
-    last = np.floor(water[:, :2].max(axis=0) / cell).astype(np.int64)
-    lo = np.array([first[0] - pad, last[1] + 1 + pad], dtype=np.float64) * cell  # upper-left corner
-    shape = (int(last[1] - first[1]) + 1 + 2 * pad, int(last[0] - first[0]) + 1 + 2 * pad)
-    row, col = _cells(water[:, :2], cell, lo)
-    least, label, mask = _levels(water[:, 2], row, col, shape, close)
-    lowest = np.full(shape, np.inf)
-    gr, gc = _cells(ground[:, :2], cell, lo)
-    inside = (gr >= 0) & (gr < shape[0]) & (gc >= 0) & (gc < shape[1])
-    np.minimum.at(lowest, (gr[inside], gc[inside]), ground[inside, 2])
-    flat = gr[inside] * shape[1] + gc[inside]
-    grounds = np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape)
-    with np.errstate(invalid="ignore", divide="ignore"):  # each cell's mean ground height (NaN: none)
-        middle = np.bincount(flat, weights=ground[inside, 2], minlength=shape[0] * shape[1]).reshape(shape) / grounds
-    below = np.fmin(lowest, least)  # the lowest ground or water of each cell
-    # the echoes of each cell at its lowest (within twice the tolerance): at a shore, the water's, not the bank's
-    low = np.where(np.isnan(below), np.inf, below) + 2.0 * tolerance
-    echoes = np.zeros(shape, dtype=np.int64)
-    near = inside & (ground[:, 2] <= low[gr.clip(0, shape[0] - 1), gc.clip(0, shape[1] - 1)])
-    np.add.at(echoes, (gr[near], gc[near]), 1)
-    np.add.at(echoes, (row, col), 1)
-    echoed = (grounds > 0) | (echoes > 0)  # cells with an echo of any class
-    if others is not None and len(others):
-        orow, ocol = _cells(others[:, :2], cell, lo)
-        inside = (orow >= 0) & (orow < shape[0]) & (ocol >= 0) & (ocol < shape[1])
-        echoed[orow[inside], ocol[inside]] = True
-    beyond = _beyond_the_survey(mask | echoed)
-    of_point = label[row, col]
+    g = _grids(water, ground, others, cell=cell, close=close, tolerance=tolerance)
+    lo, shape = g.lo, g.label.shape
+    below = np.fmin(g.lowest, g.least)
+    of_point = g.label[g.row, g.col]
     eight = np.ones((3, 3), bool)
     bodies, rejected, grown = [], np.zeros(shape, dtype=bool), np.full(shape, np.nan)
     drop = max(min_bank, 0.0) + max_spread  # how much lower the ring must lie for the water to drain there
-    for k, (rows, cols) in enumerate(ndimage.find_objects(label), start=1):
+    pad = close + 3
+    for k, (rows, cols) in enumerate(ndimage.find_objects(g.label), start=1):
         rows = slice(max(rows.start - pad, 0), rows.stop + pad)  # room for the ring of banks, and to grow
         cols = slice(max(cols.start - pad, 0), cols.stop + pad)
-        body = label[rows, cols] == k
+        body = g.label[rows, cols] == k
         heights = water[of_point == k, 2]
         level = float(np.median(heights))
-        sparse = (
-            _dropout_rate(
-                body,
-                lowest[rows, cols],
-                echoes[rows, cols],
-                grounds[rows, cols],
-                mask[rows, cols],
-                level,
-                tolerance,
-                pad,  # as far as the ground around the water is read: past a band of its unseen water
-            )
-            if tolerance > 0
-            else None
-        )
-        if sparse is not None:  # seen through dropouts: grown over the whole grid, then looked at around that
-            whole = np.zeros(shape, dtype=bool)
-            whole[rows, cols] = body
-            whole = _grown(whole, middle, echoes, beyond, ~echoed, level, tolerance, close, sparse)
-            grown[whole] = level
-            r, c = np.nonzero(whole)
-            rows = slice(max(int(r.min()) - 2, 0), int(r.max()) + 3)
-            cols = slice(max(int(c.min()) - 2, 0), int(c.max()) + 3)
-            body = whole[rows, cols]
-        seen_through = sparse is not None
+        seen_through = False
+        if tolerance > 0:
+            rows, cols, body, seen_through = _seen_through(g, rows, cols, body, level, tolerance, close, grown)
         ring = ndimage.binary_dilation(body, structure=eight, iterations=2) & ~body
-        banks = lowest[rows, cols][ring]
-        banks = banks[np.isfinite(banks)]
-        if seen_through and len(banks):  # its ring's ground below it is water or an outlet (the drains rule's)
-            banks = banks[banks >= level - tolerance] if (banks >= level - tolerance).any() else banks
+        banks = _banks(g.lowest[rows, cols][ring], level, tolerance if seen_through else None)
         if (len(banks) and float(np.median(banks)) - level < min_bank) or _drains(
-            body, ring, least[rows, cols], below[rows, cols], drop
+            body, ring, g.least[rows, cols], below[rows, cols], drop
         ):
             rejected[rows, cols] |= body
             continue
@@ -299,13 +311,53 @@ def water_bodies(
         spread = float(np.percentile(heights, 95) - np.percentile(heights, 5))
         corner = (lo[0] + cols.start * cell, lo[1] - rows.start * cell)
         if close > 0:  # a body cut by the survey's edge reaches it: it runs on beyond (the dropouts at the edge)
-            body |= ndimage.binary_dilation(body, structure=eight, iterations=close) & beyond[rows, cols]
-        shore = ~beyond[rows, cols]  # beside the body and within the survey: its shore
+            body |= ndimage.binary_dilation(body, structure=eight, iterations=close) & g.beyond[rows, cols]
+        shore = ~g.beyond[rows, cols]  # beside the body and within the survey: its shore
         parts = _polygons(body, corner, cell, level, len(heights), spread, spread <= max_spread, shore)
         bodies += [p if p.flat else _as_river(p, water[of_point == k], max_spread) for p in parts]
     grown[rejected] = np.nan
     corner = (float(lo[0]), float(lo[1]))
     return bodies, CellMask(corner, cell, rejected), CellLevels(corner, cell, grown)
+
+
+def _seen_through(
+    g: _Grids, rows: slice, cols: slice, body: np.ndarray, level: float, tolerance: float, close: int, grown
+):
+    """A body (its cells *body* in the window *rows*, *cols* of the grids *g*), grown when it is seen through
+    dropouts (:func:`_dropout_rate`, :func:`_grown`), its level written in *grown* over its cells; returns its
+    window, its cells there and whether it was."""
+    window = np.s_[rows, cols]
+    sparse = _dropout_rate(
+        body,
+        g.lowest[window],
+        g.echoes[window],
+        g.grounds[window],
+        g.mask[window],
+        level,
+        tolerance,
+        close + 3,  # as far as the ground around the water is read: past a band of its unseen water
+    )
+    if sparse is None:
+        return rows, cols, body, False
+    # grown over the whole grid, then looked at around that
+    whole = np.zeros(g.label.shape, dtype=bool)
+    whole[window] = body
+    whole = _grown(whole, g.middle, g.echoes, g.beyond, ~g.echoed, level, tolerance, close, sparse)
+    grown[whole] = level
+    r, c = np.nonzero(whole)
+    rows = slice(max(int(r.min()) - 2, 0), int(r.max()) + 3)
+    cols = slice(max(int(c.min()) - 2, 0), int(c.max()) + 3)
+    return rows, cols, whole[rows, cols], True
+
+
+def _banks(ring_lowest: np.ndarray, level: float, tolerance: float | None) -> np.ndarray:
+    """The banks' heights: the ring's lowest ground per cell where it has some; for a body seen through dropouts
+    (*tolerance* given), those at or above its level less *tolerance* (the ground below it is water or an outlet,
+    which the drain rule judges), unless none is."""
+    banks = ring_lowest[np.isfinite(ring_lowest)]
+    if tolerance is not None and (banks >= level - tolerance).any():
+        banks = banks[banks >= level - tolerance]
+    return banks
 
 
 def poisson_rate(mean: float) -> float:

@@ -19,27 +19,28 @@ from stages.classify_water.water import inside_polygons
 
 #: Points read at a time (fewer in a small file: :func:`~lidar.clouds.progress_chunk`).
 CHUNK = 1_000_000
-#: The most passes :func:`bodies_of` reads the file in: the water, the ground near it, the other points near it.
-BODY_PASSES = 3
+#: The most passes :func:`bodies_of` reads the file in: the water, then the ground and other points near it.
+BODY_PASSES = 2
 
 #: Told the points read or written (a progress figure's update), or None.
 Advance = Callable[[int], object] | None
 
 
-def _points(path: Path, units, keep, advance: Advance = None) -> np.ndarray:
+def _points(path: Path, units, keep, advance: Advance = None, classes: bool = False):
     """The points of the LAS *path* (metres) for which ``keep(classes, xyz)`` holds, read in chunks (*advance* told
-    the points read)."""
+    the points read); with *classes*, ``(points, their classes)``."""
 
-    parts = [np.zeros((0, 3))]
+    parts, kinds = [np.zeros((0, 3))], [np.zeros(0, dtype=np.uint8)]
     with laspy.open(str(path)) as reader:
         for chunk in reader.chunk_iterator(progress_chunk(reader.header.point_count, CHUNK)):
             xyz = chunk_xyz_metres(chunk, units)
             cls = np.asarray(chunk.classification)
-            usable = glossary.usable(cls, chunk.withheld)
-            parts.append(np.ascontiguousarray(xyz[usable & keep(cls, xyz)]))
+            kept = glossary.usable(cls, chunk.withheld) & keep(cls, xyz)
+            parts.append(np.ascontiguousarray(xyz[kept]))
+            kinds.append(cls[kept])
             if advance is not None:
                 advance(len(chunk))
-    return np.concatenate(parts)
+    return (np.concatenate(parts), np.concatenate(kinds)) if classes else np.concatenate(parts)
 
 
 def bodies_of(
@@ -49,7 +50,8 @@ def bodies_of(
     cells bodies seen through dropouts grew into.
 
     :func:`lidar.water_bodies.water_bodies` on two passes: the water
-    points, then the ground points within the water's box plus a margin.
+    points, then the ground and other points within the water's box plus a
+    margin.
     Without detection (polygons only) no body is refused for its banks.
     *advance* is told the points read, in up to :data:`BODY_PASSES` passes.
     """
@@ -60,15 +62,11 @@ def bodies_of(
     hi = water[:, :2].max(axis=0) + margin if len(water) else np.zeros(2)
 
     def near(cls, xyz):
-        return (cls == glossary.GROUND) & np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
+        return np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1) & (cls != glossary.WATER)
 
-    ground = _points(path, units, near, advance) if len(water) else np.zeros((0, 3))
-
-    def other(cls, xyz):
-        inside = np.all((xyz[:, :2] >= lo) & (xyz[:, :2] <= hi), axis=1)
-        return inside & (cls != glossary.GROUND) & (cls != glossary.WATER)
-
-    others = _points(path, units, other, advance)[:, :2] if len(water) else np.zeros((0, 2))
+    # the ground and the other points around the water, in one pass
+    around, cls = _points(path, units, near, advance, classes=True) if len(water) else (np.zeros((0, 3)), [])
+    ground, others = around[cls == glossary.GROUND], around[cls != glossary.GROUND, :2]
     return water_bodies(
         water,
         ground,
@@ -106,19 +104,33 @@ def _rewrite_classes(dst: Path, units, change, src: Path | None = None, advance:
     tmp.replace(dst)
 
 
-def give_back(
-    src: Path, dst: Path, refused: CellMask, units, polygons: list | None, advance: Advance = None
-) -> tuple[int, int]:
-    """Water points of *dst* in *refused* cells (and outside the *polygons*, metres) get their class in *src* back.
+def settle(
+    src: Path,
+    dst: Path,
+    refused: CellMask,
+    grown: CellLevels,
+    tolerance: float,
+    units,
+    polygons: list | None,
+    advance: Advance = None,
+) -> tuple[int, int, int]:
+    """The water of *dst* settled by its bodies, in one rewrite (through a temporary file):
 
-    Points that were water in *src* (the input's own) are not given back.
+    - water points in *refused* cells (and outside the *polygons*, metres)
+      get their class in *src* back, unless they were water there (the
+      input's own);
+    - ground points in the cells of a body seen through dropouts (*grown*),
+      up to *tolerance* (m) above its level there, become water: ground
+      cannot lie under water (a laser's echo from below a water surface is
+      noise).
 
-    *src* and *dst* hold the same points in the same order; *dst* is
-    rewritten (through a temporary file).  Returns the points given back
-    and how many of them were ground.
+    *src* and *dst* hold the same points in the same order.  Returns the
+    points given back, how many of them were ground, and the ground points
+    that became water.
     """
 
-    counts = [0, 0]
+    counts = [0, 0, 0]
+    taking = bool(np.isfinite(grown.level).any())
 
     def change(cls, xyz, was):
         xy = xyz[:, :2]
@@ -128,32 +140,15 @@ def give_back(
         cls[undo] = was[undo]
         counts[0] += int(undo.sum())
         counts[1] += int((undo & (was == glossary.GROUND)).sum())
+        if taking:
+            ground = np.flatnonzero(cls == glossary.GROUND)
+            take = ground[xyz[ground, 2] - grown.at(xy[ground]) <= tolerance]  # NaN (no body) compares False
+            cls[take] = glossary.WATER
+            counts[2] += len(take)
         return cls
 
     _rewrite_classes(dst, units, change, src, advance)
-    return counts[0], counts[1]
-
-
-def take_unseen(dst: Path, grown: CellLevels, tolerance: float, units, advance: Advance = None) -> int:
-    """Ground points of *dst* in the cells of a body seen through dropouts, up to *tolerance* (m) above its level
-    there, become water: ground cannot lie under water (a laser's echo from below a water surface is noise).
-
-    *dst* is rewritten (through a temporary file); returns the points changed.
-    """
-    if not np.isfinite(grown.level).any():
-        return 0
-    changed = [0]
-
-    def change(cls, xyz, _):
-        ground = np.flatnonzero(cls == glossary.GROUND)
-        level = grown.at(xyz[ground, :2])
-        take = ground[xyz[ground, 2] - level <= tolerance]  # NaN (no body) compares False
-        cls[take] = glossary.WATER
-        changed[0] += len(take)
-        return cls
-
-    _rewrite_classes(dst, units, change, advance=advance)
-    return changed[0]
+    return counts[0], counts[1], counts[2]
 
 
 def ignore_near_shores(dst: Path, bodies: list[WaterBody], distance: float, units, advance: Advance = None) -> int:

@@ -30,7 +30,7 @@ from lidar.vectors import read_polygons
 from lidar.water_bodies import write_breaklines, write_water_bodies
 from pipeline.errors import InputDataError
 from pipeline.stage import Stage, StageContext, StageIO
-from stages.classify_water.bodies import BODY_PASSES, bodies_of, give_back, ignore_near_shores, take_unseen
+from stages.classify_water.bodies import BODY_PASSES, bodies_of, ignore_near_shores, settle
 from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
 
@@ -84,14 +84,15 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
         BODY_PASSES * info.count, f"water bodies, up to {BODY_PASSES} passes over the points", "pt"
     ) as bar:
         bodies, refused, grown = bodies_of(dst, info.units, ctx.params, bar.update)
-    back = ground = 0
-    if refused.mask.any():
+    back = ground = unseen = 0
+    if refused.mask.any() or np.isfinite(grown.level).any():
         polygons = _polygons_in_metres(ctx.params, info.units)
-        with ctx.progress(info.count, "giving refused water its class back", unit="pt") as bar:
-            back, ground = give_back(src, dst, refused, info.units, polygons, bar.update)
+        with ctx.progress(info.count, "refused water given back, water seen through dropouts", unit="pt") as bar:
+            back, ground, unseen = settle(
+                src, dst, refused, grown, ctx.params.detect.tolerance, info.units, polygons, bar.update
+            )
+    if refused.mask.any():
         ctx.log.info("%d water points given their class back: their body's banks do not rise above it", back)
-    with ctx.progress(info.count if np.isfinite(grown.level).any() else 0, "water seen through dropouts", "pt") as bar:
-        unseen = take_unseen(dst, grown, ctx.params.detect.tolerance, info.units, bar.update)
     if unseen:
         ctx.log.info(
             "%d ground points became water: at the level of a body seen through dropouts, within %g m, beside it",

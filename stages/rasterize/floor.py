@@ -30,8 +30,8 @@ select, not to classify.  Measured on every labelled project of
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import QhullError
+import triangle
+from scipy.spatial import cKDTree
 
 from lidar.clouds import progress_chunk
 from lidar.grid import Grid, cell_of
@@ -86,37 +86,86 @@ def understory(ground: np.ndarray, highest: np.ndarray, grid: Grid, *, cell: flo
     sub = ground[idx]
     low = lowest_per_cell(sub, cell)
     with stage_progress(2 * len(sub), "understory, 2 passes over the ground points near cover", unit="pt") as bar:
-        try:
-            envelope = LinearNDInterpolator(sub[low, :2], sub[low, 2])
-            above = sub[:, 2] - _at(envelope, sub[:, :2], bar.update)  # NaN: outside the hull
-            # densified by the highest point within the tolerance of each half cell: what lifts the TIN onto a crest
-            lift = highest_per_cell(sub, cell / 2, ~(above > tolerance) & (above > 0))
-            test = np.flatnonzero(covered[idx] & (above > tolerance))
-            if not len(test):
-                return out
-            vertices = np.union1d(low, lift)
-            densified = LinearNDInterpolator(sub[vertices, :2], sub[vertices, 2])
-            above = sub[test, 2] - _at(densified, sub[test, :2], lambda n: bar.update(n * len(sub) / len(test)))
-        except QhullError:  # the lowest points are collinear: no envelope to compare with
+        above = sub[:, 2] - tin_at(sub[low], sub[:, :2], bar.update)  # NaN: outside the hull
+        # densified by the highest point within the tolerance of each half cell: what lifts the TIN onto a crest
+        lift = highest_per_cell(sub, cell / 2, ~(above > tolerance) & (above > 0))
+        test = np.flatnonzero(covered[idx] & (above > tolerance))
+        if not len(test):
             return out
+        vertices = sub[np.union1d(low, lift)]
+        above = sub[test, 2] - tin_at(vertices, sub[test, :2], lambda n: bar.update(n * len(sub) / len(test)))
     out[idx[test]] = above > tolerance  # NaN (outside the hull): kept
     return out
 
 
-#: Points an envelope is evaluated at, at most, at a time (:func:`_at`).
+#: Points a TIN is evaluated at, at most, at a time (:func:`tin_at`).
 AT_ONCE = 1_000_000
+#: Most triangles a point's walk crosses (:func:`tin_at`); a walk from a triangle at the nearest vertex of a
+#: Delaunay TIN crosses a few.  Points still walking after it are NaN (none seen).
+MAX_WALK = 1_000
 
 
-def _at(interpolator: LinearNDInterpolator, xy: np.ndarray, advance) -> np.ndarray:
-    """*interpolator* at the points *xy*, in blocks the progress moves by (each point's value is its own: the
-    same values); *advance* told the points done."""
+def tin_at(vertices: np.ndarray, xy: np.ndarray, advance=None) -> np.ndarray:
+    """The Delaunay TIN of *vertices* ((m, 3)) at the points *xy* ((n, 2)), linear in each triangle; NaN
+    outside its hull, or everywhere when the vertices lie on a line.
+
+    Triangulated with Triangle (Shewchuk 1996, doi:10.1007/BFb0014497), as
+    the DTM is; each point is found by a visibility walk (Devillers, Pion &
+    Teillaud 2002, doi:10.1142/S0129054102001047), all points a step at a
+    time, from a triangle at its nearest vertex.  The walk ends in a Delaunay
+    triangulation.  SciPy's ``LinearNDInterpolator`` gives the same values
+    (up to the diagonal of cocircular vertices, where the Delaunay TIN is not
+    unique) on coordinates from a local origin, as here; on a projected
+    CRS's raw coordinates it was off by metres (Qhull's rounding).  Its
+    Qhull took 14 times Triangle's time on 283 k vertices, and its walk's
+    time follows the points' order (265 s for 3 M points in random order,
+    0.8 s in cell order).  *advance*: told the points done.
+    """
+    out = np.full(len(xy), np.nan)
+    origin = vertices[:, :2].mean(axis=0) if len(vertices) else np.zeros(2)
+    vxy = np.ascontiguousarray(vertices[:, :2] - origin)
+    mesh = triangle.triangulate({"vertices": vxy}, "QznBN") if len(vxy) >= 3 else {}
+    tris = mesh.get("triangles")
+    if tris is None or not len(tris):  # on a line: no triangle
+        if advance is not None:
+            advance(len(xy))
+        return out
+    start = np.full(len(vxy), -1, dtype=np.int64)
+    start[tris.ravel()] = np.repeat(np.arange(len(tris)), 3)  # a triangle at each vertex (duplicates: none)
+    used = np.flatnonzero(start >= 0)
+    tree = cKDTree(vxy[used])
     step = progress_chunk(len(xy), AT_ONCE)
-    if len(xy) <= step:
-        values = interpolator(xy)
-        advance(len(xy))
-        return values
-    out = np.empty(len(xy))
     for a in range(0, len(xy), step):
-        out[a : a + step] = interpolator(xy[a : a + step])
-        advance(min(step, len(xy) - a))
+        q = xy[a : a + step] - origin
+        out[a : a + step] = _walk(vxy, vertices[:, 2], tris, mesh["neighbors"], start[used[tree.query(q)[1]]], q)
+        if advance is not None:
+            advance(len(q))
+    return out
+
+
+def _walk(vxy, z, tris, neighbours, t, q) -> np.ndarray:
+    """Each point *q* located from the triangle *t* by stepping across the edge it lies farthest beyond (edge
+    k is opposite vertex k, as Triangle numbers neighbours); its TIN value, NaN when it leaves the hull."""
+    out = np.full(len(q), np.nan)
+    todo = np.arange(len(q))
+    t = t.copy()
+    for _ in range(MAX_WALK):
+        if not len(todo):
+            break
+        p = vxy[tris[t]]  # (k, 3, 2)
+        qq = q[todo]
+        # twice the signed area of (p[k+1], p[k+2], q), over the triangle's: barycentric coordinate k
+        d = np.empty((len(todo), 3))
+        for k in range(3):
+            b, c = p[:, (k + 1) % 3], p[:, (k + 2) % 3]
+            d[:, k] = (b[:, 0] - qq[:, 0]) * (c[:, 1] - qq[:, 1]) - (b[:, 1] - qq[:, 1]) * (c[:, 0] - qq[:, 0])
+        area = d.sum(axis=1)
+        lam = d / area[:, None]
+        worst = lam.argmin(axis=1)
+        inside = lam[np.arange(len(todo)), worst] >= -1e-12
+        out[todo[inside]] = (lam[inside] * z[tris[t[inside]]]).sum(axis=1)
+        nxt = neighbours[t[~inside], worst[~inside]]
+        todo, t = todo[~inside], nxt
+        gone = t < 0  # across the hull: outside it
+        todo, t = todo[~gone], t[~gone]
     return out

@@ -59,7 +59,7 @@ if TYPE_CHECKING:
     from pipeline.tiling import Layout
 
 
-class Rasterize(Stage, name="rasterize", version="13", params=RasterizeParams):
+class Rasterize(Stage, name="rasterize", version="14", params=RasterizeParams):
     """DTM, DSM, nDSM and density rasters."""
 
     inputs = ("points_objects",)

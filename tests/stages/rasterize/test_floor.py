@@ -12,7 +12,7 @@ import pytest
 from scipy.interpolate import LinearNDInterpolator
 
 from lidar.grid import Grid
-from stages.rasterize.floor import COVER, understory
+from stages.rasterize.floor import COVER, tin_at, understory
 from stages.rasterize.params import RasterizeParams
 from stages.rasterize.products import TileCloud, tile_rasters
 
@@ -117,3 +117,32 @@ def test_floor_cell_reaches_the_dtm():
         dtm = tile_rasters(cloud, GRID, GRID, crop, RasterizeParams(resolution=1.0, floor_cell=cell))["dtm"]
         centre[cell] = dtm[29, 29] - floor_z(np.array([[29.5, 30.5]]))[0]
     assert centre[2.0] > 0.3 and abs(centre[12.0]) < 0.1
+
+
+def test_tin_at_is_scipys_linear_tin():
+    """The envelope's TIN at scattered points of a projected CRS is SciPy's LinearNDInterpolator (Qhull, an
+    independent triangulator) on coordinates from a local origin, to rounding; NaN outside the hull, whatever the
+    points' order.  (On the raw coordinates SciPy is off by up to 2.7 m here: Qhull's rounding.)"""
+    rng = np.random.default_rng(7)
+    origin = np.array([512_000.0, 4_300_000.0])
+    vertices = np.column_stack((rng.uniform(0, 100, (3000, 2)) + origin, rng.normal(0, 1, 3000)))
+    xy = rng.uniform(-5, 105, (40_000, 2)) + origin
+    ours = tin_at(vertices, xy)
+    scipy_ = LinearNDInterpolator(vertices[:, :2] - origin, vertices[:, 2])(xy - origin)
+    assert np.array_equal(np.isnan(ours), np.isnan(scipy_))
+    assert np.isnan(ours).sum() > 1000  # the 5 m margin lies outside the hull
+    assert np.nanmax(np.abs(ours - scipy_)) < 1e-9
+    order = rng.permutation(len(xy))
+    assert np.array_equal(tin_at(vertices, xy[order]), ours[order], equal_nan=True)
+
+
+def test_tin_at_a_plane_and_degenerate_vertices():
+    """A plane is itself at every point inside (duplicate vertices dropped); vertices on a line make no TIN."""
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(0, 50, (500, 2))
+    vertices = np.column_stack((xy, 3.0 + 0.5 * xy[:, 0] - 0.25 * xy[:, 1]))
+    vertices = np.concatenate((vertices, vertices[:50]))  # the same xy twice
+    q = rng.uniform(10, 40, (2000, 2))
+    assert np.allclose(tin_at(vertices, q), 3.0 + 0.5 * q[:, 0] - 0.25 * q[:, 1], atol=1e-9)
+    line = np.column_stack((np.arange(10.0), np.arange(10.0), np.zeros(10)))
+    assert np.isnan(tin_at(line, q)).all()

@@ -109,7 +109,6 @@ def settle(
     dst: Path,
     refused: CellMask,
     grown: CellLevels,
-    tolerance: float,
     units,
     polygons: list | None,
     advance: Advance = None,
@@ -120,7 +119,7 @@ def settle(
       get their class in *src* back, unless they were water there (the
       input's own);
     - ground points in the cells of a body seen through dropouts (*grown*),
-      up to *tolerance* (m) above its level there, become water: ground
+      up to its echoes' reach above its level there (``CellLevels.water``), become water: ground
       cannot lie under water (a laser's echo from below a water surface is
       noise).
 
@@ -142,7 +141,7 @@ def settle(
         counts[1] += int((undo & (was == glossary.GROUND)).sum())
         if taking:
             ground = np.flatnonzero(cls == glossary.GROUND)
-            take = ground[xyz[ground, 2] - grown.at(xy[ground]) <= tolerance]  # NaN (no body) compares False
+            take = ground[grown.water(xyz[ground])]
             cls[take] = glossary.WATER
             counts[2] += len(take)
         return cls

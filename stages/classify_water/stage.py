@@ -35,7 +35,7 @@ from stages.classify_water.kernel import WaterKernel, reach
 from stages.classify_water.params import ClassifyWaterParams
 
 
-class ClassifyWater(Stage, name="classify_water", version="6", params=ClassifyWaterParams):
+class ClassifyWater(Stage, name="classify_water", version="7", params=ClassifyWaterParams):
     """water (class 9) from the points and from polygons."""
 
     inputs = ("points_classified",)
@@ -88,14 +88,13 @@ def _survey_steps(ctx: StageContext[ClassifyWaterParams], src: Path, counts: dic
     if refused.mask.any() or np.isfinite(grown.level).any():
         polygons = _polygons_in_metres(ctx.params, info.units)
         with ctx.progress(info.count, "refused water given back, water seen through dropouts", unit="pt") as bar:
-            back, ground, unseen = settle(
-                src, dst, refused, grown, ctx.params.detect.tolerance, info.units, polygons, bar.update
-            )
+            back, ground, unseen = settle(src, dst, refused, grown, info.units, polygons, bar.update)
     if refused.mask.any():
         ctx.log.info("%d water points given their class back: their body's banks do not rise above it", back)
     if unseen:
         ctx.log.info(
-            "%d ground points became water: at the level of a body seen through dropouts, within %g m, beside it",
+            "%d ground points became water: at the level of a body seen through dropouts, within %g m (or its "
+            "waves' reach), beside it",
             unseen,
             ctx.params.detect.tolerance,
         )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from affine import Affine
 
-from lidar.water_bodies import DROPOUT_SHARE, burn_levels, poisson_rate, water_bodies
+from lidar.water_bodies import DROPOUT_SHARE, burn_levels, poisson_rate, water_bodies, wave_allowance
 
 LEVEL = 100.0
 
@@ -177,3 +177,56 @@ def test_a_noisy_lake_grows_by_its_cells_mean_heights():
     assert abs(bodies[0].level - LEVEL) < 0.02
     taken = np.isfinite(grown.at(xyz[unseen, :2]))
     assert taken.mean() > 0.85  # all but cells at the shore, whose mean holds the bank's echoes too
+
+
+def _rough_sea(waves: float, seed: int = 3):
+    """A lake seen through dropouts (1 echo per m², banks 4) whose echoes scatter by *waves* (m, 1 sigma):
+    its echoes more than 0.15 m from its level (the detector's tolerance), and its outer 2 m, left as ground."""
+    rng = np.random.default_rng(seed)
+    water, _ = _lake(seed=seed, density=1.0)
+    _, ground = _lake(seed=seed + 1, density=4.0)
+    water[:, 2] = LEVEL + rng.normal(0, waves, len(water))
+    d = np.hypot(water[:, 0] - 50, water[:, 1] - 50)
+    unseen = (np.abs(water[:, 2] - LEVEL) > 0.15) | (d > 18.0)
+    return water[~unseen], np.vstack((ground, water[unseen])), water[unseen]
+
+
+def test_wave_allowance_is_the_largest_normal_departure_of_the_echoes():
+    """sqrt(2 ln n) robust sigmas: 5 cm waves over 20,000 echoes reach 0.222 m; calm water keeps the tolerance."""
+    heights = np.random.default_rng(4).normal(0, 0.05, 20_000)
+    assert abs(wave_allowance(heights, 0.15) - 0.05 * np.sqrt(2 * np.log(20_000))) < 0.005
+    assert wave_allowance(heights / 5, 0.15) == 0.15
+    assert wave_allowance(heights, 0.30) == 0.30
+
+
+def test_the_crests_of_rough_water_are_water():
+    """Waves of 7 cm: echoes up to 0.22 m above the level, beyond the 0.15 m tolerance, lie in the water's cells
+    and are water (a 2 cm sea has no echo there: what stands 0.17 m up on it is no wave)."""
+    water, ground, unseen = _rough_sea(0.07)
+    _, _, grown = water_bodies(water, ground, **_params(), tolerance=0.15)
+    crests = unseen[(unseen[:, 2] > LEVEL + 0.15) & (unseen[:, 2] < LEVEL + 0.22)]
+    crests = crests[np.hypot(crests[:, 0] - 50, crests[:, 1] - 50) < 17.0]
+    assert len(crests) >= 5
+    assert grown.water(crests).all()
+    calm, ground2, _ = _rough_sea(0.02)
+    _, _, still = water_bodies(calm, ground2, **_params(), tolerance=0.15)
+    above = np.column_stack((crests[:, :2], np.full(len(crests), LEVEL + 0.17)))
+    assert np.isfinite(still.at(above[:, :2])).all() and not still.water(above).any()
+
+
+def test_a_patch_refused_alone_inside_grown_water_is_that_water():
+    """A 3 x 3 m patch of detected water inside a lake seen through dropouts, cut off from its detected water by
+    a ring of undetected level echoes (as the simulated sea had one): alone its banks do not rise and it is
+    refused; enclosed by the lake's growth it is the lake's water, and so is the dense ground around it."""
+    water, ground, unseen = _sea(0.3, missed=0.0)
+    d_w = np.max(np.abs(water[:, :2] - [50.0, 50.0]), axis=1)
+    d_g = np.max(np.abs(ground[:, :2] - [50.0, 50.0]), axis=1)
+    rng = np.random.default_rng(9)
+    patch = np.column_stack((rng.uniform(48.5, 51.5, 30), rng.uniform(48.5, 51.5, 30), np.full(30, LEVEL)))
+    ring = np.column_stack((rng.uniform(42, 58, 1024), rng.uniform(42, 58, 1024), np.full(1024, LEVEL)))
+    ring = ring[np.max(np.abs(ring[:, :2] - [50.0, 50.0]), axis=1) > 2.0]  # dense: 4 echoes a m², level
+    water = np.vstack((water[d_w > 8.0], patch))  # 6.5 m apart: the closing (2 cells) does not join them
+    ground = np.vstack((ground[d_g > 8.0], ring))
+    bodies, refused, grown = water_bodies(water, ground, **_params(), tolerance=0.15)
+    assert len(bodies) == 1 and not refused.mask.any()
+    assert grown.water(patch).all() and grown.water(ring).all()

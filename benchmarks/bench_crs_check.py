@@ -23,7 +23,10 @@ import pyproj  # noqa: E402
 
 from lidar.crs import crs_problem  # noqa: E402
 
-SOURCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "pdal" / "autzen_trim.las"
+sys.path.append(str(Path(__file__).resolve().parents[1]))  # after the tree measured: only for the data's place
+from tests.shared_data import REAL as SHARED_REAL  # noqa: E402
+
+SOURCE = SHARED_REAL / "pdal" / "autzen_trim.las"
 
 with laspy.open(SOURCE) as reader:
     wkt, lo, hi = reader.header.parse_crs().to_wkt(), reader.header.mins, reader.header.maxs

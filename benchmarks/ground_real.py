@@ -36,7 +36,8 @@ from lidar.clouds import cloud_crs
 from lidar.units import Units
 
 ROOT = Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared" / "data"
+sys.path.insert(0, str(ROOT))
+from tests.shared_data import DATA as SHARED  # noqa: E402
 
 #: File -> CRS to give it (None: its header's).
 FILES = {

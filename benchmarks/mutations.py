@@ -31,6 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from tests.shared_data import SHARED  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -312,16 +314,14 @@ def _copy_tree(code: Path, tests: Path, dest: Path) -> None:
     if tests != code:
         shutil.rmtree(dest / "tests")
         shutil.copytree(tests / "tests", dest / "tests", ignore=ignore)
-    link = dest.parent / "shared"
-    if not link.exists() and (ROOT.parent / "shared").exists():
-        link.symlink_to(ROOT.parent / "shared")
 
 
 def _pytest(tree: Path, tests: list[str], marker: str, timeout: float) -> str:
     """'yes' (a test failed: caught), 'no' (all passed), '-' (no such test), 'error ...' otherwise."""
     if not tests:
         return "-"
-    env = {**os.environ, "PYTHONPATH": str(tree), "PYTHONDONTWRITEBYTECODE": "1"}
+    # the copy has no ../shared beside it: the tests read the data through SHARED_DIR (tests/shared_data.py)
+    env = {**os.environ, "PYTHONPATH": str(tree), "PYTHONDONTWRITEBYTECODE": "1", "SHARED_DIR": str(SHARED)}
     cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", marker, *tests]
     try:
         run = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True, timeout=timeout)

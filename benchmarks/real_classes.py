@@ -51,9 +51,10 @@ from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT))
 from _isolated import tree_at  # noqa: E402
 
-SHARED = ROOT.parent / "shared" / "data"
+from tests.shared_data import DATA as SHARED  # noqa: E402
 
 #: The provider classes scored, by kind; our classes that count as each kind.
 KINDS = {

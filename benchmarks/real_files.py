@@ -26,7 +26,8 @@ import numpy as np
 import rasterio
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "data" / "real"
+sys.path.insert(0, str(ROOT))
+from tests.shared_data import REAL  # noqa: E402
 
 #: Keys a user needs on the command line for a file (the way out its message names).
 OVERRIDES: dict[str, list[str]] = {

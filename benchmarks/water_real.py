@@ -36,8 +36,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from pipeline.cli import main as pipeline_main  # noqa: E402
+from tests.shared_data import DATA as SHARED  # noqa: E402
 
-SHARED = ROOT.parent / "shared" / "data"
 TOPOGRAPHY = SHARED / "real" / "lidR" / "Topography.laz"
 
 

@@ -31,7 +31,8 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "data" / "real"
+sys.path.insert(0, str(ROOT))
+from tests.shared_data import REAL  # noqa: E402
 
 #: job name -> (configuration relative to the tree, --set overrides)
 JOBS: dict[str, tuple[str, list[str]]] = {

@@ -1,7 +1,7 @@
 """Shared test helpers.
 
 ``need_data``: a test that needs data outside the repository (the ISPRS
-samples, real surveys under ``../shared/data``) skips where the data are
+samples, real surveys under ``../shared/data``: ``tests/shared_data.py``) skips where the data are
 missing on a developer's machine, but *fails* when the environment variable
 ``CI`` is set (as every CI service sets it): a CI run that silently skips its
 acceptance tests would report them as passing.

@@ -23,9 +23,10 @@ from commands.evaluate.command import evaluate_ground
 from commands.evaluate.scores import dtm_check
 from lidar.grid import Grid
 from pipeline.cli import main
+from tests.shared_data import REAL as SHARED_REAL
 
 ROOT = Path(__file__).resolve().parents[2]
-MEGAPLOT = ROOT.parent / "shared" / "data" / "real" / "lidR" / "Megaplot.laz"
+MEGAPLOT = SHARED_REAL / "lidR" / "Megaplot.laz"
 
 
 def _lattice(side: int = 60) -> np.ndarray:

@@ -6,7 +6,6 @@ one worker each, this long test shares the workers with the rest.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +14,9 @@ import pytest
 from commands.evaluate.command import evaluate_ground
 from stages.classify_ground.csf import CsfParams
 from stages.classify_ground.smrf import SmrfParams
+from tests.shared_data import ISPRS
 
 ROOT = Path(__file__).resolve().parents[2]
-ISPRS = Path(os.environ.get("ISPRS_DIR", ROOT.parent / "shared" / "data" / "isprs"))
 SAMPLES = ["samp11", "samp31", "samp51"]
 
 

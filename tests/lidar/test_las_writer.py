@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from lidar.clouds import open_las_writer
+from tests.shared_data import REAL
 
 ROOT = Path(__file__).resolve().parents[2]
-REAL = ROOT.parent / "shared" / "data" / "real"
 
 
 def _write(path: Path, header, chunks, ours: bool, **options) -> bytes:

@@ -11,8 +11,6 @@ window, which the filter keeps as ground.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import laspy
 import numpy as np
 import pytest
@@ -21,8 +19,9 @@ from scipy.interpolate import LinearNDInterpolator
 from stages.classify_ground.ground_classes import classify
 from stages.classify_ground.params import ClassifyGroundParams
 from stages.classify_ground.smrf import smrf
+from tests.shared_data import REAL
 
-MEGAPLOT = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real" / "lidR" / "Megaplot.laz"
+MEGAPLOT = REAL / "lidR" / "Megaplot.laz"
 
 
 def _forest(seed: int = 3) -> tuple[np.ndarray, np.ndarray]:

@@ -10,16 +10,14 @@ default; before issue 16 (low cells emptied before the openings) the same call m
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import laspy
 import numpy as np
 import pytest
 
 from stages.classify_ground.ground_classes import classify
 from stages.classify_ground.params import ClassifyGroundParams
+from tests.shared_data import ISPRS
 
-ISPRS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "isprs"
 BEFORE = {"samp11": 3436, "samp31": 578, "samp51": 543}
 
 

@@ -24,6 +24,7 @@ import pytest
 from pipeline.errors import InputDataError
 from stages.parse.read_las import convert_las_files, read_las_files
 from stages.parse.stage import distinct_files
+from tests.shared_data import REAL as SHARED_REAL
 
 SAMPLE = Path(__file__).resolve().parents[3] / "data_samples" / "las" / "sample.laz"
 POINTS = 20_000
@@ -203,7 +204,7 @@ def test_a_scale_of_no_survey_is_refused_naming_its_byte(small, tmp_path):
 
 def test_header_bounds_of_no_survey_do_not_coarsen_the_points(tmp_path):
     """autzen's header max x damaged to 3.6e48: the points are written as read, not rounded to kilometres."""
-    src = Path(__file__).resolve().parents[4] / "shared" / "data" / "real" / "pdal" / "autzen_trim.las"
+    src = SHARED_REAL / "pdal" / "autzen_trim.las"
     las = laspy.read(src)
     cut = laspy.LasData(las.header)
     cut.points = las.points[:3000].copy()

@@ -29,9 +29,9 @@ import rasterio
 
 from pipeline.errors import InputDataError
 from stages.parse.read_las import convert_las_files
+from tests.shared_data import REAL
 
 ROOT = Path(__file__).resolve().parents[3]
-REAL = ROOT.parent / "shared" / "data" / "real"
 SOURCES = {"las": REAL / "pdal" / "autzen_trim.las", "laz": REAL / "lidR" / "Topography.laz"}
 #: Points kept of each file, read in chunks of ``CHUNK`` (four chunks, as the 4,000 points in chunks of
 #: 1,000 this campaign used before: a case's cost is the reader's per-file work, not its points).

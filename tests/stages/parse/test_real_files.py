@@ -29,9 +29,9 @@ from stages.parse.isolated import IsolationGrid, withhold_isolated
 from stages.parse.las_index import file_crs
 from stages.parse.las_report import LasReadReport
 from stages.parse.read_las import convert_las_files, copy_records, read_las_files
+from tests.shared_data import REAL
 
 ROOT = Path(__file__).resolve().parents[3]
-REAL = ROOT.parent / "shared" / "data" / "real"
 
 
 def real(name: str) -> Path:

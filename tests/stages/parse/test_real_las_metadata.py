@@ -28,9 +28,9 @@ from pipeline.cli import main
 from pipeline.errors import InputDataError
 from stages.classify_ground.csf import csf
 from stages.parse.read_las import convert_las_files
+from tests.shared_data import REAL
 
 ROOT = Path(__file__).resolve().parents[3]
-REAL = ROOT.parent / "shared" / "data" / "real"
 TOPOGRAPHY = REAL / "lidR" / "Topography.laz"
 COLOUR = REAL / "pdal" / "1.2-with-color.las"
 FULLWAVE = REAL / "laspy" / "fullwave.laz"

@@ -13,8 +13,10 @@ from pathlib import Path
 import laspy
 import numpy as np
 
+from tests.shared_data import REAL as SHARED_REAL
+
 ROOT = Path(__file__).resolve().parents[3]
-AUTZEN = ROOT.parent / "shared" / "data" / "real" / "pdal" / "autzen_trim.las"
+AUTZEN = SHARED_REAL / "pdal" / "autzen_trim.las"
 #: The south-west corner of the tiles and their side (feet).
 X0, Y0, SIDE = 636400.0, 849000.0, 60.0
 

@@ -119,7 +119,7 @@ class ObjectsKernel(StageKernel):
     Params: ClassVar = ClassifyObjectsParams
     counts: ClassVar = COUNTS
     axes: ClassVar = (Axis(1, down=True), Axis(0))  # the rows of a north-up grid
-    fields: ClassVar = ("classification", "number_of_returns", "withheld")
+    fields: ClassVar = ("classification", "return_number", "number_of_returns", "withheld")
 
     @property
     def reach(self) -> float:
@@ -137,7 +137,16 @@ class ObjectsKernel(StageKernel):
 
     def tile(self, xyz: np.ndarray, cols: dict[str, np.ndarray], tested: np.ndarray) -> np.ndarray:
         cls = cols["classification"]
-        new, _ = object_classes(xyz, cls, cols["number_of_returns"], tested, self.model, self.cell, self.multi_echo)
+        new, _ = object_classes(
+            xyz,
+            cls,
+            cols["number_of_returns"],
+            tested,
+            self.model,
+            self.cell,
+            self.multi_echo,
+            return_number=cols["return_number"],
+        )
         return new[tested]
 
     # the grid form: each cell's statistics
@@ -149,7 +158,9 @@ class ObjectsKernel(StageKernel):
         return cell_sums(size)
 
     def gather(self, stats: dict, step: int, k: np.ndarray, xyz: np.ndarray, cols: dict) -> None:
-        add_sums(stats, k, xyz[:, 2], cols["number_of_returns"] <= 1, cols["classification"] == glossary.GROUND)
+        nret = cols["number_of_returns"]
+        last = cols["return_number"] >= nret
+        add_sums(stats, k, xyz[:, 2], nret <= 1, cols["classification"] == glossary.GROUND, last)
 
     def occupied(self, stats: dict[str, np.ndarray]) -> np.ndarray:
         return stats["count"] > 0

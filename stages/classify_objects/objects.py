@@ -59,7 +59,7 @@ WALLS = 2.0
 
 
 #: The statistics of each cell a :class:`Surface` is made of, in its order (:func:`cell_sums`, :func:`add_sums`).
-SUMS = ("top", "bottom", "count", "single", "ground_sum", "ground_count")
+SUMS = ("top", "bottom", "count", "single", "ground_sum", "ground_count", "last_top", "last_count")
 
 
 def cell_sums(size: int) -> dict[str, np.ndarray]:
@@ -71,11 +71,16 @@ def cell_sums(size: int) -> dict[str, np.ndarray]:
         "single": np.zeros(size, np.int32),
         "ground_sum": np.zeros(size),
         "ground_count": np.zeros(size, np.int32),
+        "last_top": np.full(size, -np.inf),
+        "last_count": np.zeros(size, np.int32),
     }
 
 
-def add_sums(sums: dict[str, np.ndarray], k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray) -> None:
-    """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return and ground masks, added.
+def add_sums(
+    sums: dict[str, np.ndarray], k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray, last: np.ndarray
+) -> None:
+    """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return, ground and last-return
+    masks, added.
 
     Maxima, minima and counts do not depend on the order; the ground
     points' z are added one by one (``np.add.at``), as ``np.bincount`` adds
@@ -89,6 +94,8 @@ def add_sums(sums: dict[str, np.ndarray], k: np.ndarray, z: np.ndarray, single: 
     k_ground = k[ground]
     np.add.at(sums["ground_sum"], k_ground, z[ground])
     add_counts(sums["ground_count"], k_ground)
+    np.maximum.at(sums["last_top"], k[last], z[last])
+    add_counts(sums["last_count"], k[last])
 
 
 def surface_of(
@@ -99,13 +106,30 @@ def surface_of(
     single: np.ndarray,
     ground_sum: np.ndarray,
     ground_count: np.ndarray,
+    last_top: np.ndarray,
+    last_count: np.ndarray,
 ) -> Surface:
-    """The :class:`Surface` of :func:`cell_sums`' grids of *grid* (its shape); *top* and *bottom* made NaN, in
-    place, where a cell holds no point."""
+    """The :class:`Surface` of :func:`cell_sums`' grids of *grid* (its shape); *top*, *bottom* and *last_top* made
+    NaN, in place, where a cell holds no point (no last return)."""
     empty = count == 0
     top[empty] = np.nan
     bottom[empty] = np.nan
-    return Surface(grid, top, bottom, count, single.astype(np.float64), banded_residual(top), ground_sum, ground_count)
+    last_top[last_count == 0] = np.nan
+    # a survey of one return per pulse: the last returns' surface is the surface
+    last_residual = banded_residual(last_top) if (last_count != count).any() else None
+    return Surface(
+        grid,
+        top,
+        bottom,
+        count,
+        single.astype(np.float64),
+        banded_residual(top),
+        ground_sum,
+        ground_count,
+        last_top,
+        last_count,
+        last_residual,
+    )
 
 
 #: Rows of the grid :func:`banded_residual` computes at a time.
@@ -132,17 +156,20 @@ def cell_index(xyz: np.ndarray, grid: Grid) -> np.ndarray:
     return row * grid.cols + col
 
 
-def surface(xyz: np.ndarray, single: np.ndarray, ground: np.ndarray, cell: float) -> tuple[Surface, np.ndarray]:
+def surface(
+    xyz: np.ndarray, single: np.ndarray, ground: np.ndarray, cell: float, last: np.ndarray | None = None
+) -> tuple[Surface, np.ndarray]:
     """The :class:`Surface` of points *xyz* (metres) on cells of *cell* m anchored at whole multiples of it.
 
-    *single*, *ground*: masks of the single returns and of the ground (2)
-    points.  Returns the surface and each point's flat cell index.
+    *single*, *ground*, *last*: masks of the single returns, of the ground
+    (2) points and of the last returns (None: every point is).  Returns the
+    surface and each point's flat cell index.
     """
     lo, hi = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
     grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], cell)
     k = cell_index(xyz, grid)
     sums = cell_sums(grid.rows * grid.cols)
-    add_sums(sums, k, xyz[:, 2], single, ground)
+    add_sums(sums, k, xyz[:, 2], single, ground, np.ones(len(xyz), bool) if last is None else last)
     return surface_of(grid, **{name: a.reshape(grid.rows, grid.cols) for name, a in sums.items()}), k
 
 
@@ -189,17 +216,29 @@ def plane_residual(top: np.ndarray) -> np.ndarray:
     return out
 
 
-def building_cells(s: Surface, params) -> np.ndarray:
-    """The cells of buildings (bool grid): roof regions passing every test of ``params`` (:class:`BuildingParams`)."""
+def building_cells(s: Surface, params) -> tuple[np.ndarray, np.ndarray]:
+    """The cells of buildings (bool grid): roof regions passing every test of ``params`` (:class:`BuildingParams`),
+    on the surface of every return and on that of the last returns; and which of them only the last returns show
+    (a roof under a crown: the crown's echoes left out, the roof's are planar)."""
+
+    roofs = _roof_cells(s, s.top, s.residual, s.count, params)
+    if s.last_residual is None:  # one return per pulse: the same surface
+        return roofs, np.zeros(roofs.shape, dtype=bool)
+    under = _roof_cells(s, s.last_top, s.last_residual, s.last_count, params) & ~roofs
+    return roofs | under, under
+
+
+def _roof_cells(s: Surface, top: np.ndarray, residual: np.ndarray, count: np.ndarray, params) -> np.ndarray:
+    """:func:`building_cells` on the surface *top* (its *residual* and points per cell *count*)."""
 
     cell = s.grid.resolution
     step = max(0.5 * params.min_height, cell)
-    labels = planar_segments(s.top, s.residual, params.planarity, step)
+    labels = planar_segments(top, residual, params.planarity, step)
     n = int(labels.max()) + 1
     if n == 1:
         return np.zeros(labels.shape, dtype=bool)
     area = np.bincount(labels.ravel(), minlength=n) * cell * cell
-    points = np.bincount(labels.ravel(), weights=s.count.ravel(), minlength=n)
+    points = np.bincount(labels.ravel(), weights=count.ravel(), minlength=n)
     singles = np.bincount(labels.ravel(), weights=s.single.ravel(), minlength=n)
     extent = np.zeros(n)
     for i, box in enumerate(ndimage.find_objects(labels), start=1):
@@ -211,9 +250,9 @@ def building_cells(s: Surface, params) -> np.ndarray:
         ok &= np.bincount(labels.ravel(), weights=s.ground_count.ravel(), minlength=n) <= TERRAIN_SHARE * points
     ok[0] = False
     if ok.any():
-        candidates = grown(np.where(ok[labels], labels, 0), s.top, s.bottom, step)
+        candidates = grown(np.where(ok[labels], labels, 0), top, s.bottom, step)
         bottom = seen_below(s.bottom, candidates > 0, int(np.ceil(SHADOW / cell)))
-        ok &= wall_shares(candidates, s.top, bottom, params.min_height, n) >= params.wall_share
+        ok &= wall_shares(candidates, top, bottom, params.min_height, n) >= params.wall_share
     return ok[labels]
 
 
@@ -286,6 +325,7 @@ class ObjectCells:
     rough: np.ndarray  # bool: vegetation cells (several returns around, or a rough or deep surface)
     decks: np.ndarray  # bool: the cells of bridge decks (:mod:`stages.classify_objects.bridges`)
     deck_top: np.ndarray  # the highest deck top among each cell's 3 x 3 (-inf: none)
+    roof_top: np.ndarray  # the highest building point of a roof under a crown (inf: any height)
 
 
 def vegetation_cells(s: Surface, params, multi_echo: bool) -> np.ndarray:
@@ -318,7 +358,7 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
 
     cell = s.grid.resolution
     b = params.buildings
-    roofs = building_cells(s, b) if b.enabled else np.zeros(s.top.shape, dtype=bool)
+    roofs, under = building_cells(s, b) if b.enabled else (np.zeros(s.top.shape, dtype=bool),) * 2
     decks = np.zeros(s.top.shape, dtype=bool)
     if params.bridges.enabled:
         decks = deck_cells(s, params.bridges, b.planarity, b.min_area)
@@ -335,7 +375,9 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
         if decks.any()
         else np.full(decks.shape, -np.inf)
     )
-    return ObjectCells(s.grid, roofs, edges, ground, rough, decks, deck_top)
+    # a roof under a crown takes its points up to its last returns' top (the crown's above it are vegetation)
+    roof_top = np.where(under & ~decks, s.last_top + b.planarity, np.inf)
+    return ObjectCells(s.grid, roofs, edges, ground, rough, decks, deck_top, roof_top)
 
 
 def point_classes(
@@ -359,7 +401,9 @@ def point_classes(
     # several times)
     candidate = np.isin(cls, CANDIDATES)
     single = np.asarray(number_of_returns) <= 1
-    may = np.where(roofs, candidate, edges & candidate & ~(height < WALL_FOOT) & single)
+    may = np.where(
+        roofs, candidate & (z <= np.ravel(cells.roof_top)[k]), edges & candidate & ~(height < WALL_FOOT) & single
+    )
     building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides
     new = cls.copy()
     new[building] = BUILDING
@@ -390,6 +434,7 @@ def object_classes(
     params,
     cell: float,
     multi_echo: bool = True,
+    return_number: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """New classes of the points, and the building cells' grid mask's cell per point (True: in a building cell).
 
@@ -397,7 +442,9 @@ def object_classes(
     withheld; *params*: :class:`~stages.classify_objects.params.ClassifyObjectsParams`;
     *cell*: the grid's cell (m); *multi_echo*: whether the survey records
     several returns per pulse (then vegetation is told by them, else by
-    roughness).  Points of class 1 or 2 may become 6 or 17 (bridge decks,
+    roughness); *return_number*: with it, roofs are also looked for on the
+    surface of the last returns (under a crown; None: every point is a last
+    return).  Points of class 1 or 2 may become 6 or 17 (bridge decks,
     :mod:`stages.classify_objects.bridges`); of class 1, 3, 4 or 5;
     every other class stays.  The :func:`surface` of the usable points,
     then :func:`object_cells` and :func:`point_classes`.
@@ -408,9 +455,11 @@ def object_classes(
         return out, in_building
     if usable.all():  # the usual case: no copy of the points
         pts, cls, nret = xyz, out, np.asarray(number_of_returns)
+        rn = None if return_number is None else np.asarray(return_number)
     else:
         pts, cls, nret = xyz[usable], out[usable], np.asarray(number_of_returns)[usable]
-    s, k = surface(pts, nret <= 1, cls == glossary.GROUND, cell)
+        rn = None if return_number is None else np.asarray(return_number)[usable]
+    s, k = surface(pts, nret <= 1, cls == glossary.GROUND, cell, None if rn is None else rn >= nret)
     new, building = point_classes(object_cells(s, params, multi_echo), k, cls, pts[:, 2], nret, params)
     out[usable] = new
     in_building[usable] = building

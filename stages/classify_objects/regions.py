@@ -33,6 +33,9 @@ class Surface:
     residual: np.ndarray  # RMS (m) of ``top`` about the plane of its 3 x 3 cells (NaN: fewer than 6 cells)
     ground_sum: np.ndarray  # sum of the z of the cell's ground (2) points, added in file order
     ground_count: np.ndarray  # the cell's ground points
+    last_top: np.ndarray  # highest last return per cell (NaN: none): a roof under a crown, the crown's echoes left out
+    last_count: np.ndarray  # last returns per cell
+    last_residual: np.ndarray | None  # ``residual`` of ``last_top``; None when every point is a last return
 
 
 def planar_segments(top: np.ndarray, residual: np.ndarray, planarity: float, step: float) -> np.ndarray:

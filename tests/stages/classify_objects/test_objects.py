@@ -191,3 +191,39 @@ def test_the_residual_in_bands_of_rows_is_the_residual_of_the_whole_grid(rows):
     z = np.cumsum(rng.normal(size=(300, 40)), axis=1)  # rough, sloping rows
     z[rng.random(z.shape) < 0.2] = np.nan  # holes: cells with fewer than 6 of 9 neighbours at band edges too
     np.testing.assert_array_equal(banded_residual(z, rows), plane_residual(z))
+
+
+def _roof_under_a_crown(seed: int = 11):
+    """A flat roof 5 m up (20 m x 20 m, walls to the ground at 100 m) with a tree's crown (radius 5 m, 10-13 m up)
+    over its middle: 6 pulses per m²; under the crown each pulse returns twice, first from the crown and last
+    from the roof.  Returns the points, classes (ground 2, the rest 1), return numbers, numbers of returns and
+    masks of the roof's echoes under the crown and of the crown's."""
+    rng = np.random.default_rng(seed)
+    n = 80 * 80 * 6
+    x, y = rng.uniform(0, 80, n), rng.uniform(0, 80, n)
+    roof = (np.abs(x - 40) < 10) & (np.abs(y - 40) < 10)
+    z = np.where(roof, 105.0, 100.0) + rng.normal(0, 0.03, n)
+    crown = np.hypot(x - 40, y - 40) < 5.0
+    nret = np.where(crown, 2, 1).astype(np.uint8)
+    last = np.column_stack((x, y, z))
+    first = np.column_stack((x[crown], y[crown], rng.uniform(110.0, 113.0, crown.sum())))
+    xyz = np.vstack((last, first))
+    cls = np.concatenate((np.where(roof, 1, 2), np.ones(crown.sum()))).astype(np.uint8)
+    rn = np.concatenate((nret, np.ones(crown.sum(), np.uint8)))
+    nr = np.concatenate((nret, np.full(crown.sum(), 2, np.uint8)))
+    under = np.concatenate((roof & crown, np.zeros(crown.sum(), bool)))
+    crowns = np.concatenate((np.zeros(n, bool), np.ones(crown.sum(), bool)))
+    return xyz, cls, rn, nr, under, crowns
+
+
+def test_a_roof_under_a_crown_is_seen_through_its_last_returns():
+    """The crown's echoes make the roof's cells under it rough on the surface of every return: they are no roof,
+    and the roof's echoes there become vegetation.  On the surface of the last returns they are the roof's: its
+    echoes there are the building's, the crown's above them are not."""
+    xyz, cls, rn, nr, under, crowns = _roof_under_a_crown()
+    usable = np.ones(len(cls), bool)
+    without, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True)
+    assert np.mean(without[under] == 6) < 0.5
+    new, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True, return_number=rn)
+    assert np.mean(new[under] == 6) > 0.95
+    assert np.mean(new[crowns] == 6) < 0.01 and np.mean(np.isin(new[crowns], (3, 4, 5))) > 0.95

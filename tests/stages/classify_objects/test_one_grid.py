@@ -109,6 +109,7 @@ def _reference(path: Path, params: ClassifyObjectsParams, cell: float) -> np.nda
         params,
         cell,
         True,
+        return_number=np.asarray(las.return_number),
     )
     return new
 

@@ -85,8 +85,8 @@ class ClassifyObjectsParams(StageParams):
         4_000_000,
         ge=0,
         description="the whole survey is classified on one grid, in two passes over the points, when the grid has "
-        "at most this many cells (4 km2 of 1 m cells; about 220 bytes a cell at the peak: 0.9 GB, within the 1.2 GB "
-        "a survey job holds); a grid up to 4 times larger is worked in the tiles' windows (36 bytes a cell held), "
+        "at most this many cells (4 km2 of 1 m cells; about 230 bytes a cell at the peak: 0.9 GB, within the 1.2 GB "
+        "a survey job holds); a grid up to 4 times larger is worked in the tiles' windows (48 bytes a cell held), "
         "larger surveys are cut into tiles of points with the buffer; 0: always tiles of points",
     )
     buildings: BuildingParams = Field(default_factory=BuildingParams, description="buildings (class 6)")

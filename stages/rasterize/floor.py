@@ -30,10 +30,10 @@ select, not to classify.  Measured on every labelled project of
 from __future__ import annotations
 
 import numpy as np
-import triangle
 from scipy.spatial import cKDTree
 
 from lidar.clouds import progress_chunk
+from lidar.delaunay import delaunay
 from lidar.grid import Grid, cell_of
 from pipeline.log import stage_progress
 
@@ -109,8 +109,7 @@ def tin_at(vertices: np.ndarray, xy: np.ndarray, advance=None) -> np.ndarray:
     """The Delaunay TIN of *vertices* ((m, 3)) at the points *xy* ((n, 2)), linear in each triangle; NaN
     outside its hull, or everywhere when the vertices lie on a line.
 
-    Triangulated with Triangle (Shewchuk 1996, doi:10.1007/BFb0014497), as
-    the DTM is; each point is found by a visibility walk (Devillers, Pion &
+    Triangulated as the DTM is (:func:`lidar.delaunay.delaunay`); each point is found by a visibility walk (Devillers, Pion &
     Teillaud 2002, doi:10.1142/S0129054102001047), all points a step at a
     time, from a triangle at its nearest vertex.  The walk ends in a Delaunay
     triangulation.  SciPy's ``LinearNDInterpolator`` gives the same values
@@ -124,12 +123,12 @@ def tin_at(vertices: np.ndarray, xy: np.ndarray, advance=None) -> np.ndarray:
     out = np.full(len(xy), np.nan)
     origin = vertices[:, :2].mean(axis=0) if len(vertices) else np.zeros(2)
     vxy = np.ascontiguousarray(vertices[:, :2] - origin)
-    mesh = triangle.triangulate({"vertices": vxy}, "QznBN") if len(vxy) >= 3 else {}
-    tris = mesh.get("triangles")
-    if tris is None or not len(tris):  # on a line: no triangle
+    mesh = delaunay(vxy)
+    if mesh is None:  # on a line: no triangle
         if advance is not None:
             advance(len(xy))
         return out
+    tris, neighbours = mesh
     start = np.full(len(vxy), -1, dtype=np.int64)
     start[tris.ravel()] = np.repeat(np.arange(len(tris)), 3)  # a triangle at each vertex (duplicates: none)
     used = np.flatnonzero(start >= 0)
@@ -137,7 +136,7 @@ def tin_at(vertices: np.ndarray, xy: np.ndarray, advance=None) -> np.ndarray:
     step = progress_chunk(len(xy), AT_ONCE)
     for a in range(0, len(xy), step):
         q = xy[a : a + step] - origin
-        out[a : a + step] = _walk(vxy, vertices[:, 2], tris, mesh["neighbors"], start[used[tree.query(q)[1]]], q)
+        out[a : a + step] = _walk(vxy, vertices[:, 2], tris, neighbours, start[used[tree.query(q)[1]]], q)
         if advance is not None:
             advance(len(q))
     return out

@@ -11,12 +11,12 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-import triangle
 from pydantic import Field
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from lidar.arrays import sorted_union
+from lidar.delaunay import delaunay
 from lidar.grid import Grid
 from lidar.neighbours import canonical_neighbours
 from pipeline.config import StrictModel
@@ -212,12 +212,11 @@ def _tin_draw(
     drawn = np.zeros((0, 3), dtype=np.int64)
     if len(keep) >= 3:
         vxy = np.ascontiguousarray(xy[keep])
-        # Q quiet, z indices from 0, B N: no boundary markers, no copy of the vertices
-        mesh = triangle.triangulate({"vertices": vxy}, "QznBN")
-        simplices = mesh.get("triangles")
-        if simplices is not None and len(simplices) and max_hull_edge:
-            simplices = simplices[~_long_on_hull(vxy, simplices, mesh["neighbors"], max_hull_edge)]
-        if simplices is not None and len(simplices):  # None: all points on a line
+        mesh = delaunay(vxy)
+        simplices = None if mesh is None else mesh[0]  # None: all points on a line
+        if simplices is not None and max_hull_edge:
+            simplices = simplices[~_long_on_hull(vxy, simplices, mesh[1], max_hull_edge)]
+        if simplices is not None and len(simplices):
             drawn = keep[_draw_triangles(vxy, z[keep], simplices, grid, out, batch_cells, progress)]
             return out, drawn
     if progress is not None:

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import triangle
 
+from lidar.delaunay import delaunay
 from lidar.grid import Grid
 from stages.rasterize.interpolate import triangle_cover
 
@@ -103,12 +103,11 @@ def survey_outline(keys: np.ndarray, min_edge: float) -> Outline:
     grid = Grid(ix0 * CELL_M, (iy1 + 1) * CELL_M, CELL_M, int(ix.max()) - ix0 + 1, iy1 - int(iy.min()) + 1)
     # the cell centres relative to the grid's top-left corner, as the TIN draws them
     xy = np.column_stack(((ix - ix0 + 0.5) * CELL_M, -(iy1 - iy + 0.5) * CELL_M))
-    # Shewchuk's Triangle: robust and fast on a lattice (cocircular points), where Qhull takes minutes
-    mesh = triangle.triangulate({"vertices": xy}, "QznBN")
-    simplices = mesh.get("triangles")
-    if simplices is None or not len(simplices):  # all on a line: nothing to peel
+    mesh = delaunay(xy)  # a lattice (cocircular points): lidar.delaunay
+    if mesh is None:  # all on a line: nothing to peel
         return EVERYWHERE
-    kept = _peel(simplices, mesh["neighbors"], xy, min_edge)
+    simplices, neighbours = mesh
+    kept = _peel(simplices, neighbours, xy, min_edge)
     inside = triangle_cover(xy, simplices[kept], grid)
     inside[iy1 - iy, ix - ix0] = True  # an occupied cell is always inside
     return Outline(ix0, iy1, inside)

@@ -178,7 +178,7 @@ class ObjectsKernel(StageKernel):
         k = cell_index(xyz, cells.grid)
         if (k < 0).any():  # pragma: no cover - each point's cell is in its window by construction
             raise RuntimeError(f"a point lies outside its window's grid {cells.grid}")
-        return point_classes(cells, k, cls, xyz[:, 2], cols["number_of_returns"], self.model)[0]
+        return point_classes(cells, k, cls, xyz[:, 2], cols["number_of_returns"], self.model, cols["return_number"])[0]
 
 
 def _grid(frame: Frame) -> Grid:

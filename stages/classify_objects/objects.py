@@ -326,6 +326,7 @@ class ObjectCells:
     decks: np.ndarray  # bool: the cells of bridge decks (:mod:`stages.classify_objects.bridges`)
     deck_top: np.ndarray  # the highest deck top among each cell's 3 x 3 (-inf: none)
     roof_top: np.ndarray  # the highest building point of a roof under a crown (inf: any height)
+    eave: np.ndarray  # the highest roof top among each cell's 3 x 3 outside the roofs (NaN: none)
 
 
 def vegetation_cells(s: Surface, params, multi_echo: bool) -> np.ndarray:
@@ -377,7 +378,9 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
     )
     # a roof under a crown takes its points up to its last returns' top (the crown's above it are vegetation)
     roof_top = np.where(under & ~decks, s.last_top + b.planarity, np.inf)
-    return ObjectCells(s.grid, roofs, edges, ground, rough, decks, deck_top, roof_top)
+    eave = ndimage.maximum_filter(np.where(roofs, s.top, -np.inf), size=3)
+    eave = np.where(roofs | np.isinf(eave), np.nan, eave)
+    return ObjectCells(s.grid, roofs, edges, ground, rough, decks, deck_top, roof_top, eave)
 
 
 def point_classes(
@@ -387,11 +390,14 @@ def point_classes(
     z: np.ndarray,
     number_of_returns: np.ndarray,
     params,
+    return_number: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """New classes of usable points, and which are building points: part (b) of :func:`object_classes`.
 
-    Each point by its own class, height *z*, number of returns and its
-    cell's values (*k*: flat cell indices in *cells*' grids).
+    Each point by its own class, height *z*, return and number of returns
+    and its cell's values (*k*: flat cell indices in *cells*' grids);
+    *return_number* None: of the points of several-return pulses none is
+    known to be the first.
     """
     cls = np.asarray(classification, dtype=np.uint8)
     roofs, edges = np.ravel(cells.roofs)[k], np.ravel(cells.edges)[k]
@@ -401,8 +407,15 @@ def point_classes(
     # several times)
     candidate = np.isin(cls, CANDIDATES)
     single = np.asarray(number_of_returns) <= 1
+    # ... and a pulse split at the eave: its first return at the height of the roof beside it
+    first = single if return_number is None else np.asarray(return_number) <= 1
+    eave = first & (
+        np.abs(z - np.ravel(cells.eave)[k]) <= max(0.5 * params.buildings.min_height, cells.grid.resolution)
+    )
     may = np.where(
-        roofs, candidate & (z <= np.ravel(cells.roof_top)[k]), edges & candidate & ~(height < WALL_FOOT) & single
+        roofs,
+        candidate & (z <= np.ravel(cells.roof_top)[k]),
+        edges & candidate & ~(height < WALL_FOOT) & (single | eave),
     )
     building = may & ~(height < WALL_FOOT)  # NaN height (no ground near): the roof decides
     new = cls.copy()
@@ -460,7 +473,7 @@ def object_classes(
         pts, cls, nret = xyz[usable], out[usable], np.asarray(number_of_returns)[usable]
         rn = None if return_number is None else np.asarray(return_number)[usable]
     s, k = surface(pts, nret <= 1, cls == glossary.GROUND, cell, None if rn is None else rn >= nret)
-    new, building = point_classes(object_cells(s, params, multi_echo), k, cls, pts[:, 2], nret, params)
+    new, building = point_classes(object_cells(s, params, multi_echo), k, cls, pts[:, 2], nret, params, rn)
     out[usable] = new
     in_building[usable] = building
     return out, in_building

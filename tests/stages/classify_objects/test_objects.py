@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.classify_objects.objects import banded_residual, object_classes, plane_residual
+from lidar.grid import Grid
+from stages.classify_objects.objects import ObjectCells, banded_residual, object_classes, plane_residual, point_classes
 from stages.classify_objects.params import ClassifyObjectsParams
 
 PARAMS = ClassifyObjectsParams()
@@ -227,3 +228,72 @@ def test_a_roof_under_a_crown_is_seen_through_its_last_returns():
     new, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True, return_number=rn)
     assert np.mean(new[under] == 6) > 0.95
     assert np.mean(new[crowns] == 6) < 0.01 and np.mean(np.isin(new[crowns], (3, 4, 5))) > 0.95
+
+
+def _eaves_and_a_tree(seed: int = 12):
+    """A flat roof 5 m up (20 m x 20 m) whose eaves overhang its walls by 0.6 m: a pulse on an eave returns from
+    it first and from the ground last; trees' crowns (1.9 m x 8 m, 7-9 m up) beside its west eave, their pulses
+    returning from the crown first and the ground last.  6 pulses per m².  Returns the points, classes (ground 2,
+    the rest 1), return numbers, numbers of returns, and masks of the eaves' first returns and the crown's."""
+    rng = np.random.default_rng(seed)
+    n = 80 * 80 * 6
+    x, y = rng.uniform(0, 80, n), rng.uniform(0, 80, n)
+    d = np.maximum(np.abs(x - 40), np.abs(y - 40))
+    roof, eave = d < 10.0, (d >= 10.0) & (d < 10.6)
+    crown = (x >= 27.5) & (x < 29.4) & (np.abs(y - 40.0) < 4.0)  # a row of crowns from the eaves' edge on
+    split = eave | crown
+    ground = np.column_stack((x, y, np.where(roof, 105.0, 100.0) + rng.normal(0, 0.03, n)))
+    tops = np.where(eave, 105.0 + rng.normal(0, 0.03, n), rng.uniform(107.0, 109.0, n))[split]
+    xyz = np.vstack((ground, np.column_stack((x[split], y[split], tops))))
+    m = int(split.sum())
+    cls = np.concatenate((np.where(roof, 1, 2), np.ones(m))).astype(np.uint8)
+    rn = np.concatenate((np.where(split, 2, 1), np.ones(m))).astype(np.uint8)
+    nr = np.concatenate((np.where(split, 2, 1), np.full(m, 2))).astype(np.uint8)
+    first = np.concatenate((np.zeros(n, bool), np.ones(m, bool)))
+    return (
+        xyz,
+        cls,
+        rn,
+        nr,
+        first & np.concatenate((np.zeros(n, bool), eave[split])),
+        first & np.concatenate((np.zeros(n, bool), crown[split])),
+    )
+
+
+def test_a_pulse_split_at_the_eave_is_the_roofs_and_a_crown_beside_it_is_not():
+    """Beside a roof only single returns were taken (a tree by a wall returns several times), so the eaves' first
+    returns, at the roof's height, became vegetation.  A first return within max(min_height / 2, cell) of the roof
+    beside it is the roof's; the crown's, 2-4 m above the roof in the same cells, stay vegetation."""
+    xyz, cls, rn, nr, eaves, crown = _eaves_and_a_tree()
+    usable = np.ones(len(cls), bool)
+    without, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True)
+    assert np.mean(without[eaves] == 6) < 0.1
+    new, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True, return_number=rn)
+    assert np.mean(new[eaves] == 6) > 0.9
+    assert np.mean(new[crown] == 6) < 0.01 and np.mean(np.isin(new[crown], (3, 4, 5))) > 0.95
+
+
+@pytest.mark.parametrize(("min_height", "reach"), [(2.0, 1.0), (4.0, 2.0)])
+def test_an_eaves_first_return_is_the_roofs_within_half_min_height(min_height, reach):
+    """Hand-made cells: a roof cell (top 105 m) and the edge cell beside it.  There, of two-return pulses, the
+    first returns within max(min_height / 2, cell) of the roof's 105 m are the building's; higher ones, and last
+    returns at any height, are not.  Ground under the edge cell: 100 m."""
+    grid = Grid(0.0, 1.0, 1.0, 2, 1)
+    cells = ObjectCells(
+        grid,
+        roofs=np.array([[True, False]]),
+        edges=np.array([[True, True]]),
+        ground=np.full((1, 2), 100.0),
+        rough=np.zeros((1, 2), bool),
+        decks=np.zeros((1, 2), bool),
+        deck_top=np.full((1, 2), -np.inf),
+        roof_top=np.full((1, 2), np.inf),
+        eave=np.array([[np.nan, 105.0]]),
+    )
+    z = 105.0 + np.array([-1.4, -0.6, 0.0, 0.6, 1.4, 1.9, 2.6, 0.0])
+    rn = np.array([1, 1, 1, 1, 1, 1, 1, 2])
+    params = ClassifyObjectsParams(buildings={"min_height": min_height})
+    k = np.ones(len(z), np.int64)  # all in the edge cell
+    new, _ = point_classes(cells, k, np.ones(len(z), np.uint8), z, np.full(len(z), 2), params, rn)
+    expected = (np.abs(z - 105.0) <= reach) & (rn == 1)
+    np.testing.assert_array_equal(new == 6, expected)

@@ -194,6 +194,13 @@ def test_the_residual_in_bands_of_rows_is_the_residual_of_the_whole_grid(rows):
     np.testing.assert_array_equal(banded_residual(z, rows), plane_residual(z))
 
 
+def _without_and_with_return_numbers(xyz, cls, rn, nr):
+    """The classes without the return numbers (every return a last one, none known as first) and with them."""
+    usable = np.ones(len(cls), bool)
+    without, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True)
+    return without, object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True, return_number=rn)[0]
+
+
 def _roof_under_a_crown(seed: int = 11):
     """A flat roof 5 m up (20 m x 20 m, walls to the ground at 100 m) with a tree's crown (radius 5 m, 10-13 m up)
     over its middle: 6 pulses per m²; under the crown each pulse returns twice, first from the crown and last
@@ -222,10 +229,8 @@ def test_a_roof_under_a_crown_is_seen_through_its_last_returns():
     and the roof's echoes there become vegetation.  On the surface of the last returns they are the roof's: its
     echoes there are the building's, the crown's above them are not."""
     xyz, cls, rn, nr, under, crowns = _roof_under_a_crown()
-    usable = np.ones(len(cls), bool)
-    without, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True)
+    without, new = _without_and_with_return_numbers(xyz, cls, rn, nr)
     assert np.mean(without[under] == 6) < 0.5
-    new, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True, return_number=rn)
     assert np.mean(new[under] == 6) > 0.95
     assert np.mean(new[crowns] == 6) < 0.01 and np.mean(np.isin(new[crowns], (3, 4, 5))) > 0.95
 
@@ -263,12 +268,10 @@ def _eaves_and_a_tree(seed: int = 12):
 def test_a_pulse_split_at_the_eave_is_the_roofs_and_a_crown_beside_it_is_not():
     """Beside a roof only single returns were taken (a tree by a wall returns several times), so the eaves' first
     returns, at the roof's height, became vegetation.  A first return within max(min_height / 2, cell) of the roof
-    beside it is the roof's; the crown's, 2-4 m above the roof in the same cells, stay vegetation."""
+    beside it is the roof's; the crowns' beside the eave, 2-4 m above the roof, stay vegetation."""
     xyz, cls, rn, nr, eaves, crown = _eaves_and_a_tree()
-    usable = np.ones(len(cls), bool)
-    without, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True)
+    without, new = _without_and_with_return_numbers(xyz, cls, rn, nr)
     assert np.mean(without[eaves] == 6) < 0.1
-    new, _ = object_classes(xyz, cls, nr, usable, PARAMS, 1.0, True, return_number=rn)
     assert np.mean(new[eaves] == 6) > 0.9
     assert np.mean(new[crown] == 6) < 0.01 and np.mean(np.isin(new[crown], (3, 4, 5))) > 0.95
 

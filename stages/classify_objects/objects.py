@@ -77,10 +77,15 @@ def cell_sums(size: int) -> dict[str, np.ndarray]:
 
 
 def add_sums(
-    sums: dict[str, np.ndarray], k: np.ndarray, z: np.ndarray, single: np.ndarray, ground: np.ndarray, last: np.ndarray
+    sums: dict[str, np.ndarray],
+    k: np.ndarray,
+    z: np.ndarray,
+    single: np.ndarray,
+    ground: np.ndarray,
+    last: np.ndarray | None = None,
 ) -> None:
     """Points with flat cell indices *k* (:func:`cell_index`), heights *z*, single-return, ground and last-return
-    masks, added.
+    masks (*last* None: every point is a last return), added.
 
     Maxima, minima and counts do not depend on the order; the ground
     points' z are added one by one (``np.add.at``), as ``np.bincount`` adds
@@ -94,8 +99,9 @@ def add_sums(
     k_ground = k[ground]
     np.add.at(sums["ground_sum"], k_ground, z[ground])
     add_counts(sums["ground_count"], k_ground)
-    np.maximum.at(sums["last_top"], k[last], z[last])
-    add_counts(sums["last_count"], k[last])
+    k_last, z_last = (k, z) if last is None or last.all() else (k[last], z[last])  # no copy: one return a pulse
+    np.maximum.at(sums["last_top"], k_last, z_last)
+    add_counts(sums["last_count"], k_last)
 
 
 def surface_of(
@@ -169,7 +175,7 @@ def surface(
     grid = Grid.covering(lo[0], lo[1], hi[0], hi[1], cell)
     k = cell_index(xyz, grid)
     sums = cell_sums(grid.rows * grid.cols)
-    add_sums(sums, k, xyz[:, 2], single, ground, np.ones(len(xyz), bool) if last is None else last)
+    add_sums(sums, k, xyz[:, 2], single, ground, last)
     return surface_of(grid, **{name: a.reshape(grid.rows, grid.cols) for name, a in sums.items()}), k
 
 

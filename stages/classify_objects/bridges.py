@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from lidar.grid import step_labels
 from stages.classify_objects.regions import (
     SHADOW,
     Surface,
@@ -29,6 +30,9 @@ from stages.classify_objects.regions import (
     seen_below,
     wall_shares,
 )
+
+#: Cells a deck's pieces are grown along the level cells over the gap (1 m cells: 5 m, a bank's edge).
+REACH = 5
 
 
 def _lowest_beyond(low: np.ndarray, reach: int, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -63,7 +67,9 @@ def over_gap(s: Surface, clearance: float, reach: int) -> np.ndarray:
     return gap
 
 
-def approach_ends(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: float, n: int) -> np.ndarray:
+def approach_ends(
+    labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: float, n: int, height: np.ndarray | None = None
+) -> np.ndarray:
     """Per label: whether level cells outside the gap touch the region at both ends of its longer axis.
 
     A cell touches a region when it is one of its 8 neighbours, holds points,
@@ -71,11 +77,11 @@ def approach_ends(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: fl
     next to it.  The ends: the first and last quarter of the region's extent
     along the axis of its cells' largest spread.
     """
-    rows, cols = labels.shape
+    height = top if height is None else height
     found_r, found_c, owners = [], [], []
     for here, there, r0, c0 in neighbour_views(labels.shape):
         lab = labels[there]
-        level = (lab > 0) & (labels[here] == 0) & ~gap[here] & (np.abs(top[here] - top[there]) <= step)
+        level = (lab > 0) & (labels[here] == 0) & ~gap[here] & (np.abs(height[here] - top[there]) <= step)
         rr, cc = np.nonzero(level)
         found_r.append(rr + r0)
         found_c.append(cc + c0)
@@ -106,17 +112,42 @@ def approach_ends(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: fl
     return ok
 
 
-def deck_cells(s: Surface, params, planarity: float, min_area: float) -> np.ndarray:
+def _joined_along(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: float, reach: int) -> np.ndarray:
+    """The regions of *labels* grown *reach* times into cells over the *gap* within *step* of their top
+    (a deck is level: its planarity; a tree beside it is not), then
+    joined (8-connected, without a jump) and numbered afresh.
+
+    A deck's railings or a bank's edge put a drop into some 3 x 3 windows: its planar cells break into
+    pieces, and its last cells before the road are not planar.  Grown along the level cells over the gap,
+    the pieces join and reach their approaches.
+    """
+    out = labels.copy()
+    for _ in range(reach):
+        free = (out == 0) & gap & np.isfinite(top)
+        before = out.copy()
+        for here, there, _, _ in neighbour_views(out.shape):
+            lab = before[there]
+            join = free[here] & (lab > 0) & (np.abs(top[here] - top[there]) <= step)
+            out[here] = np.where(join, np.maximum(out[here], lab), out[here])
+        if np.array_equal(out, before):
+            break
+    return step_labels(out > 0, top, step, corners=True)
+
+
+def deck_cells(s: Surface, params, min_area: float) -> np.ndarray:
     """The cells of bridge decks (bool grid); *params*: :class:`~stages.classify_objects.params.BridgeParams`.
 
-    Regions of planar cells over a gap (:func:`over_gap`) joined without a
-    jump, of *min_area* m² or more, whose side edges drop ``clearance`` m
-    (at least half of the cells around them, :func:`wall_shares`) and that
-    continue level into the ground at both ends (:func:`approach_ends`); with
-    the cells of their side edges.
+    Regions of cells over a gap (:func:`over_gap`) within ``planarity`` of
+    their 3 x 3 cells' plane, joined without a jump, of *min_area* m² or
+    more, whose side edges drop ``clearance`` m (at least half of the cells
+    around them, :func:`wall_shares`) and that, with the pieces joined to
+    them along the deck (:func:`_joined_along`), continue level into the
+    ground at both ends (:func:`approach_ends`: cells not over a gap, or
+    holding ground at that level); with the cells of their side edges.
     """
 
     cell = s.grid.resolution
+    planarity = params.planarity
     step = max(0.5 * params.clearance, cell)
     gap = over_gap(s, params.clearance, max(int(np.ceil(params.max_width / cell)), 1))
     labels = planar_segments(s.top, np.where(gap, s.residual, np.nan), planarity, step)
@@ -131,7 +162,17 @@ def deck_cells(s: Surface, params, planarity: float, min_area: float) -> np.ndar
         bottom = seen_below(s.bottom, candidates > 0, int(np.ceil(SHADOW / cell)))
         ok &= wall_shares(candidates, s.top, bottom, params.clearance, n) >= 0.5
         labels = np.where(ok[labels], labels, 0)
-        ok &= approach_ends(labels, s.top, gap, step, n)
+        # the pieces a railing or a bank's edge leaves, joined along the deck, reach its approaches
+        joined = _joined_along(labels, s.top, gap, planarity, REACH)
+        # an approach on an embankment, between the river and a lower road, is over a gap too: a cell holding
+        # ground counts at its ground's height (a wall's cell holds ground at its foot, a deck's level)
+        has_ground = s.ground_count > 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            height = np.where(has_ground, s.ground_sum / s.ground_count, s.top)
+        reached = approach_ends(joined, s.top, gap & ~has_ground, step, int(joined.max()) + 1, height)
+        region = np.zeros(n, dtype=np.int64)  # each piece's joined region (it holds all of its cells)
+        region[labels[labels > 0]] = joined[labels > 0]
+        ok &= reached[region]
     decks = ok[labels]
     # with their side edges (not planar: the drop is in their 3 x 3 cells), not their approaches (not over a gap)
     return decks | (ndimage.binary_dilation(decks, np.ones((3, 3), bool)) & gap & ~(s.residual <= planarity))

@@ -330,7 +330,7 @@ class ObjectCells:
     ground: np.ndarray  # ground height (m) under each cell (NaN: no ground within max_size)
     rough: np.ndarray  # bool: vegetation cells (several returns around, or a rough or deep surface)
     decks: np.ndarray  # bool: the cells of bridge decks (:mod:`stages.classify_objects.bridges`)
-    deck_top: np.ndarray  # the highest deck top among each cell's 3 x 3 (-inf: none)
+    deck_top: np.ndarray  # the lowest deck top among each cell's 3 x 3 (inf: none)
     roof_top: np.ndarray  # the highest building point of a roof under a crown (inf: any height)
     eave: np.ndarray  # the highest roof top among each cell's 3 x 3 outside the roofs (NaN: none)
 
@@ -368,7 +368,7 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
     roofs, under = building_cells(s, b) if b.enabled else (np.zeros(s.top.shape, dtype=bool),) * 2
     decks = np.zeros(s.top.shape, dtype=bool)
     if params.bridges.enabled:
-        decks = deck_cells(s, params.bridges, b.planarity, b.min_area)
+        decks = deck_cells(s, params.bridges, b.min_area)
         roofs &= ~decks
     rings = max(1, round(WALLS / cell))
     edges = ndimage.binary_dilation(roofs, np.ones((3, 3), bool), iterations=rings) if roofs.any() else roofs
@@ -377,10 +377,9 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
     ground = ground_under(s, edges | decks, b.max_size / cell)
     v = params.vegetation
     rough = vegetation_cells(s, v, multi_echo) if v.enabled else np.zeros(s.top.shape, dtype=bool)
+    # the deck's surface: the lowest deck top among the 3 x 3 cells (a railing's cell tops it by a metre)
     deck_top = (
-        ndimage.maximum_filter(np.where(decks, s.top, -np.inf), size=3)
-        if decks.any()
-        else np.full(decks.shape, -np.inf)
+        ndimage.minimum_filter(np.where(decks, s.top, np.inf), size=3) if decks.any() else np.full(decks.shape, np.inf)
     )
     # a roof under a crown takes its points up to its last returns' top (the crown's above it are vegetation)
     roof_top = np.where(under & ~decks, s.last_top + b.planarity, np.inf)

@@ -43,6 +43,12 @@ class BridgeParams(StrictModel):
     max_width: float = Field(
         40.0, gt=0, description="widest deck (m): the ground or water below is looked for this far on each side"
     )
+    planarity: float = Field(
+        0.3,
+        gt=0,
+        description="a deck cell's surface departs from the plane of its 3 x 3 cells by at most this (m RMS);"
+        " more than a roof's: railings and parapets line a deck a few cells wide",
+    )
 
 
 class VegetationParams(StrictModel):

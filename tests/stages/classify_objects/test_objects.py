@@ -289,7 +289,7 @@ def test_an_eaves_first_return_is_the_roofs_within_half_min_height(min_height, r
         ground=np.full((1, 2), 100.0),
         rough=np.zeros((1, 2), bool),
         decks=np.zeros((1, 2), bool),
-        deck_top=np.full((1, 2), -np.inf),
+        deck_top=np.full((1, 2), np.inf),
         roof_top=np.full((1, 2), np.inf),
         eave=np.array([[np.nan, 105.0]]),
     )

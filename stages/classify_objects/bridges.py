@@ -31,7 +31,9 @@ from stages.classify_objects.regions import (
     wall_shares,
 )
 
-#: Cells a deck's pieces are grown along the level cells over the gap (1 m cells: 5 m, a bank's edge).
+#: Cells a deck's pieces are grown along the level cells over the gap.  What parts them is a railing or a bank's
+#: drop inside the 3 x 3 windows of the planarity test, so the breaks span cells, not metres (IGN pont: up to
+#: 5 cells between the deck's last planar piece and its road).
 REACH = 5
 
 
@@ -75,7 +77,8 @@ def approach_ends(
     A cell touches a region when it is one of its 8 neighbours, holds points,
     is not over a gap, and its top lies within *step* of the region's cell
     next to it.  The ends: the first and last quarter of the region's extent
-    along the axis of its cells' largest spread.
+    along the axis of its cells' largest spread.  *height*: the height a
+    touching cell is compared at (None: its top).
     """
     height = top if height is None else height
     found_r, found_c, owners = [], [], []
@@ -113,9 +116,9 @@ def approach_ends(
 
 
 def _joined_along(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: float, reach: int) -> np.ndarray:
-    """The regions of *labels* grown *reach* times into cells over the *gap* within *step* of their top
-    (a deck is level: its planarity; a tree beside it is not), then
-    joined (8-connected, without a jump) and numbered afresh.
+    """The regions of *labels* grown *reach* cells into the cells over the *gap* whose top lies within *step* of
+    their neighbour's (a deck is level; a tree beside it is not), then joined (8-connected, without a jump) and
+    numbered afresh.
 
     A deck's railings or a bank's edge put a drop into some 3 x 3 windows: its planar cells break into
     pieces, and its last cells before the road are not planar.  Grown along the level cells over the gap,

@@ -137,6 +137,19 @@ def _joined_along(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: fl
     return step_labels(out > 0, top, step, corners=True)
 
 
+def _beside_level_land(cells: np.ndarray, top: np.ndarray, gap: np.ndarray, step: float) -> np.ndarray:
+    """Which of *cells* have a side neighbour not over the *gap* whose top lies within *step* of theirs."""
+    out = np.zeros(cells.shape, dtype=bool)
+    land = ~gap & np.isfinite(top)
+    rows, cols = cells.shape
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        here = (slice(max(0, -dr), rows - max(0, dr)), slice(max(0, -dc), cols - max(0, dc)))
+        there = (slice(max(0, dr), rows - max(0, -dr)), slice(max(0, dc), cols - max(0, -dc)))
+        with np.errstate(invalid="ignore"):
+            out[here] |= cells[here] & land[there] & (np.abs(top[here] - top[there]) <= step)
+    return out
+
+
 def deck_cells(s: Surface, params, min_area: float) -> np.ndarray:
     """The cells of bridge decks (bool grid); *params*: :class:`~stages.classify_objects.params.BridgeParams`.
 
@@ -146,7 +159,8 @@ def deck_cells(s: Surface, params, min_area: float) -> np.ndarray:
     around them, :func:`wall_shares`) and that, with the pieces joined to
     them along the deck (:func:`_joined_along`), continue level into the
     ground at both ends (:func:`approach_ends`: cells not over a gap, or
-    holding ground at that level); with the cells of their side edges.
+    holding ground at that level); with the cells of their side edges (their neighbours over the gap that
+    are not planar, unless level with a side neighbour not over it: the bank beyond an end).
     """
 
     cell = s.grid.resolution
@@ -178,4 +192,6 @@ def deck_cells(s: Surface, params, min_area: float) -> np.ndarray:
         ok &= reached[region]
     decks = ok[labels]
     # with their side edges (not planar: the drop is in their 3 x 3 cells), not their approaches (not over a gap)
-    return decks | (ndimage.binary_dilation(decks, np.ones((3, 3), bool)) & gap & ~(s.residual <= planarity))
+    # nor the cells beside an approach (a bank beyond the deck's end: level with a cell not over the gap)
+    edges = ndimage.binary_dilation(decks, np.ones((3, 3), bool)) & gap & ~(s.residual <= planarity)
+    return decks | (edges & ~_beside_level_land(edges, s.top, gap, step))

@@ -330,7 +330,7 @@ class ObjectCells:
     ground: np.ndarray  # ground height (m) under each cell (NaN: no ground within max_size)
     rough: np.ndarray  # bool: vegetation cells (several returns around, or a rough or deep surface)
     decks: np.ndarray  # bool: the cells of bridge decks (:mod:`stages.classify_objects.bridges`)
-    deck_top: np.ndarray  # the lowest deck top among each cell's 3 x 3 (inf: none)
+    deck_top: np.ndarray  # the deck's surface at each deck cell: the median deck top of its 3 x 3 (inf: none)
     roof_top: np.ndarray  # the highest building point of a roof under a crown (inf: any height)
     eave: np.ndarray  # the highest roof top among each cell's 3 x 3 outside the roofs (NaN: none)
 
@@ -356,6 +356,26 @@ def vegetation_cells(s: Surface, params, multi_echo: bool) -> np.ndarray:
     return ~(s.residual <= params.roughness) | (s.top - s.bottom >= params.breaks[1])
 
 
+def _deck_surface(decks: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """The height of the deck's surface at each deck cell: the median top of the deck cells among its 3 x 3 (inf
+    elsewhere).  A railing's cell tops the deck by a metre, an approach's end cell lies below it: the median is
+    the surface's."""
+    out = np.full(decks.shape, np.inf)
+    r, c = np.nonzero(decks)
+    if len(r) == 0:
+        return out
+    rows, cols = decks.shape
+    around = np.full((len(r), 9), np.nan)
+    for i, (dr, dc) in enumerate((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)):
+        rr, cc = r + dr, c + dc
+        inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        rr, cc = rr.clip(0, rows - 1), cc.clip(0, cols - 1)
+        take = inside & decks[rr, cc]
+        around[take, i] = top[rr[take], cc[take]]
+    out[r, c] = np.nanmedian(around, axis=1)  # the cell itself is a deck cell: never all NaN
+    return out
+
+
 def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
     """The cell grids of buildings, their edges, the ground and vegetation: part (a) of :func:`object_classes`.
 
@@ -377,10 +397,7 @@ def object_cells(s: Surface, params, multi_echo: bool = True) -> ObjectCells:
     ground = ground_under(s, edges | decks, b.max_size / cell)
     v = params.vegetation
     rough = vegetation_cells(s, v, multi_echo) if v.enabled else np.zeros(s.top.shape, dtype=bool)
-    # the deck's surface: the lowest deck top among the 3 x 3 cells (a railing's cell tops it by a metre)
-    deck_top = (
-        ndimage.minimum_filter(np.where(decks, s.top, np.inf), size=3) if decks.any() else np.full(decks.shape, np.inf)
-    )
+    deck_top = _deck_surface(decks, s.top)
     # a roof under a crown takes its points up to its last returns' top (the crown's above it are vegetation)
     roof_top = np.where(under & ~decks, s.last_top + b.planarity, np.inf)
     eave = ndimage.maximum_filter(np.where(roofs, s.top, -np.inf), size=3)

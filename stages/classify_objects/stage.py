@@ -28,7 +28,7 @@ from stages.classify_objects.kernel import ObjectsKernel, reach, several_returns
 from stages.classify_objects.params import ClassifyObjectsParams
 
 
-class ClassifyObjects(Stage, name="classify_objects", version="7", params=ClassifyObjectsParams):
+class ClassifyObjects(Stage, name="classify_objects", version="8", params=ClassifyObjectsParams):
     """buildings (6), bridge decks (17) and vegetation (3, 4, 5) above the ground."""
 
     inputs = ("points_water",)

@@ -124,14 +124,10 @@ def _joined_along(labels: np.ndarray, top: np.ndarray, gap: np.ndarray, step: fl
     pieces, and its last cells before the road are not planar.  Grown along the level cells over the gap,
     the pieces join and reach their approaches.
     """
-    out = labels.copy()
+    over = np.where(gap, top, np.nan)  # cells off the gap are never free to grow into
+    out = labels
     for _ in range(reach):
-        free = (out == 0) & gap & np.isfinite(top)
-        before = out.copy()
-        for here, there, _, _ in neighbour_views(out.shape):
-            lab = before[there]
-            join = free[here] & (lab > 0) & (np.abs(top[here] - top[there]) <= step)
-            out[here] = np.where(join, np.maximum(out[here], lab), out[here])
+        out, before = grown(out, over, over, step), out
         if np.array_equal(out, before):
             break
     return step_labels(out > 0, top, step, corners=True)
@@ -141,10 +137,7 @@ def _beside_level_land(cells: np.ndarray, top: np.ndarray, gap: np.ndarray, step
     """Which of *cells* have a side neighbour not over the *gap* whose top lies within *step* of theirs."""
     out = np.zeros(cells.shape, dtype=bool)
     land = ~gap & np.isfinite(top)
-    rows, cols = cells.shape
-    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        here = (slice(max(0, -dr), rows - max(0, dr)), slice(max(0, -dc), cols - max(0, dc)))
-        there = (slice(max(0, dr), rows - max(0, -dr)), slice(max(0, dc), cols - max(0, -dc)))
+    for here, there, _, _ in neighbour_views(cells.shape, corners=False):
         with np.errstate(invalid="ignore"):
             out[here] |= cells[here] & land[there] & (np.abs(top[here] - top[there]) <= step)
     return out

@@ -48,17 +48,18 @@ def planar_segments(top: np.ndarray, residual: np.ndarray, planarity: float, ste
     return step_labels(residual <= planarity, top, step, corners=False)  # NaN residual: not planar
 
 
-def neighbour_views(shape: tuple[int, int], reach: int = 1):
+def neighbour_views(shape: tuple[int, int], reach: int = 1, corners: bool = True):
     """For each offset (dr, dc) within *reach* (not 0, 0): the slices of the cells and of their neighbours.
 
     Yields ``(here, there, r0, c0)``: ``array[there]`` holds, at each cell of
     ``array[here]``, its neighbour (r + dr, c + dc); ``r0, c0`` is the first
-    cell of *here*.
+    cell of *here*.  Without *corners*, only the offsets along a row or a
+    column.
     """
     rows, cols = shape
     for dr in range(-reach, reach + 1):
         for dc in range(-reach, reach + 1):
-            if dr == 0 and dc == 0:
+            if (dr == 0 and dc == 0) or (not corners and dr != 0 and dc != 0):
                 continue
             r0, r1 = max(0, -dr), rows - max(0, dr)
             c0, c1 = max(0, -dc), cols - max(0, dc)

@@ -3,7 +3,7 @@
 The simulator writes each echo's true class to ``truth/points.laz``, which
 the shipped sample leaves out: the sample is simulated again (same seed)
 into a temporary folder.  Each output point is matched to its echo by GPS
-time, return number, channel and scan angle.
+time, return number, channel and scan angle (``benchmarks/flight_classes.py``).
 """
 
 from __future__ import annotations
@@ -14,16 +14,11 @@ import laspy
 import numpy as np
 import pytest
 
+from benchmarks.flight_classes import true_classes
 from pipeline.cli import main
 from tests.conftest import run_until
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _keys(las: laspy.LasData) -> np.ndarray:
-    ms = np.round(np.asarray(las.gps_time) * 1e3).astype(np.int64)
-    key = (ms * 8 + np.asarray(las.return_number, np.int64)) * 16 + np.asarray(las.scanner_channel, np.int64)
-    return key * 100_000 + (np.asarray(las.scan_angle, np.int64) + 50_000)
 
 
 @pytest.mark.slow
@@ -33,12 +28,9 @@ def test_the_flight_finds_its_water_bridge_and_buildings(tmp_path):
     truth = laspy.read(str(tmp_path / "flight_ldmrs" / "truth" / "points.laz"))
     run_until(ROOT / "configs" / "flight.yaml", "export_las", tmp_path / "out")
     ours = laspy.read(str(tmp_path / "out" / "points.laz"))
-    kt, ko = _keys(truth), _keys(ours)
-    order = np.argsort(kt)
-    assert not np.any(np.diff(kt[order]) == 0)  # one echo per key
-    at = np.clip(np.searchsorted(kt[order], ko), 0, len(kt) - 1)
-    assert np.all(kt[order][at] == ko)  # every output point is an echo of the flight
-    true, got = np.asarray(truth.classification)[order][at], np.asarray(ours.classification)
+    true, found = true_classes(truth, ours)  # each output point's echo, matched by GPS time, channel, angle, return
+    assert found.all()  # every output point is an echo of the flight
+    got = np.asarray(ours.classification)
     for cls, least in ((9, 95.0), (17, 95.0), (6, 95.0)):
         hit = np.sum((true == cls) & (got == cls))
         assert 100.0 * hit / np.sum(true == cls) >= least, cls  # recall
